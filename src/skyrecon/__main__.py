@@ -1,0 +1,5 @@
+import sys
+
+from skyrecon.cli.main import main
+
+sys.exit(main())

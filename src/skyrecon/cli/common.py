@@ -1,0 +1,81 @@
+"""Shared command-line plumbing: a parser that reports errors in one line, and small helpers."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+from skyrecon.errors import InputError
+
+
+class UsageError(InputError):
+    """A command-line usage mistake (bad option or value)."""
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """argparse parser whose errors raise :class:`UsageError` instead of printing usage and exiting."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        raise UsageError(f"{message} (see '{self.prog} --help')")
+
+
+class ExampleFormatter(argparse.RawDescriptionHelpFormatter):
+    """Keeps the examples in the epilog as written."""
+
+
+def add_command(subparsers, name: str, help: str, description: str, examples: str) -> argparse.ArgumentParser:
+    """A subcommand parser with an ``Examples:`` epilog."""
+    return subparsers.add_parser(
+        name,
+        help=help,
+        description=description,
+        epilog="Examples:\n" + examples,
+        formatter_class=ExampleFormatter,
+    )
+
+
+def output_dir(path: str | Path) -> Path:
+    """Create the ``--out`` directory if missing; refuse a path that is a file."""
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise InputError("--out must be a directory, but a file of that name exists", p)
+    p.mkdir(parents=True, exist_ok=True)
+    return p
+
+
+def positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
+    return value
+
+
+def positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
+    if not value > 0 or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"expected a positive finite number, got {text}")
+    return value
+
+
+def info(message: str) -> None:
+    """A line of progress or summary for the person watching (stderr, so stdout stays clean)."""
+    print(message, file=sys.stderr, flush=True)
+
+
+@contextmanager
+def stage(name: str, timings: dict[str, float] | None = None) -> Iterator[None]:
+    """Time a stage; record its seconds in ``timings`` under ``name``."""
+    t0 = time.perf_counter()
+    yield
+    if timings is not None:
+        timings[name] = time.perf_counter() - t0

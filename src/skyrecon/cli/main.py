@@ -1,0 +1,94 @@
+"""Entry point of the ``skyrecon`` command.
+
+Exit status: 0 on success, 2 on bad input (one ``error: ...`` line on stderr),
+1 on an internal error, 130 when interrupted. ``--debug`` shows tracebacks.
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+import traceback
+from collections.abc import Sequence
+
+from skyrecon import __version__
+from skyrecon.cli.common import ExampleFormatter, OneLineParser
+from skyrecon.errors import EstimationError, InputError, SkyreconError
+
+# Command modules, in the order --help lists them. Each has add_parser(subparsers) and run(args) -> int.
+COMMANDS = ["render"]
+
+EXAMPLES = """Examples:
+  skyrecon render stereo --out scene/        # a synthetic stereo pair with ground truth
+  skyrecon render sequence --frames 30 --out flight/
+  skyrecon <command> --help                  # options and examples of one command
+"""
+
+
+def build_parser() -> OneLineParser:
+    parser = OneLineParser(
+        prog="skyrecon",
+        description="3D understanding of cities from drone cameras.",
+        epilog=EXAMPLES,
+        formatter_class=ExampleFormatter,
+    )
+    parser.add_argument("--version", action="version", version=f"skyrecon {__version__}")
+    parser.add_argument("--debug", action="store_true", help="show full tracebacks on errors")
+    parser.add_argument("--quiet", action="store_true", help="no progress bars or summaries")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=OneLineParser)
+    for name in COMMANDS:
+        importlib.import_module(f"skyrecon.cli.{name.replace('-', '_')}").add_parser(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line; returns the exit status (also used by ``python -m skyrecon``)."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    debug = "--debug" in argv
+    try:
+        parser = build_parser()
+        args = parser.parse_args(argv)
+        if args.command is None:
+            parser.print_help()
+            return 0
+        if args.quiet:
+            from skyrecon.progress import set_progress_enabled
+
+            set_progress_enabled(False)
+        module = importlib.import_module(f"skyrecon.cli.{args.command.replace('-', '_')}")
+        return int(module.run(args) or 0)
+    except (InputError, EstimationError) as exc:
+        if debug:
+            traceback.print_exc()
+        print(f"error: {_one_line(exc)}", file=sys.stderr)
+        return 2
+    except SkyreconError as exc:
+        if debug:
+            traceback.print_exc()
+        print(f"error: {_one_line(exc)}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("error: interrupted; outputs already written are complete, the rest were not written", file=sys.stderr)
+        return 130
+    except MemoryError:
+        if debug:
+            traceback.print_exc()
+        print("error: out of memory; use smaller images or fewer views at a time", file=sys.stderr)
+        return 1
+    except Exception as exc:  # an internal bug: say so, in one line unless --debug
+        if debug:
+            traceback.print_exc()
+        print(
+            f"internal error: {type(exc).__name__}: {_one_line(exc)} "
+            "(this is a bug in skyrecon; rerun with --debug and report the traceback)",
+            file=sys.stderr,
+        )
+        return 1
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
+if __name__ == "__main__":
+    sys.exit(main())

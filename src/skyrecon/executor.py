@@ -1,0 +1,121 @@
+"""One interface for fanning out per-item work (per image, per pair, per view).
+
+Stages call ``executor.map(fn, items)`` and never care where the work runs.
+``SerialExecutor`` runs in-process (debugging, tiny inputs); ``ProcessExecutor``
+uses local worker processes. A cluster engine plugs in by implementing
+:class:`Executor` (one method) and registering it with :func:`register_executor`.
+
+``fn`` must be picklable (a module-level function or a ``functools.partial`` of
+one) for process execution. Results come back in input order.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+from collections.abc import Callable, Iterable, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from typing import Protocol, TypeVar
+
+from skyrecon.errors import InputError
+from skyrecon.progress import progress
+
+T = TypeVar("T")
+R = TypeVar("R")
+
+
+class Executor(Protocol):
+    """Runs ``fn`` over items and returns the results in input order."""
+
+    def map(self, fn: Callable[[T], R], items: Iterable[T], *, desc: str | None = None) -> list[R]:
+        ...
+
+
+class SerialExecutor:
+    """Runs every item in this process, in order. Exceptions surface unchanged."""
+
+    workers = 1
+
+    def map(self, fn: Callable[[T], R], items: Iterable[T], *, desc: str | None = None) -> list[R]:
+        items = list(items)
+        return [fn(item) for item in progress(items, desc=desc, total=len(items))]
+
+
+class ProcessExecutor:
+    """Runs items on local worker processes (``forkserver`` start, safe with Numba threads).
+
+    Args:
+        workers: number of processes; default ``os.cpu_count()``.
+        max_tasks_in_flight: bound on queued items so memory stays bounded
+            when items are large (default ``4 * workers``).
+    """
+
+    def __init__(self, workers: int | None = None, max_tasks_in_flight: int | None = None):
+        self.workers = max(1, workers or os.cpu_count() or 1)
+        self.max_tasks_in_flight = max_tasks_in_flight or 4 * self.workers
+
+    def map(self, fn: Callable[[T], R], items: Iterable[T], *, desc: str | None = None) -> list[R]:
+        items = list(items)
+        if self.workers == 1 or len(items) <= 1:
+            return SerialExecutor().map(fn, items, desc=desc)
+        ctx = multiprocessing.get_context("forkserver")
+        results: list = [None] * len(items)
+        with ProcessPoolExecutor(max_workers=min(self.workers, len(items)), mp_context=ctx) as pool:
+            pending: dict = {}
+            next_index = 0
+            bar = progress(total=len(items), desc=desc)
+            try:
+                while next_index < len(items) or pending:
+                    while next_index < len(items) and len(pending) < self.max_tasks_in_flight:
+                        pending[pool.submit(fn, items[next_index])] = next_index
+                        next_index += 1
+                    done = next(iter(_wait_first(pending)))
+                    index = pending.pop(done)
+                    results[index] = done.result()  # re-raises the worker's exception
+                    bar.update(1)
+            except BaseException:
+                for fut in pending:
+                    fut.cancel()
+                raise
+            finally:
+                bar.close()
+        return results
+
+
+def _wait_first(pending: dict) -> set:
+    from concurrent.futures import FIRST_COMPLETED, wait
+
+    done, _ = wait(list(pending), return_when=FIRST_COMPLETED)
+    return done
+
+
+_REGISTRY: dict[str, Callable[[int | None], Executor]] = {
+    "serial": lambda workers: SerialExecutor(),
+    "process": lambda workers: ProcessExecutor(workers),
+}
+
+
+def register_executor(name: str, factory: Callable[[int | None], Executor]) -> None:
+    """Make ``get_executor(name)`` return ``factory(workers)`` (e.g. a cluster engine)."""
+    _REGISTRY[name] = factory
+
+
+def available_executors() -> Sequence[str]:
+    return sorted(_REGISTRY)
+
+
+def get_executor(kind: str | None = None, workers: int | None = None) -> Executor:
+    """The executor named ``kind`` (``serial``, ``process`` or a registered one).
+
+    ``None`` reads ``$SKYRECON_EXECUTOR`` and defaults to ``process``; ``workers``
+    defaults to ``$SKYRECON_WORKERS`` or the CPU count.
+    """
+    kind = kind or os.environ.get("SKYRECON_EXECUTOR", "process")
+    if workers is None and os.environ.get("SKYRECON_WORKERS"):
+        try:
+            workers = int(os.environ["SKYRECON_WORKERS"])
+        except ValueError:
+            raise InputError(f"SKYRECON_WORKERS must be an integer, got {os.environ['SKYRECON_WORKERS']!r}") from None
+    if kind not in _REGISTRY:
+        raise InputError(f"unknown executor {kind!r}; choose one of {', '.join(available_executors())}")
+    return _REGISTRY[kind](workers)

@@ -1,0 +1,1 @@
+"""Figures and HTML reports for people to look at."""

@@ -1,0 +1,50 @@
+"""The command line's contract: help, version, one-line errors with exit status 2."""
+
+import subprocess
+import sys
+
+import pytest
+
+from skyrecon import __version__
+from skyrecon.cli.main import main
+
+
+def run_cli(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "skyrecon", *args], capture_output=True, text=True, timeout=300)
+
+
+def test_help_and_version(capsys):
+    assert main([]) == 0
+    assert "Examples:" in capsys.readouterr().out
+    with pytest.raises(SystemExit) as exc:
+        main(["--version"])
+    assert exc.value.code == 0
+    assert __version__ in capsys.readouterr().out
+
+
+def test_every_command_has_help_with_an_example(capsys):
+    from skyrecon.cli.main import COMMANDS
+
+    for name in COMMANDS:
+        with pytest.raises(SystemExit) as exc:
+            main([name, "--help"])
+        assert exc.value.code == 0
+        out = capsys.readouterr().out
+        assert "Examples:" in out and f"skyrecon {name} " in out.split("Examples:")[1]
+
+
+def test_usage_errors_are_one_line_exit_2():
+    result = run_cli("render", "stereo", "--out", "x", "--width", "abc")
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error:") and "--width" in lines[0]
+    result = run_cli("no-such-command")
+    assert result.returncode == 2 and result.stderr.strip().startswith("error:")
+
+
+def test_out_is_a_file(tmp_path, capsys):
+    f = tmp_path / "file"
+    f.write_text("x")
+    assert main(["render", "stereo", "--out", str(f)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(f) in err[0] and "directory" in err[0]
