@@ -104,6 +104,18 @@ def _nums(tokens: list[str], path: Path, line_no: int, what: str, kind: type = f
     return out
 
 
+def _array(tokens: list[str], path: Path, line_no: int, what: str, kind: type = float) -> np.ndarray:
+    """Vectorised :func:`_nums`: float64 or int64 array, same errors."""
+    try:
+        arr = np.asarray(tokens, dtype=str).astype(np.float64 if kind is float else np.int64)
+    except (ValueError, OverflowError):
+        _nums(tokens, path, line_no, what, kind)  # raises with the offending token
+        raise  # pragma: no cover
+    if kind is float and not np.all(np.isfinite(arr)):
+        raise InputError(f"line {line_no}: {what} contains NaN or infinite values", path)
+    return arr
+
+
 # ----------------------------------------------------------------------------------------------
 # cameras
 # ----------------------------------------------------------------------------------------------
@@ -248,14 +260,10 @@ def _read_images(path: Path) -> dict[int, Image]:
                 "(the line is truncated, or the POINTS2D line is missing)",
                 path,
             )
-        if ptok:
-            arr = np.array(ptok, dtype=object).reshape(-1, 3)
-            xy = np.array(_nums(list(arr[:, :2].ravel()), path, pts_no, f"keypoints of {name}")).reshape(-1, 2)
-            ids = np.array(_nums(list(arr[:, 2]), path, pts_no, f"POINT3D_IDs of {name}", int), dtype=np.int64)
-            xy -= _PIXEL_OFFSET
-        else:
-            xy = np.zeros((0, 2))
-            ids = np.zeros(0, dtype=np.int64)
+        triples = np.asarray(ptok, dtype=str).reshape(-1, 3)
+        xy = _array(triples[:, :2].ravel().tolist(), path, pts_no, f"keypoints of {name}").reshape(-1, 2)
+        xy -= _PIXEL_OFFSET
+        ids = _array(triples[:, 2].tolist(), path, pts_no, f"POINT3D_IDs of {name}", int)
         if image_id in images:
             raise InputError(f"line {line_no}: image id {image_id} appears twice", path)
         pose = Rigid3(quaternion_to_matrix(q), t, "cam", "world")
@@ -279,7 +287,7 @@ def _read_points(path: Path) -> dict[int, Point3D]:
         if not all(0 <= c <= 255 for c in rgb):
             raise InputError(f"line {line_no}: colour {rgb} is outside 0..255", path)
         err = _nums([tok[7]], path, line_no, "ERROR")[0]
-        track = np.array(_nums(tok[8:], path, line_no, "track", int), dtype=np.int64).reshape(-1, 2)
+        track = _array(tok[8:], path, line_no, "track", int).reshape(-1, 2)
         if pid in points:
             raise InputError(f"line {line_no}: point id {pid} appears twice", path)
         points[pid] = Point3D(pid, np.array(xyz), np.array(rgb, dtype=np.uint8), err, track)

@@ -43,6 +43,51 @@ def read_image_with_alpha(path: str | Path, mode: Mode = "rgb") -> tuple[np.ndar
     """
     path = Path(path)
     _check_file(path)
+    if _is_16bit_colour_png(path):
+        arr, alpha = _read_16bit_colour_png(path)
+        pil_mode = "RGB16"
+    else:
+        arr, alpha, pil_mode = _read_with_pil(path)
+    if pil_mode == "LA":
+        arr, alpha = arr[..., 0], arr[..., 1]
+    elif pil_mode == "RGBA":
+        arr, alpha = arr[..., :3], arr[..., 3]
+
+    if mode == "unchanged":
+        return np.ascontiguousarray(arr), alpha
+    if arr.dtype == np.uint16:
+        arr = ((arr.astype(np.uint32) + 128) // 257).astype(np.uint8)
+        if alpha is not None:
+            alpha = ((alpha.astype(np.uint32) + 128) // 257).astype(np.uint8)
+    if mode == "rgb":
+        if arr.ndim == 2:
+            arr = np.repeat(arr[..., None], 3, axis=2)
+        return np.ascontiguousarray(arr), alpha
+    if mode == "gray":
+        return to_gray(arr), alpha
+    raise ValueError(f"unknown mode {mode!r}")
+
+
+def _is_16bit_colour_png(path: Path) -> bool:
+    """True for a PNG whose IHDR says 16 bits per sample and colour (with or without alpha)."""
+    with open(path, "rb") as f:
+        head = f.read(26)
+    return len(head) == 26 and head[:8] == b"\x89PNG\r\n\x1a\n" and head[24] == 16 and head[25] in (2, 6)
+
+
+def _read_16bit_colour_png(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
+    """Pillow keeps only 8 bits of 16-bit colour PNGs; OpenCV reads them whole (BGR[A] -> RGB)."""
+    import cv2
+
+    arr = cv2.imdecode(np.fromfile(path, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+    if arr is None or arr.ndim != 3:
+        raise InputError("cannot decode image; the file is corrupt or truncated", path)
+    alpha = arr[..., 3].copy() if arr.shape[2] == 4 else None
+    return np.ascontiguousarray(arr[..., 2::-1]), alpha
+
+
+def _read_with_pil(path: Path) -> tuple[np.ndarray, np.ndarray | None, str]:
+    """Decode with Pillow; returns (array, alpha placeholder None, Pillow mode after normalising)."""
     try:
         with PILImage.open(path) as im:
             im.load()
@@ -69,26 +114,7 @@ def read_image_with_alpha(path: str | Path, mode: Mode = "rgb") -> tuple[np.ndar
         raise
     except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as exc:
         raise InputError(f"cannot decode image ({exc}); the file is corrupt or truncated", path) from None
-
-    alpha = None
-    if pil_mode == "LA":
-        arr, alpha = arr[..., 0], arr[..., 1]
-    elif pil_mode == "RGBA":
-        arr, alpha = arr[..., :3], arr[..., 3]
-
-    if mode == "unchanged":
-        return np.ascontiguousarray(arr), alpha
-    if arr.dtype == np.uint16:
-        arr = ((arr.astype(np.uint32) + 128) // 257).astype(np.uint8)
-        if alpha is not None:
-            alpha = ((alpha.astype(np.uint32) + 128) // 257).astype(np.uint8)
-    if mode == "rgb":
-        if arr.ndim == 2:
-            arr = np.repeat(arr[..., None], 3, axis=2)
-        return np.ascontiguousarray(arr), alpha
-    if mode == "gray":
-        return to_gray(arr), alpha
-    raise ValueError(f"unknown mode {mode!r}")
+    return arr, None, pil_mode
 
 
 def read_image(path: str | Path, mode: Mode = "rgb") -> np.ndarray:

@@ -53,7 +53,7 @@ _DEFAULT_MIDDLEBURY_SIZE = (640, 480)
 # ----------------------------------------------------------------------------------------------
 # small parsing helpers
 # ----------------------------------------------------------------------------------------------
-def _where(path: Path, line_no: int | None) -> str:
+def _where(line_no: int | None) -> str:
     return f"line {line_no}: " if line_no is not None else ""
 
 
@@ -63,9 +63,9 @@ def _floats(tokens: Sequence[str], path: Path, line_no: int | None, what: str) -
         vals = np.array([float(tok) for tok in tokens], dtype=np.float64)
     except ValueError:
         bad = next(tok for tok in tokens if not _is_float(tok))
-        raise InputError(f"{_where(path, line_no)}{what}: {bad!r} is not a number", path) from None
+        raise InputError(f"{_where(line_no)}{what}: {bad!r} is not a number", path) from None
     if not np.all(np.isfinite(vals)):
-        raise InputError(f"{_where(path, line_no)}{what} contains NaN or infinite values", path)
+        raise InputError(f"{_where(line_no)}{what} contains NaN or infinite values", path)
     return vals
 
 
@@ -84,7 +84,7 @@ def _rotation(R: np.ndarray, path: Path, line_no: int | None, what: str) -> np.n
     det = float(np.linalg.det(R))
     if err > ROTATION_TOL or det <= 0:
         raise InputError(
-            f"{_where(path, line_no)}{what} is not a rotation matrix (orthogonality error {err:.2e}, "
+            f"{_where(line_no)}{what} is not a rotation matrix (orthogonality error {err:.2e}, "
             f"det {det:.4f}); check the file format and the column order",
             path,
         )
@@ -111,7 +111,7 @@ def _intrinsics(K: np.ndarray, width: int, height: int, path: Path, line_no: int
     try:
         return Intrinsics.from_K(K, width, height)
     except InputError as exc:
-        raise InputError(f"{_where(path, line_no)}bad calibration matrix: {exc.reason}", path) from None
+        raise InputError(f"{_where(line_no)}bad calibration matrix: {exc.reason}", path) from None
 
 
 def image_size_from_header(path: str | Path) -> tuple[int, int] | None:
@@ -159,9 +159,10 @@ def read_middlebury_par(
     Args:
         path: the ``*_par.txt`` file.
         image_dir: directory holding the images; defaults to the file's directory.
-        width, height: image size in pixels. When not given, the size is read from the header of
-            the first image found; if no image is found, 640x480 (the Middlebury multi-view size)
-            is assumed and a ``UserWarning`` says so.
+        width, height: image size in pixels, for every view. When not given, each view's size is
+            read from its image file's header (without decoding the pixels); views whose image is
+            missing take the size of the first image found; if no image is found, 640x480 (the
+            Middlebury multi-view size) is assumed and a ``UserWarning`` says so.
     Returns:
         One ``PosedView`` per line, in file order; ``name`` is the image file name and
         ``image_path`` is set when that file exists in ``image_dir``.
@@ -195,21 +196,22 @@ def read_middlebury_par(
 
     if (width is None) != (height is None):
         raise InputError("give both width and height, or neither", path)
+    sizes: dict[str, tuple[int, int] | None] = {}
     if width is None:
-        size = None
-        for _, ln in rows:
-            size = image_size_from_header(image_dir / ln.split()[0])
-            if size is not None:
-                break
-        if size is None:
-            size = _DEFAULT_MIDDLEBURY_SIZE
+        sizes = {ln.split()[0]: image_size_from_header(image_dir / ln.split()[0]) for _, ln in rows}
+        found = [sz for sz in sizes.values() if sz is not None]
+        if found:
+            default_size = found[0]
+        else:
+            default_size = _DEFAULT_MIDDLEBURY_SIZE
             warnings.warn(
-                f"{path}: no image found in {image_dir} to read the image size from; "
-                f"assuming {size[0]}x{size[1]} (pass width/height to override)",
+                f"{path}: no image found in {image_dir} to read the image size from; assuming "
+                f"{default_size[0]}x{default_size[1]} (pass width/height to override)",
                 UserWarning,
                 stacklevel=2,
             )
-        width, height = size
+    else:
+        default_size = (int(width), int(height))
 
     views: list[PosedView] = []
     for line_no, ln in rows:
@@ -225,8 +227,9 @@ def read_middlebury_par(
         K = vals[0:9].reshape(3, 3)
         R = _rotation(vals[9:18].reshape(3, 3), path, line_no, f"R of {name}")
         t = vals[18:21]
+        w, h = sizes.get(name) or default_size
         views.append(
-            PosedView(name, _intrinsics(K, width, height, path, line_no), Rigid3(R, t, "cam", "world"),
+            PosedView(name, _intrinsics(K, w, h, path, line_no), Rigid3(R, t, "cam", "world"),
                       _image_path(image_dir, name))
         )
     _check_unique_names(views, path)
@@ -361,8 +364,9 @@ def _read_halcon_intrinsics(path: Path) -> Intrinsics:
         )
     nonzero = {k: v for k, v in values.items() if k in _HALCON_DISTORTION and v != 0}
     if nonzero:
+        kind = "polynomial" if any(k.startswith("Poly") for k in nonzero) else "lens"
         raise InputError(
-            f"HALCON lens distortion is not supported ({', '.join(f'{k}={v:g}' for k, v in nonzero.items())}); "
+            f"HALCON {kind} distortion is not supported ({', '.join(f'{k}={v:g}' for k, v in nonzero.items())}); "
             "undistort the images first (e.g. HALCON change_radial_distortion_image) and use the "
             "distortion-free camera parameters",
             path,

@@ -107,7 +107,7 @@ def encode_pfm(array: np.ndarray) -> bytes:
         raise InputError(f"cannot write an empty {a.shape} array as PFM")
     if not (np.issubdtype(a.dtype, np.floating) or np.issubdtype(a.dtype, np.integer) or a.dtype == bool):
         raise InputError(f"PFM holds numbers, got dtype {a.dtype}")
-    out = np.ascontiguousarray(a[::-1], dtype="<f4")
+    out = np.array(a[::-1], dtype="<f4", order="C", copy=True)  # never modify the caller's array
     out[np.isnan(out)] = np.inf
     magic = "PF" if a.ndim == 3 else "Pf"
     header = f"{magic}\n{a.shape[1]} {a.shape[0]}\n-1\n".encode("ascii")

@@ -1,0 +1,1 @@
+"""Evaluation against ground truth: metrics and reference geometry built from known cameras."""
