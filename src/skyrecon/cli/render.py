@@ -51,7 +51,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--width", type=positive_int, default=640, help="image width in pixels (default 640)")
     p.add_argument("--height", type=positive_int, default=480, help="image height in pixels (default 480)")
     p.add_argument("--hfov", type=positive_float, default=90.0, help="horizontal field of view, degrees (default 90)")
-    p.add_argument("--baseline", type=positive_float, default=0.12, help="stereo baseline, metres (default 0.12)")
+    p.add_argument("--baseline", type=positive_float, default=0.3, help="stereo baseline, metres (default 0.3)")
     p.add_argument("--frames", type=positive_int, default=30, help="sequence: number of frames (default 30)")
     p.add_argument("--views", type=positive_int, default=12, help="ring/images: number of views (default 12)")
     p.add_argument("--city-size", type=positive_float, default=200.0, help="city side length, metres (default 200)")
