@@ -27,15 +27,24 @@ class ExampleFormatter(argparse.RawDescriptionHelpFormatter):
     """Keeps the examples in the epilog as written."""
 
 
+def add_global_options(parser: argparse.ArgumentParser, suppress_defaults: bool = False) -> None:
+    """``--debug`` and ``--quiet``, accepted before or after the command name."""
+    default = {"default": argparse.SUPPRESS} if suppress_defaults else {}
+    parser.add_argument("--debug", action="store_true", help="show full tracebacks on errors", **default)
+    parser.add_argument("--quiet", action="store_true", help="no progress bars or summaries", **default)
+
+
 def add_command(subparsers, name: str, help: str, description: str, examples: str) -> argparse.ArgumentParser:
-    """A subcommand parser with an ``Examples:`` epilog."""
-    return subparsers.add_parser(
+    """A subcommand parser with an ``Examples:`` epilog and the global options."""
+    parser = subparsers.add_parser(
         name,
         help=help,
         description=description,
         epilog="Examples:\n" + examples,
         formatter_class=ExampleFormatter,
     )
+    add_global_options(parser, suppress_defaults=True)
+    return parser
 
 
 def output_dir(path: str | Path) -> Path:

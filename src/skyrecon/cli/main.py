@@ -12,7 +12,7 @@ import traceback
 from collections.abc import Sequence
 
 from skyrecon import __version__
-from skyrecon.cli.common import ExampleFormatter, OneLineParser
+from skyrecon.cli.common import ExampleFormatter, OneLineParser, add_global_options
 from skyrecon.errors import EstimationError, InputError, SkyreconError
 
 # Command modules, in the order --help lists them. Each has add_parser(subparsers) and run(args) -> int.
@@ -33,8 +33,7 @@ def build_parser() -> OneLineParser:
         formatter_class=ExampleFormatter,
     )
     parser.add_argument("--version", action="version", version=f"skyrecon {__version__}")
-    parser.add_argument("--debug", action="store_true", help="show full tracebacks on errors")
-    parser.add_argument("--quiet", action="store_true", help="no progress bars or summaries")
+    add_global_options(parser)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=OneLineParser)
     for name in COMMANDS:
         importlib.import_module(f"skyrecon.cli.{name.replace('-', '_')}").add_parser(sub)
