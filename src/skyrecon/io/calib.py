@@ -370,3 +370,122 @@ def write_kitti_calib(path: str | Path, rig: StereoRig) -> None:
     except InputError as exc:
         raise InputError(exc.reason, path) from None
     write_text_atomic(path, text)
+
+
+# ----- any stereo calibration ------------------------------------------------------------
+@dataclass(frozen=True)
+class StereoCalibration:
+    """A stereo calibration of any supported format.
+
+    Attributes:
+        rig: the two cameras and ``right_from_left`` (metres); rectified for Middlebury and
+            KITTI files, possibly unrectified (with distortion) for OpenCV files.
+        max_disparity: the file's disparity bound (Middlebury ``ndisp``), pixels, or None.
+        kind: ``"middlebury"``, ``"kitti"`` or ``"opencv"``.
+    """
+
+    rig: StereoRig
+    max_disparity: int | None
+    kind: str
+
+
+_OPENCV_KEYS = {
+    "K1": ("K1", "M1", "cameraMatrix1", "camera_matrix_left", "KL"),
+    "D1": ("D1", "distCoeffs1", "dist_coeffs_left", "DL"),
+    "K2": ("K2", "M2", "cameraMatrix2", "camera_matrix_right", "KR"),
+    "D2": ("D2", "distCoeffs2", "dist_coeffs_right", "DR"),
+    "R": ("R",),
+    "T": ("T",),
+}
+
+
+def read_opencv_stereo_calib(path: str | Path, width: int, height: int) -> StereoRig:
+    """Read an OpenCV ``FileStorage`` stereo calibration (YAML, XML or JSON).
+
+    The file holds what ``cv2.stereoCalibrate`` returns: ``K1``/``M1``, ``D1``, ``K2``/``M2``,
+    ``D2``, ``R`` and ``T`` with ``x_right = R x_left + T`` (T in metres: calibrate with the
+    pattern's square size in metres). Optional ``width``/``height`` or ``imageSize`` must agree
+    with the images. Distortion may have at most 5 coefficients (k1 k2 p1 p2 k3).
+
+    Returns:
+        StereoRig, generally not rectified (rectify with ``skyrecon.stereo.rectify_rig``).
+    """
+    import cv2
+
+    path = Path(path)
+    _read_text(path, "OpenCV stereo calibration")
+    try:
+        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    except cv2.error as exc:
+        raise InputError(f"cannot parse the OpenCV calibration ({' '.join(str(exc).split())[:120]})", path) from None
+    try:
+        values: dict[str, np.ndarray] = {}
+        for name, keys in _OPENCV_KEYS.items():
+            for key in keys:
+                node = fs.getNode(key)
+                if not node.empty():
+                    m = node.mat()
+                    values[name] = np.asarray(m if m is not None else node.real(), dtype=np.float64)
+                    break
+        size_node = fs.getNode("imageSize")
+        file_size = None
+        if not size_node.empty():
+            m = size_node.mat()
+            file_size = tuple(int(v) for v in (np.asarray(m).ravel() if m is not None else []))
+        elif not fs.getNode("width").empty() and not fs.getNode("height").empty():
+            file_size = (int(fs.getNode("width").real()), int(fs.getNode("height").real()))
+    finally:
+        fs.release()
+    missing = [n for n in ("K1", "K2", "R", "T") if n not in values]
+    if missing:
+        raise InputError(f"missing {', '.join(missing)} in the OpenCV stereo calibration (need K1 D1 K2 D2 R T)", path)
+    if file_size and tuple(file_size[:2]) != (width, height):
+        raise InputError(
+            f"the calibration is for {file_size[0]}x{file_size[1]} images but the images are {width}x{height}", path
+        )
+    for name, arr in values.items():
+        if not np.all(np.isfinite(arr)):
+            raise InputError(f"{name} contains NaN or infinite values", path)
+    try:
+        left = Intrinsics.from_K(values["K1"].reshape(3, 3), width, height, values.get("D1", np.zeros(5)).ravel())
+        right = Intrinsics.from_K(values["K2"].reshape(3, 3), width, height, values.get("D2", np.zeros(5)).ravel())
+        right_from_left = Rigid3(values["R"].reshape(3, 3), values["T"].ravel())
+    except (InputError, ValueError) as exc:
+        raise InputError(getattr(exc, "reason", str(exc)), path) from None
+    return StereoRig(left, right, right_from_left)
+
+
+def read_stereo_calib(path: str | Path, width: int, height: int) -> StereoCalibration:
+    """Read a stereo calibration, recognising the format from the file's content.
+
+    Accepts a Middlebury 2014 ``calib.txt`` (``cam0=`` lines), a KITTI file (``P2:``/``P3:`` or
+    ``P_rect_02``/``P_rect_03``), or an OpenCV FileStorage file (``.yml``/``.yaml``/``.xml``/
+    ``.json`` with K1 D1 K2 D2 R T).
+
+    Args:
+        path: the calibration file.
+        width, height: size of the images it must describe, pixels.
+    Raises:
+        InputError: unknown format, or a calibration for another image size.
+    """
+    path = Path(path)
+    text = _read_text(path, "stereo calibration")
+    if path.suffix.lower() in (".yml", ".yaml", ".xml", ".json") or text.lstrip().startswith(("%YAML", "<?xml")):
+        return StereoCalibration(read_opencv_stereo_calib(path, width, height), None, "opencv")
+    if re.search(r"^\s*cam0\s*=", text, re.M):
+        calib = read_middlebury_calib(path)
+        if (calib.width, calib.height) != (width, height):
+            raise InputError(
+                f"the calibration is for {calib.width}x{calib.height} images but the images are {width}x{height}; "
+                "use the calib.txt of the same resolution",
+                path,
+            )
+        return StereoCalibration(calib.rig, calib.ndisp, "middlebury")
+    if re.search(r"^\s*(P2|P_rect_02)\s*:", text, re.M):
+        kitti = read_kitti_calib(path, width, height)
+        return StereoCalibration(kitti.rig, None, "kitti")
+    raise InputError(
+        "unknown stereo calibration format: expected a Middlebury calib.txt (cam0=...), a KITTI file "
+        "(P2:/P3: lines) or an OpenCV YAML/XML/JSON file with K1 D1 K2 D2 R T",
+        path,
+    )
