@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from skyrecon.cli.common import add_command, info, output_dir, positive_float, positive_int
-from skyrecon.core import Image, Intrinsics, Reconstruction, StereoRig
+from skyrecon.core import Image, Intrinsics, Reconstruction
 from skyrecon.io.atomic import write_text_atomic
 from skyrecon.io.images import write_image
 from skyrecon.progress import progress

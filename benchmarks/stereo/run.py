@@ -1,0 +1,166 @@
+"""Stereo benchmark: skyrecon's matcher (default and fast) against OpenCV SGBM, side by side.
+
+    python benchmarks/stereo/run.py [--runs 9] [--no-sim] [--threads N]
+
+Pairs: Middlebury 2003 Cones and KITTI 2015 000046 (from $SKYRECON_DATA, default
+../shared/data) and three synthetic-city street views with exact ground truth. OpenCV SGBM runs
+with the reference configuration: mode SGBM_3WAY, block size 5, P1 = 8*3*5^2, P2 = 32*3*5^2,
+uniqueness 10, speckle window 100, speckle range 2, disp12MaxDiff 1, colour input,
+numDisparities = the scene's largest ground-truth disparity rounded up to 16 (KITTI is also
+run with 192, the range of the issue's reference numbers). Every method searches the same
+range.
+
+Error: bad-1px for Cones and the synthetic pairs, KITTI D1 (> 3 px and > 5 %) for KITTI; pixels
+without a prediction count as errors (see skyrecon.eval.stereo_metrics). Time: wall-clock
+median of ``--runs`` runs after two warm-up runs, methods interleaved so that background load
+hits them alike. Ratios are skyrecon / OpenCV (below 1 is better). Finally the fast setting is
+timed at 640x480 with 128 disparities (frames per second).
+
+This is a plain script: it prints a table and never fails for being slow.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT / "src"))
+
+from skyrecon.eval.stereo_metrics import evaluate_disparity  # noqa: E402
+from skyrecon.io.disparity import read_kitti_disparity_png, read_middlebury_disparity_pgm  # noqa: E402
+from skyrecon.io.images import read_image  # noqa: E402
+from skyrecon.stereo import create_matcher  # noqa: E402
+from skyrecon.stereo.sgm import available_cores  # noqa: E402
+
+OPENCV_REFERENCE = dict(mode="sgbm_3way", block_size=5, P1=8 * 3 * 5**2, P2=32 * 3 * 5**2, uniqueness_ratio=10,
+                        speckle_window_size=100, speckle_range=2, disp12_max_diff=1, use_colour=True)
+METHODS = ("opencv-sgbm", "skyrecon", "skyrecon-fast")
+
+
+def data_root() -> Path:
+    env = os.environ.get("SKYRECON_DATA")
+    return Path(env) if env else ROOT.parent / "shared" / "data"
+
+
+def round16(x: float) -> int:
+    return int(np.ceil(x / 16.0) * 16)
+
+
+def load_pairs(use_sim: bool) -> list[tuple[str, np.ndarray, np.ndarray, np.ndarray, int, str]]:
+    """(name, left, right, gt, max_disparity, metric) for every available pair."""
+    pairs = []
+    root = data_root()
+    cones = root / "middlebury-2003-cones" / "cones"
+    if cones.is_dir():
+        gt = read_middlebury_disparity_pgm(cones / "disp2.pgm", scale=4)
+        pairs.append(("cones", read_image(cones / "im2.png"), read_image(cones / "im6.png"), gt,
+                       round16(np.nanmax(gt)), "bad1"))
+    else:
+        print(f"(Cones not found under {root}; skipped)")
+    kitti = root / "kitti2015-stereo-sample" / "training"
+    if kitti.is_dir():
+        gt = read_kitti_disparity_png(kitti / "disp_occ_0" / "000046_10.png")
+        left = read_image(kitti / "image_2" / "000046_10.png")
+        right = read_image(kitti / "image_3" / "000046_10.png")
+        pairs.append(("kitti-000046", left, right, gt, round16(np.nanmax(gt)), "d1"))
+        pairs.append(("kitti-000046 (192)", left, right, gt, 192, "d1"))
+    else:
+        print(f"(KITTI not found under {root}; skipped)")
+    if use_sim:
+        try:
+            from skyrecon.sim import default_rig, generate_city, render_stereo, street_view_pose
+        except ImportError:
+            print("(skyrecon.sim not available; synthetic pairs skipped)")
+        else:
+            rig = default_rig()
+            for seed in (1, 2, 3):
+                city = generate_city(seed)
+                f = render_stereo(city, rig, street_view_pose(city, seed))
+                gt = f.disparity_left_px
+                pairs.append((f"city-{seed}", f.left, f.right, gt, round16(np.nanmax(gt)), "bad1"))
+    return pairs
+
+
+def make(method: str, max_disparity: int, threads: int | None):
+    if method == "opencv-sgbm":
+        return create_matcher(method, max_disparity, **OPENCV_REFERENCE)
+    return create_matcher(method, max_disparity, threads=threads)
+
+
+def time_interleaved(matchers: dict, left: np.ndarray, right: np.ndarray, runs: int) -> dict[str, float]:
+    """Median milliseconds per method; two warm-up runs, then ``runs`` interleaved rounds."""
+    times: dict[str, list[float]] = {k: [] for k in matchers}
+    for _ in range(2):
+        for m in matchers.values():
+            m.compute(left, right)
+    for _ in range(runs):
+        for k, m in matchers.items():
+            t = time.perf_counter()
+            m.compute(left, right)
+            times[k].append((time.perf_counter() - t) * 1e3)
+    return {k: float(np.median(v)) for k, v in times.items()}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--runs", type=int, default=9, help="timed runs per method and pair (median reported)")
+    ap.add_argument("--no-sim", action="store_true", help="skip the synthetic-city pairs")
+    ap.add_argument("--threads", type=int, default=None, help="skyrecon worker threads (default: all cores)")
+    args = ap.parse_args()
+
+    import cv2
+
+    print(f"cores available: {available_cores()}, OpenCV threads: {cv2.getNumThreads()}, "
+          f"load average: {os.getloadavg()[0]:.2f}")
+    pairs = load_pairs(not args.no_sim)
+    header = (f"{'pair':20s} {'D':>4s} {'method':14s} {'metric':6s} {'error %':>8s} {'density %':>9s} "
+              f"{'ms':>8s} {'err/ocv':>8s} {'time/ocv':>8s}")
+    print(header)
+    print("-" * len(header))
+    summary = []
+    for name, left, right, gt, D, metric in pairs:
+        matchers = {m: make(m, D, args.threads) for m in METHODS}
+        scores = {m: evaluate_disparity(matchers[m].compute(left, right).disparity, gt) for m in METHODS}
+        ms = time_interleaved(matchers, left, right, args.runs)
+        ref_err, ref_ms = scores["opencv-sgbm"][metric], ms["opencv-sgbm"]
+        for m in METHODS:
+            e = scores[m]
+            print(f"{name:20s} {D:4d} {m:14s} {metric:6s} {100 * e[metric]:8.2f} {100 * e['density']:9.1f} "
+                  f"{ms[m]:8.1f} {e[metric] / ref_err if ref_err else float('nan'):8.2f} {ms[m] / ref_ms:8.2f}")
+        summary.append((name, scores, ms, metric))
+        print()
+
+    # the fast setting at 640x480 with 128 disparities
+    rng = np.random.default_rng(0)
+    if any(p[0].startswith("city") for p in pairs):
+        left, right = next((p[1], p[2]) for p in pairs if p[0].startswith("city"))
+    else:
+        left = rng.integers(0, 255, (480, 640, 3), dtype=np.uint8)
+        right = np.roll(left, -20, axis=1)
+    assert left.shape[:2] == (480, 640)
+    matchers = {m: make(m, 128, args.threads) for m in METHODS}
+    ms = time_interleaved(matchers, left, right, max(args.runs, 15))
+    print("640x480, 128 disparities:")
+    for m in METHODS:
+        print(f"  {m:14s} {ms[m]:7.1f} ms  {1000.0 / ms[m]:6.1f} fps")
+
+    print("\ntargets: default error <= 0.5 x OpenCV and time <= OpenCV on every pair; "
+          "fast >= 30 fps at 640x480/128 with error <= OpenCV")
+    for name, scores, t, metric in summary:
+        e_ratio = scores["skyrecon"][metric] / scores["opencv-sgbm"][metric]
+        t_ratio = t["skyrecon"] / t["opencv-sgbm"]
+        f_ok = scores["skyrecon-fast"][metric] <= scores["opencv-sgbm"][metric]
+        print(f"  {name:20s} error x{e_ratio:.2f} {'OK ' if e_ratio <= 0.5 else 'MISS'}  "
+              f"time x{t_ratio:.2f} {'OK ' if t_ratio <= 1.0 else 'MISS'}  fast error {'OK' if f_ok else 'MISS'}")
+    fps = 1000.0 / ms["skyrecon-fast"]
+    print(f"  fast 640x480/128: {fps:.1f} fps {'OK' if fps >= 30 else 'MISS'}")
+
+
+if __name__ == "__main__":
+    main()

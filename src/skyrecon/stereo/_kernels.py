@@ -1,0 +1,700 @@
+"""Numba kernels of the skyrecon semi-global matcher.
+
+Every kernel is compiled for one set of argument types (``cache=True`` keeps the machine code
+on disk), so a process pays the JIT cost once and the frames of a sequence never recompile.
+``sgm_band`` is specialised once per number of paths per sweep (1, 2 or 3).
+
+Data layout (``wp`` = image width rounded up to a multiple of 32 lanes):
+
+- grey images: (H, W) uint8; census codes: (rows, wp) uint32 (right codes padded left and
+  right so that shifted vector reads stay inside the buffer);
+- path states: per path, (D + 2, wp + 2) int16 planes, padded with BIG at both disparity ends
+  and with restart columns at both image ends;
+- the upward sweep's path sums: (rows, D * wp) uint8 block-major (32-column blocks of D
+  planes), saturated at 255;
+- the total cost of the row being selected: (D + 4, wp) uint16 row-major.
+
+Plane index ``k`` means disparity ``d = dmin + k`` (``x_right = x_left - d``).
+
+Performance: the hot loops are written as LLVM vector IR (``@intrinsic``, 32 int16 lanes over
+image columns): the disparity loop of one 32-column block keeps the previous pixel's costs at
+d - 1, d, d + 1 in registers and computes the census Hamming cost in registers (VPOPCNTD on
+AVX-512, a shuffle-based popcount on AVX2), so each plane costs one state load and one store
+per path. Plain Numba loops are used where LLVM's auto-vectoriser does well (contiguous 1-D
+slices; indexing a flat array with a computed offset defeats it, since numba's negative-index
+wrap-around becomes a select).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import llvmlite.ir as ir
+from numba import njit, types
+from numba.core import cgutils
+from numba.extending import intrinsic
+
+_JIT = dict(cache=True, nogil=True, boundscheck=False, error_model="numpy")
+
+BIG = 30000  # "infinite" path cost that still fits int16 arithmetic
+INVALID_RIGHT = -(1 << 20)
+
+
+LANES = 32  # int16 lanes per explicit vector (one AVX-512 register, two AVX2 registers)
+
+_I8 = ir.IntType(8)
+_I16 = ir.IntType(16)
+_I64 = ir.IntType(64)
+_V16 = ir.VectorType(_I16, LANES)
+_V8 = ir.VectorType(_I8, LANES)
+
+
+def _data(context, builder, aty, val):
+    return context.make_array(aty)(context, builder, val).data
+
+
+def _vload(builder, base, idx, vty):
+    return builder.load(builder.bitcast(builder.gep(base, [idx]), vty.as_pointer()), align=1)
+
+
+def _vstore(builder, val, base, idx):
+    builder.store(val, builder.bitcast(builder.gep(base, [idx]), val.type.as_pointer()), align=1)
+
+
+def _splat(builder, scalar, vty):
+    undef = ir.Constant(vty, ir.Undefined)
+    v = builder.insert_element(undef, scalar, ir.Constant(ir.IntType(32), 0))
+    mask = ir.Constant(ir.VectorType(ir.IntType(32), vty.count), [0] * vty.count)
+    return builder.shuffle_vector(v, undef, mask)
+
+
+def _smin(builder, a, b):
+    return builder.select(builder.icmp_signed("<", a, b), a, b)
+
+
+def _ucmp_min(builder, a, b):
+    return builder.select(builder.icmp_unsigned("<", a, b), a, b)
+
+
+def _i64(builder, v):
+    return v if v.type.width == 64 else builder.sext(v, _I64)
+
+
+_I32 = ir.IntType(32)
+_V32 = ir.VectorType(_I32, LANES)
+
+
+def _vctpop(builder, v):
+    fnty = ir.FunctionType(v.type, [v.type])
+    fn = cgutils.get_or_insert_function(builder.module, fnty, f"llvm.ctpop.v{LANES}i32")
+    return builder.call(fn, [v])
+
+
+@intrinsic
+def _sweep_block(typingctx, cl, cr, cr_pad, dmin, W, oc, x0, wp, st_prev, st_cur, offsets, Q, M, min_cur, P1, D,
+                 s_out, s_base, s_ks, other, o_base, o_ks, select, sel_out):
+    """SGM recursion of every path of a sweep for the 32 columns ``x0 .. x0 + 31`` of one row.
+
+    Explicit 32-lane int16 vectors; the disparity loop keeps the previous pixel's costs at
+    d - 1, d, d + 1 in registers (one new load per disparity and path).
+
+    The matching cost of plane k (disparity ``d = dmin + k``) is computed in registers:
+    ``popcount(cl[x] ^ cr[cr_pad + x - d])`` for ``0 <= x - d < W`` and ``x < W``, else ``oc``.
+    ``cl`` (wp,) and ``cr`` (cr_pad + wp + pad,) are uint32 census rows; ``cr`` is padded so
+    that every read stays inside it.
+
+    Flat C-ordered buffers (``wp`` = padded width, a multiple of 32; ``n`` = len(offsets)):
+        st_prev, st_cur (n, D + 2, wp + 2) int16 path states (disparity
+        rows 0 and D + 1 hold BIG, column c holds pixel c - 1); Q, M (n, wp) int16
+        ``min_prev + P2`` and ``min_prev`` of each pixel's predecessor; min_cur (n, wp + 2)
+        int16 receives the new minima.
+    Output, plane k of this block at ``s_out[s_base + k * s_ks + lane]``:
+        without ``select``, the sum of the paths (uint16, or uint8 saturated at 255); with
+        ``select``, that sum plus the other sweep's ``other[o_base + k * o_ks + lane]`` (uint8
+        or uint16), into a uint16 ``s_out``, and the winner-takes-all state of the
+        total goes to ``sel_out`` (4, wp) uint16 at column x0: minimum, its plane (lowest on
+        ties), and the totals at the planes before and after it (0xFFFF at the ends).
+    """
+    if not isinstance(offsets, types.UniTuple):
+        return None
+    n = offsets.count
+    sig = types.void(cl, cr, cr_pad, dmin, W, oc, x0, wp, st_prev, st_cur, offsets, Q, M, min_cur, P1, D,
+                     s_out, s_base, s_ks, other, o_base, o_ks, select, sel_out)
+
+    def codegen(context, builder, signature, args):
+        (cl_v, cr_v, crp_v, dmin_v, w_v, oc_v, x0_v, wp_v, sp_v, sc_v, off_v, q_v, m_v, mn_v, p1_v, d_v,
+         so_v, sb_v, sks_v, ot_v, ob_v, oks_v, sel_v, selo_v) = args
+        t = signature.args
+        clp = _data(context, builder, t[0], cl_v)
+        crp = _data(context, builder, t[1], cr_v)
+        pp = _data(context, builder, t[8], sp_v)
+        cu = _data(context, builder, t[9], sc_v)
+        qp = _data(context, builder, t[11], q_v)
+        mp = _data(context, builder, t[12], m_v)
+        mnp = _data(context, builder, t[13], mn_v)
+        sop = _data(context, builder, t[16], so_v)
+        otp = _data(context, builder, t[19], ot_v)
+        selp = _data(context, builder, t[23], selo_v)
+        out_u8 = t[16].dtype == types.uint8
+        other_u8 = t[19].dtype == types.uint8
+        x0 = _i64(builder, x0_v)
+        dmin = _i64(builder, dmin_v)
+        cr_base = builder.add(builder.sub(_i64(builder, crp_v), dmin), x0)  # cr index of lane 0, plane 0
+        left_codes = _vload(builder, clp, x0, _V32)
+        lanes32 = ir.Constant(_V32, list(range(LANES)))
+        xv = builder.add(_splat(builder, builder.trunc(x0, _I32), _V32), lanes32)  # column of each lane
+        Wv = _splat(builder, builder.trunc(_i64(builder, w_v), _I32), _V32)
+        in_img = builder.icmp_signed("<", xv, Wv)
+        ocv = _splat(builder, builder.trunc(_i64(builder, oc_v), _I16), _V16)
+        zero32 = ir.Constant(_V32, [0] * LANES)
+        wp = _i64(builder, wp_v)
+        D = _i64(builder, d_v)
+        s_base = _i64(builder, sb_v)
+        s_ks = _i64(builder, sks_v)
+        o_base = _i64(builder, ob_v)
+        o_ks = _i64(builder, oks_v)
+        one = ir.Constant(_I64, 1)
+        two = ir.Constant(_I64, 2)
+        ks = builder.add(wp, two)  # state row stride
+        ps = builder.mul(builder.add(D, two), ks)  # state path stride
+        p1 = _splat(builder, builder.trunc(p1_v, _I16) if p1_v.type.width > 16 else p1_v, _V16)
+        MAXV = ir.Constant(_V16, [0xFFFF] * LANES)
+        Qs, Ms, base_prev, base_cur, am_s, ac_s, mn_s = [], [], [], [], [], [], []
+        for p in range(n):
+            off = builder.extract_value(off_v, p)
+            row = builder.add(builder.mul(ir.Constant(_I64, p), wp), x0)
+            Qs.append(_vload(builder, qp, row, _V16))
+            Ms.append(_vload(builder, mp, row, _V16))
+            bp = builder.add(builder.add(builder.mul(ir.Constant(_I64, p), ps), x0), builder.add(one, off))
+            bc = builder.add(builder.add(builder.mul(ir.Constant(_I64, p), ps), x0), one)
+            base_prev.append(bp)
+            base_cur.append(bc)
+            a = cgutils.alloca_once(builder, _V16)
+            b = cgutils.alloca_once(builder, _V16)
+            m = cgutils.alloca_once(builder, _V16)
+            builder.store(_vload(builder, pp, bp, _V16), a)
+            builder.store(_vload(builder, pp, builder.add(bp, ks), _V16), b)
+            builder.store(ir.Constant(_V16, [BIG] * LANES), m)
+            am_s.append(a)
+            ac_s.append(b)
+            mn_s.append(m)
+
+        def path_step(k):
+            right_codes = _vload(builder, crp, builder.sub(cr_base, k), _V32)
+            pc = builder.trunc(_vctpop(builder, builder.xor(left_codes, right_codes)), _V16)
+            xr = builder.sub(xv, _splat(builder, builder.trunc(builder.add(dmin, k), _I32), _V32))  # x - d
+            ok = builder.and_(in_img, builder.and_(builder.icmp_signed(">=", xr, zero32), builder.icmp_signed("<", xr, Wv)))
+            c = builder.select(ok, pc, ocv)
+            total = None
+            for p in range(n):
+                am = builder.load(am_s[p])
+                ac = builder.load(ac_s[p])
+                ap = _vload(builder, pp, builder.add(base_prev[p], builder.mul(builder.add(k, two), ks)), _V16)
+                tt = builder.add(_smin(builder, am, ap), p1)
+                tt = _smin(builder, _smin(builder, ac, tt), Qs[p])
+                v = builder.sub(builder.add(c, tt), Ms[p])
+                _vstore(builder, v, cu, builder.add(base_cur[p], builder.mul(builder.add(k, one), ks)))
+                builder.store(_smin(builder, builder.load(mn_s[p]), v), mn_s[p])
+                builder.store(ac, am_s[p])
+                builder.store(ap, ac_s[p])
+                total = v if total is None else builder.add(total, v)
+            return total
+
+        selb = builder.icmp_signed("!=", sel_v, ir.Constant(sel_v.type, 0))
+        with builder.if_else(selb) as (then, otherwise):
+            with then:
+                slots = [cgutils.alloca_once(builder, _V16) for _ in range(5)]  # best arg cm1 cp1 tprev
+                for sl, init in zip(slots, (MAXV, ir.Constant(_V16, [0] * LANES), MAXV, MAXV, MAXV)):
+                    builder.store(init, sl)
+                with cgutils.for_range(builder, D) as loop:
+                    k = loop.index
+                    oidx = builder.add(o_base, builder.mul(k, o_ks))
+                    if other_u8:
+                        oval = builder.zext(_vload(builder, otp, oidx, _V8), _V16)
+                    else:
+                        oval = _vload(builder, otp, oidx, _V16)
+                    tot = builder.add(path_step(k), oval)
+                    _vstore(builder, tot, sop, builder.add(s_base, builder.mul(k, s_ks)))
+                    kv = _splat(builder, builder.trunc(k, _I16), _V16)
+                    km1 = _splat(builder, builder.trunc(builder.sub(k, one), _I16), _V16)
+                    best = builder.load(slots[0])
+                    arg = builder.load(slots[1])
+                    lt = builder.icmp_unsigned("<", tot, best)
+                    isnext = builder.icmp_signed("==", arg, km1)
+                    builder.store(builder.select(isnext, tot, builder.load(slots[3])), slots[3])
+                    builder.store(builder.select(lt, builder.load(slots[4]), builder.load(slots[2])), slots[2])
+                    builder.store(builder.select(lt, tot, best), slots[0])
+                    builder.store(builder.select(lt, kv, arg), slots[1])
+                    builder.store(tot, slots[4])
+                last = _splat(builder, builder.trunc(builder.sub(D, one), _I16), _V16)
+                arg = builder.load(slots[1])
+                cp1 = builder.select(builder.icmp_signed("==", arg, last), MAXV, builder.load(slots[3]))
+                for i, val in enumerate((builder.load(slots[0]), arg, builder.load(slots[2]), cp1)):
+                    _vstore(builder, val, selp, builder.add(builder.mul(ir.Constant(_I64, i), wp), x0))
+            with otherwise:
+                with cgutils.for_range(builder, D) as loop:
+                    k = loop.index
+                    val = path_step(k)
+                    if out_u8:  # saturate at 255: only costs near the minimum matter
+                        val = builder.trunc(_ucmp_min(builder, val, ir.Constant(_V16, [255] * LANES)), _V8)
+                    _vstore(builder, val, sop, builder.add(s_base, builder.mul(k, s_ks)))
+        for p in range(n):
+            idx = builder.add(builder.add(builder.mul(ir.Constant(_I64, p), builder.add(wp, two)), x0), one)
+            _vstore(builder, builder.load(mn_s[p]), mnp, idx)
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+@intrinsic
+def _select_block_second(typingctx, Sa, base, wp, D, x0, arg, second):
+    """For the 32 columns ``x0 ..``: the minimum of ``Sa`` over planes not adjacent to ``arg``
+    (the uniqueness test's runner-up). Element (k, x) at ``base + k * wp + x``."""
+    sig = types.void(Sa, base, wp, D, x0, arg, second)
+
+    def codegen(context, builder, signature, args):
+        (a_v, base_v, wp_v, d_v, x0_v, arg_v, sec_v) = args
+        t = signature.args
+        ap = _data(context, builder, t[0], a_v)
+        argp = _data(context, builder, t[5], arg_v)
+        secp = _data(context, builder, t[6], sec_v)
+        x0 = _i64(builder, x0_v)
+        base = builder.add(_i64(builder, base_v), x0)
+        wp = _i64(builder, wp_v)
+        MAXV = ir.Constant(_V16, [0xFFFF] * LANES)
+        one = _splat(builder, ir.Constant(_I16, 1), _V16)
+        arg = _vload(builder, argp, x0, _V16)
+        sec = cgutils.alloca_once(builder, _V16)
+        builder.store(MAXV, sec)
+        with cgutils.for_range(builder, _i64(builder, d_v)) as loop:
+            k = loop.index
+            idx = builder.add(base, builder.mul(k, wp))
+            tt = _vload(builder, ap, idx, _V16)
+            dist = builder.sub(_splat(builder, builder.trunc(k, _I16), _V16), arg)
+            far = builder.or_(builder.icmp_signed(">", dist, one), builder.icmp_signed("<", dist, builder.neg(one)))
+            builder.store(_ucmp_min(builder, builder.load(sec), builder.select(far, tt, MAXV)), sec)
+        _vstore(builder, builder.load(sec), secp, x0)
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+@intrinsic
+def _select_block_right(typingctx, Sa, base, wp, D, xr0, dmin, W, rbest, rarg):
+    """Right-view winner-takes-all for the right pixels ``xr0 .. xr0 + 31`` of one row.
+
+    The right pixel xr sees, on plane k, the left pixel ``x = xr + dmin + k``, whose cost
+    ``Sa`` holds at ``base + k * wp + x`` (a diagonal of the (k, x) buffer); planes where x falls outside
+    ``0 .. W - 1`` are skipped. The buffers need ``2 * wp`` elements of slack on each side.
+    Writes ``rbest`` and ``rarg`` (0xFFFF when no plane is valid) at ``xr0 ..``.
+    """
+    sig = types.void(Sa, base, wp, D, xr0, dmin, W, rbest, rarg)
+
+    def codegen(context, builder, signature, args):
+        (a_v, base_v, wp_v, d_v, xr0_v, dmin_v, w_v, rb_v, ra_v) = args
+        t = signature.args
+        ap = _data(context, builder, t[0], a_v)
+        rbp = _data(context, builder, t[7], rb_v)
+        rap = _data(context, builder, t[8], ra_v)
+        wp = _i64(builder, wp_v)
+        D = _i64(builder, d_v)
+        xr0 = _i64(builder, xr0_v)
+        x_first = builder.add(xr0, _i64(builder, dmin_v))  # left x of lane 0 on plane 0
+        base = builder.add(_i64(builder, base_v), x_first)
+        step = builder.add(wp, ir.Constant(_I64, 1))
+        MAXV = ir.Constant(_V16, [0xFFFF] * LANES)
+        lanes = ir.Constant(_V16, list(range(LANES)))
+        x0v = builder.add(_splat(builder, builder.trunc(x_first, _I16), _V16), lanes)
+        Wv = _splat(builder, builder.trunc(_i64(builder, w_v), _I16), _V16)
+        zero = ir.Constant(_V16, [0] * LANES)
+        best_s = cgutils.alloca_once(builder, _V16)
+        arg_s = cgutils.alloca_once(builder, _V16)
+        builder.store(MAXV, best_s)
+        builder.store(MAXV, arg_s)
+        with cgutils.for_range(builder, D) as loop:
+            k = loop.index
+            idx = builder.add(base, builder.mul(k, step))
+            tt = _vload(builder, ap, idx, _V16)
+            kv = _splat(builder, builder.trunc(k, _I16), _V16)
+            xv = builder.add(x0v, kv)
+            ok = builder.and_(builder.icmp_signed(">=", xv, zero), builder.icmp_signed("<", xv, Wv))
+            tt = builder.select(ok, tt, MAXV)
+            best = builder.load(best_s)
+            lt = builder.icmp_unsigned("<", tt, best)
+            builder.store(builder.select(lt, tt, best), best_s)
+            builder.store(builder.select(lt, kv, builder.load(arg_s)), arg_s)
+        _vstore(builder, builder.load(best_s), rbp, xr0)
+        _vstore(builder, builder.load(arg_s), rap, xr0)
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+# --------------------------------------------------------------------------------------------
+# census transform and matching cost
+# --------------------------------------------------------------------------------------------
+@njit(**_JIT)
+def census_transform(padded, rh, rw, checker, out, x_off, y0, y1, out_y0):
+    """Census codes of a (2*rh+1) x (2*rw+1) window, centre excluded, at most 32 bits.
+
+    A bit is set where the neighbour is darker than the centre. With ``checker`` only the
+    neighbours with an even ``dx + dy`` are used (a sparse census: 31 bits for 9x7).
+
+    Args:
+        padded: (H + 2*rh, W + 2*rw) uint8 grey image with replicated borders.
+        rh, rw: window half-height and half-width, pixels.
+        checker: sample the window in a checkerboard pattern.
+        out: (H, >= x_off + W) uint32 result, written at columns ``x_off .. x_off + W - 1``.
+        x_off: first output column.
+        y0, y1: the image rows to compute (a band, so that threads can share the work).
+        out_y0: image row of ``out[0]`` (``out`` may hold a band of rows).
+    """
+    W = padded.shape[1] - 2 * rw
+    for y in range(y0, y1):
+        code = out[y - out_y0, x_off:x_off + W]
+        centre = padded[y + rh, rw:rw + W]
+        for x in range(W):
+            code[x] = 0
+        for dy in range(2 * rh + 1):
+            for dx in range(2 * rw + 1):
+                if dy == rh and dx == rw:
+                    continue
+                if checker and (dy + dx - rh - rw) % 2 != 0:
+                    continue
+                nb = padded[y + dy, dx:dx + W]
+                for x in range(W):
+                    code[x] = (code[x] << np.uint32(1)) | np.uint32(nb[x] < centre[x])
+
+
+def census_bits(width: int, height: int, checker: bool) -> int:
+    """Number of bits of a census code (see :func:`census_transform`)."""
+    rh, rw = height // 2, width // 2
+    n = 0
+    for dy in range(height):
+        for dx in range(width):
+            if (dy, dx) == (rh, rw) or (checker and (dy + dx - rh - rw) % 2):
+                continue
+            n += 1
+    return n
+
+
+# --------------------------------------------------------------------------------------------
+# semi-global aggregation
+# --------------------------------------------------------------------------------------------
+@njit(inline="always")
+def _sweep_row(cl, cr, cr_pad, dmin, oc, D, W, grey_row, grey_prev, P1, P2, alpha, offsets, st_prev, st_cur,
+               min_prev, min_cur, Q, M, restart, s_out, s_base, block_major, other, o_base, o_block_major,
+               select, sel_out):
+    """Advance every path of a sweep by one image row (see ``_sweep_block`` for the outputs).
+
+    State layout ``st[path, k + 1, x + 1]`` (flattened): disparity rows 0 and D + 1 hold BIG;
+    column 0 and the columns after the last pixel hold zeros with minimum 0, which restarts
+    a diagonal at the image border. ``restart`` starts every path on this row (L = C).
+    ``W`` is the real image width, ``wp`` (the length of ``cl``) the padded one. The jump
+    penalty is ``max(P1 + 1, P2 / (1 + alpha * |I(p) - I(p - r)|))``. A flat cost-sum buffer
+    is either block-major (block b, plane k, lane at ``base + (b * D + k) * 32 + lane``) or
+    row-major (plane k, column x at ``base + k * wp + x``).
+    """
+    wp = cl.shape[0]
+    n = len(offsets)
+    p1p = np.float32(P1 + 1)
+    p2f = np.float32(P2)
+    al = np.float32(alpha)
+    ps = (D + 2) * (wp + 2)
+    for p in range(n):
+        off = offsets[p]
+        mp = min_prev[p * (wp + 2):(p + 1) * (wp + 2)]
+        qrow = Q[p * wp:(p + 1) * wp]
+        mrow = M[p * wp:(p + 1) * wp]
+        if restart:
+            for x in range(wp):
+                mrow[x] = 0
+                qrow[x] = 0
+            z = st_prev[p * ps:(p + 1) * ps]
+            for k in range(1, D + 1):
+                for x in range(wp + 2):
+                    z[k * (wp + 2) + x] = 0
+        else:
+            for x in range(wp):
+                mrow[x] = mp[x + 1 + off]
+            # predecessors inside the image: x + off in [0, W)
+            xa = max(0, -off)
+            xb = min(W, W - off)
+            g = grey_row[xa:xb]
+            gp = grey_prev[xa + off:xb + off]
+            mseg = mrow[xa:xb]
+            qseg = qrow[xa:xb]
+            for x in range(xb - xa):
+                dI = np.float32(abs(np.int32(g[x]) - np.int32(gp[x])))
+                qseg[x] = np.int16(mseg[x] + np.int16(max(p1p, p2f / (np.float32(1.0) + al * dI))))
+            for x in range(xa):
+                qrow[x] = np.int16(mrow[x] + np.int16(P2))
+            for x in range(xb, wp):
+                qrow[x] = np.int16(mrow[x] + np.int16(P2))
+    for x0 in range(0, wp, LANES):
+        if block_major:
+            sb, sks = s_base + x0 * D, LANES
+        else:
+            sb, sks = s_base + x0, wp
+        if o_block_major:
+            ob, oks = o_base + x0 * D, LANES
+        else:
+            ob, oks = o_base + x0, wp
+        _sweep_block(cl, cr, cr_pad, dmin, W, oc, x0, wp, st_prev, st_cur, offsets, Q, M, min_cur, P1, D,
+                     s_out, sb, sks, other, ob, oks, select, sel_out)
+    # columns beyond the image restart diagonals, like column 0
+    for p in range(n):
+        mc = min_cur[p * (wp + 2):(p + 1) * (wp + 2)]
+        mc[0] = 0
+        for x in range(W + 1, wp + 2):
+            mc[x] = 0
+        if W < wp:
+            z = st_cur[p * ps:(p + 1) * ps]
+            for k in range(1, D + 1):
+                for x in range(W + 1, wp + 2):
+                    z[k * (wp + 2) + x] = 0
+
+
+@njit(inline="always")
+def _select_row(total, W, dmin, uniqueness, subpixel, lr_max_diff, sel, second, rbest, rarg, disp, right):
+    """Finish the disparity selection of one row: right view, uniqueness, sub-pixel, LR check.
+
+    Args:
+        total: (D + 4, wp) uint16 total costs with plane k in row k + 2 (two rows of slack on
+            each side for the right view's diagonal reads).
+        sel: (4, wp) uint16 left winner-takes-all state from the sweep (best, arg, cm1, cp1).
+        second, rbest, rarg: (wp,) uint16 scratch.
+        disp: (W,) float32 output, NaN where rejected; right: (W,) int32 right disparities.
+    """
+    D = total.shape[0] - 4
+    wp = total.shape[1]
+    tf = total.reshape(-1)
+    best = sel[0]
+    arg = sel[1]
+    cm1 = sel[2]
+    cp1 = sel[3]
+    want_second = uniqueness > 0.0
+    for x0 in range(0, wp, LANES):
+        _select_block_right(tf, 2 * wp, wp, D, x0, dmin, W, rbest, rarg)
+        if want_second:
+            _select_block_second(tf, 2 * wp, wp, D, x0, arg, second)
+    for xr in range(W):
+        r = np.int32(rarg[xr])
+        right[xr] = r + dmin if r != 0xFFFF else INVALID_RIGHT
+    # branch-free so that it vectorises
+    half = np.float32(0.5)
+    nan = np.float32(np.nan)
+    for x in range(W):
+        c1 = np.float32(best[x])
+        c0 = np.float32(cm1[x])
+        c2 = np.float32(cp1[x])
+        inner = (cm1[x] != 0xFFFF) & (cp1[x] != 0xFFFF) & (subpixel > 0)
+        den = c0 - np.float32(2.0) * c1 + c2 if subpixel == 1 else max(c0, c2) - c1
+        den = den if den > 0 else np.float32(1.0)
+        off = half * (c0 - c2) / den if inner else np.float32(0.0)
+        disp[x] = np.float32(np.int32(arg[x]) + dmin) + off
+    if want_second:
+        for x in range(W):
+            unique = np.float32(second[x]) > np.float32(best[x]) * np.float32(1.0 + uniqueness)
+            disp[x] = disp[x] if unique else nan
+    if lr_max_diff >= 0.0:
+        lim = np.float32(lr_max_diff)
+        for x in range(W):
+            d = disp[x]
+            dd = d if d == d else np.float32(1e6)  # NaN (rejected already) -> outside
+            xr = np.int32(np.floor(np.float32(x) - dd + half))
+            xc = min(max(xr, 0), W - 1)
+            ok = (xr >= 0) & (xr < W) & (abs(np.float32(right[xc]) - d) <= lim)
+            disp[x] = d if ok else nan
+
+
+def band_workspace_sizes(D: int, wp: int, n: int) -> tuple[int, int, int]:
+    """Elements of the int16, uint16 and uint8 workspaces ``sgm_band`` needs for D planes,
+    padded width wp and n paths per sweep."""
+    return (2 * n * (D + 2) * (wp + 2) + 2 * n * (wp + 2) + 2 * n * wp, (D + 4) * wp + 7 * wp, D * wp)
+
+
+@njit(**_JIT)
+def sgm_band(cl, cr, cr_pad, y_base, grey, dmin, out_of_image_cost, P1, P2, alpha, offsets, up_offsets, r0, r1,
+             margin, uniqueness, subpixel, lr_max_diff, S_band, disp, right_out, ws16, wsu16, ws8):
+    """Semi-global matching of the image rows [r0, r1): aggregation, selection, LR check.
+
+    Two sweeps over the band: upward from row ``min(H, r1 + margin) - 1`` storing the sum
+    of the upward paths in ``S_band``; then downward from row ``max(0, r0 - margin)``,
+    adding the downward paths and selecting the disparity of each row as soon as it is
+    complete. Paths start at the image border or ``margin`` rows outside the band, so
+    bands run independently on separate threads. Matching costs (Hamming distances of the
+    census codes) are computed on the fly.
+
+    Args:
+        cl: (rows, wp) uint32 left census codes of the image rows ``y_base ..``, ``wp`` = W
+            rounded up to a multiple of 32; they must cover the band and its margins.
+        cr: (rows, cr_pad + wp + pad) uint32 right census codes at columns ``cr_pad ..``, with
+            ``cr_pad >= max(dmax, 0) + 32`` and ``pad >= max(-dmin, 0) + 32``.
+        y_base: image row of ``cl[0]`` and ``cr[0]``.
+        grey: (H, W) uint8 left image (edges lower the jump penalty P2).
+        dmin: disparity of plane 0, pixels; the number of planes D is ``S_band.shape[1] // wp``.
+        out_of_image_cost: cost of a match outside the right image.
+        P1, P2, alpha: penalties: P1 for a one-pixel disparity change, and
+            ``max(P1 + 1, P2 / (1 + alpha * |I(p) - I(p - r)|))`` for larger jumps.
+        offsets: tuple of column offsets of the downward paths' predecessors on the row above
+            (0 vertical, -1/+1 diagonals); ``up_offsets`` the same for the upward paths.
+        r0, r1: the band.
+        margin: rows of warm-up outside the band.
+        uniqueness, subpixel, lr_max_diff: see ``_select_row``.
+        S_band: (r1 - r0, D * wp) uint8 scratch: the upward paths' sums saturated at 255
+            (each row block-major: 32-column blocks of D planes).
+        disp: (H, W) float32 output (rows r0..r1-1 are written), NaN where rejected.
+        right_out: (H, W) int32 integer right-view disparities (rows r0..r1-1).
+        ws16, wsu16, ws8: preallocated int16 / uint16 / uint8 workspaces of at least
+            :func:`band_workspace_sizes` elements (reused across frames).
+    """
+    H, W = grey.shape
+    wp = cl.shape[1]
+    D = S_band.shape[1] // wp
+    n = len(offsets)
+    P1 = np.int16(P1)
+    n_st = 2 * n * (D + 2) * (wp + 2)
+    st = ws16[:n_st].reshape((2, n * (D + 2) * (wp + 2)))
+    mins = ws16[n_st:n_st + 2 * n * (wp + 2)].reshape((2, n * (wp + 2)))
+    o = n_st + 2 * n * (wp + 2)
+    Q = ws16[o:o + n * wp]
+    M = ws16[o + n * wp:o + 2 * n * wp]
+    st[:] = 0
+    mins[:] = 0
+    for a in range(2):
+        for p in range(n):
+            base = p * (D + 2) * (wp + 2)
+            for x in range(wp + 2):
+                st[a, base + x] = BIG
+                st[a, base + (D + 1) * (wp + 2) + x] = BIG
+    nt = (D + 4) * wp
+    total = wsu16[:nt].reshape((D + 4, wp))
+    total[:] = 0
+    sel = wsu16[nt:nt + 4 * wp].reshape((4, wp))
+    second = wsu16[nt + 4 * wp:nt + 5 * wp]
+    rbest = wsu16[nt + 5 * wp:nt + 6 * wp]
+    rarg = wsu16[nt + 6 * wp:nt + 7 * wp]
+    scratch8 = ws8[:D * wp]
+    oc = np.int64(out_of_image_cost)
+    band_flat = S_band.reshape(-1)
+    row_len = D * wp
+
+    # upward sweep: the sum of its paths goes to S_band (block-major rows)
+    ystart = min(H, r1 + margin) - 1
+    par = 0
+    for y in range(ystart, r0 - 1, -1):
+        inside = y < r1
+        _sweep_row(cl[y - y_base], cr[y - y_base], cr_pad, dmin, oc, D, W, grey[y], grey[min(y + 1, H - 1)], P1,
+                   P2, alpha, up_offsets, st[par], st[1 - par], mins[par], mins[1 - par], Q, M, y == ystart,
+                   band_flat if inside else scratch8, (y - r0) * row_len if inside else 0,
+                   True, scratch8, 0, True, False, sel)
+        par = 1 - par
+    # downward sweep: total = its paths + S_band, winner-takes-all on the fly
+    ystart = max(0, r0 - margin)
+    par = 0
+    for y in range(ystart, r1):
+        inside = y >= r0
+        _sweep_row(cl[y - y_base], cr[y - y_base], cr_pad, dmin, oc, D, W, grey[y], grey[max(y - 1, 0)], P1,
+                   P2, alpha, offsets, st[par], st[1 - par], mins[par], mins[1 - par], Q, M, y == ystart,
+                   total.reshape(-1), 2 * wp, False,
+                   band_flat if inside else scratch8, (y - r0) * row_len if inside else 0,
+                   True, inside, sel)
+        par = 1 - par
+        if inside:
+            _select_row(total, W, dmin, uniqueness, subpixel, lr_max_diff, sel, second, rbest, rarg,
+                        disp[y], right_out[y])
+
+
+INVALID16 = -32768  # "no disparity" in fixed-point maps
+
+
+@njit(**_JIT)
+def to_fixed(disp, scale, out, y0, y1):
+    """float32 disparity (NaN invalid) -> int16 ``round(d * scale)`` (INVALID16 invalid)."""
+    W = disp.shape[1]
+    for y in range(y0, y1):
+        src = disp[y]
+        dst = out[y]
+        for x in range(W):
+            v = src[x]
+            dst[x] = np.int16(np.floor(v * scale + 0.5)) if v == v else np.int16(INVALID16)
+
+
+@njit(**_JIT)
+def from_fixed(fixed, keep, inv_scale, out, y0, y1):
+    """int16 fixed-point disparity -> float32 ``value * inv_scale``; NaN where INVALID16 or,
+    when ``keep`` has rows, where ``keep`` is 0."""
+    W = fixed.shape[1]
+    use_keep = keep.shape[0] > 0
+    for y in range(y0, y1):
+        src = fixed[y]
+        dst = out[y]
+        for x in range(W):
+            v = src[x]
+            ok = v != INVALID16
+            if use_keep:
+                ok = ok and keep[y, x] != INVALID16
+            dst[x] = np.float32(v) * inv_scale if ok else np.float32(np.nan)
+
+
+@njit(**_JIT)
+def fill_background_fixed(disp, out, y0, y1):
+    """Fill INVALID16 runs of each row of an int16 map with the smaller (farther) of the two
+    bounding values; rows without any valid pixel stay invalid."""
+    W = disp.shape[1]
+    for y in range(y0, y1):
+        src = disp[y]
+        dst = out[y]
+        last = np.int16(INVALID16)
+        x = 0
+        while x < W:
+            v = src[x]
+            if v != INVALID16:
+                dst[x] = v
+                last = v
+                x += 1
+                continue
+            x0 = x
+            while x < W and src[x] == INVALID16:
+                x += 1
+            right = src[x] if x < W else np.int16(INVALID16)
+            if last != INVALID16 and right != INVALID16:
+                f = min(last, right)
+            elif last != INVALID16:
+                f = last
+            else:
+                f = right
+            for xx in range(x0, x):
+                dst[xx] = f
+
+
+@njit(**_JIT)
+def fill_background(disp, out, y0, y1):
+    """Fill NaN runs of each row with the smaller (farther) of the two bounding disparities.
+
+    Occlusions sit beside a depth edge on the side of the background, so the farther
+    neighbour is the better guess. Rows without any valid pixel stay NaN.
+    """
+    H, W = disp.shape
+    for y in range(y0, y1):
+        last = np.float32(np.nan)
+        x = 0
+        while x < W:
+            v = disp[y, x]
+            if v == v:
+                out[y, x] = v
+                last = v
+                x += 1
+                continue
+            x0 = x
+            while x < W and not (disp[y, x] == disp[y, x]):
+                x += 1
+            right = disp[y, x] if x < W else np.float32(np.nan)
+            if last == last and right == right:
+                f = min(last, right)
+            elif last == last:
+                f = last
+            else:
+                f = right
+            for xx in range(x0, x):
+                out[y, xx] = f

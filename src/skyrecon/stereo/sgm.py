@@ -1,0 +1,493 @@
+"""skyrecon's own matcher: census transform + semi-global matching + occlusion-aware filling.
+
+Pipeline (grey images, see :func:`~skyrecon.stereo.base.prepare_pair`):
+
+1. sparse census transform over a 9x7 window (31 bits per pixel, checkerboard sampling):
+   robust to gain, bias and vignetting differences between the two cameras;
+2. matching cost = Hamming distance of census codes, computed on the fly row by row;
+   matches falling outside the right image get a neutral cost so that smoothness decides;
+3. semi-global aggregation along 2, 4 (default: down, down-right and their opposites) or 6
+   paths (plus the other diagonal pair), with the jump penalty P2 lowered at intensity
+   edges. There are no horizontal paths: every path advances row by row, so one step is a
+   vector operation over all columns, and on Cones/KITTI/the synthetic city horizontal paths
+   did not improve accuracy with census costs. The image is split into bands of rows
+   processed on separate threads (paths start ``band_margin`` rows outside each band);
+4. winner-takes-all with equiangular (or parabola) sub-pixel refinement, optional
+   uniqueness test, left-right consistency check;
+5. speckle removal, occlusion-aware filling (invalid runs take the farther of their two
+   row neighbours: occlusions belong to the background) and a 5x5 median filter.
+
+The ``fast`` setting runs the same at half resolution and upsamples (for obstacle detection
+at video rate). The matcher keeps its buffers between frames; the Numba kernels are compiled
+once per machine (``cache=True``) for one set of argument types.
+"""
+
+from __future__ import annotations
+
+import os
+import queue
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import asdict, dataclass, replace
+from typing import Any, Callable, Literal
+
+import cv2
+import numpy as np
+
+from skyrecon.errors import InputError
+from skyrecon.stereo import _kernels as K
+from skyrecon.stereo.base import (
+    DisparityResult,
+    Stopwatch,
+    check_disparity_range,
+    prepare_pair,
+    register_matcher,
+    settings_from_kwargs,
+)
+
+_PATH_OFFSETS = {2: (0,), 4: (0, -1), 6: (0, -1, 1)}
+_MAX_BAND_BYTES = 256 << 20  # cost buffer of the bands in flight at once (one per thread)
+_SUBPIXEL = {"none": 0, "parabola": 1, "equiangular": 2}
+
+
+@dataclass(frozen=True)
+class SkyreconSettings:
+    """Settings of the skyrecon semi-global matcher.
+
+    Attributes:
+        fast: compute at half resolution, then upsample (about 5x faster, coarser edges;
+            images under 64 pixels on a side are matched at full resolution).
+        census_width, census_height: census window, odd. Windows of more than 33 pixels are
+            sampled in a checkerboard pattern (a sparse census, 31 bits for the default 9x7);
+            at most 32 bits are used.
+        paths: aggregation paths: 2 (vertical), 4 (+ the top-left/bottom-right diagonal) or
+            6 (+ both diagonals).
+        P1: penalty of a one-pixel disparity change between neighbours (census-bit units).
+        P2: penalty of a larger jump, lowered at intensity edges to
+            ``max(P1 + 1, P2 / (1 + p2_edge_alpha * |I(p) - I(p - r)|))``.
+        p2_edge_alpha: strength of the edge-aware P2 reduction (0: constant P2).
+        out_of_image_cost: cost of a match that falls outside the right image; None uses a
+            third of the census bits (a neutral value that lets smoothness decide).
+        uniqueness: reject a pixel when a non-adjacent disparity costs within this fraction
+            of the best (0 disables).
+        subpixel: ``"equiangular"`` (V-shaped fit: less pixel-locking on census costs),
+            ``"parabola"`` or ``"none"``.
+        lr_check: left-right consistency tolerance in pixels; negative disables the check.
+        speckle_size: connected regions smaller than this many pixels (at full resolution)
+            whose disparity differs from their surroundings are removed; 0 disables.
+        speckle_range: largest disparity step inside one connected region, pixels.
+        fill: fill rejected pixels (the ``filled`` mask of the result marks them).
+        median: median filter size after filling: 0 (off), 3 or 5.
+        band_margin: warm-up rows outside each thread's band of rows.
+        threads: worker threads; None uses every core this process may run on.
+    """
+
+    fast: bool = False
+    census_width: int = 9
+    census_height: int = 7
+    paths: Literal[2, 4, 6] = 4
+    P1: int = 5
+    P2: int = 100
+    p2_edge_alpha: float = 0.05
+    out_of_image_cost: int | None = None
+    uniqueness: float = 0.0
+    subpixel: Literal["parabola", "equiangular", "none"] = "equiangular"
+    lr_check: float = 1.0
+    speckle_size: int = 50
+    speckle_range: float = 2.0
+    fill: bool = True
+    median: int = 5
+    band_margin: int = 32
+    threads: int | None = None
+
+    @property
+    def census_checker(self) -> bool:
+        """Whether the census window is sampled sparsely (more than 33 pixels)."""
+        return self.census_width * self.census_height > 33
+
+    @property
+    def census_bits(self) -> int:
+        """Bits per census code (the largest matching cost)."""
+        return K.census_bits(self.census_width, self.census_height, self.census_checker)
+
+    def __post_init__(self) -> None:
+        for n in ("census_width", "census_height"):
+            v = getattr(self, n)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1 or v % 2 == 0:
+                raise InputError(f"setting {n} must be a positive odd integer, got {v!r}")
+        if K.census_bits(self.census_width, self.census_height, self.census_checker) > 32:
+            raise InputError(
+                f"a {self.census_width}x{self.census_height} census window needs more than 32 bits; "
+                "use at most 9x7 (sampled sparsely) or 5x5"
+            )
+        if self.census_width * self.census_height < 9:
+            raise InputError("the census window needs at least 9 pixels (3x3)")
+        if self.paths not in _PATH_OFFSETS:
+            raise InputError(f"setting paths must be 2, 4 or 6, got {self.paths!r}")
+        if not (0 < self.P1 < self.P2 <= 2000):
+            raise InputError(f"need 0 < P1 < P2 <= 2000, got P1={self.P1}, P2={self.P2}")
+        if not (self.p2_edge_alpha >= 0):
+            raise InputError(f"setting p2_edge_alpha must be >= 0, got {self.p2_edge_alpha}")
+        if self.out_of_image_cost is not None and not (0 <= self.out_of_image_cost <= 32):
+            raise InputError(f"setting out_of_image_cost must be in 0..32, got {self.out_of_image_cost}")
+        if not (0 <= self.uniqueness < 10):
+            raise InputError(f"setting uniqueness must be in [0, 10), got {self.uniqueness}")
+        if self.subpixel not in _SUBPIXEL:
+            raise InputError(f"setting subpixel must be one of {', '.join(_SUBPIXEL)}, got {self.subpixel!r}")
+        if self.speckle_size < 0 or self.speckle_range < 0:
+            raise InputError("settings speckle_size and speckle_range must be >= 0")
+        if self.median not in (0, 1, 3, 5):
+            raise InputError(f"setting median must be 0, 3 or 5, got {self.median!r}")
+        if self.band_margin < 0:
+            raise InputError(f"setting band_margin must be >= 0, got {self.band_margin}")
+        if self.threads is not None and self.threads < 1:
+            raise InputError(f"setting threads must be >= 1, got {self.threads}")
+
+
+#: The ``skyrecon-fast`` preset: half resolution, 4 paths.
+FAST_SETTINGS = SkyreconSettings(fast=True)
+
+
+# --------------------------------------------------------------------------------------------
+# threads
+# --------------------------------------------------------------------------------------------
+_POOL: ThreadPoolExecutor | None = None
+_POOL_LOCK = threading.Lock()
+
+
+def available_cores() -> int:
+    """Cores this process may run on."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - not Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def _pool() -> ThreadPoolExecutor:
+    global _POOL
+    with _POOL_LOCK:
+        if _POOL is None:
+            _POOL = ThreadPoolExecutor(max_workers=max(1, available_cores() - 1) + 1,
+                                       thread_name_prefix="skyrecon-stereo")
+        return _POOL
+
+
+def _run_all(tasks: list[Callable[[], Any]], max_workers: int | None = None) -> None:
+    """Run the tasks, at most ``max_workers`` at a time (default: all at once): in each wave
+    the first runs in this thread and the others on the pool."""
+    step = max(1, max_workers or len(tasks))
+    for i in range(0, len(tasks), step):
+        wave = tasks[i:i + step]
+        futures = [_pool().submit(t) for t in wave[1:]]
+        try:
+            wave[0]()
+        finally:
+            for f in futures:
+                f.result()
+
+
+def _bands(n_rows: int, parts: int) -> list[tuple[int, int]]:
+    return [(n_rows * i // parts, n_rows * (i + 1) // parts) for i in range(parts)]
+
+
+# --------------------------------------------------------------------------------------------
+# post-processing (public: usable on any disparity map)
+# --------------------------------------------------------------------------------------------
+def _fixed_scale(dmin: float, dmax: float) -> float | None:
+    """Fixed-point scale for int16 post-processing, or None when the range does not fit."""
+    m = max(abs(dmin), abs(dmax)) + 4
+    for scale in (32.0, 16.0, 8.0):
+        if m * scale < 32000:
+            return scale
+    return None
+
+
+def remove_speckles(disparity: np.ndarray, max_size: int, max_step_px: float) -> np.ndarray:
+    """Set to NaN the connected regions of fewer than ``max_size`` pixels.
+
+    Neighbouring pixels belong to one region when their disparities differ by at most
+    ``max_step_px``. Works in place on (H, W) float32 disparity (NaN invalid) and returns it.
+    """
+    if max_size <= 0:
+        return disparity
+    valid = np.isfinite(disparity)
+    fixed = np.full(disparity.shape, K.INVALID16, np.int16)
+    fixed[valid] = np.clip(np.rint(disparity[valid] * 16.0), -32767, 32767).astype(np.int16)
+    cv2.filterSpeckles(fixed, K.INVALID16, int(max_size), max(1, int(round(max_step_px * 16))))
+    disparity[valid & (fixed == K.INVALID16)] = np.nan
+    return disparity
+
+
+def fill_invalid(disparity: np.ndarray, threads: int = 1) -> np.ndarray:
+    """Fill NaN pixels from their row neighbours, taking the farther (smaller) disparity.
+
+    Invalid runs next to a depth edge are occlusions of the background, so the farther side
+    is the better guess. Rows with no valid pixel are then filled the same way along columns.
+
+    Args:
+        disparity: (H, W) float32, NaN invalid.
+    Returns:
+        (H, W) float32 filled copy (NaN only if the whole map is invalid).
+    """
+    disp = np.ascontiguousarray(disparity, dtype=np.float32)
+    out = np.empty_like(disp)
+    H = disp.shape[0]
+    parts = max(1, min(threads, H // 64))
+    _run_all([lambda a=a, b=b: K.fill_background(disp, out, a, b) for a, b in _bands(H, parts)])
+    if np.isnan(out).any():
+        t = np.ascontiguousarray(out.T)
+        t2 = np.empty_like(t)
+        K.fill_background(t, t2, 0, t.shape[0])
+        out = np.ascontiguousarray(t2.T)
+    return out
+
+
+def _upsample2(half: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """Upsample a half-resolution disparity map 2x (values doubled): bilinear where the 3x3
+    neighbourhood is smooth (within 1 half-resolution pixel), nearest at depth edges so that
+    foreground and background are not blended."""
+    d = half * np.float32(2.0)
+    finite = np.isfinite(d)
+    z = np.where(finite, d, np.float32(0.0))
+    k = np.ones((3, 3), np.uint8)
+    spread = cv2.dilate(z, k) - cv2.erode(z, k)
+    smooth = (spread < 2.0) & (cv2.erode(finite.view(np.uint8), k) > 0)
+    near = cv2.resize(d, size, interpolation=cv2.INTER_NEAREST)
+    lin = cv2.resize(z, size, interpolation=cv2.INTER_LINEAR)
+    use_lin = cv2.resize(smooth.view(np.uint8), size, interpolation=cv2.INTER_NEAREST).astype(bool)
+    return np.where(use_lin, lin, near)
+
+
+# --------------------------------------------------------------------------------------------
+# the matcher
+# --------------------------------------------------------------------------------------------
+class SkyreconMatcher:
+    """Census + semi-global matcher (see the module docstring).
+
+    Args:
+        max_disparity: disparities searched are ``min_disparity <= d < max_disparity``.
+        min_disparity: smallest disparity, pixels.
+        settings: a :class:`SkyreconSettings`, or individual fields as keywords.
+
+    The matcher keeps its buffers between calls (reuse it for the frames of a sequence);
+    concurrent ``compute`` calls on one matcher are serialised (use one matcher per thread to
+    run in parallel; each already uses every core).
+    """
+
+    name = "skyrecon"
+
+    def __init__(self, max_disparity: int, min_disparity: int = 0,
+                 settings: SkyreconSettings | None = None, **kwargs: Any) -> None:
+        check_disparity_range(min_disparity, max_disparity)
+        if settings is not None and kwargs:
+            settings = replace(settings, **kwargs)
+        self.settings = settings or settings_from_kwargs(SkyreconSettings, self.name, kwargs)
+        self.min_disparity = int(min_disparity)
+        self.max_disparity = int(max_disparity)
+        if self.settings.fast:
+            self.name = "skyrecon-fast"
+        self._buffers: dict[str, np.ndarray] = {}
+        self._lock = threading.Lock()
+        s = self.settings
+        self._offsets = tuple(int(o) for o in _PATH_OFFSETS[s.paths])
+        self._up_offsets = tuple(-o for o in self._offsets)
+        self._ooi_cost = int(s.out_of_image_cost if s.out_of_image_cost is not None else s.census_bits // 3)
+
+    # ----- buffers -------------------------------------------------------------------------
+    def _buf(self, key: str, shape: tuple[int, ...], dtype) -> np.ndarray:
+        b = self._buffers.get(key)
+        if b is None or b.shape != shape or b.dtype != dtype:
+            b = np.empty(shape, dtype)
+            self._buffers[key] = b
+        return b
+
+    def _threads(self) -> int:
+        return self.settings.threads or available_cores()
+
+    # ----- core ----------------------------------------------------------------------------
+    def _match(self, gl: np.ndarray, gr: np.ndarray, dmin: int, dmax: int, scale: int, sw: Stopwatch,
+               diag: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
+        """Disparity of an 8-bit grey pair: (disparity, measured mask).
+
+        The image is split into bands of rows, one per thread; each band task runs the census
+        transform (its rows and margins), the semi-global matching, the conversion to int16
+        fixed point (1/32 px for ranges under 1000 px, so that OpenCV's SIMD filters apply),
+        speckle removal and row-wise filling of its rows. The median filter and the
+        conversion back to float run on the whole image afterwards.
+        """
+        s = self.settings
+        H, W = gl.shape
+        D = dmax - dmin
+        rh, rw = s.census_height // 2, s.census_width // 2
+        pl = cv2.copyMakeBorder(gl, rh, rh, rw, rw, cv2.BORDER_REPLICATE)
+        pr = cv2.copyMakeBorder(gr, rh, rh, rw, rw, cv2.BORDER_REPLICATE)
+        wp = -(-W // K.LANES) * K.LANES
+        cr_pad = max(dmax, 0) + K.LANES
+        cr_width = cr_pad + wp + max(-dmin, 0) + K.LANES
+        chk = s.census_checker
+        nthreads = self._threads()
+        margin = int(s.band_margin)
+        # one band of rows per thread; more bands (run by the same threads in turn) when one
+        # thread's cost buffer would exceed _MAX_BAND_BYTES
+        parts = max(1, min(nthreads, H // max(2 * margin, 16)))
+        parts = max(parts, -(-(H * D * wp * nthreads) // _MAX_BAND_BYTES))
+        parts = min(parts, max(1, H // 8))
+        if parts == 1:
+            margin = 0
+        bands = _bands(H, parts)
+        max_rows = max(b - a for a, b in bands)
+        fs = _fixed_scale(dmin, dmax)
+        speckle = int(round(s.speckle_size / (scale * scale)))
+        speckle_step = max(1, int(round(s.speckle_range / scale * (fs or 16.0))))
+        disp = self._buf("disp", (H, W), np.float32)
+        right = self._buf("right", (H, W), np.int32)
+        fixed = self._buf("fixed", (H, W), np.int16)
+        filled = self._buf("filled", (H, W), np.int16)
+        do_fill = fs is not None and (s.fill or s.median > 1)
+        task_ms: list[dict[str, float]] = [{} for _ in bands]
+        n16, nu16, n8 = K.band_workspace_sizes(D, wp, len(self._offsets))
+
+        slots: queue.SimpleQueue[int] = queue.SimpleQueue()
+        for k in range(min(nthreads, parts)):
+            slots.put(k)
+
+        def band_task(i: int, a: int, b: int) -> None:
+            # buffers belong to a worker slot (one per concurrent task), so extra bands reuse them
+            tid = slots.get()
+            try:
+                run_band(i, a, b, tid)
+            finally:
+                slots.put(tid)
+
+        def run_band(i: int, a: int, b: int, tid: int) -> None:
+            t0 = time.perf_counter()
+            lo, hi = max(0, a - margin), min(H, b + margin)
+            cl = self._buf(f"cl@{tid}", (max_rows + 2 * margin, wp), np.uint32)[:hi - lo]
+            cr = self._buf(f"cr@{tid}", (max_rows + 2 * margin, cr_width), np.uint32)[:hi - lo]
+            K.census_transform(pl, rh, rw, chk, cl, 0, lo, hi, lo)
+            K.census_transform(pr, rh, rw, chk, cr, cr_pad, lo, hi, lo)
+            t1 = time.perf_counter()
+            S = self._buf(f"S@{tid}", (max_rows, D * wp), np.uint8)[:b - a]
+            K.sgm_band(cl, cr, cr_pad, lo, gl, int(dmin), self._ooi_cost, int(s.P1), float(s.P2),
+                       float(s.p2_edge_alpha), self._offsets, self._up_offsets, int(a), int(b), margin,
+                       float(s.uniqueness), _SUBPIXEL[s.subpixel], float(s.lr_check), S, disp, right,
+                       self._buf(f"w16@{tid}", (n16,), np.int16), self._buf(f"wu16@{tid}", (nu16,), np.uint16),
+                       self._buf(f"w8@{tid}", (n8,), np.uint8))
+            t2 = time.perf_counter()
+            if fs is not None:
+                K.to_fixed(disp, np.float32(fs), fixed, a, b)
+                if speckle > 0:
+                    cv2.filterSpeckles(fixed[a:b], K.INVALID16, speckle, speckle_step)
+                if do_fill:
+                    K.fill_background_fixed(fixed, filled, a, b)
+            t3 = time.perf_counter()
+            task_ms[i].update(census=(t1 - t0) * 1e3, sgm=(t2 - t1) * 1e3, post=(t3 - t2) * 1e3)
+
+        _run_all([lambda i=i, a=a, b=b: band_task(i, a, b) for i, (a, b) in enumerate(bands)], nthreads)
+        sw.lap("match")
+        diag["threads"] = min(nthreads, parts)
+        diag["bands"] = parts
+        diag["band_ms"] = task_ms
+        lr_valid = float(np.isfinite(disp).mean())
+        diag["lr_rejected"] = 1.0 - lr_valid
+        if fs is None:  # huge disparity range: float post-processing
+            work = remove_speckles(disp.copy(), speckle, s.speckle_range / scale)
+            measured = np.isfinite(work)
+            out = work
+            if (s.fill or s.median > 1) and measured.any():
+                f = fill_invalid(work, nthreads)
+                if s.median > 1:
+                    f = cv2.medianBlur(f, int(s.median))
+                out = f if s.fill else np.where(measured, f, np.float32(np.nan))
+            diag["speckle_rejected"] = lr_valid - float(measured.mean())
+            sw.lap("postprocess")
+            return out, measured
+        measured = fixed != K.INVALID16
+        diag["speckle_rejected"] = lr_valid - float(measured.mean())
+        result = fixed
+        if do_fill and measured.any():
+            result = filled
+            if (filled == K.INVALID16).any():  # rows without any match: fill along columns
+                t = np.ascontiguousarray(filled.T)
+                t2 = np.empty_like(t)
+                K.fill_background_fixed(t, t2, 0, t.shape[0])
+                result = np.ascontiguousarray(t2.T)
+            if s.median > 1:
+                result = cv2.medianBlur(result, int(s.median))
+        keep = np.empty((0, 0), np.int16) if (s.fill or result is fixed) else fixed
+        out = np.empty((H, W), np.float32)
+        K.from_fixed(result, keep, np.float32(1.0 / fs), out, 0, H)
+        sw.lap("postprocess")
+        return out, measured
+
+    def compute(self, left: np.ndarray, right: np.ndarray) -> DisparityResult:
+        """Disparity of a rectified pair.
+
+        Args:
+            left, right: (H, W, 3) uint8 RGB or (H, W) grey (uint16 accepted), same size.
+        Returns:
+            DisparityResult with (H, W) float32 disparity (``x_right = x_left - d``), NaN
+            where no estimate (only when ``fill`` is off or the whole map failed), and the
+            ``filled`` mask of interpolated pixels.
+        Raises:
+            InputError: bad images or a disparity range at least as wide as the image.
+        """
+        with self._lock:
+            return self._compute(left, right)
+
+    def _compute(self, left: np.ndarray, right: np.ndarray) -> DisparityResult:
+        s = self.settings
+        sw = Stopwatch()
+        pair = prepare_pair(left, right)
+        H, W = pair.left_grey.shape
+        check_disparity_range(self.min_disparity, self.max_disparity, W)
+        diag: dict[str, Any] = {"settings": asdict(s), "converted_from_16bit": pair.converted_from_16bit}
+        gl, gr = pair.left_grey, pair.right_grey
+        dmin, dmax = self.min_disparity, self.max_disparity
+        scale = 1
+        if s.fast and min(H, W) >= 64:  # tiny images are matched at full resolution
+            scale = 2
+            h2, w2 = (H + 1) // 2, (W + 1) // 2
+            gl = cv2.resize(gl, (w2, h2), interpolation=cv2.INTER_AREA)
+            gr = cv2.resize(gr, (w2, h2), interpolation=cv2.INTER_AREA)
+            dmin, dmax = int(np.floor(dmin / 2)), int(np.ceil(dmax / 2))
+            if dmax - dmin >= w2:
+                dmax = dmin + w2 - 1
+        sw.lap("prepare")
+
+        out, measured = self._match(gl, gr, dmin, dmax, scale, sw, diag)
+        if scale != 1:
+            out = _upsample2(out, (W, H))
+            measured = cv2.resize(measured.view(np.uint8), (W, H), interpolation=cv2.INTER_NEAREST).astype(bool)
+            sw.lap("upsample")
+        out = np.ascontiguousarray(out, dtype=np.float32)
+        filled_mask = np.isfinite(out) & ~measured
+        diag["density"] = float(np.isfinite(out).mean())
+        diag["measured_density"] = float(measured.mean())
+        return DisparityResult(out, filled_mask, self.name, self.min_disparity, self.max_disparity,
+                               sw.total(), diag)
+
+    def warmup(self) -> None:
+        """Compile (or load from the cache) the kernels on a tiny pair, so that the first real
+        frame is not slowed by the JIT."""
+        rng = np.random.default_rng(0)
+        img = rng.integers(0, 255, (48, 64), dtype=np.uint8)
+        m = SkyreconMatcher(16, settings=replace(self.settings, fast=False))
+        m.compute(img, np.roll(img, -3, axis=1))
+
+
+def _factory(fast: bool) -> Callable[..., SkyreconMatcher]:
+    def make(max_disparity: int, min_disparity: int = 0, settings: SkyreconSettings | None = None,
+             **kwargs: Any) -> SkyreconMatcher:
+        if settings is None:
+            kwargs.setdefault("fast", fast)
+        elif fast and not settings.fast:
+            settings = replace(settings, fast=True)
+        return SkyreconMatcher(max_disparity, min_disparity, settings=settings, **kwargs)
+
+    return make
+
+
+register_matcher("skyrecon", _factory(False), "census + semi-global matching (default, most accurate)")
+register_matcher("skyrecon-fast", _factory(True), "skyrecon at half resolution (obstacle detection, video rate)")

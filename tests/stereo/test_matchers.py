@@ -1,0 +1,173 @@
+"""Matchers on synthetic pairs with exact disparity: accuracy, interface, reuse."""
+
+import numpy as np
+import pytest
+
+from skyrecon.eval.stereo_metrics import evaluate_disparity
+from skyrecon.stereo import (
+    DisparityResult,
+    Matcher,
+    OpenCVSGBMSettings,
+    SkyreconMatcher,
+    SkyreconSettings,
+    create_matcher,
+)
+
+from tests.stereo.conftest import warp_pair
+
+INNER = (slice(8, -8), slice(40, -8))  # away from the borders and the left band without matches
+
+
+def _err(result, truth):
+    return np.abs(result.disparity[INNER] - truth[INNER])
+
+
+def test_subpixel_fronto_parallel_plane(fronto_pair):
+    left, right, d = fronto_pair
+    r = create_matcher("skyrecon", 32).compute(left, right)
+    e = _err(r, d)
+    assert np.isfinite(e).all()
+    assert np.median(e) < 0.2 and np.mean(e) < 0.2 and np.percentile(e, 99) < 0.5
+    # sub-pixel, not integer: the 0.3 fraction is recovered on average
+    assert abs(np.mean(r.disparity[INNER]) - 12.3) < 0.2
+
+
+def test_subpixel_slanted_plane(slanted_pair):
+    left, right, d = slanted_pair
+    r = create_matcher("skyrecon", 32).compute(left, right)
+    e = _err(r, d)
+    assert np.mean(e) < 0.1 and np.percentile(e, 95) < 0.25
+    assert evaluate_disparity(r.disparity[INNER], d[INNER])["bad1"] < 0.005
+
+
+def test_subpixel_modes_all_work(slanted_pair):
+    left, right, d = slanted_pair
+    errs = {}
+    for mode in ("parabola", "equiangular", "none"):
+        errs[mode] = np.mean(_err(create_matcher("skyrecon", 32, subpixel=mode).compute(left, right), d))
+    assert errs["equiangular"] < errs["none"] and errs["parabola"] < errs["none"]
+    assert errs["none"] < 0.35  # integer disparities: about a quarter pixel on average
+
+
+@pytest.mark.parametrize("method", ["skyrecon-fast", "opencv-sgbm"])
+def test_other_matchers_on_the_slanted_plane(method, slanted_pair):
+    left, right, d = slanted_pair
+    r = create_matcher(method, 32).compute(left, right)
+    e = _err(r, d)
+    ok = np.isfinite(e)
+    assert ok.mean() > 0.9
+    assert np.median(e[ok]) < 0.35
+
+
+def test_result_fields(slanted_pair):
+    left, right, d = slanted_pair
+    m = create_matcher("skyrecon", 32)
+    assert isinstance(m, Matcher)
+    r = m.compute(left, right)
+    assert isinstance(r, DisparityResult)
+    assert r.disparity.shape == d.shape and r.disparity.dtype == np.float32
+    assert r.filled.shape == d.shape and r.filled.dtype == bool
+    assert r.method == "skyrecon" and (r.min_disparity, r.max_disparity) == (0, 32)
+    assert r.density == 1.0  # filled everywhere
+    # the band at the left border cannot be matched: it is filled, not measured
+    assert r.filled[:, :5].mean() > 0.9 and r.measured[INNER].mean() > 0.95
+    assert {"prepare", "match", "postprocess", "total"} <= set(r.timings_ms)
+    assert 0 <= r.diagnostics["lr_rejected"] <= 1
+
+
+def test_without_filling_invalid_pixels_are_nan(slanted_pair):
+    left, right, d = slanted_pair
+    r = create_matcher("skyrecon", 32, fill=False).compute(left, right)
+    assert np.isnan(r.disparity[:, :5]).mean() > 0.9
+    assert not r.filled.any()
+    assert np.isfinite(r.disparity[INNER]).mean() > 0.95
+
+
+def test_opencv_invalid_is_nan_and_range_rounds_to_16(slanted_pair):
+    left, right, d = slanted_pair
+    m = create_matcher("opencv-sgbm", 20, settings=OpenCVSGBMSettings(mode="hh4", block_size=3))
+    assert m.num_disparities == 32 and m.max_disparity == 32
+    r = m.compute(left, right)
+    assert np.isnan(r.disparity[:, :10]).all()  # OpenCV leaves the left band empty
+    assert np.nanmin(r.disparity) >= 0
+    bm = create_matcher("opencv-bm", 32, block_size=9, texture_threshold=0)
+    rb = bm.compute(left, right)
+    assert np.nanmedian(np.abs(rb.disparity[INNER] - d[INNER])) < 0.5
+
+
+def test_negative_min_disparity(fronto_pair):
+    left, right, d = fronto_pair
+    # swap roles: the right image seen as "left" has disparity -12.3
+    r = create_matcher("skyrecon", 0, min_disparity=-24).compute(right, left)
+    inner = (slice(8, -8), slice(8, -40))
+    assert np.median(np.abs(r.disparity[inner] + 12.3)) < 0.2
+
+
+def test_matcher_is_reusable_across_frames_and_sizes(slanted_pair, fronto_pair):
+    m = SkyreconMatcher(32)
+    a1 = m.compute(*slanted_pair[:2]).disparity
+    b = m.compute(*fronto_pair[:2]).disparity
+    a2 = m.compute(*slanted_pair[:2]).disparity
+    np.testing.assert_array_equal(a1, a2)  # deterministic, no state leaks between frames
+    assert b.shape == fronto_pair[2].shape
+    # a different size reallocates its buffers
+    small = warp_pair(np.full((48, 80), 5.0, np.float32), seed=3)
+    assert m.compute(*small).disparity.shape == (48, 80)
+
+
+def test_single_thread_matches_multi_thread(slanted_pair):
+    left, right, _ = slanted_pair
+    d1 = create_matcher("skyrecon", 32, threads=1).compute(left, right).disparity
+    d2 = create_matcher("skyrecon", 32, threads=2, band_margin=16).compute(left, right).disparity
+    # bands start their upward paths a margin away: almost every pixel agrees
+    assert np.mean(np.abs(d1 - d2) < 0.05) > 0.98
+
+
+def test_settings_object_and_overrides(slanted_pair):
+    s = SkyreconSettings(paths=4, P1=4, P2=80)
+    m = create_matcher("skyrecon", 32, settings=s)
+    assert m.settings.P1 == 4
+    m2 = create_matcher("skyrecon-fast", 32)
+    assert m2.settings.fast and m2.name == "skyrecon-fast"
+    r = m2.compute(*slanted_pair[:2])
+    assert r.method == "skyrecon-fast" and r.disparity.shape == slanted_pair[2].shape
+
+
+def test_sequence_reuses_buffers_without_recompiling(slanted_pair, fronto_pair):
+    from skyrecon.stereo import _kernels as K
+
+    m = SkyreconMatcher(32)
+    frames = [slanted_pair[:2], fronto_pair[:2], slanted_pair[:2]]
+    m.compute(*frames[0])
+    kernels = (K.sgm_band, K.census_transform, K.to_fixed, K.from_fixed, K.fill_background_fixed)
+    before = [len(k.signatures) for k in kernels]
+    buffers = {k: id(v) for k, v in m._buffers.items()}
+    results = [m.compute(*f) for f in frames]
+    assert [len(k.signatures) for k in kernels] == before  # no recompilation per frame
+    # same-size frames reuse the same buffers
+    m.compute(*frames[0])
+    assert {k: id(v) for k, v in m._buffers.items() if k in buffers} == buffers
+    # results are independent copies, not views of the internal buffers
+    assert not np.shares_memory(results[0].disparity, results[2].disparity)
+    np.testing.assert_array_equal(results[0].disparity, results[2].disparity)
+
+
+@pytest.mark.parametrize("mode", ["sgbm", "hh", "sgbm_3way", "hh4"])
+def test_every_opencv_sgbm_mode(mode, slanted_pair):
+    left, right, d = slanted_pair
+    m = create_matcher("opencv-sgbm", 32, mode=mode, block_size=3, P1=100, P2=800, disp12_max_diff=-1,
+                       pre_filter_cap=31, uniqueness_ratio=5, speckle_window_size=50, speckle_range=1,
+                       use_colour=False)
+    r = m.compute(left, right)
+    assert r.diagnostics["channels"] == 1
+    assert np.nanmedian(np.abs(r.disparity[INNER] - d[INNER])) < 0.35
+
+
+@pytest.mark.parametrize("prefilter", ["xsobel", "normalized_response"])
+def test_opencv_bm_prefilters(prefilter, slanted_pair):
+    left, right, d = slanted_pair
+    m = create_matcher("opencv-bm", 32, pre_filter_type=prefilter, pre_filter_size=9, pre_filter_cap=31,
+                       block_size=11, texture_threshold=0, uniqueness_ratio=5, speckle_window_size=0,
+                       speckle_range=0, disp12_max_diff=1)
+    r = m.compute(left, right)
+    assert np.nanmedian(np.abs(r.disparity[INNER] - d[INNER])) < 0.5
