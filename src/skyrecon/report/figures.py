@@ -90,3 +90,46 @@ def top_down_map(
         cv2.circle(img, tuple(int(a) for a in pts[0]), 4, color, -1)
         cv2.drawMarker(img, tuple(int(a) for a in pts[-1]), color, cv2.MARKER_CROSS, 10, 2)
     return img
+
+
+def height_map_image(
+    points_world: np.ndarray,
+    extent: tuple[float, float, float, float],
+    paths: Sequence[np.ndarray] = (),
+    px_per_m: float = 4.0,
+    path_colors: Sequence[tuple[int, int, int]] = ((220, 40, 40), (40, 90, 220), (30, 160, 60)),
+) -> np.ndarray:
+    """Plan view of points (e.g. occupied voxel centres): darker where higher, paths on top.
+
+    Args:
+        points_world: (N, 3) world points, metres.
+        extent: ``(xmin, ymin, xmax, ymax)`` of the picture, metres.
+        paths: each (K, 3) or (K, 2) world positions, metres.
+    Returns:
+        (H, W, 3) uint8 RGB, north (+y) up.
+    """
+    x0, y0, x1, y1 = extent
+    W, H = max(1, int(np.ceil((x1 - x0) * px_per_m))), max(1, int(np.ceil((y1 - y0) * px_per_m)))
+    img = np.full((H, W, 3), 240, np.uint8)
+    p = np.asarray(points_world, dtype=np.float64).reshape(-1, 3)
+    if len(p):
+        u = ((p[:, 0] - x0) * px_per_m).astype(np.int64)
+        v = ((y1 - p[:, 1]) * px_per_m).astype(np.int64)
+        ok = (u >= 0) & (u < W) & (v >= 0) & (v < H)
+        top = np.full(H * W, -np.inf)
+        np.maximum.at(top, v[ok] * W + u[ok], p[ok, 2])
+        seen = np.isfinite(top)
+        zmax = max(float(top[seen].max()) if seen.any() else 1.0, 1.0)
+        shade = (200 - 170 * np.clip(top[seen] / zmax, 0, 1)).astype(np.uint8)
+        flat = img.reshape(-1, 3)
+        flat[seen] = np.stack([shade, shade, np.minimum(shade.astype(np.int32) + 25, 255).astype(np.uint8)], axis=1)
+    for k, path in enumerate(paths):
+        path = np.asarray(path, dtype=np.float64)
+        if len(path) == 0:
+            continue
+        pts = np.stack([(path[:, 0] - x0) * px_per_m, (y1 - path[:, 1]) * px_per_m], axis=1).astype(np.int32)
+        color = path_colors[k % len(path_colors)]
+        cv2.polylines(img, [pts], False, color, 2, cv2.LINE_AA)
+        cv2.circle(img, tuple(int(a) for a in pts[0]), 4, color, -1)
+        cv2.drawMarker(img, tuple(int(a) for a in pts[-1]), color, cv2.MARKER_CROSS, 10, 2)
+    return img

@@ -92,3 +92,15 @@ def max_disparity_for(rig: StereoRig, min_depth_m: float, multiple: int = 16) ->
         raise InputError(f"multiple must be >= 1, got {multiple}")
     d = int(np.ceil(rig.left.fx * rig.baseline_m / min_depth_m - rig.doffs_px)) + 1
     return max(multiple, -(-d // multiple) * multiple)
+
+
+def trusted_range_m(rig: StereoRig, max_depth_error_m: float, disparity_error_px: float = 0.25) -> float:
+    """Depth up to which a disparity error of ``disparity_error_px`` moves depth by at most
+    ``max_depth_error_m``: ``sqrt(max_depth_error * f * B / disparity_error)``, metres.
+
+    Beyond it stereo depth is too uncertain to place obstacles (mapping uses it as the range
+    up to which measurements mark hits; farther ones only carve free space up to it).
+    """
+    if not (max_depth_error_m > 0 and disparity_error_px > 0):
+        raise InputError("max_depth_error_m and disparity_error_px must be positive")
+    return float(np.sqrt(max_depth_error_m * rig.left.fx * rig.baseline_m / disparity_error_px))
