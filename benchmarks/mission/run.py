@@ -1,0 +1,144 @@
+"""Delivery missions end to end: 20 seeds at 640x480, the product's targets per seed and in summary.
+
+For each seed ``skyrecon demo`` flies one mission (a city it has never seen, start and goal
+100-180 m apart with buildings between them) and this prints:
+
+  success, collisions (against the TRUE geometry), min clearance (true, metres; target above
+  the safety margin), length ratio (flown / shortest feasible path in the true city at the same
+  clearance; target <= 1.3), loop Hz (median, rendering excluded; target >= 10 on 2 cores),
+  replans, and the per-stage median milliseconds.
+
+Targets: 20 of 20 delivered, 0 collisions, min clearance > margin, ratio <= 1.3, loop >= 10 Hz.
+
+Usage:
+  .venv/bin/python benchmarks/mission/run.py                      # seeds 0..19, one at a time
+  .venv/bin/python benchmarks/mission/run.py --seeds 5 --parallel 2
+  .venv/bin/python benchmarks/mission/run.py --small               # 320x240, 100 m city (quick)
+
+Resumable: a seed whose ``OUT/seed_NNNN/mission.json`` exists is read back, not flown again
+(``--fresh`` flies everything). Missions run one at a time by default, because missions side by
+side share the cores and their loop rates then measure a loaded machine. Writes
+``OUT/summary.{json,md,html}`` and ``benchmarks/mission/results.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+os.environ.setdefault("OMP_WAIT_POLICY", "passive")  # as `skyrecon demo` does (see skyrecon/cli/demo.py)
+
+ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT / "src"))
+
+
+from skyrecon.executor import ProcessExecutor  # noqa: E402
+from skyrecon.io.atomic import write_text_atomic  # noqa: E402
+from skyrecon.mission import MissionConfig  # noqa: E402
+from skyrecon.mission.batch import SUMMARY_KEYS, MissionJob, fly_job, summarize, summary_markdown  # noqa: E402
+from skyrecon.report.mission_report import render_summary_report  # noqa: E402
+
+
+def row_from_folder(folder: Path) -> dict | None:
+    """The summary row of a finished mission folder, or None if it has none."""
+    p = folder / "mission.json"
+    if not p.is_file():
+        return None
+    try:
+        doc = json.loads(p.read_text())
+    except (OSError, json.JSONDecodeError):
+        return None
+    if doc.get("reason") == "error":
+        return None
+    row = {k: doc.get(k) for k in SUMMARY_KEYS}
+    row["message"] = doc.get("message", "")
+    row["folder"] = folder.name
+    row["stage_ms"] = {k: (v or {}).get("median") for k, v in (doc.get("stage_ms") or {}).items()}
+    return row
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--seeds", type=int, default=20, help="number of seeds (default 20)")
+    ap.add_argument("--first-seed", type=int, default=0)
+    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "mission" / "out"), help="mission folders")
+    ap.add_argument("--parallel", type=int, default=1, help="missions at once (default 1: honest loop rates)")
+    ap.add_argument("--fresh", action="store_true", help="fly every seed again")
+    ap.add_argument("--small", action="store_true", help="320x240 images, 100 m city, 50-90 m deliveries")
+    args = ap.parse_args()
+
+    cfg = MissionConfig()
+    if args.small:
+        cfg = cfg.with_overrides(width=320, height=240, max_disparity=32, city_size_m=100.0, min_goal_distance_m=50.0,
+                                 max_goal_distance_m=90.0)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    seeds = list(range(args.first_seed, args.first_seed + args.seeds))
+    rows: dict[int, dict] = {}
+    todo = []
+    for s in seeds:
+        folder = out / f"seed_{s:04d}"
+        row = None if args.fresh else row_from_folder(folder)
+        if row is not None:
+            rows[s] = row
+        else:
+            todo.append(MissionJob(s, str(folder), cfg.to_dict()))
+    print(f"{len(rows)} seeds already flown, {len(todo)} to fly ({cfg.width}x{cfg.height}, "
+          f"{cfg.city_size_m:g} m city), {args.parallel} at a time", flush=True)
+    t0 = time.perf_counter()
+    if args.parallel > 1 and todo:
+        ProcessExecutor(args.parallel).map(fly_job, todo, desc="missions")
+    else:
+        for job in todo:  # every mission folder is complete as soon as its mission ends (resumable)
+            fly_job(job)
+    for job in todo:
+        rows[job.seed] = row_from_folder(Path(job.out)) or {"seed": job.seed, "success": False, "reason": "error"}
+    ordered = [rows[s] for s in seeds]
+    totals = summarize(ordered)
+
+    print()
+    hdr = f"{'seed':>4} {'ok':>3} {'coll':>4} {'minclr m':>8} {'flown m':>8} {'short m':>8} {'ratio':>6} {'replans':>7} {'loop Hz':>7}  stages (median ms)"
+    print(hdr)
+    print("-" * len(hdr))
+    for r in ordered:
+        st = r.get("stage_ms") or {}
+        stages = " ".join(f"{k}={st[k]:.0f}" for k in ("stereo", "integrate", "distance", "check", "replan", "render")
+                          if st.get(k) is not None)
+
+        def f(v, fmt):
+            return "-" if v is None else fmt.format(v)
+
+        print(f"{r['seed']:>4} {'yes' if r.get('success') else 'NO':>3} {f(r.get('collisions'), '{:d}'):>4} "
+              f"{f(r.get('min_clearance_m'), '{:.2f}'):>8} {f(r.get('path_length_m'), '{:.1f}'):>8} "
+              f"{f(r.get('shortest_feasible_m'), '{:.1f}'):>8} {f(r.get('length_ratio'), '{:.3f}'):>6} "
+              f"{f(r.get('replans'), '{:d}'):>7} {f(r.get('loop_hz'), '{:.1f}'):>7}  {stages}"
+              + ("" if r.get("success") else f"  [{r.get('reason')}: {r.get('message', '')}]"))
+    print()
+    margin = cfg.safety_margin_m
+    print("summary:")
+    print(f"  delivered        {totals['succeeded']} / {totals['missions']}   (target {totals['missions']} / {totals['missions']})")
+    print(f"  collisions       {totals['collisions']}        (target 0)")
+    if totals["min_clearance_m"] is not None:
+        print(f"  min clearance    {totals['min_clearance_m']:.2f} m  (target > {margin:g} m)")
+    if totals["length_ratio_max"] is not None:
+        print(f"  length ratio     median {totals['length_ratio_median']:.3f}, worst {totals['length_ratio_max']:.3f}  (target <= 1.3)")
+    if totals["loop_hz_median"] is not None:
+        print(f"  loop rate        median of medians {totals['loop_hz_median']:.1f} Hz, slowest mission {totals['loop_hz_min']:.1f} Hz  (target >= 10)")
+    print(f"  wall time        {time.perf_counter() - t0:.0f} s for {len(todo)} missions flown now")
+    write_text_atomic(out / "summary.json", json.dumps({"totals": totals, "missions": ordered}, indent=2) + "\n")
+    write_text_atomic(out / "summary.md", summary_markdown(ordered, totals))
+    write_text_atomic(out / "summary.html", render_summary_report(ordered))
+    res = {"config": {"width": cfg.width, "height": cfg.height, "city_size_m": cfg.city_size_m},
+           "cpu_count": os.cpu_count(), "totals": totals,
+           "missions": [{k: r.get(k) for k in ("seed", "success", "collisions", "min_clearance_m", "length_ratio", "loop_hz", "replans", "reason")} for r in ordered]}
+    if not args.small and args.first_seed == 0:
+        write_text_atomic(ROOT / "benchmarks" / "mission" / "results.json", json.dumps(res, indent=2) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,150 @@
+"""Numba kernels for the hot loops of robust estimation (compiled on first use, cached on disk)."""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+__all__ = ["msac_costs", "sampson_sq_many"]
+
+
+@numba.njit(cache=True, fastmath=False)
+def msac_costs(Fs: np.ndarray, x1: np.ndarray, x2: np.ndarray, thr2: float) -> tuple[np.ndarray, np.ndarray]:
+    """MSAC cost and inlier count of K models on N matches.
+
+    Args:
+        Fs: (K, 3, 3) float64 models with ``x2^T F x1 = 0``.
+        x1, x2: (N, 2) float64 points.
+        thr2: squared threshold (units of x squared).
+    Returns:
+        ``(cost, count)``: (K,) float64 sum of ``min(sampson^2, thr2)`` and (K,) int64 inliers.
+    """
+    K = Fs.shape[0]
+    N = x1.shape[0]
+    cost = np.zeros(K)
+    count = np.zeros(K, dtype=np.int64)
+    for k in range(K):
+        f = Fs[k]
+        f00, f01, f02 = f[0, 0], f[0, 1], f[0, 2]
+        f10, f11, f12 = f[1, 0], f[1, 1], f[1, 2]
+        f20, f21, f22 = f[2, 0], f[2, 1], f[2, 2]
+        c = 0.0
+        m = 0
+        for i in range(N):
+            u1 = x1[i, 0]
+            v1 = x1[i, 1]
+            u2 = x2[i, 0]
+            v2 = x2[i, 1]
+            a0 = f00 * u1 + f01 * v1 + f02
+            a1 = f10 * u1 + f11 * v1 + f12
+            a2 = f20 * u1 + f21 * v1 + f22
+            b0 = f00 * u2 + f10 * v2 + f20
+            b1 = f01 * u2 + f11 * v2 + f21
+            num = u2 * a0 + v2 * a1 + a2
+            den = a0 * a0 + a1 * a1 + b0 * b0 + b1 * b1
+            e = num * num / den if den > 0 else np.inf
+            if e < thr2:
+                c += e
+                m += 1
+            else:
+                c += thr2
+        cost[k] = c
+        count[k] = m
+    return cost, count
+
+
+@numba.njit(cache=True)
+def sampson_sq_many(Fs: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> np.ndarray:
+    """(K, N) squared Sampson errors of K models (K, 3, 3) on N matches (N, 2)."""
+    K = Fs.shape[0]
+    N = x1.shape[0]
+    out = np.empty((K, N))
+    for k in range(K):
+        f = Fs[k]
+        for i in range(N):
+            u1 = x1[i, 0]
+            v1 = x1[i, 1]
+            u2 = x2[i, 0]
+            v2 = x2[i, 1]
+            a0 = f[0, 0] * u1 + f[0, 1] * v1 + f[0, 2]
+            a1 = f[1, 0] * u1 + f[1, 1] * v1 + f[1, 2]
+            a2 = f[2, 0] * u1 + f[2, 1] * v1 + f[2, 2]
+            b0 = f[0, 0] * u2 + f[1, 0] * v2 + f[2, 0]
+            b1 = f[0, 1] * u2 + f[1, 1] * v2 + f[2, 1]
+            num = u2 * a0 + v2 * a1 + a2
+            den = a0 * a0 + a1 * a1 + b0 * b0 + b1 * b1
+            out[k, i] = num * num / den if den > 0 else np.inf
+    return out
+
+
+@numba.njit(cache=True)
+def msac_costs_pose(Rs: np.ndarray, ts: np.ndarray, x1: np.ndarray, x2: np.ndarray, thr2: float) -> tuple[np.ndarray, np.ndarray]:
+    """MSAC cost and inlier count of K poses on N normalised matches, with cheirality.
+
+    A match is an inlier when its squared Sampson error under ``E = [t]x R`` is below thr2 and
+    its mid-point triangulation lies in front of both cameras.
+
+    Args:
+        Rs: (K, 3, 3) rotations and ts: (K, 3) translations, cam2_from_cam1.
+        x1, x2: (N, 2) normalised coordinates.
+        thr2: squared threshold, normalised units.
+    Returns:
+        ``(cost, count)``: (K,) float64 and (K,) int64.
+    """
+    K = Rs.shape[0]
+    N = x1.shape[0]
+    cost = np.zeros(K)
+    count = np.zeros(K, dtype=np.int64)
+    for k in range(K):
+        R = Rs[k]
+        tx, ty, tz = ts[k, 0], ts[k, 1], ts[k, 2]
+        # E = [t]x R
+        e00 = -tz * R[1, 0] + ty * R[2, 0]
+        e01 = -tz * R[1, 1] + ty * R[2, 1]
+        e02 = -tz * R[1, 2] + ty * R[2, 2]
+        e10 = tz * R[0, 0] - tx * R[2, 0]
+        e11 = tz * R[0, 1] - tx * R[2, 1]
+        e12 = tz * R[0, 2] - tx * R[2, 2]
+        e20 = -ty * R[0, 0] + tx * R[1, 0]
+        e21 = -ty * R[0, 1] + tx * R[1, 1]
+        e22 = -ty * R[0, 2] + tx * R[1, 2]
+        # camera-2 centre in camera-1 frame: c2 = -R^T t
+        cx = -(R[0, 0] * tx + R[1, 0] * ty + R[2, 0] * tz)
+        cy = -(R[0, 1] * tx + R[1, 1] * ty + R[2, 1] * tz)
+        cz = -(R[0, 2] * tx + R[1, 2] * ty + R[2, 2] * tz)
+        c = 0.0
+        m = 0
+        for i in range(N):
+            u1 = x1[i, 0]
+            v1 = x1[i, 1]
+            u2 = x2[i, 0]
+            v2 = x2[i, 1]
+            a0 = e00 * u1 + e01 * v1 + e02
+            a1 = e10 * u1 + e11 * v1 + e12
+            a2 = e20 * u1 + e21 * v1 + e22
+            b0 = e00 * u2 + e10 * v2 + e20
+            b1 = e01 * u2 + e11 * v2 + e21
+            num = u2 * a0 + v2 * a1 + a2
+            den = a0 * a0 + a1 * a1 + b0 * b0 + b1 * b1
+            err = num * num / den if den > 0 else np.inf
+            if err < thr2:
+                # g2 = R^T f2
+                gx = R[0, 0] * u2 + R[1, 0] * v2 + R[2, 0]
+                gy = R[0, 1] * u2 + R[1, 1] * v2 + R[2, 1]
+                gz = R[0, 2] * u2 + R[1, 2] * v2 + R[2, 2]
+                aa = u1 * u1 + v1 * v1 + 1.0
+                bb = u1 * gx + v1 * gy + gz
+                cc = gx * gx + gy * gy + gz * gz
+                dd = u1 * cx + v1 * cy + cz
+                ee = gx * cx + gy * cy + gz * cz
+                dn = aa * cc - bb * bb
+                l1 = (cc * dd - bb * ee) * dn
+                l2 = (bb * dd - aa * ee) * dn
+                if l1 > 0 and l2 > 0:
+                    c += err
+                    m += 1
+                    continue
+            c += thr2
+        cost[k] = c
+        count[k] = m
+    return cost, count

@@ -1,0 +1,21 @@
+"""Occupancy mapping: a sparse probabilistic voxel map fed by depth images or point clouds,
+and a bounded Euclidean distance field over it (world frame, z up, metres).
+
+Main entry points:
+
+* :func:`build_map_from_depth_frames` and :class:`OccupancyMap` (``integrate_depth``,
+  ``integrate_points``, ``save`` / ``load``, ``pop_changed_blocks``);
+* :func:`export_occupied_ply`, :func:`write_octomap_bt`;
+* :class:`DistanceField` (``update``, ``query_distance``).
+"""
+
+from skyrecon.mapping.config import MapConfig
+from skyrecon.mapping.distance import DistanceField
+from skyrecon.mapping.occupancy import FREE, OCCUPIED, UNKNOWN, IntegrationStats, OccupancyMap, build_map_from_depth_frames
+from skyrecon.mapping.octomap_bt import write_octomap_bt
+from skyrecon.mapping.storage import export_occupied_ply, load_map, save_map
+
+__all__ = [
+    "MapConfig", "OccupancyMap", "IntegrationStats", "build_map_from_depth_frames", "DistanceField",
+    "export_occupied_ply", "write_octomap_bt", "save_map", "load_map", "FREE", "OCCUPIED", "UNKNOWN",
+]

@@ -1,0 +1,113 @@
+"""Exact Euclidean distance transform (Felzenszwalb & Huttenlocher), separable, in Numba.
+
+``squared_edt(obstacle)`` gives, for every voxel of a dense (X, Y, Z) grid, the squared distance
+in voxel units from its centre to the nearest obstacle voxel centre (inf when the grid has none).
+The same numbers as ``scipy.ndimage.distance_transform_edt(~obstacle) ** 2``, faster on two cores.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+INF = np.inf
+
+
+@njit(cache=True)
+def _dt1d(f, n, out, v, z):
+    """1-D squared distance transform of the sampled function ``f[:n]`` (inf = no source) into ``out``."""
+    k = -1
+    for q in range(n):
+        fq = f[q]
+        if fq == INF:
+            continue
+        if k < 0:
+            k = 0
+            v[0] = q
+            z[0] = -INF
+            z[1] = INF
+            continue
+        while True:
+            vk = v[k]
+            s = ((fq + q * q) - (f[vk] + vk * vk)) / (2.0 * (q - vk))
+            if s <= z[k]:
+                k -= 1
+            else:
+                break
+        k += 1
+        v[k] = q
+        z[k] = s
+        z[k + 1] = INF
+    if k < 0:
+        for q in range(n):
+            out[q] = INF
+        return
+    j = 0
+    for q in range(n):
+        while z[j + 1] < q:
+            j += 1
+        dq = q - v[j]
+        out[q] = dq * dq + f[v[j]]
+
+
+@njit(cache=True)
+def _pass_z(obstacle, d, i, f, o, v, z):
+    Y, Z = d.shape[1], d.shape[2]
+    for j in range(Y):
+        for k in range(Z):
+            f[k] = 0.0 if obstacle[i, j, k] else INF
+        _dt1d(f, Z, o, v, z)
+        for k in range(Z):
+            d[i, j, k] = o[k]
+
+
+@njit(cache=True)
+def _pass_y(d, i, f, o, v, z):
+    Y, Z = d.shape[1], d.shape[2]
+    for k in range(Z):
+        for j in range(Y):
+            f[j] = d[i, j, k]
+        _dt1d(f, Y, o, v, z)
+        for j in range(Y):
+            d[i, j, k] = o[j]
+
+
+@njit(cache=True)
+def _pass_x(d, j, f, o, v, z):
+    X, Z = d.shape[0], d.shape[2]
+    for k in range(Z):
+        for i in range(X):
+            f[i] = d[i, j, k]
+        _dt1d(f, X, o, v, z)
+        for i in range(X):
+            d[i, j, k] = o[i]
+
+
+@njit(cache=True, parallel=True)
+def squared_edt(obstacle):
+    """(X, Y, Z) float64 squared distance (voxel units) to the nearest True voxel of ``obstacle`` (X, Y, Z) bool."""
+    X, Y, Z = obstacle.shape
+    d = np.empty((X, Y, Z), np.float64)
+    n = max(X, max(Y, Z))
+    for i in prange(X):  # along z, then y, slab by slab
+        f = np.empty(n, np.float64)
+        o = np.empty(n, np.float64)
+        v = np.empty(n, np.int64)
+        z = np.empty(n + 1, np.float64)
+        _pass_z(obstacle, d, i, f, o, v, z)
+        _pass_y(d, i, f, o, v, z)
+    for j in prange(Y):  # along x
+        f = np.empty(n, np.float64)
+        o = np.empty(n, np.float64)
+        v = np.empty(n, np.int64)
+        z = np.empty(n + 1, np.float64)
+        _pass_x(d, j, f, o, v, z)
+    return d
+
+
+def bounded_distance(obstacle: np.ndarray, voxel: float, max_distance: float) -> np.ndarray:
+    """(X, Y, Z) float32 Euclidean distance, metres, to the nearest obstacle voxel centre, clipped at ``max_distance``."""
+    d = np.sqrt(squared_edt(np.ascontiguousarray(obstacle, dtype=np.bool_)))
+    d *= voxel
+    np.minimum(d, max_distance, out=d)
+    return d.astype(np.float32)

@@ -1,0 +1,134 @@
+"""Saving and loading occupancy maps.
+
+A map directory holds two files, each written atomically (temporary file + rename), the
+blocks first and the header last, so that a directory with a header always has its blocks:
+
+``map.json`` (UTF-8 JSON)::
+
+    {"format": "skyrecon.occupancy", "version": 1,
+     "frame": "world", "units": "m",
+     "voxel_size_m": 0.2, "block_size": 8,
+     "num_blocks": 1234, "blocks_file": "blocks.npz",
+     "config": {... MapConfig fields ...},
+     "layout": "..."}
+
+``blocks.npz`` (numpy ``savez``, uncompressed):
+
+* ``coords``: (N, 3) int32 block coordinates ``b``;
+* ``log_odds``: (N, B, B, B) float32, ``log_odds[n, i, j, k]`` is the natural-log odds of voxel
+  ``coords[n] * B + (i, j, k)`` (x, y, z order), NaN where unknown.
+
+Voxel ``v`` spans ``[v, v + 1) * voxel_size_m`` in the world frame; its centre is
+``(v + 0.5) * voxel_size_m``.
+"""
+
+from __future__ import annotations
+
+import json
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from skyrecon.errors import InputError
+from skyrecon.io.atomic import atomic_write, write_text_atomic
+from skyrecon.mapping.blocks import BlockGrid
+from skyrecon.mapping.config import MapConfig
+
+FORMAT = "skyrecon.occupancy"
+VERSION = 1
+HEADER = "map.json"
+BLOCKS = "blocks.npz"
+
+
+def save_map(occ_map, directory: str | Path, compress: bool = False) -> None:
+    """Write ``occ_map`` (an :class:`OccupancyMap`) to ``directory`` (created if missing)."""
+    d = Path(directory)
+    d.mkdir(parents=True, exist_ok=True)
+    B = occ_map.block_size
+    n = occ_map.grid.count
+    coords = occ_map.grid.block_coords.copy()
+    logodds = occ_map.grid.blocks.reshape(n, B, B, B)
+    with atomic_write(d / BLOCKS, "wb") as f:
+        (np.savez_compressed if compress else np.savez)(f, coords=coords, log_odds=logodds)
+    header = {
+        "format": FORMAT,
+        "version": VERSION,
+        "frame": "world",
+        "units": "m",
+        "voxel_size_m": occ_map.voxel_size,
+        "block_size": B,
+        "num_blocks": int(n),
+        "blocks_file": BLOCKS,
+        "config": occ_map.config.to_dict(),
+        "layout": "log_odds[n, i, j, k] is voxel coords[n] * block_size + (i, j, k); "
+        "voxel v spans [v, v + 1) * voxel_size_m in the world frame; NaN = unknown",
+    }
+    write_text_atomic(d / HEADER, json.dumps(header, indent=2) + "\n")
+
+
+def load_map(directory: str | Path):
+    """Read a map directory written by :func:`save_map`; raises InputError if missing or corrupt."""
+    from skyrecon.mapping.occupancy import OccupancyMap
+
+    d = Path(directory)
+    hp = d / HEADER
+    if not hp.is_file():
+        raise InputError(f"no {HEADER} here; is this a map directory written by 'skyrecon map'?", d)
+    try:
+        header = json.loads(hp.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise InputError(f"corrupt map header ({e}); rebuild the map", hp) from None
+    if not isinstance(header, dict) or header.get("format") != FORMAT:
+        raise InputError(f"not a skyrecon occupancy map header (format != {FORMAT!r})", hp)
+    if header.get("version") != VERSION:
+        raise InputError(f"unsupported map version {header.get('version')!r} (this skyrecon reads {VERSION})", hp)
+    try:
+        config = MapConfig.from_dict(header["config"])
+    except (KeyError, TypeError) as e:
+        raise InputError(f"map header lacks a valid config ({e})", hp) from None
+    bp = d / str(header.get("blocks_file", BLOCKS))
+    if not bp.is_file():
+        raise InputError("the map's block file is missing; rebuild the map", bp)
+    try:
+        with np.load(bp, allow_pickle=False) as z:
+            coords = np.asarray(z["coords"])
+            logodds = np.asarray(z["log_odds"])
+    except (OSError, ValueError, KeyError, zipfile.BadZipFile, EOFError) as e:
+        raise InputError(f"corrupt block file ({e}); rebuild the map", bp) from None
+    B = config.block_size
+    n = int(header.get("num_blocks", -1))
+    if coords.shape != (n, 3) or logodds.shape != (n, B, B, B):
+        raise InputError(
+            f"block file holds coords {coords.shape} and log_odds {logodds.shape}, "
+            f"header says {n} blocks of {B}^3; the files do not belong together",
+            bp,
+        )
+    if coords.dtype.kind not in "iu" or logodds.dtype.kind != "f":
+        raise InputError("block file has wrong data types (need integer coords, float log_odds)", bp)
+    m = OccupancyMap(config)
+    try:
+        m.grid = BlockGrid.from_blocks(B, np.nan, coords, logodds.reshape(n, -1))
+    except ValueError as e:
+        raise InputError(f"corrupt block file ({e})", bp) from None
+    m._dirty = np.ones(m.grid.coords.shape[0], np.uint8)
+    m._sat = np.zeros(m.grid.coords.shape[0], np.uint8)
+    return m
+
+
+def export_occupied_ply(occ_map, path: str | Path, colorize: bool = True) -> int:
+    """Write the centres of the occupied voxels (world frame, metres) as a binary PLY.
+
+    Colours encode height (blue low, red high) when ``colorize``. Returns the number of points.
+    """
+    from skyrecon.core.depth import PointCloud
+    from skyrecon.io.ply import write_ply
+
+    pts = occ_map.occupied_centers().astype(np.float32)
+    colors = None
+    if colorize and len(pts):
+        z = pts[:, 2]
+        s = (z - z.min()) / max(float(np.ptp(z)), 1e-6)
+        colors = np.stack([255 * s, 255 * (1 - np.abs(2 * s - 1)), 255 * (1 - s)], 1)
+    write_ply(path, PointCloud(pts, colors))
+    return int(len(pts))

@@ -1,0 +1,183 @@
+"""Every setting of a simulated delivery mission, in one place.
+
+Units: metres, seconds, degrees where the name says ``_deg``. World frame: z up.
+The defaults are the product's: a 640x480 stereo pair with a 90 degree horizontal field of
+view and a 0.3 m baseline (good depth from about 2 m to 20 m, see :attr:`MissionConfig.max_range_m`),
+0.5 m voxels, 2 m clearance, 6 m/s cruise in an altitude band of 12..30 m over a 200 m city.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, fields, replace
+
+from skyrecon.errors import InputError
+
+
+@dataclass(frozen=True)
+class MissionConfig:
+    """Settings of one mission (the sensor, the map, the planner, the vehicle, the scenario).
+
+    Sensor (forward-looking rectified stereo rig, left camera at the drone's position):
+        width, height: image size, pixels.
+        hfov_deg: horizontal field of view, degrees.
+        baseline_m: stereo baseline, metres. With f = 320 px and B = 0.3 m a disparity of
+            1 px is 96 m away and the depth error for 0.25 px of disparity error is
+            ``Z^2 / (f B) / 4``: 0.1 m at 10 m, 0.4 m at 20 m.
+        matcher: stereo matcher name (``skyrecon.stereo.create_matcher``).
+        max_disparity: disparity search bound, pixels (nearest depth ``f B / max_disparity``).
+        camera_pitch_deg: the camera looks this far below the direction of travel, degrees.
+        max_camera_pitch_deg: bound of the camera's pitch either way, degrees.
+        depth_stride: the depth image is subsampled by this factor before integration (the
+            fast matcher works at half resolution anyway).
+    Map:
+        voxel_size_m: occupancy voxel edge, metres.
+        max_range_m: depth beyond this carves free space only (stereo is unreliable farther).
+        map_padding_m: the map covers the city plus this much on every side, metres.
+    Planner:
+        clearance_m: distance the planner keeps from mapped obstacles, metres (the planner adds
+            half a voxel diagonal for the discretisation).
+        replan_tolerance_m: hysteresis of replanning: a path planned at ``clearance_m`` is kept
+            until the map shows it more than this much inside the clearance (new observations
+            nibbling at a path that hugs the clearance do not trigger a replan every cycle).
+        min_altitude_m, max_altitude_m: flight band, world z metres. Streets are free above
+            10 m (poles, trees and overhead wires stay below), so the band starts at 12 m.
+    Vehicle:
+        cruise_speed_mps: top speed, m/s.
+        max_accel_mps2: acceleration and braking limit, m/s^2.
+        max_yaw_rate_deg_s: turn-rate limit, degrees/s.
+        max_heading_error_deg: the drone only moves while the camera looks within this angle of
+            its direction of travel (it turns on the spot otherwise).
+        drone_radius_m: a collision is the true distance to an obstacle below this, metres.
+        safety_margin_m: the mission's clearance target: the true distance to every obstacle
+            stays above this, metres (reported as ``clearance_ok``).
+        cycle_hz: rate of the sense-plan-act loop in simulated time (one stereo frame per cycle).
+        verify_buffer_m: the drone stops this far before the first stretch of its path it has
+            not yet observed free, metres.
+        verify_radius_m: radius of the tube around the path that must be observed (not unknown).
+        verify_skip_m: the first metres of the path ahead count as observed (the drone is there,
+            and that close the tube lies outside the camera's field of view).
+        arrival_tolerance_m: the mission succeeds within this distance of the goal, metres.
+        time_limit_s: simulated time limit; None: ``60 s + 4 x straight distance / cruise speed``.
+    Scenario:
+        city_size_m: side of the generated city, metres.
+        cruise_altitude_m: altitude of the start and the goal picked from a seed, metres.
+        min_goal_distance_m, max_goal_distance_m: straight-line distance range of start to goal.
+        endpoint_clearance_m: start and goal picked from a seed keep this far from obstacles.
+    """
+
+    width: int = 640
+    height: int = 480
+    hfov_deg: float = 90.0
+    baseline_m: float = 0.3
+    matcher: str = "skyrecon-fast"
+    max_disparity: int = 64
+    camera_pitch_deg: float = 8.0
+    max_camera_pitch_deg: float = 30.0
+    depth_stride: int = 2
+    voxel_size_m: float = 0.5
+    max_range_m: float = 20.0
+    map_padding_m: float = 25.0
+    clearance_m: float = 2.0
+    replan_tolerance_m: float = 0.5
+    min_altitude_m: float = 12.0
+    max_altitude_m: float = 30.0
+    cruise_speed_mps: float = 6.0
+    max_accel_mps2: float = 3.0
+    max_yaw_rate_deg_s: float = 90.0
+    max_heading_error_deg: float = 45.0
+    drone_radius_m: float = 0.35
+    safety_margin_m: float = 1.0
+    cycle_hz: float = 10.0
+    verify_buffer_m: float = 1.5
+    verify_radius_m: float = 1.0
+    verify_skip_m: float = 1.5
+    arrival_tolerance_m: float = 1.0
+    time_limit_s: float | None = None
+    city_size_m: float = 200.0
+    cruise_altitude_m: float = 15.0
+    min_goal_distance_m: float = 100.0
+    max_goal_distance_m: float = 180.0
+    endpoint_clearance_m: float = 4.0
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if isinstance(v, float) and not math.isfinite(v):
+                raise InputError(f"mission setting {f.name} must be finite, got {v}")
+        positive = ("width", "height", "hfov_deg", "baseline_m", "max_disparity", "depth_stride", "voxel_size_m",
+                    "max_range_m", "cruise_speed_mps", "max_accel_mps2", "max_yaw_rate_deg_s", "drone_radius_m",
+                    "cycle_hz", "arrival_tolerance_m", "city_size_m", "max_heading_error_deg")
+        for name in positive:
+            if not getattr(self, name) > 0:
+                raise InputError(f"mission setting {name} must be positive, got {getattr(self, name)}")
+        if not self.hfov_deg < 170:
+            raise InputError(f"hfov_deg must be below 170 degrees, got {self.hfov_deg}")
+        if self.width < 64 or self.height < 48:
+            raise InputError(f"images must be at least 64x48 pixels, got {self.width}x{self.height}")
+        if self.clearance_m < self.drone_radius_m:
+            raise InputError(f"clearance_m ({self.clearance_m}) must be at least the drone radius ({self.drone_radius_m})")
+        if not 0 <= self.replan_tolerance_m < self.clearance_m:
+            raise InputError(f"replan_tolerance_m must lie in [0, clearance_m), got {self.replan_tolerance_m}")
+        if not self.min_altitude_m < self.max_altitude_m:
+            raise InputError(f"need min_altitude_m < max_altitude_m, got {self.min_altitude_m}, {self.max_altitude_m}")
+        if not 0 < self.min_goal_distance_m <= self.max_goal_distance_m:
+            raise InputError("need 0 < min_goal_distance_m <= max_goal_distance_m")
+        if self.time_limit_s is not None and not self.time_limit_s > 0:
+            raise InputError(f"time_limit_s must be positive, got {self.time_limit_s}")
+
+    @property
+    def dt(self) -> float:
+        """Simulated seconds per cycle."""
+        return 1.0 / self.cycle_hz
+
+    @property
+    def focal_px(self) -> float:
+        """Focal length of the cameras, pixels."""
+        return 0.5 * self.width / math.tan(math.radians(self.hfov_deg) / 2)
+
+    @property
+    def min_depth_m(self) -> float:
+        """Nearest depth the disparity search covers, metres."""
+        return self.focal_px * self.baseline_m / self.max_disparity
+
+    @property
+    def planning_margin_m(self) -> float:
+        """What the planner adds to the clearance for the voxel discretisation, metres."""
+        return 0.5 * math.sqrt(3.0) * self.voxel_size_m
+
+    @property
+    def stopping_distance_m(self) -> float:
+        """Braking distance from cruise speed, metres."""
+        return self.cruise_speed_mps**2 / (2 * self.max_accel_mps2)
+
+    @property
+    def verify_horizon_m(self) -> float:
+        """How far ahead the path must be observed free for full speed: braking distance from
+        cruise speed, the buffer, and 2 m, metres."""
+        return self.stopping_distance_m + self.verify_buffer_m + 2.0
+
+    def time_limit_for(self, straight_m: float) -> float:
+        """Simulated time limit of a mission whose start and goal are ``straight_m`` apart, seconds."""
+        if self.time_limit_s is not None:
+            return float(self.time_limit_s)
+        return 60.0 + 4.0 * straight_m / self.cruise_speed_mps
+
+    def with_overrides(self, **changes) -> "MissionConfig":
+        """A copy with some fields changed (None values are ignored)."""
+        return replace(self, **{k: v for k, v in changes.items() if v is not None})
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "MissionConfig":
+        known = {f.name for f in fields(cls)}
+        return cls(**{k: v for k, v in d.items() if k in known})
+
+
+def small_test_config(**changes) -> MissionConfig:
+    """A quick mission for tests and smoke runs: 320x240 images, an 80 m city, 30..50 m deliveries."""
+    base = MissionConfig(width=320, height=240, max_disparity=32, city_size_m=80.0, min_goal_distance_m=30.0,
+                         max_goal_distance_m=50.0, map_padding_m=20.0)
+    return base.with_overrides(**changes)

@@ -1,0 +1,278 @@
+"""The closed loop: render -> stereo -> map -> distance field -> check / replan -> fly.
+
+One cycle per simulated ``1 / cycle_hz`` seconds:
+
+1. **render** (the simulator, timed apart): the stereo pair from the drone's current pose;
+2. **stereo**: disparity with the fast matcher, measured pixels to depth;
+3. **integrate**: the depth into the occupancy map;
+4. **distance**: the distance field and the planner's grid, where occupied voxels changed;
+5. **check**: the rest of the path against the updated field (``Replanner.check``);
+6. **replan**: from the current position when the path is blocked (or there is none);
+7. **control**: how far ahead the path is observed free, the speed that allows, the pursuit
+   and look-at points (:mod:`skyrecon.mission.guidance`), and one step of the vehicle
+   (:mod:`skyrecon.mission.vehicle`).
+
+Then the simulator checks the move against the TRUE geometry (``City.distance`` along the
+segment flown, ground included): below ``drone_radius_m`` is a collision and ends the mission.
+The mission also ends on arrival (within ``arrival_tolerance_m`` of the goal) or at the time
+limit. Stages 2-7 are "the loop" whose rate is reported (rendering excluded).
+
+Everything is deterministic in the scenario: the simulated clock advances by a fixed step, so
+the flown path does not depend on how fast the machine is.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from skyrecon.mapping import OccupancyMap
+from skyrecon.mission.config import MissionConfig
+from skyrecon.mission.navigator import Navigator, timed
+from skyrecon.mission.perception import StereoDepth, mission_rig
+from skyrecon.mission.scenario import Scenario
+from skyrecon.mission.guidance import guide, hover
+from skyrecon.mission.vehicle import DroneState, step
+from skyrecon.sim import render_stereo
+
+#: Stages of the loop proper (rendering is the simulator's and is reported apart).
+LOOP_STAGES = ("stereo", "integrate", "distance", "check", "replan", "control")
+STAGES = ("render",) + LOOP_STAGES
+
+
+@dataclass
+class CycleRecord:
+    """One cycle of the loop.
+
+    Attributes:
+        cycle: index from 0.
+        time_s: simulated time at the start of the cycle, seconds.
+        position: (3,) world metres at the start of the cycle; yaw, pitch_down radians.
+        speed_mps: speed after the cycle's step.
+        timings_ms: wall-clock milliseconds per stage (:data:`STAGES`).
+        clearance_m: smallest true distance to an obstacle (ground included) along the step
+            flown in this cycle, metres.
+        replanned: a new path was planned this cycle; replan_ok: it succeeded.
+        path_clear: the path was clear before any replanning.
+        verified_m: how far ahead the path was observed free, metres.
+        to_go_m: length of the remaining planned path, metres.
+        measured_fraction: share of pixels the matcher measured.
+    """
+
+    cycle: int
+    time_s: float
+    position: np.ndarray
+    yaw: float
+    pitch_down: float
+    speed_mps: float
+    timings_ms: dict[str, float]
+    clearance_m: float
+    replanned: bool
+    replan_ok: bool
+    path_clear: bool
+    verified_m: float
+    to_go_m: float
+    measured_fraction: float
+
+    @property
+    def loop_ms(self) -> float:
+        """Milliseconds of the loop proper (everything but rendering)."""
+        return float(sum(self.timings_ms.get(k, 0.0) for k in LOOP_STAGES))
+
+    def to_dict(self) -> dict:
+        return {
+            "cycle": self.cycle, "time_s": round(self.time_s, 3), "position": [round(float(v), 4) for v in self.position],
+            "yaw_deg": round(math.degrees(self.yaw), 2), "pitch_down_deg": round(math.degrees(self.pitch_down), 2),
+            "speed_mps": round(self.speed_mps, 3), "timings_ms": {k: round(v, 2) for k, v in self.timings_ms.items()},
+            "loop_ms": round(self.loop_ms, 2), "clearance_m": round(self.clearance_m, 3), "replanned": self.replanned,
+            "replan_ok": self.replan_ok, "path_clear": self.path_clear, "verified_m": round(self.verified_m, 2),
+            "to_go_m": round(self.to_go_m, 2), "measured_fraction": round(self.measured_fraction, 4),
+        }
+
+
+@dataclass
+class PlanEvent:
+    """A path the drone decided to follow: at ``cycle``, ``waypoints`` (K, 3) world metres;
+    ``kind`` is "initial", "replan" or "escape" (planned from a nearby point at the full
+    clearance because the drone was too close to a freshly mapped obstacle)."""
+
+    cycle: int
+    waypoints: np.ndarray
+    kind: str
+    reason: str = ""
+
+
+@dataclass
+class FrameSample:
+    """A camera frame kept for the report: left image (H, W, 3) uint8 RGB and its disparity (H, W)
+    float32 pixels (NaN invalid), at ``cycle``."""
+
+    cycle: int
+    left: np.ndarray
+    disparity: np.ndarray
+    label: str = ""
+
+
+@dataclass
+class MissionResult:
+    """Everything a mission produced.
+
+    Attributes:
+        scenario, config: what was flown, with which settings.
+        success: arrived without collision.
+        reason: '' on success, else why it ended: "collision", "timeout", "no_path".
+        collisions: collisions with the true geometry (0 or 1: a collision ends the mission).
+        records: one :class:`CycleRecord` per cycle.
+        plans: every path followed (:class:`PlanEvent`).
+        frames: a few camera frames (:class:`FrameSample`).
+        final_position: (3,) world metres where the drone ended.
+        occ_map: the drone's map at the end.
+        wall_s: wall-clock seconds of the whole mission (rendering and set-up included).
+        setup_s: wall-clock seconds of set-up (map allocation, matcher warm-up).
+    """
+
+    scenario: Scenario
+    config: MissionConfig
+    success: bool
+    reason: str
+    collisions: int
+    records: list[CycleRecord]
+    plans: list[PlanEvent]
+    frames: list[FrameSample]
+    final_position: np.ndarray
+    occ_map: OccupancyMap
+    wall_s: float = 0.0
+    setup_s: float = 0.0
+    message: str = ""
+
+    def flown_path(self) -> np.ndarray:
+        """(N + 1, 3) positions of the drone, world metres: one per cycle, then the final one."""
+        if not self.records:
+            return self.final_position[None].copy()
+        return np.vstack([np.array([r.position for r in self.records]), self.final_position[None]])
+
+
+class _FrameKeeper:
+    """Keeps a bounded, evenly spread set of frames of a run of unknown length."""
+
+    def __init__(self, keep: int):
+        self.keep = max(2, keep)
+        self.period = 1
+        self.frames: list[FrameSample] = []
+        self.replan_frames: list[FrameSample] = []
+
+    def offer(self, cycle: int, left: np.ndarray, disparity: np.ndarray, replanned: bool) -> None:
+        if cycle % self.period == 0:
+            self.frames.append(FrameSample(cycle, left, disparity))
+            if len(self.frames) > 2 * self.keep:
+                self.frames = self.frames[::2]
+                self.period *= 2
+        if (replanned and cycle > 0 and len(self.replan_frames) < 2
+                and (not self.replan_frames or cycle - self.replan_frames[-1].cycle >= 30)):
+            self.replan_frames.append(FrameSample(cycle, left, disparity, "replanned"))
+
+    def result(self, last: FrameSample | None) -> list[FrameSample]:
+        fr = self.frames + ([last] if last is not None and (not self.frames or self.frames[-1].cycle != last.cycle) else [])
+        idx = np.unique(np.round(np.linspace(0, len(fr) - 1, min(self.keep, len(fr)))).astype(int)) if fr else []
+        chosen = [fr[i] for i in idx] + self.replan_frames
+        return sorted(chosen, key=lambda f: f.cycle)
+
+
+def _truth_clearance(scenario: Scenario, a: np.ndarray, b: np.ndarray) -> float:
+    """Smallest true distance to an obstacle (ground included) along the segment a -> b, metres."""
+    n = max(2, int(math.ceil(np.linalg.norm(b - a) / 0.1)) + 1)
+    pts = a + (b - a) * np.linspace(0.0, 1.0, n)[:, None]
+    return float(scenario.city.distance(pts, include_ground=True).min())
+
+
+def run_mission(
+    scenario: Scenario,
+    cfg: MissionConfig,
+    on_cycle: Callable[[CycleRecord, Navigator], None] | None = None,
+    keep_frames: int = 4,
+) -> MissionResult:
+    """Fly one mission in closed loop (see the module docstring).
+
+    Args:
+        scenario: city, start and goal (:func:`~skyrecon.mission.scenario.make_scenario`).
+        cfg: the mission settings.
+        on_cycle: called after every cycle with its record and the navigator (progress display).
+        keep_frames: how many evenly spread camera frames to keep for the report.
+    Returns:
+        MissionResult (never raises for a failed flight: ``success`` and ``reason`` say how it ended).
+    """
+    t_start = time.perf_counter()
+    rig = mission_rig(cfg)
+    stereo = StereoDepth(cfg, rig)
+    nav = Navigator(cfg, scenario.box, scenario.goal)
+    setup_s = time.perf_counter() - t_start
+    dt = cfg.dt
+    state = DroneState(scenario.start.copy(), np.zeros(3), scenario.start_yaw, math.radians(cfg.camera_pitch_deg))
+    limit_s = cfg.time_limit_for(scenario.straight_line_m)
+    records: list[CycleRecord] = []
+    plans: list[PlanEvent] = []
+    keeper = _FrameKeeper(keep_frames)
+    last_frame = None
+    reason, success, collisions = "", False, 0
+    message = ""
+    cycle = 0
+    while True:
+        p = state.position.copy()
+        ms: dict[str, float] = {}
+        cam_from_world = state.cam_from_world()
+        frame, ms["render"] = timed(render_stereo, scenario.city, rig, cam_from_world.with_frames("left", "world"))
+        depth, ms["stereo"] = timed(stereo.compute, frame.left, frame.right)
+        _, ms["integrate"] = timed(nav.integrate, depth.depth_m, depth.intrinsics, cam_from_world)
+        rewritten, ms["distance"] = timed(nav.update_distance)
+        outcome, ms["check"] = timed(nav.check, p, rewritten)
+        replanned = replan_ok = False
+        t0 = time.perf_counter()
+        if not outcome.clear:
+            replanned = True
+            r, how = nav.replan(p)
+            replan_ok = r.success
+            if r.success:
+                kind = "initial" if not plans else ("escape" if how == "escape" else "replan")
+                plans.append(PlanEvent(cycle, r.waypoints.copy(), kind, r.reason))
+            else:
+                message = r.message
+        ms["replan"] = 1e3 * (time.perf_counter() - t0)
+        # control: how far the path is seen free, how fast we may go, where we look
+        t0 = time.perf_counter()
+        rest = nav.rest(p) if len(nav.waypoints) else np.zeros((0, 3))
+        if len(rest) >= 2 and (outcome.clear or replan_ok):
+            verified = nav.verified_distance(rest, cfg.verify_horizon_m, cfg.verify_skip_m)
+            g = guide(rest, state, verified, cfg)
+        else:
+            verified, g = 0.0, hover(p, scenario.goal)
+        new_state = step(state, g.carrot, g.speed_limit, cfg, look_at=g.look_at, look_within_rad=g.look_within_rad)
+        ms["control"] = 1e3 * (time.perf_counter() - t0)
+        clearance = _truth_clearance(scenario, p, new_state.position)
+        rec = CycleRecord(cycle, state.time_s, p, state.yaw, state.pitch_down, new_state.speed, ms, clearance,
+                          replanned, replan_ok, outcome.clear, verified, g.to_go_m, depth.measured_fraction)
+        records.append(rec)
+        keeper.offer(cycle, frame.left, depth.disparity, replanned)
+        last_frame = FrameSample(cycle, frame.left, depth.disparity)
+        if on_cycle is not None:
+            on_cycle(rec, nav)
+        state = new_state
+        cycle += 1
+        if clearance < cfg.drone_radius_m:
+            collisions, reason = 1, "collision"
+            message = (f"collision at t = {state.time_s:.1f} s near {np.round(state.position, 1).tolist()}: "
+                       f"{clearance:.2f} m from an obstacle (drone radius {cfg.drone_radius_m:g} m)")
+            break
+        if np.linalg.norm(state.position - scenario.goal) <= cfg.arrival_tolerance_m:
+            success, message = True, f"arrived in {state.time_s:.1f} s"
+            break
+        if state.time_s >= limit_s:
+            reason = "timeout"
+            message = (f"time limit of {limit_s:.0f} s reached {np.linalg.norm(state.position - scenario.goal):.1f} m "
+                       f"from the goal" + (f" (last planning problem: {message})" if message else ""))
+            break
+    return MissionResult(scenario, cfg, success, reason, collisions, records, plans, keeper.result(last_frame),
+                         state.position.copy(), nav.map, time.perf_counter() - t_start, setup_s, message)

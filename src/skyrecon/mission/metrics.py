@@ -1,0 +1,79 @@
+"""The numbers a mission is judged by (``mission.json``).
+
+* ``success``: arrived within the tolerance of the goal without touching anything;
+* ``collisions``: contacts with the TRUE geometry (true distance below the drone radius);
+* ``min_clearance_m``: smallest true distance to any obstacle (ground included) along the
+  flown track, sampled every 0.1 m; ``clearance_ok``: it stayed above ``safety_margin_m``;
+* ``path_length_m``: length of the flown track; ``straight_line_m``: start to goal;
+  ``shortest_feasible_m``: the planner's path in the true city at the same clearance and
+  altitude band; ``length_ratio``: flown / shortest feasible;
+* ``replans``: cycles in which a new path was planned after the first one;
+* ``loop_hz``: 1000 / median milliseconds of the loop without rendering;
+* ``stage_ms``: per stage (render, stereo, integrate, distance, check, replan, control, loop)
+  the median, 95th percentile and mean in milliseconds.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from skyrecon.mission.loop import LOOP_STAGES, STAGES, MissionResult
+
+
+def _stats(values: np.ndarray) -> dict:
+    v = np.asarray(values, dtype=np.float64)
+    if v.size == 0:
+        return {"median": None, "p95": None, "mean": None, "max": None}
+    return {"median": round(float(np.median(v)), 3), "p95": round(float(np.percentile(v, 95)), 3),
+            "mean": round(float(v.mean()), 3), "max": round(float(v.max()), 3)}
+
+
+def path_length(points: np.ndarray) -> float:
+    """Length of a polyline (N, 3), metres."""
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    return float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum()) if len(p) > 1 else 0.0
+
+
+def mission_metrics(result: MissionResult) -> dict:
+    """The metrics of a flown mission as a JSON-ready dict (see the module docstring)."""
+    sc, cfg = result.scenario, result.config
+    recs = result.records
+    flown = path_length(result.flown_path())
+    shortest = sc.shortest.length_m if sc.shortest.success else None
+    loop = np.array([r.loop_ms for r in recs])
+    stage_ms = {k: _stats([r.timings_ms.get(k, 0.0) for r in recs]) for k in STAGES}
+    stage_ms["loop"] = _stats(loop)
+    min_clear = float(min(r.clearance_m for r in recs)) if recs else None
+    replans = max(0, sum(1 for r in recs if r.replanned and r.replan_ok) - 1)
+    med = float(np.median(loop)) if len(loop) else float("nan")
+    m = {
+        "success": bool(result.success),
+        "reason": result.reason,
+        "message": result.message,
+        "collisions": int(result.collisions),
+        "min_clearance_m": round(min_clear, 3) if min_clear is not None else None,
+        "safety_margin_m": cfg.safety_margin_m,
+        "clearance_ok": bool(min_clear is not None and min_clear > cfg.safety_margin_m),
+        "drone_radius_m": cfg.drone_radius_m,
+        "planning_clearance_m": cfg.clearance_m,
+        "path_length_m": round(flown, 3),
+        "straight_line_m": round(sc.straight_line_m, 3),
+        "shortest_feasible_m": round(shortest, 3) if shortest is not None else None,
+        "length_ratio": round(flown / shortest, 4) if shortest and result.success else None,
+        "replans": int(replans),
+        "replan_attempts": int(sum(1 for r in recs if r.replanned)),
+        "loop_hz": round(1000.0 / med, 2) if med > 0 else None,
+        "loop_stages": list(LOOP_STAGES),
+        "stage_ms": stage_ms,
+        "cycles": len(recs),
+        "flight_time_s": round(len(recs) * cfg.dt, 2),
+        "distance_to_goal_m": round(float(np.linalg.norm(result.final_position - sc.goal)), 3),
+        "mean_measured_fraction": round(float(np.mean([r.measured_fraction for r in recs])), 4) if recs else None,
+        "wall_s": round(result.wall_s, 2),
+        "setup_s": round(result.setup_s, 2),
+        "seed": int(sc.seed),
+        "map_voxels": result.occ_map.counts(),
+    }
+    if not result.success and not m["reason"]:
+        m["reason"] = "unknown"
+    return m

@@ -1,0 +1,278 @@
+"""The drone's own map and path: occupancy map, distance field, planner and replanner.
+
+Exploration policy (the drone starts knowing nothing; its map is pre-allocated over the city as
+unknown space, so that the goal lies inside it from the start):
+
+* **Optimistic planning.** The planner treats unknown space as free
+  (``Planner(allow_unknown=True)`` on a distance field with ``unknown_is_occupied=False``), so
+  the first path is the straight line to the goal and every replan heads through unexplored
+  space by the shortest way the map still allows.
+* **Observed before entered.** The drone only flies through space it has *seen* free: every
+  cycle :meth:`Navigator.verified_distance` walks the path ahead and finds the first point
+  whose voxel is not known free, or whose tube (``verify_radius_m`` to the left, right and
+  below) still holds unknown voxels. The speed is capped so that the drone can brake
+  ``verify_buffer_m`` before that point, and the camera turns to look at it (see
+  :mod:`skyrecon.mission.guidance`): the stretch ahead is observed as the drone comes closer,
+  and at a corner it slows down, turns, looks, and goes on. Sky matches at infinite depth and
+  carves free space up to the map's range, so open air above roofs gets observed too.
+* **Replanning.** Every cycle the new depth is integrated; the blocks whose *occupied* voxels
+  changed are passed to the distance field (with unknown space counted as free, a block that
+  only turned from unknown to free cannot change the field, so it is skipped, which keeps the
+  update small); the :class:`~skyrecon.planning.Replanner` re-checks the remaining path where
+  the field changed, and the drone plans again from where it is when the path is blocked by
+  more than ``replan_tolerance_m`` inside the clearance (hysteresis: a path planned at the
+  clearance hugs it, and every new observation would otherwise nibble at it and trigger a
+  replan). If the drone is too close to a freshly mapped obstacle for the planner to start
+  there, the plan starts from the nearest point at the full clearance that it can reach without
+  getting closer to anything (:meth:`Navigator.escape_point`), and the path leads there first.
+
+Frames and units: world frame (z up), metres.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from skyrecon.core import Intrinsics, Rigid3
+from skyrecon.mapping import FREE, OCCUPIED, UNKNOWN, DistanceField, MapConfig, OccupancyMap
+from skyrecon.mission.config import MissionConfig
+from skyrecon.mission.scenario import MapBox
+from skyrecon.mission.vehicle import sample_path
+from skyrecon.planning import Planner, PlanResult, Replanner, remaining_path
+
+
+class OccupiedChangeFilter:
+    """Keeps, per map block, which voxels are occupied, and reports the blocks where that set changed.
+
+    Args:
+        occ_map: the map whose ``pop_changed_blocks()`` output is filtered.
+    """
+
+    def __init__(self, occ_map: OccupancyMap):
+        self.map = occ_map
+        self.B3 = occ_map.block_size**3
+        self.occupied = np.zeros((max(1024, occ_map.grid.count), self.B3), bool)
+        ids = np.arange(occ_map.grid.count)
+        if len(ids):
+            self.occupied[ids] = occ_map.classify(occ_map.grid.data[ids]) == OCCUPIED
+
+    def filter(self, changed_blocks: np.ndarray) -> np.ndarray:
+        """(K, 3) int block coordinates among ``changed_blocks`` (M, 3) whose occupied voxels changed."""
+        c = np.asarray(changed_blocks, dtype=np.int64).reshape(-1, 3)
+        if len(c) == 0:
+            return c
+        ids = self.map.grid.find(c.astype(np.int32))
+        keep = ids >= 0
+        c, ids = c[keep], ids[keep].astype(np.int64)
+        if ids.max(initial=-1) >= len(self.occupied):
+            grown = np.zeros((int(ids.max() * 1.5) + 1, self.B3), bool)
+            grown[: len(self.occupied)] = self.occupied
+            self.occupied = grown
+        now = self.map.classify(self.map.grid.data[ids]) == OCCUPIED
+        diff = np.any(now != self.occupied[ids], axis=1)
+        self.occupied[ids] = now
+        return c[diff]
+
+
+@dataclass
+class CheckOutcome:
+    """The path check of one cycle.
+
+    Attributes:
+        clear: the remaining path keeps the clearance in the updated map.
+        checked: it had to be re-checked (the distance field changed on it).
+        blocked_segment: first blocked segment of the remaining path, or -1.
+    """
+
+    clear: bool
+    checked: bool
+    blocked_segment: int
+    tolerated: bool = False
+
+
+class Navigator:
+    """The drone's map and planner for one mission.
+
+    Args:
+        cfg: mission settings.
+        box: the world box the map is pre-allocated over (unknown everywhere at first), so that
+            the goal lies inside the map from the start and the planner's dense grid keeps its size.
+        goal: (3,) world metres.
+    """
+
+    def __init__(self, cfg: MissionConfig, box: MapBox, goal: np.ndarray):
+        self.cfg = cfg
+        self.goal = np.asarray(goal, dtype=np.float64)
+        mc = MapConfig(voxel_size_m=cfg.voxel_size_m, max_range_m=cfg.max_range_m)
+        nothing = np.zeros(box.shape, bool)
+        self.map = OccupancyMap.from_occupancy_grid(nothing, box.origin, mc, known=nothing)
+        self.map.pop_changed_blocks()
+        self.filter = OccupiedChangeFilter(self.map)
+        v = cfg.voxel_size_m
+        need = cfg.clearance_m + cfg.planning_margin_m + 2 * v + 0.05  # what the Planner needs, no more
+        self.df = DistanceField(self.map, max_distance_m=need, unknown_is_occupied=False)
+        kw = dict(allow_unknown=True, min_z=cfg.min_altitude_m, max_z=cfg.max_altitude_m)
+        self.planner = Planner(self.df, cfg.clearance_m, **kw)
+        self.replanner = Replanner(self.planner, self.goal)
+
+    # ----- sensing -----------------------------------------------------------------------
+    def integrate(self, depth_m: np.ndarray, intrinsics: Intrinsics, cam_from_world: Rigid3) -> None:
+        """Integrate one depth image (h, w) float32 metres (NaN invalid, inf beyond range)."""
+        self.map.integrate_depth(depth_m, intrinsics, cam_from_world.inverse().with_frames("world", "cam"))
+
+    def update_distance(self) -> np.ndarray:
+        """Bring the distance field and the planner's grid up to date.
+
+        Returns:
+            (K, 3) int32 distance-field blocks that were rewritten.
+        """
+        changed = self.filter.filter(self.map.pop_changed_blocks())
+        return self.planner.update(changed)
+
+    # ----- the path ----------------------------------------------------------------------
+    @property
+    def waypoints(self) -> np.ndarray:
+        """(K, 3) the current path, world metres."""
+        return self.replanner.waypoints
+
+    def check(self, position: np.ndarray, rewritten: np.ndarray) -> CheckOutcome:
+        """Whether the rest of the path from ``position`` (3,) is still clear (re-checked only
+        where the distance field changed, see ``Replanner.check``). A path the Replanner finds
+        blocked is kept when it stays within ``replan_tolerance_m`` of the clearance (see
+        :meth:`clear_at`)."""
+        if len(self.replanner.waypoints) == 0:
+            return CheckOutcome(False, True, 0)
+        clear, k, checked = self.replanner.check(position, rewritten)
+        if not clear:
+            rest = remaining_path(self.replanner.waypoints, position)
+            if self.clear_at(rest, self.planner.threshold - self.cfg.replan_tolerance_m):
+                return CheckOutcome(True, checked, k, tolerated=True)
+        return CheckOutcome(clear, checked, k)
+
+    def clear_at(self, path: np.ndarray, threshold_m: float) -> bool:
+        """Whether the interpolated distance field stays at least ``threshold_m`` along ``path``
+        (K, 3) world metres (sampled every quarter voxel, on the planner's grid).
+
+        The first stretch may start closer than that (after an escape, see :meth:`replan`): its
+        first 3.5 m pass as long as the distance does not decrease along them (the path leads out).
+        """
+        if len(path) < 2:
+            return True
+        grid = self.planner.grid_for(path.min(axis=0), path.max(axis=0))
+        pts, s = sample_path(path, 0.25 * self.cfg.voxel_size_m, np.inf)
+        d = grid.distance(pts)
+        ok = d >= threshold_m
+        k = 0
+        while k < len(d) and not ok[k] and s[k] <= 3.5 and (k == 0 or d[k] >= d[k - 1] - 0.02):
+            k += 1
+        return bool(np.all(ok[k:]))
+
+    def escape_point(self, position: np.ndarray, radius_m: float = 3.0) -> np.ndarray | None:
+        """The nearest point (within ``radius_m``) at the full clearance that the drone can reach
+        in a straight line without getting closer to any mapped obstacle; None if there is none.
+
+        Used when the drone finds itself closer than the clearance to something it has just
+        mapped: the planner cannot start there, so it plans from this point instead.
+        """
+        p = np.asarray(position, dtype=np.float64)
+        v = self.cfg.voxel_size_m
+        grid = self.planner.grid_for(np.minimum(p, self.goal), np.maximum(p, self.goal))
+        r = np.arange(-radius_m, radius_m + 1e-9, v)
+        offs = np.stack(np.meshgrid(r, r, r, indexing="ij"), -1).reshape(-1, 3)
+        offs = offs[(np.linalg.norm(offs, axis=1) <= radius_m) & (np.linalg.norm(offs, axis=1) > 0)]
+        cand = p + offs
+        d = grid.distance(cand)
+        good = np.flatnonzero(d >= self.planner.threshold + 0.05)
+        if len(good) == 0:
+            return None
+        d0 = float(grid.distance(p[None])[0])
+        # nearest first; among equals, the one closer to the goal
+        order = good[np.lexsort((np.linalg.norm(cand[good] - self.goal, axis=1), np.linalg.norm(offs[good], axis=1)))]
+        for i in order[:64]:
+            pts, _ = sample_path(np.stack([p, cand[i]]), 0.25 * v, np.inf)
+            if np.all(grid.distance(pts) >= min(d0, self.planner.threshold) - 0.02):
+                return cand[i]
+        return None
+
+    def replan(self, position: np.ndarray) -> tuple[PlanResult, str]:
+        """Plan from ``position`` (3,) to the goal; on success the new path is followed.
+
+        When the drone is too close to a mapped obstacle for the planner to start there
+        (``start_too_close``, ``start_in_obstacle``, ``start_enclosed``), the plan starts at the
+        :meth:`escape_point` instead and the path leads there first.
+
+        Returns:
+            The PlanResult (its waypoints start at ``position``) and how it was planned:
+            "plan" or "escape".
+        """
+        p = np.asarray(position, dtype=np.float64)
+        r = self.replanner.replan(p)
+        if r.success or r.reason not in ("start_too_close", "start_in_obstacle", "start_enclosed"):
+            return r, "plan"
+        esc = self.escape_point(p)
+        if esc is None:
+            return r, "plan"
+        r2 = self.planner.plan(esc, self.goal)
+        if not r2.success:
+            return r, "plan"
+        r2.waypoints = np.vstack([p[None], r2.waypoints])
+        r2.length_m = float(np.linalg.norm(np.diff(r2.waypoints, axis=0), axis=1).sum())
+        self.replanner.waypoints = r2.waypoints
+        return r2, "escape"
+
+    def rest(self, position: np.ndarray) -> np.ndarray:
+        """(K, 3) the part of the path still ahead, starting at ``position``."""
+        return remaining_path(self.replanner.waypoints, position)
+
+    def verified_distance(self, rest: np.ndarray, horizon_m: float, skip_m: float) -> float:
+        """How far along the path ahead (``rest`` (K, 3), starting at the drone) space is observed.
+
+        A sample (every half voxel) is verified when its voxel is known free and the voxels
+        ``verify_radius_m`` to its left, right and below (perpendicular to the path) are known
+        (free or occupied: occupied ones are the distance field's business). Nothing in the
+        city overhangs the flight band, so the tube is not probed above. Samples within
+        ``skip_m`` of the drone are taken as verified (the drone is there, and they lie below the
+        camera's field of view).
+
+        Returns:
+            Arc length of the first unverified sample, metres, or ``horizon_m`` when all are.
+        """
+        if len(rest) < 2:
+            return horizon_m
+        v = self.cfg.voxel_size_m
+        pts, s = sample_path(rest, 0.5 * v, horizon_m)
+        if len(pts) < 2:
+            return horizon_m
+        sel = s >= skip_m
+        if not np.any(sel):
+            return horizon_m
+        tang = np.gradient(pts, axis=0)
+        pts, s, tang = pts[sel], s[sel], tang[sel]
+        tang /= np.maximum(np.linalg.norm(tang, axis=1, keepdims=True), 1e-9)
+        side = np.cross(tang, [0.0, 0.0, 1.0])
+        ns = np.linalg.norm(side, axis=1, keepdims=True)
+        side = np.where(ns > 1e-6, side / np.maximum(ns, 1e-9), [1.0, 0.0, 0.0])
+        down = -np.cross(side, tang)
+        r = self.cfg.verify_radius_m
+        probes = np.concatenate([pts, pts + r * side, pts - r * side, pts + r * down])
+        st = self.map.state_at(probes).reshape(4, -1)
+        ok = (st[0] == FREE) & np.all(st[1:] != UNKNOWN, axis=0)
+        bad = np.flatnonzero(~ok)
+        return float(s[bad[0]]) if len(bad) else horizon_m
+
+    def counts(self) -> dict:
+        """Occupied / free / unknown voxel counts of the map (allocated blocks)."""
+        return self.map.counts()
+
+
+def timed(fn, *args, **kwargs):
+    """``(fn(*args, **kwargs), milliseconds)``."""
+    t0 = time.perf_counter()
+    out = fn(*args, **kwargs)
+    return out, 1e3 * (time.perf_counter() - t0)
+
+
+__all__ = ["Navigator", "OccupiedChangeFilter", "CheckOutcome", "timed", "OCCUPIED", "FREE", "UNKNOWN"]

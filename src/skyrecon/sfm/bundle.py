@@ -1,0 +1,459 @@
+"""Sparse bundle adjustment: Levenberg-Marquardt over camera poses, 3D points and (optionally)
+focal length and radial distortion, with analytic Jacobians, a Schur complement on the point
+blocks and a robust loss (IRLS weights).
+
+    problem = BundleProblem(R, t, points, cameras, camera_of_image, obs_image, obs_point, obs_uv)
+    problem.constant_images[0] = True                      # gauge: first camera fixed
+    problem.constant_pose_coords[1, 3 + k] = True          # ... and one coordinate of the second
+    report = bundle_adjust(problem, BundleOptions(loss="cauchy", loss_scale=1.0))
+
+Frames and units: ``R``, ``t`` are ``cam_from_world`` (``p_cam = R p_world + t``); points are
+world coordinates in the reconstruction's units; observations are pixels (top-left pixel centre
+(0, 0)); cameras are rows ``[fx, fy, cx, cy, k1, k2]`` (pixels; radial coefficients on the
+normalised plane). The reduced camera system is solved densely (Cholesky) up to
+``BundleOptions.max_dense_columns`` columns and by preconditioned conjugate gradients on the
+implicit Schur complement above that.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+import scipy.linalg
+
+from skyrecon.errors import InputError
+from skyrecon.sfm import _ba_kernels as K
+
+__all__ = ["BundleOptions", "BundleProblem", "BundleReport", "bundle_adjust", "LossName"]
+
+LossName = Literal["trivial", "huber", "cauchy"]
+_LOSS_CODES = {"trivial": K.LOSS_TRIVIAL, "huber": K.LOSS_HUBER, "cauchy": K.LOSS_CAUCHY}
+
+
+@dataclass(frozen=True)
+class BundleOptions:
+    """How to run the adjustment.
+
+    Attributes:
+        loss: robust loss on each observation's squared residual: ``"cauchy"`` (default),
+            ``"huber"`` or ``"trivial"`` (plain least squares).
+        loss_scale: where the loss starts to down-weight, in units of the observation sigma
+            (pixels when every sigma is 1).
+        max_iterations: Levenberg-Marquardt iterations (accepted or rejected steps).
+        function_tolerance: stop when an accepted step lowers the cost by less than this
+            fraction.
+        parameter_tolerance: stop when the step is smaller than this fraction of the parameters.
+        gradient_tolerance: stop when the largest gradient entry is below this.
+        initial_lambda: initial damping, relative to the diagonal of the normal equations.
+        refine_focal_length: also estimate the focal length of every non-constant camera
+            (``fx`` and ``fy`` together, aspect kept).
+        refine_distortion: also estimate ``k1``, ``k2`` of every non-constant camera.
+        max_dense_columns: reduced camera systems larger than this are solved by conjugate
+            gradients instead of a dense Cholesky factorisation.
+    """
+
+    loss: LossName = "cauchy"
+    loss_scale: float = 1.0
+    max_iterations: int = 50
+    function_tolerance: float = 1e-6
+    parameter_tolerance: float = 1e-8
+    gradient_tolerance: float = 1e-10
+    initial_lambda: float = 1e-4
+    refine_focal_length: bool = False
+    refine_distortion: bool = False
+    max_dense_columns: int = 6000
+
+    def __post_init__(self) -> None:
+        if self.loss not in _LOSS_CODES:
+            raise InputError(f"unknown loss {self.loss!r}; use one of {', '.join(_LOSS_CODES)}")
+        if not (self.loss_scale > 0 and math.isfinite(self.loss_scale)):
+            raise InputError(f"loss_scale must be positive, got {self.loss_scale}")
+        if self.max_iterations < 0:
+            raise InputError(f"max_iterations must be >= 0, got {self.max_iterations}")
+
+
+@dataclass
+class BundleProblem:
+    """The unknowns and observations of one adjustment (arrays are updated in place).
+
+    Attributes:
+        R: (n_images, 3, 3) float64 rotations ``cam_from_world``.
+        t: (n_images, 3) float64 translations ``cam_from_world``.
+        points: (n_points, 3) float64 world points.
+        cameras: (n_cameras, 6) float64 rows ``[fx, fy, cx, cy, k1, k2]``.
+        camera_of_image: (n_images,) int64 row of ``cameras`` used by each image.
+        obs_image: (n_obs,) int64 image of each observation.
+        obs_point: (n_obs,) int64 point of each observation.
+        obs_uv: (n_obs, 2) float64 observed pixels.
+        obs_sigma: (n_obs,) float64 expected localisation error of each observation, pixels
+            (residuals are divided by it; default 1).
+        constant_images: (n_images,) bool: pose held fixed.
+        constant_pose_coords: (n_images, 6) bool: individual pose coordinates held fixed
+            (``w0 w1 w2 t0 t1 t2`` of the update ``R <- exp([w]x) R``, ``t <- t + dt``), e.g.
+            one translation coordinate of the second camera to fix the scale gauge.
+        constant_points: (n_points,) bool: point held fixed.
+        constant_cameras: (n_cameras,) bool: intrinsics held fixed even when refining them.
+    """
+
+    R: np.ndarray
+    t: np.ndarray
+    points: np.ndarray
+    cameras: np.ndarray
+    camera_of_image: np.ndarray
+    obs_image: np.ndarray
+    obs_point: np.ndarray
+    obs_uv: np.ndarray
+    obs_sigma: np.ndarray | None = None
+    constant_images: np.ndarray | None = None
+    constant_pose_coords: np.ndarray | None = None
+    constant_points: np.ndarray | None = None
+    constant_cameras: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        self.R = np.ascontiguousarray(self.R, dtype=np.float64).reshape(-1, 3, 3)
+        n_img = len(self.R)
+        self.t = np.ascontiguousarray(self.t, dtype=np.float64).reshape(n_img, 3)
+        self.points = np.ascontiguousarray(self.points, dtype=np.float64).reshape(-1, 3)
+        self.cameras = np.ascontiguousarray(self.cameras, dtype=np.float64).reshape(-1, 6)
+        self.camera_of_image = np.ascontiguousarray(self.camera_of_image, dtype=np.int64).reshape(n_img)
+        self.obs_image = np.ascontiguousarray(self.obs_image, dtype=np.int64).reshape(-1)
+        n_obs = len(self.obs_image)
+        self.obs_point = np.ascontiguousarray(self.obs_point, dtype=np.int64).reshape(n_obs)
+        self.obs_uv = np.ascontiguousarray(self.obs_uv, dtype=np.float64).reshape(n_obs, 2)
+        n_pt, n_cam = len(self.points), len(self.cameras)
+        self.obs_sigma = (
+            np.ones(n_obs) if self.obs_sigma is None else np.ascontiguousarray(self.obs_sigma, np.float64).reshape(n_obs)
+        )
+        self.constant_images = _mask(self.constant_images, n_img)
+        self.constant_points = _mask(self.constant_points, n_pt)
+        self.constant_cameras = _mask(self.constant_cameras, n_cam)
+        self.constant_pose_coords = (
+            np.zeros((n_img, 6), bool)
+            if self.constant_pose_coords is None
+            else np.asarray(self.constant_pose_coords, bool).reshape(n_img, 6).copy()
+        )
+        if n_obs:
+            if self.obs_image.min() < 0 or self.obs_image.max() >= n_img:
+                raise InputError("bundle adjustment: an observation refers to a missing image")
+            if self.obs_point.min() < 0 or self.obs_point.max() >= n_pt:
+                raise InputError("bundle adjustment: an observation refers to a missing point")
+        if n_img and (self.camera_of_image.min() < 0 or self.camera_of_image.max() >= n_cam):
+            raise InputError("bundle adjustment: an image refers to a missing camera")
+        if not np.all(self.obs_sigma > 0):
+            raise InputError("bundle adjustment: observation sigmas must be positive")
+        for name in ("R", "t", "points", "cameras", "obs_uv"):
+            if not np.all(np.isfinite(getattr(self, name))):
+                raise InputError(f"bundle adjustment: {name} contains NaN or infinite values")
+
+
+def _mask(m: np.ndarray | None, n: int) -> np.ndarray:
+    return np.zeros(n, bool) if m is None else np.asarray(m, bool).reshape(n).copy()
+
+
+@dataclass
+class BundleReport:
+    """What an adjustment did.
+
+    Attributes:
+        initial_cost, final_cost: robust cost ``0.5 sum rho(|r / sigma|^2)``.
+        initial_rms_px, final_rms_px: root mean square reprojection error, pixels.
+        iterations: LM iterations run; successful_steps: accepted ones.
+        termination: why it stopped (``"function tolerance"``, ``"parameter tolerance"``,
+            ``"gradient tolerance"``, ``"max iterations"``, ``"no progress"``, ``"nothing to adjust"``).
+        num_observations, num_variable_images, num_variable_points, num_reduced_columns: sizes.
+        solver: ``"dense"`` or ``"pcg"``.
+        errors_px: (n_obs,) final reprojection error of every observation, pixels (inf behind
+            the camera).
+        seconds: wall time.
+    """
+
+    initial_cost: float
+    final_cost: float
+    initial_rms_px: float
+    final_rms_px: float
+    iterations: int
+    successful_steps: int
+    termination: str
+    num_observations: int
+    num_variable_images: int
+    num_variable_points: int
+    num_reduced_columns: int
+    solver: str
+    errors_px: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0))
+    seconds: float = 0.0
+
+
+@dataclass
+class _Structure:
+    pose_images: np.ndarray  # (n_pose,) image index of each pose block (columns 6k .. 6k+5)
+    pose_free: np.ndarray  # (n_pose, 6) bool: coordinate is estimated
+    intr_cameras: np.ndarray  # (n_intr,) camera of each intrinsics block (columns intr_base + 3g ..)
+    intr_free: np.ndarray  # (3,) bool: f, k1, k2 estimated
+    intr_base: int
+    n_red: int
+    obs_pose: np.ndarray
+    obs_intr: np.ndarray
+    pt_var: np.ndarray  # (n_pt,) -> variable point index or -1
+    var_points: np.ndarray  # (nq,) point index of each variable point
+    pt_ptr: np.ndarray
+    pt_obs: np.ndarray
+    fixed_cols: np.ndarray  # reduced columns held at zero step
+
+    @property
+    def has_intrinsics(self) -> bool:
+        return len(self.intr_cameras) > 0
+
+
+def _structure(p: BundleProblem, o: BundleOptions) -> _Structure:
+    n_img, n_pt, n_cam = len(p.R), len(p.points), len(p.cameras)
+    seen_img = np.zeros(n_img, bool)
+    seen_img[p.obs_image] = True
+    var_img = seen_img & ~p.constant_images & ~np.all(p.constant_pose_coords, axis=1)
+    pose_images = np.nonzero(var_img)[0]
+    pose_free = ~p.constant_pose_coords[pose_images]
+    pose_block = np.full(n_img, -1, np.int64)
+    pose_block[pose_images] = np.arange(len(pose_images))
+    intr_base = 6 * len(pose_images)
+
+    intr_free = np.array([o.refine_focal_length, o.refine_distortion, o.refine_distortion])
+    cam_seen = np.zeros(n_cam, bool)
+    cam_seen[p.camera_of_image[pose_images]] = True  # only cameras of variable images are refined
+    var_cam = cam_seen & ~p.constant_cameras & bool(intr_free.any())
+    intr_cameras = np.nonzero(var_cam)[0]
+    intr_block = np.full(n_cam, -1, np.int64)
+    intr_block[intr_cameras] = np.arange(len(intr_cameras))
+    n_red = intr_base + 3 * len(intr_cameras)
+    fixed = [np.nonzero(~pose_free.reshape(-1))[0]]
+    if len(intr_cameras):
+        fixed.append(intr_base + np.nonzero(~np.tile(intr_free, len(intr_cameras)))[0])
+    fixed_cols = np.concatenate(fixed).astype(np.int64)
+
+    seen_pt = np.zeros(n_pt, bool)
+    seen_pt[p.obs_point] = True
+    var_pt = seen_pt & ~p.constant_points
+    var_points = np.nonzero(var_pt)[0]
+    pt_var = np.full(n_pt, -1, np.int64)
+    pt_var[var_points] = np.arange(len(var_points))
+    q = pt_var[p.obs_point]
+    sel = np.nonzero(q >= 0)[0]
+    order = sel[np.argsort(q[sel], kind="stable")]
+    counts = np.bincount(q[sel], minlength=len(var_points))
+    pt_ptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    return _Structure(
+        pose_images, pose_free, intr_cameras, intr_free, intr_base, n_red, pose_block[p.obs_image],
+        intr_block[p.camera_of_image[p.obs_image]], pt_var, var_points, pt_ptr, order.astype(np.int64), fixed_cols,
+    )
+
+
+class _Buffers:
+    def __init__(self, n_obs: int) -> None:
+        self.res = np.zeros((n_obs, 2))
+        self.Jp = np.zeros((n_obs, 2, 6))
+        self.Ji = np.zeros((n_obs, 2, 3))
+        self.Jx = np.zeros((n_obs, 2, 3))
+        self.w = np.zeros(n_obs)
+
+
+def _evaluate(p: BundleProblem, R, t, X, cams, inv_sigma, loss: int, c2: float, buf: _Buffers, jac: bool) -> float:
+    return K.evaluate(R, t, X, cams, p.camera_of_image, p.obs_image, p.obs_point, p.obs_uv, inv_sigma, loss, c2,
+                      jac, buf.res, buf.Jp, buf.Ji, buf.Jx, buf.w)
+
+
+def _errors_px(p: BundleProblem, buf: _Buffers) -> np.ndarray:
+    e = np.hypot(buf.res[:, 0], buf.res[:, 1]) * p.obs_sigma
+    e[buf.w == 0] = np.inf  # behind the camera (w is zero only there for these losses)
+    return e
+
+
+def _rms(e: np.ndarray) -> float:
+    f = e[np.isfinite(e)]
+    return float(np.sqrt(np.mean(f * f))) if len(f) else float("nan")
+
+
+def _apply_step(p: BundleProblem, s: _Structure, dc: np.ndarray, dx: np.ndarray):
+    R = p.R.copy()
+    t = p.t.copy()
+    X = p.points.copy()
+    cams = p.cameras.copy()
+    if len(s.pose_images):
+        d = dc[: s.intr_base].reshape(-1, 6)
+        K.rotate_left(R, np.ascontiguousarray(d[:, :3]), s.pose_images)
+        t[s.pose_images] += d[:, 3:]
+    if len(s.intr_cameras):
+        d = dc[s.intr_base :].reshape(-1, 3)
+        c = s.intr_cameras
+        aspect = cams[c, 1] / cams[c, 0]
+        cams[c, 0] += d[:, 0]
+        cams[c, 1] = cams[c, 0] * aspect
+        cams[c, 4] += d[:, 1]
+        cams[c, 5] += d[:, 2]
+    if len(s.var_points):
+        X[s.var_points] += dx
+    return R, t, X, cams
+
+
+def _pcg(S_mv, rhs: np.ndarray, precond: np.ndarray, tol: float = 1e-6, max_iter: int = 300) -> np.ndarray:
+    """Conjugate gradients on ``S x = rhs`` with a block-Jacobi preconditioner (dense blocks)."""
+    x = np.zeros_like(rhs)
+    r = rhs.copy()
+    z = precond @ r if precond.ndim == 2 else precond * r
+    d = z.copy()
+    rz = r @ z
+    r0 = math.sqrt(r @ r) + 1e-300
+    for _ in range(max_iter):
+        q = S_mv(d)
+        dq = d @ q
+        if not dq > 0:
+            break
+        a = rz / dq
+        x += a * d
+        r -= a * q
+        if math.sqrt(r @ r) < tol * r0:
+            break
+        z = precond @ r if precond.ndim == 2 else precond * r
+        rz_new = r @ z
+        d = z + (rz_new / rz) * d
+        rz = rz_new
+    return x
+
+
+def bundle_adjust(problem: BundleProblem, options: BundleOptions = BundleOptions()) -> BundleReport:
+    """Minimise the robust reprojection error of ``problem`` in place (Levenberg-Marquardt).
+
+    Args:
+        problem: poses, points, cameras, observations and what is held constant. The gauge must
+            be fixed by the caller (e.g. one constant image and one constant translation
+            coordinate of another, or at least two constant images); otherwise the damping keeps
+            the free directions bounded but they stay arbitrary.
+        options: loss, tolerances, which intrinsics to refine.
+    Returns:
+        BundleReport (costs, RMS errors, per-observation errors, termination reason).
+    """
+    t_start = time.perf_counter()
+    p = problem
+    o = options
+    n_obs = len(p.obs_image)
+    loss = _LOSS_CODES[o.loss]
+    c2 = float(o.loss_scale) ** 2
+    inv_sigma = 1.0 / p.obs_sigma
+    s = _structure(p, o)
+    nq = len(s.var_points)
+    buf = _Buffers(n_obs)
+    cost = _evaluate(p, p.R, p.t, p.points, p.cameras, inv_sigma, loss, c2, buf, True)
+    e0 = _errors_px(p, buf)
+    report = BundleReport(cost, cost, _rms(e0), _rms(e0), 0, 0, "nothing to adjust", n_obs, len(s.pose_images), nq,
+                          s.n_red, "dense" if s.n_red <= o.max_dense_columns else "pcg", e0)
+    if n_obs == 0 or (s.n_red == 0 and nq == 0):
+        report.seconds = time.perf_counter() - t_start
+        return report
+    lam = float(o.initial_lambda)
+    nu = 2.0
+    iterations = 0
+    accepted = 0
+    termination = "max iterations"
+    new = _Buffers(n_obs)
+    pose_free = s.pose_free.astype(np.float64) if len(s.pose_images) else np.ones((1, 6))
+    intr_free = s.intr_free.astype(np.float64)
+    while iterations < o.max_iterations:
+        U = np.zeros((s.n_red, s.n_red))
+        gc = np.zeros(s.n_red)
+        V = np.zeros((nq, 3, 3))
+        gx = np.zeros((nq, 3))
+        Wp = np.zeros((n_obs, 6, 3))
+        Wi = np.zeros((n_obs, 3, 3)) if s.has_intrinsics else np.zeros((1, 3, 3))
+        K.build_normal_equations(buf.res, buf.Jp, buf.Ji, buf.Jx, buf.w, p.obs_point, s.obs_pose, s.obs_intr,
+                                 s.intr_base, s.pt_var, pose_free, intr_free, U, gc, V, gx, Wp, Wi)
+        gmax = max(float(np.abs(gc).max()) if s.n_red else 0.0, float(np.abs(gx).max()) if nq else 0.0)
+        if gmax < o.gradient_tolerance:
+            termination = "gradient tolerance"
+            break
+        diagU = np.diag(U).copy()
+        diagU[s.fixed_cols] = 1.0
+        diagU = np.clip(diagU, 1e-12, 1e32)
+        step_done = False
+        while iterations < o.max_iterations:
+            iterations += 1
+            S = U.copy()
+            S[np.diag_indices_from(S)] += lam * diagU + 1e-12
+            rhs = gc.copy()
+            Vinv = np.zeros((nq, 3, 3))
+            K.schur_complement(V, gx, Wp, Wi, lam, s.pt_ptr, s.pt_obs, s.obs_pose, s.obs_intr, s.intr_base,
+                               S, rhs, Vinv)
+            if len(s.fixed_cols):
+                S[s.fixed_cols, :] = 0.0
+                S[:, s.fixed_cols] = 0.0
+                S[s.fixed_cols, s.fixed_cols] = 1.0
+                rhs[s.fixed_cols] = 0.0
+            dc = np.zeros(s.n_red)
+            solved = True
+            if s.n_red:
+                try:
+                    if s.n_red <= o.max_dense_columns:
+                        cf = scipy.linalg.cho_factor(S, lower=False, check_finite=False)
+                        dc = -scipy.linalg.cho_solve(cf, rhs, check_finite=False)
+                    else:
+                        dinv = 1.0 / np.maximum(np.diag(S), 1e-300)
+                        dc = -_pcg(lambda v: S @ v, rhs, dinv)
+                    solved = bool(np.all(np.isfinite(dc)))
+                except (np.linalg.LinAlgError, ValueError):
+                    solved = False
+            if not solved:
+                lam *= nu
+                nu *= 2.0
+                if lam > 1e16:
+                    termination = "no progress"
+                    break
+                continue
+            dx = np.zeros((nq, 3))
+            if nq:
+                K.back_substitute(dc, gx, Wp, Wi, Vinv, s.pt_ptr, s.pt_obs, s.obs_pose, s.obs_intr, s.intr_base, dx)
+            Rn, tn, Xn, cn = _apply_step(p, s, dc, dx)
+            new_cost = _evaluate(p, Rn, tn, Xn, cn, inv_sigma, loss, c2, new, True)
+            dDd = float(dc @ (diagU * dc)) + (float(np.einsum("qa,qa,qa->", dx, np.diagonal(V, axis1=1, axis2=2), dx)) if nq else 0.0)
+            g_d = float(gc @ dc) + (float(np.sum(gx * dx)) if nq else 0.0)
+            pred = -0.5 * g_d + 0.5 * lam * dDd
+            if np.isfinite(new_cost) and new_cost < cost:
+                rho = (cost - new_cost) / pred if pred > 0 else 1.0
+                lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+                lam = max(lam, 1e-12)
+                nu = 2.0
+                old_cost = cost
+                step_norm = math.sqrt(float(dc @ dc) + float(np.sum(dx * dx)))
+                x_norm = math.sqrt(float(np.sum(p.t[s.pose_images] ** 2)) + float(np.sum(p.points[s.var_points] ** 2)))
+                p.R[:], p.t[:], p.points[:], p.cameras[:] = Rn, tn, Xn, cn
+                cost = new_cost
+                buf, new = new, buf
+                accepted += 1
+                step_done = True
+                if old_cost - new_cost <= o.function_tolerance * old_cost:
+                    termination = "function tolerance"
+                elif step_norm <= o.parameter_tolerance * (x_norm + o.parameter_tolerance):
+                    termination = "parameter tolerance"
+                else:
+                    termination = ""
+                break
+            lam *= nu
+            nu *= 2.0
+            if lam > 1e16:
+                termination = "no progress"
+                break
+        if termination in ("no progress", "function tolerance", "parameter tolerance"):
+            break
+        if not step_done and iterations >= o.max_iterations:
+            termination = "max iterations"
+            break
+    if termination == "":
+        termination = "max iterations"
+    e1 = _errors_px(p, buf)
+    report.final_cost = cost
+    report.final_rms_px = _rms(e1)
+    report.errors_px = e1
+    report.iterations = iterations
+    report.successful_steps = accepted
+    report.termination = termination
+    report.seconds = time.perf_counter() - t_start
+    return report

@@ -1,0 +1,684 @@
+"""Incremental mapper: initial pair, next-best-view registration by robust PnP, multi-view
+triangulation, local and global bundle adjustment, outlier filtering and re-triangulation.
+
+One 3D point per feature track (tracks come from union-find over verified matches); a point's
+*active* observations are those consistent with it. Poses are ``cam_from_world``; the gauge is
+the first image of the initial pair (identity pose) and the unit baseline of that pair, fixed in
+every adjustment by holding that image and one translation coordinate of the second image.
+
+All thresholds of :class:`~skyrecon.sfm.settings.MapperSettings` are working pixels; the mapper
+converts them with ``scale`` (working / input resolution) because keypoints are input pixels.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from skyrecon.core.intrinsics import Intrinsics
+from skyrecon.errors import EstimationError
+from skyrecon.geometry.homography import estimate_homography
+from skyrecon.geometry.sampling import RansacOptions
+from skyrecon.sfm.bundle import BundleOptions, BundleProblem, BundleReport, bundle_adjust
+from skyrecon.sfm.matching import PairGeometry
+from skyrecon.sfm.pnp import estimate_absolute_pose
+from skyrecon.sfm.settings import BundleSettings, MapperSettings
+from skyrecon.sfm.tracks import Tracks
+from skyrecon.sfm.triangulation import max_triangulation_angles_deg, triangulate_tracks
+
+__all__ = ["MapperInput", "MapperOutput", "IncrementalMapper"]
+
+
+@dataclass
+class MapperInput:
+    """What the mapper works on.
+
+    Attributes:
+        names: image names.
+        keypoints: per image, (M_i, 2) float64 keypoints, input pixels (as detected, distorted).
+        keypoint_sizes: per image, (M_i,) keypoint diameters, input pixels.
+        colors: per image, (M_i, 3) uint8 RGB under each keypoint.
+        cameras: the cameras (input resolution).
+        camera_of_image: (n,) int index into ``cameras`` of each image.
+        tracks: feature tracks over all images.
+        pairs: verified pairs (for the initial pair and for diagnostics).
+        usable: (n,) bool: images that may be registered (others were left out earlier).
+        scale: feature (working) resolution / input resolution.
+    """
+
+    names: list[str]
+    keypoints: list[np.ndarray]
+    keypoint_sizes: list[np.ndarray]
+    colors: list[np.ndarray]
+    cameras: list[Intrinsics]
+    camera_of_image: np.ndarray
+    tracks: Tracks
+    pairs: list[PairGeometry]
+    usable: np.ndarray
+    scale: float = 1.0
+
+
+@dataclass
+class MapperOutput:
+    """The mapper's result.
+
+    Attributes:
+        registered: (n,) bool.
+        R, t: (n, 3, 3), (n, 3) ``cam_from_world`` of the registered images.
+        cameras: refined cameras (same order as the input).
+        points: (n_tracks, 3) float64 world points (valid where ``has_point``).
+        has_point: (n_tracks,) bool.
+        active: (n_obs,) bool: observation (of ``tracks``) used by its point.
+        colors: (n_tracks, 3) uint8 mean colour of the active observations.
+        errors_px: (n_obs,) reprojection error of the active observations (NaN elsewhere).
+        failures: image index -> why it was not registered.
+        init_pair: the initial pair (image indices).
+        diagnostics: counters and timings.
+        warnings: human-readable warnings.
+        registration_order: image indices in the order they were registered.
+    """
+
+    registered: np.ndarray
+    R: np.ndarray
+    t: np.ndarray
+    cameras: list[Intrinsics]
+    points: np.ndarray
+    has_point: np.ndarray
+    active: np.ndarray
+    colors: np.ndarray
+    errors_px: np.ndarray
+    failures: dict[int, str]
+    init_pair: tuple[int, int] | None
+    diagnostics: dict = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+    registration_order: list[int] = field(default_factory=list)
+
+
+def _ranges(ptr: np.ndarray, ids: np.ndarray) -> np.ndarray:
+    """Concatenated ``arange(ptr[k], ptr[k+1])`` for every k in ids."""
+    ids = np.asarray(ids, np.int64)
+    if len(ids) == 0:
+        return np.zeros(0, np.int64)
+    lens = ptr[ids + 1] - ptr[ids]
+    total = int(lens.sum())
+    if total == 0:
+        return np.zeros(0, np.int64)
+    starts = np.repeat(ptr[ids] - np.concatenate([[0], np.cumsum(lens)[:-1]]), lens)
+    return starts + np.arange(total)
+
+
+class IncrementalMapper:
+    """Grows one reconstruction image by image. See the module docstring.
+
+    Args:
+        data: images, keypoints, tracks, pairs.
+        settings: mapper thresholds (working pixels).
+        bundle: adjustment settings.
+        seed: seeds every random choice (RANSAC of the absolute poses).
+    """
+
+    def __init__(self, data: MapperInput, settings: MapperSettings, bundle: BundleSettings, seed: int = 0) -> None:
+        self.d = data
+        self.s = settings
+        self.b = bundle
+        self.seed = int(seed)
+        n = len(data.names)
+        self.n = n
+        tr = data.tracks
+        self.ptr = tr.ptr
+        self.obs_img = tr.obs_image
+        self.obs_kp = tr.obs_kp
+        self.obs_track = tr.obs_track
+        self.n_tracks = tr.num_tracks
+        self.reg = np.zeros(n, bool)
+        self.R = np.tile(np.eye(3), (n, 1, 1))
+        self.t = np.zeros((n, 3))
+        self.X = np.full((self.n_tracks, 3), np.nan)
+        self.has_pt = np.zeros(self.n_tracks, bool)
+        self.active = np.zeros(len(self.obs_img), bool)
+        self.tri_failed_at = np.zeros(self.n_tracks, np.int64)  # registered observations at the last failure
+        self.trials = np.zeros(n, np.int64)
+        self.tried_at = np.full(n, -1, np.int64)
+        self.failures: dict[int, str] = {}
+        self.order: list[int] = []
+        self.ref: tuple[int, int] | None = None
+        self.warnings: list[str] = []
+        sc = max(float(data.scale), 1e-9)
+        self.px = 1.0 / sc  # input pixels per working pixel
+        self.cam_of_img = np.asarray(data.camera_of_image, np.int64)
+        self.cameras = list(data.cameras)
+        self.kp_offset = np.concatenate([[0], np.cumsum([len(k) for k in data.keypoints])]).astype(np.int64)
+        self.obs_flat = self.kp_offset[self.obs_img] + self.obs_kp
+        self.raw_kp = np.concatenate(data.keypoints) if n else np.zeros((0, 2))
+        sizes = np.concatenate(data.keypoint_sizes).astype(np.float64) if n else np.zeros(0)
+        if bundle.scale_weighting and len(sizes):
+            med = float(np.median(sizes[sizes > 0])) if np.any(sizes > 0) else 1.0
+            w = np.clip(sizes / med, 0.5, 4.0)
+        else:
+            w = np.ones(len(sizes))
+        self.sigma_flat = w * self.px  # input pixels
+        self.colors_flat = np.concatenate(data.colors) if n else np.zeros((0, 3), np.uint8)
+        self.radial = [
+            bool(bundle.refine_distortion and not np.any(c.dist[2:] != 0)) for c in self.cameras
+        ]
+        if bundle.refine_distortion and not all(self.radial):
+            self.warnings.append(
+                "distortion refinement skipped for cameras with tangential or k3 coefficients (only k1, k2 are refined)"
+            )
+        self._update_normalized()
+        self.stats = {
+            "pnp_attempts": 0, "pnp_failures": 0, "local_ba": 0, "global_ba": 0, "local_ba_s": 0.0,
+            "global_ba_s": 0.0, "triangulation_s": 0.0, "pnp_s": 0.0, "filtered_observations": 0,
+            "init_trials": 0,
+        }
+        self.last_global_images = 0
+        self.last_global_points = 0
+
+    # ------------------------------------------------------------------ camera model
+    def _update_normalized(self) -> None:
+        """Normalised undistorted coordinates of all keypoints and the pixels the adjustment uses."""
+        n_all = len(self.raw_kp)
+        self.xn_flat = np.zeros((n_all, 2))
+        self.uv_flat = np.zeros((n_all, 2))
+        img_of_kp = np.repeat(np.arange(self.n), np.diff(self.kp_offset))
+        for c, cam in enumerate(self.cameras):
+            sel = np.nonzero(self.cam_of_img[img_of_kp] == c)[0]
+            if len(sel) == 0:
+                continue
+            xn = cam.normalized(self.raw_kp[sel])
+            self.xn_flat[sel] = xn
+            if self.radial[c]:
+                self.uv_flat[sel] = self.raw_kp[sel]
+            else:
+                self.uv_flat[sel] = xn * [cam.fx, cam.fy] + [cam.cx, cam.cy]
+        self.focal = np.array([0.5 * (self.cameras[c].fx + self.cameras[c].fy) for c in self.cam_of_img])
+
+    def _camera_rows(self) -> np.ndarray:
+        rows = []
+        for c, cam in enumerate(self.cameras):
+            k1, k2 = (cam.dist[0], cam.dist[1]) if self.radial[c] else (0.0, 0.0)
+            rows.append([cam.fx, cam.fy, cam.cx, cam.cy, k1, k2])
+        return np.array(rows, np.float64)
+
+    def _set_camera_rows(self, rows: np.ndarray) -> bool:
+        changed = False
+        for c, cam in enumerate(self.cameras):
+            fx, fy, _, _, k1, k2 = rows[c]
+            dist = cam.dist.copy()
+            if self.radial[c]:
+                dist[0], dist[1] = k1, k2
+            if fx != cam.fx or fy != cam.fy or np.any(dist != cam.dist):
+                self.cameras[c] = Intrinsics(fx, fy, cam.cx, cam.cy, cam.width, cam.height, dist, cam.skew)
+                changed = True
+        if changed:
+            self._update_normalized()
+        return changed
+
+    # ------------------------------------------------------------------ helpers
+    def _centers(self) -> np.ndarray:
+        return -np.einsum("kji,kj->ki", self.R, self.t)
+
+    def _obs_errors(self, obs: np.ndarray) -> np.ndarray:
+        """Reprojection error (input pixels, on the undistorted normalised plane x focal)."""
+        if len(obs) == 0:
+            return np.zeros(0)
+        img = self.obs_img[obs]
+        X = self.X[self.obs_track[obs]]
+        P = np.einsum("kij,kj->ki", self.R[img], X) + self.t[img]
+        xn = self.xn_flat[self.obs_flat[obs]]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            e = np.hypot(P[:, 0] / P[:, 2] - xn[:, 0], P[:, 1] / P[:, 2] - xn[:, 1]) * self.focal[img]
+        e[~(P[:, 2] > 0) | ~np.isfinite(e)] = np.inf
+        return e
+
+    def _remove_points(self, tracks: np.ndarray) -> None:
+        if len(tracks) == 0:
+            return
+        self.has_pt[tracks] = False
+        self.X[tracks] = np.nan
+        self.active[_ranges(self.ptr, tracks)] = False
+        self.tri_failed_at[tracks] = 0
+
+    def _point_obs_counts(self, tracks: np.ndarray) -> np.ndarray:
+        obs = _ranges(self.ptr, tracks)
+        lens = self.ptr[tracks + 1] - self.ptr[tracks]
+        seg = np.repeat(np.arange(len(tracks)), lens)
+        return np.bincount(seg, weights=self.active[obs].astype(np.float64), minlength=len(tracks)).astype(np.int64)
+
+    # ------------------------------------------------------------------ triangulation
+    def _triangulate(self, tracks: np.ndarray) -> int:
+        """Triangulate tracks that have no point yet from their observations in registered images."""
+        t0 = time.perf_counter()
+        tracks = tracks[~self.has_pt[tracks]]
+        if len(tracks) == 0:
+            return 0
+        obs = _ranges(self.ptr, tracks)
+        seg = np.repeat(np.arange(len(tracks)), self.ptr[tracks + 1] - self.ptr[tracks])
+        keep = self.reg[self.obs_img[obs]]
+        obs, seg = obs[keep], seg[keep]
+        counts = np.bincount(seg, minlength=len(tracks))
+        # skip tracks that failed before with the same registered observations
+        cand = (counts >= 2) & (counts != self.tri_failed_at[tracks])
+        if not np.any(cand):
+            return 0
+        sel = cand[seg]
+        obs, seg = obs[sel], seg[sel]
+        tracks = tracks[cand]
+        counts = counts[cand]
+        ptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+        res = triangulate_tracks(
+            ptr, self.xn_flat[self.obs_flat[obs]], self.obs_img[obs], self.R, self.t, self.focal,
+            self.s.triangulation_max_error_px * self.px, self.s.triangulation_min_angle_deg,
+        )
+        ok = res.ok
+        self.tri_failed_at[tracks[~ok]] = counts[~ok]
+        self.X[tracks[ok]] = res.points[ok]
+        self.has_pt[tracks[ok]] = True
+        self.active[obs[res.inliers]] = True
+        self.stats["triangulation_s"] += time.perf_counter() - t0
+        return int(ok.sum())
+
+    def _complete(self, tracks: np.ndarray) -> int:
+        """Add inactive observations in registered images that agree with existing points."""
+        tracks = tracks[self.has_pt[tracks]]
+        if len(tracks) == 0:
+            return 0
+        obs = _ranges(self.ptr, tracks)
+        obs = obs[~self.active[obs] & self.reg[self.obs_img[obs]]]
+        if len(obs) == 0:
+            return 0
+        e = self._obs_errors(obs)
+        good = obs[e < self.s.triangulation_max_error_px * self.px]
+        self.active[good] = True
+        return len(good)
+
+    def _tracks_of_images(self, images: Sequence[int] | np.ndarray) -> np.ndarray:
+        t = [self.d.tracks.kp_track[i] for i in images]
+        t = np.concatenate(t) if t else np.zeros(0, np.int64)
+        return np.unique(t[t >= 0])
+
+    # ------------------------------------------------------------------ adjustment
+    def _gauge(self, var_images: np.ndarray, const_images: np.ndarray, prob: BundleProblem, local_index: dict) -> None:
+        """Fix the similarity gauge of a problem (see the module docstring)."""
+        assert self.ref is not None
+        r0, r1 = self.ref
+        var_set = set(int(v) for v in var_images)
+        anchor = None
+        if r0 in var_set:
+            prob.constant_images[local_index[r0]] = True
+            anchor = r0
+        elif len(const_images) == 0:
+            anchor = int(var_images[0])
+            prob.constant_images[local_index[anchor]] = True
+        elif len(const_images) >= 2:
+            return
+        else:
+            anchor = int(const_images[0])
+        # scale: one translation coordinate of a second image
+        second = r1 if (r1 in var_set and r1 != anchor) else None
+        if second is None:
+            C = self._centers()
+            cand = [v for v in var_images if int(v) != anchor]
+            if not cand:
+                return
+            second = int(max(cand, key=lambda v: np.linalg.norm(C[v] - C[anchor])))
+        C = self._centers()
+        d = self.R[second] @ (C[second] - C[anchor])
+        k = int(np.argmax(np.abs(d)))
+        prob.constant_pose_coords[local_index[second], 3 + k] = True
+
+    def _adjust(self, var_images: np.ndarray, tracks: np.ndarray, max_iterations: int, refine_intrinsics: bool,
+                function_tolerance: float = 1e-6) -> BundleReport:
+        """Bundle-adjust the poses of ``var_images`` and the points of ``tracks`` (observations in
+        other registered images enter as constants)."""
+        obs = _ranges(self.ptr, tracks)
+        obs = obs[self.active[obs]]
+        images = np.unique(np.concatenate([self.obs_img[obs], var_images]))
+        local_index = {int(im): k for k, im in enumerate(images)}
+        img_local = np.searchsorted(images, self.obs_img[obs])
+        pt_local = np.searchsorted(tracks, self.obs_track[obs])
+        var_mask = np.isin(images, var_images)
+        const_images = images[~var_mask]
+        cams = self._camera_rows()
+        prob = BundleProblem(
+            self.R[images].copy(), self.t[images].copy(), self.X[tracks].copy(), cams, self.cam_of_img[images],
+            img_local, pt_local, self.uv_flat[self.obs_flat[obs]], self.sigma_flat[self.obs_flat[obs]],
+            constant_images=~var_mask,
+        )
+        self._gauge(images[var_mask], const_images, prob, local_index)
+        opts = BundleOptions(
+            loss=self.b.loss, loss_scale=self.b.loss_scale_px, max_iterations=max_iterations,
+            function_tolerance=function_tolerance,
+            refine_focal_length=refine_intrinsics and self.b.refine_focal_length,
+            refine_distortion=refine_intrinsics and self.b.refine_distortion and any(self.radial),
+        )
+        rep = bundle_adjust(prob, opts)
+        self.R[images] = prob.R
+        self.t[images] = prob.t
+        self.X[tracks] = prob.points
+        if opts.refine_focal_length or opts.refine_distortion:
+            self._set_camera_rows(prob.cameras)
+        return rep
+
+    def _filter(self, tracks: np.ndarray, check_angle: bool) -> int:
+        """Deactivate observations with large errors; drop points left with < 2 observations or
+        (``check_angle``) too small a triangulation angle."""
+        tracks = tracks[self.has_pt[tracks]]
+        if len(tracks) == 0:
+            return 0
+        obs = _ranges(self.ptr, tracks)
+        obs = obs[self.active[obs]]
+        e = self._obs_errors(obs)
+        bad = obs[~(e <= self.s.filter_max_error_px * self.px)]
+        self.active[bad] = False
+        n_removed = len(bad)
+        cnt = self._point_obs_counts(tracks)
+        drop = tracks[cnt < 2]
+        if check_angle:
+            keep = tracks[cnt >= 2]
+            ang = self._angles(keep)
+            drop = np.concatenate([drop, keep[ang < self.s.filter_min_angle_deg]])
+        self._remove_points(drop)
+        self.stats["filtered_observations"] += n_removed
+        return n_removed
+
+    def _angles(self, tracks: np.ndarray) -> np.ndarray:
+        obs = _ranges(self.ptr, tracks)
+        lens = self.ptr[tracks + 1] - self.ptr[tracks]
+        ptr = np.concatenate([[0], np.cumsum(lens)]).astype(np.int64)
+        return max_triangulation_angles_deg(ptr, self.X[tracks], self.obs_img[obs], self._centers(), self.active[obs])
+
+    def _local_ba(self, image: int) -> None:
+        t0 = time.perf_counter()
+        my_tracks = self.d.tracks.kp_track[image]
+        my_tracks = np.unique(my_tracks[my_tracks >= 0])
+        my_tracks = my_tracks[self.has_pt[my_tracks]]
+        obs = _ranges(self.ptr, my_tracks)
+        obs = obs[self.active[obs]]
+        shared = np.bincount(self.obs_img[obs], minlength=self.n)
+        shared[image] = 0
+        shared[~self.reg] = 0
+        nb = np.argsort(-shared, kind="stable")[: self.s.local_ba_images - 1]
+        nb = nb[shared[nb] > 0]
+        var_images = np.unique(np.concatenate([[image], nb])).astype(np.int64)
+        tracks = self._tracks_of_images(var_images)
+        tracks = tracks[self.has_pt[tracks]]
+        if len(tracks) == 0:
+            return
+        for _ in range(2):
+            tracks = tracks[self.has_pt[tracks]]
+            if len(tracks) == 0:
+                break
+            self._adjust(var_images, tracks, self.b.local_max_iterations, False, self.b.local_function_tolerance)
+            n_bad = self._filter(tracks, check_angle=False)
+            n_new = self._complete(tracks)
+            if n_bad + n_new == 0:
+                break
+        self.stats["local_ba"] += 1
+        self.stats["local_ba_s"] += time.perf_counter() - t0
+
+    def _global_ba(self, rounds: int = 1, max_iterations: int | None = None, final: bool = False) -> BundleReport | None:
+        t0 = time.perf_counter()
+        rep = None
+        for r in range(rounds):
+            tracks = np.nonzero(self.has_pt)[0]
+            if len(tracks) == 0:
+                break
+            var_images = np.nonzero(self.reg)[0]
+            n_obs_before = int(self.active.sum())
+            ftol = self.b.final_function_tolerance if final else self.b.global_function_tolerance
+            rep = self._adjust(var_images, tracks, max_iterations or self.b.global_max_iterations, True, ftol)
+            self._filter(tracks, check_angle=True)
+            all_tracks = np.arange(self.n_tracks)
+            self._complete(all_tracks)
+            self._triangulate(all_tracks)
+            change = abs(int(self.active.sum()) - n_obs_before) / max(1, n_obs_before)
+            if r > 0 and change < 5e-4:
+                break
+        self.stats["global_ba"] += 1
+        self.stats["global_ba_s"] += time.perf_counter() - t0
+        self.last_global_images = int(self.reg.sum())
+        self.last_global_points = int(self.has_pt.sum())
+        return rep
+
+    # ------------------------------------------------------------------ initialisation
+    def _init_candidates(self) -> list[PairGeometry]:
+        ok = [p for p in self.d.pairs if p.status == "ok" and self.d.usable[p.i] and self.d.usable[p.j]
+              and p.num_inliers >= self.s.init_min_inliers]
+        seen: set[tuple[int, int]] = set()
+        out: list[PairGeometry] = []
+        stages = [
+            (self.s.init_min_parallax_deg, self.s.init_max_homography_ratio),
+            (self.s.init_min_parallax_deg / 2, 0.95),
+            (self.s.init_min_parallax_deg / 4, 1.01),
+            (0.0, 1.01),
+        ]
+        ok.sort(key=lambda p: (-p.num_inliers, p.i, p.j))
+        for par, hr in stages:
+            for p in ok:
+                if len(out) >= self.s.init_max_trials:
+                    return out
+                if (p.i, p.j) in seen or p.median_parallax_deg < par or self._homography_ratio(p) > hr:
+                    continue
+                seen.add((p.i, p.j))
+                out.append(p)
+        return out
+
+    def _homography_ratio(self, p: PairGeometry) -> float:
+        """Share of a pair's inliers a homography explains (computed once, on demand)."""
+        if np.isfinite(p.homography_ratio):
+            return p.homography_ratio
+        x1 = self.d.keypoints[p.i][p.matches[:, 0]]
+        x2 = self.d.keypoints[p.j][p.matches[:, 1]]
+        try:
+            he = estimate_homography(
+                x1, x2,
+                RansacOptions(threshold=3.0 * self.px, confidence=0.99,
+                              max_iterations=300, min_iterations=16, local_optimization=False),
+                self.seed + 17 * p.i + p.j,
+            )
+            p.homography_ratio = he.num_inliers / max(1, p.num_inliers)
+        except EstimationError:
+            p.homography_ratio = 0.0
+        return p.homography_ratio
+
+    def _try_init(self, p: PairGeometry) -> str:
+        """Initialise from a pair; returns "" on success, else why not (state is reset)."""
+        a, b = p.i, p.j
+        self.R[a], self.t[a] = np.eye(3), np.zeros(3)
+        self.R[b], self.t[b] = p.R, p.t / np.linalg.norm(p.t)
+        self.reg[[a, b]] = True
+        self.ref = (a, b)
+        tracks = self._tracks_of_images([a, b])
+        n_tri = self._triangulate(tracks)
+        if n_tri < self.s.init_min_points:
+            self._reset()
+            return f"only {n_tri} points could be triangulated"
+        self._global_ba(rounds=2)
+        n_pts = int(self.has_pt.sum())
+        if n_pts < self.s.init_min_points:
+            self._reset()
+            return f"only {n_pts} points survived the adjustment"
+        return ""
+
+    def _reset(self) -> None:
+        self.tri_failed_at[:] = 0
+        self.reg[:] = False
+        self.has_pt[:] = False
+        self.active[:] = False
+        self.X[:] = np.nan
+        self.ref = None
+
+    def initialize(self) -> tuple[int, int]:
+        """Choose and reconstruct the initial pair.
+
+        Raises:
+            EstimationError: no pair can start the reconstruction (the message lists why).
+        """
+        cands = self._init_candidates()
+        reasons = []
+        for p in cands[: self.s.init_max_trials]:
+            self.stats["init_trials"] += 1
+            why = self._try_init(p)
+            if not why:
+                self.order = [p.i, p.j]
+                self.stats["init_pair_inliers"] = p.num_inliers
+                self.stats["init_pair_parallax_deg"] = p.median_parallax_deg
+                return p.i, p.j
+            reasons.append(f"{self.d.names[p.i]} + {self.d.names[p.j]}: {why}")
+        n_ok = sum(1 for p in self.d.pairs if p.status == "ok")
+        best = max((p.num_inliers for p in self.d.pairs if p.status == "ok"), default=0)
+        msg = (
+            f"cannot start the reconstruction: {n_ok} image pairs have a relative pose"
+            f" (the best with {best} inlier matches; an initial pair needs {self.s.init_min_inliers})"
+        )
+        if reasons:
+            msg += "; tried " + "; ".join(reasons[:5])
+        n_rot = sum(1 for p in self.d.pairs if p.status == "no_translation")
+        if n_rot:
+            msg += f"; {n_rot} pairs show no parallax (camera only rotated, or identical images)"
+        raise EstimationError(msg + ". Check that the images overlap, show a textured 3D scene and that K is right")
+
+    # ------------------------------------------------------------------ registration
+    def _visible_counts(self) -> np.ndarray:
+        sel = self.has_pt[self.obs_track]
+        return np.bincount(self.obs_img[sel], minlength=self.n)
+
+    def _register(self, image: int) -> bool:
+        t0 = time.perf_counter()
+        self.stats["pnp_attempts"] += 1
+        kt = self.d.tracks.kp_track[image]
+        kps = np.nonzero(kt >= 0)[0]
+        kps = kps[self.has_pt[kt[kps]]]
+        obs = self.d.tracks.kp_obs[image][kps]
+        n_corr = len(kps)
+        self.trials[image] += 1
+        self.tried_at[image] = int(self.has_pt.sum())
+        flat = self.kp_offset[image] + kps
+        try:
+            pose = estimate_absolute_pose(
+                self.xn_flat[flat], self.X[kt[kps]], float(self.focal[image]), self.s.pnp_threshold_px * self.px,
+                seed=self.seed * 7919 + image * 31 + int(self.trials[image]), min_inliers=self.s.pnp_min_inliers,
+                refine_loss_scale_px=self.b.loss_scale_px * self.px, sigmas_px=self.sigma_flat[flat],
+            )
+        except EstimationError as exc:
+            self.failures[image] = f"could not be registered: {exc}"
+            self.stats["pnp_failures"] += 1
+            self.stats["pnp_s"] += time.perf_counter() - t0
+            return False
+        if pose.inlier_ratio < self.s.pnp_min_inlier_ratio:
+            self.failures[image] = (
+                f"could not be registered: only {pose.num_inliers} of {n_corr} 2D-3D correspondences "
+                f"({100 * pose.inlier_ratio:.0f}%) agree on a pose"
+            )
+            self.stats["pnp_failures"] += 1
+            self.stats["pnp_s"] += time.perf_counter() - t0
+            return False
+        self.R[image], self.t[image] = pose.R, pose.t
+        self.reg[image] = True
+        self.active[obs[pose.inliers]] = True
+        self.failures.pop(image, None)
+        self.order.append(image)
+        self.stats["pnp_s"] += time.perf_counter() - t0
+        return True
+
+    def _next_candidates(self) -> list[int]:
+        cnt = self._visible_counts()
+        n_pts = int(self.has_pt.sum())
+        cand = []
+        for i in np.argsort(-cnt, kind="stable"):
+            i = int(i)
+            if self.reg[i] or not self.d.usable[i] or cnt[i] < self.s.pnp_min_inliers:
+                continue
+            if self.trials[i] >= self.s.max_registration_trials and self.tried_at[i] >= 0 \
+                    and n_pts <= 1.05 * self.tried_at[i]:
+                continue
+            if self.tried_at[i] == n_pts:  # nothing changed since the last attempt
+                continue
+            cand.append(i)
+        return cand
+
+    def _after_registration(self, image: int) -> None:
+        tracks = self._tracks_of_images([image])
+        self._complete(tracks)
+        self._triangulate(tracks)
+        self._local_ba(image)
+        n_reg = int(self.reg.sum())
+        n_pts = int(self.has_pt.sum())
+        if n_reg >= self.s.global_ba_ratio * self.last_global_images or n_pts >= self.s.global_ba_ratio ** 2 * max(
+            1, self.last_global_points
+        ):
+            self._global_ba(rounds=1, max_iterations=min(self.b.global_max_iterations, 30))
+
+    def register_all(self) -> None:
+        """Register images until none more can be."""
+        while True:
+            progressed = False
+            for i in self._next_candidates()[:8]:
+                if self._register(i):
+                    self._after_registration(i)
+                    progressed = True
+                    break
+            if not progressed:
+                break
+
+    # ------------------------------------------------------------------ run
+    def run(self) -> MapperOutput:
+        """Initialise, register everything possible, refine; see :class:`MapperOutput`."""
+        t0 = time.perf_counter()
+        init = self.initialize()
+        self.register_all()
+        for _ in range(2):
+            self._global_ba(rounds=self.s.final_refinements, final=True)
+            before = int(self.reg.sum())
+            self.trials[:] = 0
+            self.register_all()
+            if int(self.reg.sum()) == before:
+                break
+        self.stats["mapper_s"] = time.perf_counter() - t0
+        return self._output(init)
+
+    def _output(self, init: tuple[int, int] | None) -> MapperOutput:
+        obs = np.nonzero(self.active)[0]
+        err = np.full(len(self.active), np.nan)
+        err[obs] = self._obs_errors(obs)
+        cnt = np.bincount(self.obs_track[obs], minlength=self.n_tracks)
+        col = np.zeros((self.n_tracks, 3))
+        np.add.at(col, self.obs_track[obs], self.colors_flat[self.obs_flat[obs]].astype(np.float64))
+        colors = np.clip(np.round(col / np.maximum(cnt, 1)[:, None]), 0, 255).astype(np.uint8)
+        failures = {}
+        counts = self._visible_counts()
+        partners: dict[int, set[int]] = {}
+        for p in self.d.pairs:
+            if p.status != "failed":
+                partners.setdefault(p.i, set()).add(p.j)
+                partners.setdefault(p.j, set()).add(p.i)
+        for i in range(self.n):
+            if self.reg[i] or not self.d.usable[i]:
+                continue
+            if i in self.failures:
+                failures[i] = self.failures[i]
+            elif not partners.get(i):
+                failures[i] = "no verified matches with any other image (no overlap, or too little texture)"
+            elif not any(self.reg[j] for j in partners[i]):
+                names = ", ".join(self.d.names[j] for j in sorted(partners[i])[:5])
+                failures[i] = f"matched only to images that are not in the model ({names})"
+            else:
+                failures[i] = (
+                    f"only {int(counts[i])} of its features see reconstructed 3D points "
+                    f"(at least {self.s.pnp_min_inliers} needed)"
+                )
+        diag = dict(self.stats)
+        diag.update(
+            num_registered=int(self.reg.sum()), num_points=int(self.has_pt.sum()),
+            num_observations=int(len(obs)),
+            mean_track_length=float(len(obs) / max(1, int(self.has_pt.sum()))),
+            mean_reprojection_error_px=float(np.mean(err[obs])) if len(obs) else float("nan"),
+        )
+        return MapperOutput(
+            self.reg.copy(), self.R.copy(), self.t.copy(), list(self.cameras), self.X.copy(), self.has_pt.copy(),
+            self.active.copy(), colors, err, failures, init, diag, list(self.warnings), list(self.order),
+        )

@@ -1,0 +1,245 @@
+"""Dense two-view model: rectify from the pose, compute disparity, triangulate; or the write-up's
+direct NCC search along epipolar lines.
+
+The disparity matcher is reached through :func:`compute_disparity`, a small adapter: it uses the
+stereo engine's ``skyrecon.stereo.create_matcher`` when that exists and OpenCV's StereoSGBM
+otherwise, so the engine can be switched without touching the pipeline.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from skyrecon.core.depth import PointCloud
+from skyrecon.core.intrinsics import Intrinsics
+from skyrecon.errors import EstimationError, InputError
+from skyrecon.features.detect import resize_longer_side, to_gray_uint8
+from skyrecon.geometry.epipolar_search import match_along_epipolar_lines, search_segments_from_depth
+from skyrecon.geometry.rectification import (
+    epipole_in_image,
+    rectify,
+    triangulate_disparity,
+    warp_images,
+)
+from skyrecon.geometry.triangulation import parallax_angles_deg, triangulate
+from skyrecon.twoview.result import DenseResult, TwoViewGeometry
+from skyrecon.twoview.settings import TwoViewSettings
+
+__all__ = ["compute_disparity", "dense_stereo", "dense_epipolar", "dense_model"]
+
+MAX_DISPARITY_FRACTION = 0.5  # disparity ranges wider than this share of the image width are refused
+
+
+_ALIASES = {"sgbm": "opencv-sgbm", "bm": "opencv-bm"}
+
+
+def _engine_matcher(name: str, min_disparity: int, num_disparities: int):
+    """The stereo engine's matcher (``skyrecon.stereo.create_matcher``), or None when the engine
+    is not installed. Raises InputError for a name neither the engine nor the fallback knows."""
+    try:
+        from skyrecon.stereo import available_matchers, create_matcher
+    except ImportError:
+        return None
+    names = available_matchers()
+    engine_name = name if name in names else _ALIASES.get(name)
+    if engine_name not in names:
+        raise InputError(f"unknown stereo matcher {name!r}; choose one of {', '.join(sorted(names))}")
+    try:
+        return create_matcher(engine_name, max_disparity=int(min_disparity + num_disparities), min_disparity=int(min_disparity))
+    except InputError as exc:  # the name is known: the range does not suit this pair
+        raise EstimationError(f"the disparity matcher refused this pair: {exc}") from None
+
+
+def _run_engine(matcher, left: np.ndarray, right: np.ndarray) -> np.ndarray:
+    """Disparity from the engine; interpolated (filled) pixels are dropped: the cloud keeps
+    measurements only."""
+    out = matcher.compute(left, right)
+    d = np.array(getattr(out, "disparity", out), dtype=np.float32)
+    filled = getattr(out, "filled", None)
+    if filled is not None and np.shape(filled) == d.shape:
+        d[np.asarray(filled, bool)] = np.nan
+    return d
+
+
+def _sgbm(left: np.ndarray, right: np.ndarray, min_disparity: int, num_disparities: int, block: int = 5) -> np.ndarray:
+    gl, gr = to_gray_uint8(left), to_gray_uint8(right)
+    num = int(np.ceil(max(16, num_disparities) / 16.0)) * 16
+    sgbm = cv2.StereoSGBM_create(
+        minDisparity=int(min_disparity), numDisparities=num, blockSize=block,
+        P1=8 * block * block, P2=32 * block * block, disp12MaxDiff=1, uniquenessRatio=10,
+        speckleWindowSize=100, speckleRange=2, preFilterCap=63, mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY,
+    )
+    raw = sgbm.compute(gl, gr)
+    disp = raw.astype(np.float32) / 16.0
+    disp[raw <= (min_disparity - 1) * 16] = np.nan
+    return disp
+
+
+def compute_disparity(
+    left: np.ndarray, right: np.ndarray, min_disparity: int, num_disparities: int, matcher: str = "sgbm"
+) -> tuple[np.ndarray, str]:
+    """Disparity of a rectified pair.
+
+    Args:
+        left, right: (H, W[, 3]) uint8 rectified images.
+        min_disparity, num_disparities: search range ``[min, min + num)``, pixels.
+        matcher: stereo-engine matcher name (``skyrecon.stereo.available_matchers()``:
+            ``"skyrecon"``, ``"skyrecon-fast"``, ``"opencv-sgbm"``, ``"opencv-bm"``; ``"sgbm"`` and
+            ``"bm"`` are aliases); without the engine only ``"sgbm"`` (OpenCV) is available.
+    Returns:
+        ``(disparity, used)``: (H, W) float32 pixels with NaN where invalid
+        (``x_right = x_left - d``), and the name of the matcher that ran.
+    Raises:
+        InputError: unknown matcher name.
+        EstimationError: the matcher refused this pair (e.g. its disparity range).
+    """
+    m = _engine_matcher(matcher, int(min_disparity), int(num_disparities))
+    if m is not None:
+        try:
+            d = _run_engine(m, left, right).copy()
+        except InputError as exc:  # e.g. a disparity range as wide as the image
+            raise EstimationError(f"the disparity matcher refused this pair: {exc}") from None
+        d[~np.isfinite(d)] = np.nan
+        return d, f"skyrecon.stereo:{getattr(m, 'name', None) or _ALIASES.get(matcher, matcher)}"
+    if matcher not in ("sgbm", "opencv-sgbm"):
+        raise InputError(f"stereo matcher {matcher!r} needs skyrecon.stereo, which is not installed; use sgbm")
+    return _sgbm(left, right, min_disparity, num_disparities), "opencv-sgbm"
+
+
+def _valid_mask(shape: tuple[int, int], intr: Intrinsics, rect_size: tuple[int, int], M: np.ndarray) -> np.ndarray:
+    """(H, W) bool: rectified pixels whose source lies inside the source image."""
+    mx, my = cv2.initUndistortRectifyMap(intr.K, intr.dist, M, np.eye(3), rect_size, cv2.CV_32FC1)
+    return (mx >= 0) & (my >= 0) & (mx <= intr.width - 1) & (my <= intr.height - 1)
+
+
+def dense_stereo(
+    image1: np.ndarray,
+    image2: np.ndarray,
+    intr1: Intrinsics,
+    intr2: Intrinsics,
+    geo: TwoViewGeometry,
+    x1: np.ndarray,
+    x2: np.ndarray,
+    settings: TwoViewSettings,
+) -> DenseResult:
+    """Rectify, match, triangulate (see module doc). x1, x2: (K, 2) inlier pixels (full resolution).
+
+    Raises:
+        EstimationError: the motion is along the optical axis (epipole inside the image) or
+            rectification failed.
+    """
+    assert geo.R is not None and geo.t is not None
+    if settings.rectification != "uncalibrated" and epipole_in_image(geo.R, geo.t, intr1, intr2, margin=0.25):
+        raise EstimationError(
+            "the camera moved mostly along its viewing direction (the epipole is in or near the image), "
+            "so planar rectification is impossible"
+        )
+    scale = min(1.0, settings.dense_max_image_size / max(intr1.width, intr1.height))
+    rect = rectify(settings.rectification, intr1, intr2, geo.R, geo.t, geo.F, x1, x2, scale)  # type: ignore[arg-type]
+    left, right = warp_images(image1, image2, intr1, intr2, rect)
+    lo = rect.min_disparity if rect.min_disparity is not None else 0
+    num = rect.num_disparities if rect.num_disparities is not None else 128
+    if num > MAX_DISPARITY_FRACTION * rect.size[0]:
+        raise EstimationError(
+            f"the disparity range of the rectified pair ({num} px for a {rect.size[0]} px wide image) is too "
+            "wide for dense matching (strong depth variation or a nearly forward motion)"
+        )
+    disp, used = compute_disparity(left, right, lo, num, settings.stereo_matcher)
+    il, ir = (intr2, intr1) if rect.swapped else (intr1, intr2)
+    valid = _valid_mask(disp.shape, il, rect.size, rect.M_left)
+    disp[~valid] = np.nan
+    # the matched right pixel must come from inside the right image too
+    vr = _valid_mask(disp.shape, ir, rect.size, rect.M_right)
+    H, W = disp.shape
+    xs = np.arange(W)[None, :] - np.nan_to_num(disp, nan=0.0)
+    xi = np.clip(np.round(xs).astype(np.int64), 0, W - 1)
+    ok_r = vr[np.arange(H)[:, None], xi] & (xs >= 0) & (xs <= W - 1)
+    disp[~ok_r] = np.nan
+    s = 1.0 if settings.baseline_m is None else settings.baseline_m
+    X, pix = triangulate_disparity(disp, rect, geo.R, geo.t * s, settings.dense_step)
+    cols = left[pix[:, 1], pix[:, 0]] if left.ndim == 3 else np.repeat(left[pix[:, 1], pix[:, 0], None], 3, axis=1)
+    keep = np.all(np.isfinite(X), axis=1) & (X[:, 2] > 0)
+    with np.errstate(invalid="ignore"):
+        keep &= parallax_angles_deg(X, geo.R, geo.t * s) > 0.05
+    cloud = PointCloud(X[keep].astype(np.float32), cols[keep])
+    return DenseResult("stereo", cloud, rect, left, right, disp, used)
+
+
+def _working_to_full(q: np.ndarray, s: float) -> np.ndarray:
+    """Working-resolution pixels (N, 2) -> full-resolution pixels for resize factor s."""
+    return (q + 0.5) / s - 0.5
+
+
+def dense_epipolar(
+    image1: np.ndarray,
+    image2: np.ndarray,
+    intr1: Intrinsics,
+    intr2: Intrinsics,
+    geo: TwoViewGeometry,
+    x1: np.ndarray,
+    x2: np.ndarray,
+    settings: TwoViewSettings,
+) -> DenseResult:
+    """The write-up's dense method: NCC windows searched along epipolar segments.
+
+    A grid of pixels of image 1 (``epipolar_step`` working pixels apart) is searched in image 2
+    along the segment of its epipolar line between the near and far depths of the sparse
+    inliers (x1, x2: (K, 2) full-resolution pixels); unambiguous matches with NCC above
+    ``epipolar_min_ncc`` are triangulated optimally.
+    """
+    assert geo.R is not None and geo.t is not None
+    g1, s1x, _ = resize_longer_side(to_gray_uint8(image1), settings.features.max_image_size)
+    g2, s2x, _ = resize_longer_side(to_gray_uint8(image2), settings.features.max_image_size)
+    w1 = intr1.scaled(s1x) if s1x != 1.0 else intr1
+    w2 = intr2.scaled(s2x) if s2x != 1.0 else intr2
+    X = triangulate(geo.R, geo.t, intr1.normalized(x1), intr2.normalized(x2), "midpoint")
+    z = X[:, 2][np.isfinite(X[:, 2]) & (X[:, 2] > 0)]
+    if len(z) < 5:
+        raise EstimationError("too few triangulated inliers to bound the depth of the epipolar search")
+    near, far = np.percentile(z, 2) * 0.7, np.percentile(z, 98) * 1.5
+    half = settings.epipolar_window // 2 + 1
+    st = settings.epipolar_step
+    vv, uu = np.mgrid[half : g1.shape[0] - half : st, half : g1.shape[1] - half : st]
+    p1 = np.stack([uu.ravel(), vv.ravel()], 1).astype(np.float64)
+    seg = search_segments_from_depth(p1, w1, w2, geo.R, geo.t, (near, far))
+    ok = np.all(np.isfinite(seg), axis=1)
+    res = match_along_epipolar_lines(g1, g2, p1[ok], seg[ok], settings.epipolar_window, "ncc")
+    good = np.isfinite(res.scores) & (res.scores >= settings.epipolar_min_ncc)
+    good &= ~(np.nan_to_num(res.second_scores, nan=-1.0) > res.scores - 0.05)
+    q1 = p1[ok][good]
+    q2 = res.points2[good]
+    s = 1.0 if settings.baseline_m is None else settings.baseline_m
+    P = triangulate(geo.R, geo.t * s, w1.normalized(q1), w2.normalized(q2), "optimal")
+    keep = np.all(np.isfinite(P), axis=1) & (P[:, 2] > 0)
+    img = np.asarray(image1)
+    ij = np.clip(np.round(_working_to_full(q1[keep], s1x)).astype(np.int64), 0, [intr1.width - 1, intr1.height - 1])
+    cols = img[ij[:, 1], ij[:, 0]] if img.ndim == 3 else np.repeat(img[ij[:, 1], ij[:, 0], None], 3, axis=1)
+    return DenseResult("epipolar", PointCloud(P[keep].astype(np.float32), cols[..., :3]), matcher="ncc-epipolar")
+
+
+def dense_model(
+    image1: np.ndarray,
+    image2: np.ndarray,
+    intr1: Intrinsics,
+    intr2: Intrinsics,
+    geo: TwoViewGeometry,
+    x1: np.ndarray,
+    x2: np.ndarray,
+    settings: TwoViewSettings,
+) -> DenseResult:
+    """Dense model of a pair with a full pose (dispatch on ``settings.dense_method``).
+
+    Args:
+        image1, image2: full-resolution images matching intr1, intr2.
+        geo: geometry with a pose.
+        x1, x2: (K, 2) full-resolution pixels of the pose inliers (depth range, disparity range).
+    Raises:
+        InputError: the geometry has no pose.
+        EstimationError: the dense method cannot run on this geometry (see messages).
+    """
+    if not geo.has_pose:
+        raise InputError("a dense model needs a relative pose (R and t)")
+    if settings.dense_method == "epipolar":
+        return dense_epipolar(image1, image2, intr1, intr2, geo, x1, x2, settings)
+    return dense_stereo(image1, image2, intr1, intr2, geo, x1, x2, settings)

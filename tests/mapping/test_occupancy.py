@@ -1,0 +1,176 @@
+"""Occupancy map: log-odds updates, free-space carving, ranges, sparse storage, accuracy, bad input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from skyrecon.core import DepthMap, Intrinsics, Rigid3
+from skyrecon.errors import InputError
+from skyrecon.mapping import FREE, OCCUPIED, UNKNOWN, MapConfig, OccupancyMap, build_map_from_depth_frames
+from skyrecon.mapping.config import logit
+
+
+def look(eye, target) -> Rigid3:
+    """``world_from_cam`` of a camera at ``eye`` looking at ``target`` (world metres)."""
+    return Rigid3.look_at(np.asarray(eye, float), np.asarray(target, float)).inverse().with_frames("world", "cam")
+
+
+CAM = Intrinsics.from_fov(64, 48, 60.0)
+# camera at the origin looking along +x: a wall 10 m ahead fills the image
+POSE = look([0.05, 0.05, 0.05], [10.05, 0.05, 0.05])
+
+
+def wall_depth(d: float = 10.0) -> np.ndarray:
+    """Depth image of a plane perpendicular to the optical axis at distance d (z-depth is constant)."""
+    return np.full((CAM.height, CAM.width), d, np.float32)
+
+
+def test_log_odds_hits_misses_and_clamping():
+    cfg = MapConfig(voxel_size_m=0.5)
+    m = OccupancyMap(cfg)
+    origin = np.array([0.25, 0.25, 0.25])
+    end = np.array([5.25, 0.25, 0.25])
+    l_hit, l_miss, lo, hi = logit(0.7), logit(0.4), logit(cfg.clamp_min), logit(cfg.clamp_max)
+    for k in range(1, 9):
+        m.integrate_points(end[None], origin)
+        assert m.log_odds_at(end[None])[0] == pytest.approx(min(k * l_hit, hi), abs=1e-5)
+        assert m.log_odds_at(np.array([[2.25, 0.25, 0.25]]))[0] == pytest.approx(max(k * l_miss, lo), abs=1e-5)
+    assert m.state_at(np.array([end, [2.25, 0.25, 0.25], [0.25, 3.25, 0.25]])).tolist() == [OCCUPIED, FREE, UNKNOWN]
+    # clamping keeps the map able to change its mind: a few misses free the voxel again
+    for _ in range(10):  # 3.51 / 0.405 > 8 misses from the upper clamp
+        m.integrate_points(np.array([[9.25, 0.25, 0.25]]), origin)
+    assert m.state_at(end[None])[0] == FREE
+
+
+def test_occupied_wins_within_one_scan():
+    m = OccupancyMap(voxel_size_m=0.5)
+    origin = np.array([0.25, 0.25, 0.25])
+    pts = np.array([[3.25, 0.25, 0.25], [6.25, 0.25, 0.25]])  # the second ray crosses the first end point
+    st = m.integrate_points(pts, origin)
+    assert m.state_at(pts[:1])[0] == OCCUPIED
+    assert st.hit_updates == 2
+    assert m.log_odds_at(pts[:1])[0] == pytest.approx(logit(0.7), abs=1e-6)  # updated once, not twice
+
+
+def test_depth_carves_free_space_and_marks_the_wall():
+    m = OccupancyMap(voxel_size_m=0.25, max_range_m=30.0)
+    st = m.integrate_depth(wall_depth(10.0), CAM, POSE)
+    assert st.hit_updates > 0 and st.free_updates > 0
+    along = np.array([[x, 0.05, 0.05] for x in np.arange(1.0, 9.5, 0.5)])
+    assert np.all(m.state_at(along) == FREE)
+    assert m.state_at(np.array([[10.1, 0.05, 0.05]]))[0] == OCCUPIED  # the voxel holding the wall
+    assert m.state_at(np.array([[11.5, 0.05, 0.05]]))[0] == UNKNOWN  # behind the wall
+    assert m.state_at(np.array([[5.0, 8.0, 0.05]]))[0] == UNKNOWN  # outside the field of view
+
+
+def test_max_range_carves_up_to_the_range_without_hits():
+    m = OccupancyMap(voxel_size_m=0.25, max_range_m=6.0)
+    st = m.integrate_depth(wall_depth(20.0), CAM, POSE)
+    assert st.hit_updates == 0
+    assert np.all(m.state_at(np.array([[x, 0.05, 0.05] for x in (1.0, 3.0, 5.5)])) == FREE)
+    assert np.all(m.state_at(np.array([[x, 0.05, 0.05] for x in (7.0, 12.0, 20.1)])) == UNKNOWN)
+    assert m.counts()["occupied"] == 0
+
+
+def test_invalid_depth_is_ignored_and_inf_means_nothing_within_range():
+    m = OccupancyMap(voxel_size_m=0.25, max_range_m=8.0)
+    m.integrate_depth(np.full((CAM.height, CAM.width), np.nan, np.float32), CAM, POSE)
+    assert m.counts()["free"] == 0 and m.counts()["occupied"] == 0
+    m.integrate_depth(np.full((CAM.height, CAM.width), np.inf, np.float32), CAM, POSE)
+    assert m.state_at(np.array([[7.0, 0.05, 0.05]]))[0] == FREE
+    assert m.counts()["occupied"] == 0
+
+
+def test_storage_is_sparse():
+    m = OccupancyMap(voxel_size_m=0.25, max_range_m=30.0)
+    m.integrate_depth(wall_depth(10.0), CAM, POSE)
+    m.integrate_depth(wall_depth(10.0), CAM, look([500.05, 300.05, 20.05], [510.05, 300.05, 20.05]))
+    lo, hi = m.voxel_bounds()
+    dense_blocks = np.prod((hi - lo) / m.block_size)
+    assert m.grid.count < 1e-3 * dense_blocks  # two frusta 500 m apart, nothing allocated between them
+    assert m.memory_bytes() < 64e6
+
+
+def test_map_from_depth_matches_ground_truth(small_city, city_frames):
+    cam, depths, poses = city_frames
+    v = 0.5
+    m = build_map_from_depth_frames(depths, cam, poses, voxel_size_m=v, max_range_m=40.0)
+    assert len(m.last_build_stats) == len(depths)
+    lo, hi = m.voxel_bounds()
+    states = m.classify(m.dense_log_odds(lo, tuple(hi - lo)))
+    gt = small_city.occupancy_grid(lo * v, v, tuple(hi - lo), include_ground=True)
+    occ, free = states == OCCUPIED, states == FREE
+    assert occ.sum() > 500 and free.sum() > 10 * occ.sum()
+    assert (occ & gt).sum() / occ.sum() > 0.95  # precision of occupied voxels
+    assert (free & gt).sum() / free.sum() < 0.01  # free voxels that overlap an obstacle
+    # recall on the observed surface: voxels holding a measured point
+    seen = np.zeros_like(gt)
+    dirs = cam.ray_directions()
+    for d, p in zip(depths, poses):
+        ok = np.isfinite(d) & (d * np.linalg.norm(dirs, axis=2) <= 40.0)
+        pc = dirs[ok] * d[ok, None]
+        idx = np.floor(p.apply(pc * (1 + 1e-4)) / v).astype(int) - lo
+        inside = np.all((idx >= 0) & (idx < hi - lo), axis=1)
+        seen[tuple(idx[inside].T)] = True
+    assert (occ & seen).sum() / seen.sum() > 0.9
+
+
+def test_depth_map_objects_and_raycast_agree(city_frames):
+    cam, depths, poses = city_frames
+    a = build_map_from_depth_frames([DepthMap(depths[0], cam, poses[0].inverse())], None, None, voxel_size_m=0.5)
+    b = OccupancyMap(voxel_size_m=0.5, max_range_m=60.0)
+    d = depths[0]
+    ok = np.isfinite(d)
+    pts = poses[0].apply(cam.ray_directions()[ok] * d[ok, None])
+    b.integrate_points(pts, poses[0].t)
+    occ_a = {tuple(x) for x in a.occupied_voxels().tolist()}
+    occ_b = {tuple(x) for x in b.occupied_voxels().tolist()}
+    assert len(occ_a & occ_b) > 0.8 * len(occ_b)
+
+
+def test_from_occupancy_grid_and_queries():
+    occ = np.zeros((8, 8, 8), bool)
+    occ[2:4, 2:4, 2:4] = True
+    m = OccupancyMap.from_occupancy_grid(occ, np.array([-1.0, 0.0, 1.0]), voxel_size_m=0.5)
+    assert m.counts()["occupied"] == 8
+    c = m.occupied_centers()
+    assert np.allclose(c.min(axis=0), [0.25, 1.25, 2.25]) and np.allclose(c.max(axis=0), [0.75, 1.75, 2.75])
+    assert m.probability_at(c[:1])[0] == pytest.approx(m.config.clamp_max, abs=1e-6)
+    with pytest.raises(InputError, match="multiple of the voxel size"):
+        OccupancyMap.from_occupancy_grid(occ, np.array([0.1, 0.0, 0.0]), voxel_size_m=0.5)
+
+
+def test_bad_inputs_raise_input_error(city_frames):
+    cam, depths, poses = city_frames
+    with pytest.raises(InputError, match="poses for"):
+        build_map_from_depth_frames(depths[:3], cam, poses[:2], voxel_size_m=0.5)
+    nan_pose = poses[1].matrix
+    nan_pose[0, 3] = np.nan
+    bad = [poses[0], nan_pose]
+    with pytest.raises(InputError, match="NaN"):
+        build_map_from_depth_frames(depths[:2], cam, bad, voxel_size_m=0.5)
+    with pytest.raises(InputError, match="millimetres"):
+        build_map_from_depth_frames([depths[0] * 1000.0], cam, poses[:1], voxel_size_m=0.5)
+    with pytest.raises(InputError, match="cam_from_world"):
+        OccupancyMap(voxel_size_m=0.5).integrate_depth(depths[0], cam, poses[0].inverse())
+    with pytest.raises(InputError, match="160x120"):
+        OccupancyMap(voxel_size_m=0.5).integrate_depth(depths[0][:60], cam, poses[0])
+    with pytest.raises(InputError):
+        MapConfig(voxel_size_m=-1.0)
+    with pytest.raises(InputError):
+        MapConfig(prob_hit=0.4)
+    with pytest.raises(InputError, match="shape"):
+        OccupancyMap().integrate_points(np.zeros((3, 2)), np.zeros(3))
+
+
+def test_lens_distortion_is_honoured():
+    cam = Intrinsics(64.0, 64.0, 31.5, 23.5, 64, 48, np.array([-0.2, 0.05, 0.0, 0.0, 0.0]))
+    m = OccupancyMap(voxel_size_m=0.25, max_range_m=30.0)
+    st = m.integrate_depth(np.full((48, 64), 10.0, np.float32), cam, POSE)
+    assert st.hit_updates > 0
+    assert np.all(m.state_at(np.array([[x, 0.05, 0.05] for x in np.arange(1.0, 9.5, 0.5)])) == FREE)
+    assert m.state_at(np.array([[10.1, 0.05, 0.05]]))[0] == OCCUPIED
+    # the corners of the distorted image see further out than a pinhole camera would
+    corner = cam.unproject(np.array([[0.0, 0.0]]), 9.0)[0]
+    assert m.state_at(POSE.apply(corner)[None])[0] == FREE

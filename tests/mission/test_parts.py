@@ -1,0 +1,123 @@
+"""The mission's parts: vehicle limits, path helpers, the map-change filter, the look-ahead check, endpoints."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from skyrecon.mission import MissionConfig, make_scenario
+from skyrecon.mission.navigator import Navigator, OccupiedChangeFilter
+from skyrecon.mission.scenario import MapBox, _segment_blocked
+from skyrecon.mission.vehicle import DroneState, corner_speed_limit, point_along, sample_path, step, wrap_angle
+
+
+def test_step_respects_speed_acceleration_and_turn_rate():
+    cfg = MissionConfig()
+    s = DroneState(np.zeros(3), np.zeros(3), 0.0, 0.0)
+    carrot_ahead = np.array([100.0, 0.0, 0.0])
+    speeds = []
+    for _ in range(60):
+        n = step(s, carrot_ahead, 99.0, cfg)
+        assert np.linalg.norm(n.velocity - s.velocity) <= cfg.max_accel_mps2 * cfg.dt + 1e-9
+        s = n
+        speeds.append(s.speed)
+    assert max(speeds) <= cfg.cruise_speed_mps + 1e-9 and speeds[-1] == np.float64(cfg.cruise_speed_mps)
+    # a target behind: turn at the rate limit, and do not move while the camera looks away
+    s = DroneState(np.zeros(3), np.zeros(3), 0.0, 0.0)
+    n = step(s, np.array([-10.0, 0.1, 0.0]), 5.0, cfg)
+    assert abs(wrap_angle(n.yaw - s.yaw)) <= math.radians(cfg.max_yaw_rate_deg_s) * cfg.dt + 1e-9
+    assert n.speed == 0.0
+
+
+def test_step_brakes_within_its_limit_and_pitches_towards_the_target():
+    cfg = MissionConfig()
+    s = DroneState(np.zeros(3), np.array([6.0, 0, 0]), 0.0, 0.0)
+    n = step(s, np.array([0.2, 0.0, 0.0]), 6.0, cfg)
+    assert n.speed == np.float64(6.0 - cfg.max_accel_mps2 * cfg.dt)
+    n = step(DroneState(np.zeros(3), np.zeros(3), 0.0, 0.0), np.array([5.0, 0.0, 5.0]), 6.0, cfg)
+    assert n.pitch_down < 0  # looks up a climb
+
+
+def test_path_helpers():
+    path = np.array([[0.0, 0, 0], [10, 0, 0], [10, 10, 0]])
+    assert np.allclose(point_along(path, 15.0), [10, 5, 0])
+    assert np.allclose(point_along(path, 99.0), [10, 10, 0])
+    pts, s = sample_path(path, 0.5, 12.0)
+    assert s[0] == 0 and s[-1] == 12.0 and np.allclose(np.diff(s), 0.5)
+    assert np.allclose(pts[-1], [10, 2, 0])
+    cfg = MissionConfig()
+    assert corner_speed_limit(path, cfg, 20.0) == cfg.cruise_speed_mps  # 10 m is enough to slow down
+    near = np.array([[0.0, 0, 0], [3, 0, 0], [3, 10, 0]])  # a right angle 3 m ahead
+    assert corner_speed_limit(near, cfg, 20.0) == np.float64(math.sqrt(1.0 + 2 * cfg.max_accel_mps2 * 3.0))
+    assert corner_speed_limit(near[:2], cfg, 20.0) == cfg.cruise_speed_mps
+
+
+def _box_navigator(cfg: MissionConfig, goal=(30.0, 4.0, 14.0)) -> Navigator:
+    box = MapBox(np.array([-8.0, -8.0, 8.0]), (96, 32, 32), cfg.voxel_size_m)
+    return Navigator(cfg, box, np.array(goal))
+
+
+def _look(nav: Navigator, depth_m: float, times: int = 3) -> None:
+    """A 64x48 camera at (0, 4, 14) looking along +x sees a flat wall at ``depth_m`` (inf: open sky)."""
+    from skyrecon.core import Intrinsics
+    from skyrecon.sim import look_from
+
+    cam = Intrinsics.from_fov(64, 48, 90.0)
+    pose = look_from(np.array([0.0, 4.0, 14.0]), 0.0, 0.0)
+    for _ in range(times):
+        nav.integrate(np.full((48, 64), depth_m, np.float32), cam, pose)
+
+
+def test_only_blocks_whose_occupied_voxels_change_reach_the_distance_field():
+    cfg = MissionConfig()
+    nav = _box_navigator(cfg)
+    f = OccupiedChangeFilter(nav.map)
+    _look(nav, np.inf, 1)  # open sky: free space only
+    changed = nav.map.pop_changed_blocks()
+    assert len(changed) > 0 and len(f.filter(changed)) == 0
+    _look(nav, 6.0, 1)  # a wall: occupied voxels appear
+    assert len(f.filter(nav.map.pop_changed_blocks())) > 0
+    _look(nav, 6.0, 1)  # seen again: nothing new for the distance field
+    assert len(f.filter(nav.map.pop_changed_blocks())) == 0
+
+
+def test_look_ahead_needs_the_path_observed():
+    cfg = MissionConfig()
+    nav = _box_navigator(cfg)
+    path = np.array([[0.0, 4.0, 14.0], [30.0, 4.0, 14.0]])
+    assert nav.verified_distance(path, 9.0, 1.5) == 1.5  # nothing observed: stop before the first sample
+    _look(nav, 5.0)  # a wall 5 m ahead: free up to it, occupied at it
+    d = nav.verified_distance(path, 9.0, 1.5)
+    assert 4.0 <= d <= 5.0
+    nav2 = _box_navigator(cfg)
+    _look(nav2, np.inf)  # open air as far as the range: the whole horizon is verified
+    assert nav2.verified_distance(path, 9.0, 1.5) == 9.0
+
+
+def test_seed_endpoints_are_far_apart_clear_and_blocked(tiny_config):
+    sc = make_scenario(3, tiny_config)
+    assert tiny_config.min_goal_distance_m <= sc.straight_line_m <= tiny_config.max_goal_distance_m
+    d = sc.city.distance(np.stack([sc.start, sc.goal]), include_ground=True)
+    assert np.all(d >= tiny_config.endpoint_clearance_m)
+    assert _segment_blocked(sc.city, sc.start, sc.goal, tiny_config.clearance_m)
+    assert sc.shortest.success and sc.shortest.length_m >= sc.straight_line_m
+    assert sc.box.contains(sc.start) and sc.box.contains(sc.goal)
+    again = make_scenario(3, tiny_config)
+    assert np.array_equal(again.start, sc.start) and np.array_equal(again.goal, sc.goal)
+
+
+def test_guidance_brakes_before_unobserved_space_and_looks_at_it():
+    from skyrecon.mission.guidance import guide, hover
+
+    cfg = MissionConfig()
+    s = DroneState(np.zeros(3), np.array([6.0, 0, 0]), 0.0, 0.0)
+    rest = np.array([[0.0, 0, 15], [100, 0, 15]])
+    free = guide(rest, s, cfg.verify_horizon_m, cfg)
+    assert free.speed_limit == cfg.cruise_speed_mps and free.look_within_rad is not None
+    g = guide(rest, s, 5.0, cfg)  # unobserved from 5 m on
+    assert g.speed_limit == np.float64(math.sqrt(2 * cfg.max_accel_mps2 * (5.0 - cfg.verify_buffer_m)))
+    assert np.allclose(g.look_at, [5.0, 0, 15]) and g.look_within_rad is None
+    assert guide(rest, s, 1.0, cfg).speed_limit == 0.0  # within the buffer: stop
+    h = hover(np.zeros(3), np.array([10.0, 0, 0]))
+    assert h.speed_limit == 0.0 and h.to_go_m == 10.0

@@ -1,0 +1,133 @@
+"""Union-find, track building (conflicts split or dropped), pair selection, multi-view
+triangulation and the SfM metrics."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from skyrecon.core import Rigid3
+from skyrecon.errors import InputError
+from skyrecon.eval.sfm_metrics import evaluate_sfm_poses, scene_extent
+from skyrecon.sfm.pairs import exhaustive_pairs, retrieval_pairs, select_pairs, sequential_pairs
+from skyrecon.sfm.settings import PairingSettings
+from skyrecon.sfm.tracks import UnionFind, build_tracks
+from skyrecon.sfm.triangulation import max_triangulation_angles_deg, triangulate_tracks
+
+
+def test_union_find_joins_sets():
+    uf = UnionFind(6)
+    uf.union([0, 2], [1, 3])
+    uf.union(1, 3)
+    r = uf.find(np.arange(6))
+    assert r[0] == r[1] == r[2] == r[3]
+    assert len({r[0], r[4], r[5]}) == 3
+    with pytest.raises(InputError):
+        uf.union(0, 6)
+
+
+def test_consistent_union_refuses_two_nodes_of_one_image():
+    uf = UnionFind(4)
+    image = np.array([0, 1, 0, 2])
+    refused = uf.union_consistent(np.array([0, 1, 3]), np.array([1, 2, 2]), image)
+    assert refused == 1  # 1-2 would put nodes 0 and 2 (both image 0) together
+    r = uf.find(np.arange(4))
+    assert r[0] == r[1] and r[2] == r[3] and r[0] != r[2]
+
+
+def test_tracks_chain_matches_across_images():
+    # a point seen in images 0, 1, 2 (keypoints 5, 7, 1) and another in 1, 2 (0, 3)
+    tracks = build_tracks([10, 10, 10], [(0, 1, np.array([[5, 7]])), (1, 2, np.array([[7, 1], [0, 3]]))])
+    assert tracks.num_tracks == 2
+    assert sorted(tracks.lengths.tolist()) == [2, 3]
+    long = int(np.argmax(tracks.lengths))
+    assert tracks.track(long).tolist() == [[0, 5], [1, 7], [2, 1]]
+    assert tracks.kp_track[0][5] == long and tracks.kp_track[2][1] == long
+    assert tracks.kp_track[0][0] == -1
+    o = tracks.kp_obs[1][7]
+    assert tracks.obs_image[o] == 1 and tracks.obs_kp[o] == 7
+
+
+def test_inconsistent_tracks_are_dropped_or_split():
+    # image 0 keypoints 1 and 2 both end up linked through image 1 and 2
+    pairs = [(0, 1, np.array([[1, 4]])), (1, 2, np.array([[4, 6]])), (0, 2, np.array([[2, 6]]))]
+    kp = [np.array([[0, 0], [10, 10], [50, 50]], float), np.zeros((5, 2)), np.zeros((7, 2))]
+    dropped = build_tracks([3, 5, 7], pairs, kp, conflicts="drop")
+    assert dropped.num_tracks == 0 and dropped.num_inconsistent == 1
+    split = build_tracks([3, 5, 7], pairs, kp, conflicts="split")
+    assert split.num_inconsistent == 1  # one match refused
+    assert all(len(set(split.track(k)[:, 0])) == split.lengths[k] for k in range(split.num_tracks))
+    assert split.num_observations == 4
+    # co-located duplicates (same point detected twice) are merged rather than dropped
+    kp_close = [np.array([[0, 0], [10, 10], [10.3, 10.2]], float), np.zeros((5, 2)), np.zeros((7, 2))]
+    merged = build_tracks([3, 5, 7], pairs, kp_close, conflicts="drop")
+    assert merged.num_tracks == 1 and merged.lengths[0] == 3
+
+
+def test_pair_selection_modes():
+    assert len(exhaustive_pairs(5)) == 10
+    seq = sequential_pairs(100, window=3, exponential=True, max_offset=12)
+    offsets = set((seq[:, 1] - seq[:, 0]).tolist())
+    assert offsets == {1, 2, 3, 6, 12}
+    assert len(seq) < 5 * 100  # linear in the number of frames
+    S = -np.ones((6, 6))
+    S[0, 5] = S[5, 0] = 0.9
+    np.fill_diagonal(S, -np.inf)
+    loops = retrieval_pairs(S, 1, exclude_within=2, min_similarity=0.5)
+    assert loops.tolist() == [[0, 5]]
+    sel = select_pairs(40, "sequential", PairingSettings(window=2, max_offset=8, loop_candidates=1),
+                       lambda: np.eye(40)[np.r_[np.arange(20), np.arange(20)]])
+    assert sel.mode == "sequential" and sel.num_loop_pairs > 0
+    assert select_pairs(6, "auto", PairingSettings()).mode == "exhaustive"
+    with pytest.raises(InputError):
+        select_pairs(1, "auto", PairingSettings())
+
+
+def _cams(n: int = 4):
+    R, t = [], []
+    for k in range(n):
+        T = Rigid3.look_at([-3 + 2 * k, -10, 1.0], [0, 0, 0])
+        R.append(T.R)
+        t.append(T.t)
+    return np.array(R), np.array(t)
+
+
+def test_multiview_triangulation_rejects_outlier_observations():
+    R, t = _cams(4)
+    rng = np.random.default_rng(0)
+    X = rng.uniform(-1, 1, (50, 3))
+    obs_img = np.tile(np.arange(4), 50)
+    P = np.einsum("nij,nj->ni", R[obs_img], np.repeat(X, 4, axis=0)) + t[obs_img]
+    xn = P[:, :2] / P[:, 2:]
+    xn += rng.normal(0, 0.2 / 800, xn.shape)
+    xn[1::20] += 0.05  # one observation of every 5th track is wrong
+    ptr = np.arange(0, 201, 4)
+    res = triangulate_tracks(ptr, xn, obs_img, R, t, np.full(4, 800.0), max_error_px=2.0, min_angle_deg=1.0)
+    assert res.ok.all()
+    assert np.abs(res.points - X).max() < 0.03  # 0.2 px noise, 10 m away
+    assert not res.inliers[1::20].any()
+    assert res.inliers.sum() == 200 - 10
+    ang = max_triangulation_angles_deg(ptr, res.points, obs_img, -np.einsum("kji,kj->ki", R, t), res.inliers)
+    assert np.allclose(ang, res.angles_deg)
+    # too small an angle: rejected
+    res2 = triangulate_tracks(ptr, xn, obs_img, R, t, np.full(4, 800.0), min_angle_deg=60.0)
+    assert not res2.ok.any()
+
+
+def test_sfm_metrics_are_invariant_to_a_similarity():
+    R, t = _cams(5)
+    gt = {f"{k}": Rigid3(R[k], t[k]) for k in range(5)}
+    from skyrecon.sfm.align import Sim3
+    from skyrecon.core import rotvec_to_matrix
+
+    S = Sim3(rotvec_to_matrix([0.3, -0.2, 1.0]), [5, 6, 7], 0.25)
+    est = {k: S.transform_pose(v) for k, v in gt.items()}
+    ev = evaluate_sfm_poses(est, gt)
+    assert ev.rotation_errors_deg.max() < 1e-6
+    assert ev.center_errors_m.max() < 1e-9
+    assert abs(ev.scale - 4.0) < 1e-9
+    C = np.stack([v.center for v in gt.values()])
+    assert ev.extent_m == pytest.approx(scene_extent(C))
+    assert scene_extent(C, "bbox_diagonal") >= ev.extent_m - 1e-9
+    del est["3"]
+    assert evaluate_sfm_poses(est, gt).missing == ["3"]
