@@ -23,18 +23,25 @@ $(VENV)/.installed-test: pyproject.toml | $(BIN)/python
 
 install: $(VENV)/.installed
 
-## demo: install, then run the main job on the built-in synthetic city
+## demo: install, then fly one simulated delivery through a generated city (report.html at the end)
 demo: $(VENV)/.installed
-	$(BIN)/skyrecon render stereo --seed 7 --out $(OUT)/stereo
-	$(BIN)/skyrecon render sequence --seed 7 --frames 30 --out $(OUT)/flight
-	@echo "Open $(OUT)/stereo/preview.png and $(OUT)/flight/preview.png"
+	$(BIN)/skyrecon demo --seed 1 --out $(OUT)
 
 ## test: install with test extras, then run the whole test suite
 test: $(VENV)/.installed-test
 	$(BIN)/python -m pytest -n 2 -q
 
-bench: $(VENV)/.installed-test
+$(VENV)/.installed-bench: pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install --quiet -e ".[test,benchmarks]"
+	touch $@ $(VENV)/.installed $(VENV)/.installed-test
+
+## bench: install the peers (OpenCV, poselib, pycolmap, OctoMap, OMPL), then run every side-by-side benchmark
+bench: $(VENV)/.installed-bench
 	$(BIN)/python benchmarks/render_speed.py
+	$(BIN)/python benchmarks/stereo/run.py
+	$(BIN)/python benchmarks/two_view/run.py
+	$(BIN)/python benchmarks/mapping/run.py
+	$(BIN)/python benchmarks/planning/run.py
 
 clean:
 	rm -rf $(VENV) .numba_cache $(OUT) .pytest_cache

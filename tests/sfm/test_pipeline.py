@@ -176,3 +176,10 @@ def test_fountain_images_at_reduced_size(real_data, tmp_path):
     s = ev.summary()
     assert s["rotation_max_deg"] < 0.2
     assert s["center_max_pct"] < 0.3
+
+
+def test_a_wrong_focal_length_is_reported(orbit):
+    _, paths, _ = orbit
+    wrong = Intrinsics(INTR.fx * 1.5, INTR.fy * 1.5, INTR.cx, INTR.cy, 320, 240)
+    res = run_sfm(paths[:8], wrong, SfMSettings(), executor=SerialExecutor(), seed=0)
+    assert any("focal length in K seems off" in w for w in res.warnings), res.warnings

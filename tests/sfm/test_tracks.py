@@ -131,3 +131,24 @@ def test_sfm_metrics_are_invariant_to_a_similarity():
     assert scene_extent(C, "bbox_diagonal") >= ev.extent_m - 1e-9
     del est["3"]
     assert evaluate_sfm_poses(est, gt).missing == ["3"]
+
+
+def test_view_graph_rejects_pairs_with_inconsistent_rotations():
+    from skyrecon.core import rotvec_to_matrix
+    from skyrecon.sfm.matching import PairGeometry
+    from skyrecon.sfm.viewgraph import rotation_inconsistent_pairs
+
+    rng = np.random.default_rng(0)
+    R = [rotvec_to_matrix(rng.normal(0, 0.3, 3)) for _ in range(8)]
+    pairs = []
+    for i in range(8):
+        for j in range(i + 1, min(8, i + 3)):
+            Rij = R[j] @ R[i].T @ rotvec_to_matrix(rng.normal(0, 0.002, 3))
+            pairs.append(PairGeometry(i, j, "ok", 300, np.zeros((300 - 10 * (j - i), 2), np.int32), Rij, np.ones(3)))
+    # a repeated-structure pair: many matches, rotation off by 90 degrees
+    wrong = R[7] @ R[1].T @ rotvec_to_matrix([0, 0, np.pi / 2])
+    pairs.append(PairGeometry(1, 7, "ok", 250, np.zeros((250, 2), np.int32), wrong, np.ones(3)))
+    bad, err = rotation_inconsistent_pairs(pairs, 8, 5.0)
+    assert bad == [len(pairs) - 1]
+    assert err[-1] == pytest.approx(90.0, abs=1.0)
+    assert np.nanmax(err[:-1]) < 1.0

@@ -55,3 +55,14 @@ def other_scene_image() -> np.ndarray:
     intr = Intrinsics.from_fov(640, 480, 60.0)
     city = sim.generate_city(seed=2)
     return sim.render(city, intr, sim.street_view_pose(city, seed=2)).image
+
+
+@pytest.fixture(scope="session")
+def flight() -> Scene:
+    """Two frames of a drone flying forward along a street (the epipole is inside the image)."""
+    intr = Intrinsics.from_fov(640, 480, 60.0)
+    city = sim.generate_city(seed=3)
+    poses = sim.flight_poses(city, 8, seed=3, pitch_deg=25.0)
+    views = [PosedView(f"f{k}", intr, poses[k].inverse()) for k in (0, 6)]
+    rs = sim.render_views(city, views)
+    return Scene(intr, views, [r.image for r in rs], [r.depth_m for r in rs], city)

@@ -218,9 +218,16 @@ def test_dense_refuses_forward_motion_and_unknown_matchers(result, monument):
 
     fwd = TwoViewGeometry("ok", np.eye(3), np.array([0.0, 0.0, -1.0]), np.zeros((3, 3)), np.zeros((3, 3)),
                           result.inliers, result.geometry.errors_px)
+    args = (monument.images[0], monument.images[1], monument.intr, monument.intr, fwd,
+            result.x1[result.inliers], result.x2[result.inliers])
     with pytest.raises(EstimationError, match="viewing direction"):
-        dense_model(monument.images[0], monument.images[1], monument.intr, monument.intr, fwd,
-                    result.x1[result.inliers], result.x2[result.inliers], small_settings())
+        dense_model(*args, small_settings(dense_fallback=False))
+    # with the fallback, the epipolar search runs instead (on this wrong geometry it finds little)
+    try:
+        d = dense_model(*args, small_settings(epipolar_step=16))
+        assert d.method == "epipolar" and "instead of stereo" in d.warnings[0]
+    except EstimationError as exc:
+        assert "epipolar search failed" in str(exc)
     with pytest.raises(InputError, match="stereo matcher"):
         compute_disparity(monument.images[0], monument.images[1], 0, 64, "no-such-matcher")
     with pytest.raises(InputError):
@@ -244,3 +251,15 @@ def test_grey_images_of_different_sizes(monument):
     assert r.status == "ok"
     assert rotation_error_deg(r.R, gt.R) < 0.3 and translation_direction_error_deg(r.t, gt.t) < 1.0
     assert r.sparse.colors is not None and r.dense is not None
+
+
+def test_forward_flight_falls_back_to_epipolar_search(flight):
+    r = reconstruct_two_view(flight.images[0], flight.images[1], flight.intr, flight.intr,
+                             small_settings(epipolar_step=6), seed=0)
+    gt = flight.gt(0, 1)
+    assert r.status == "ok"
+    assert rotation_error_deg(r.R, gt.R) < 0.1 and translation_direction_error_deg(r.t, gt.t) < 1.0
+    assert r.dense is not None and r.dense.method == "epipolar" and len(r.dense.cloud) > 300
+    assert any("instead of stereo" in w for w in r.warnings)
+    rel = _depth_error(r.dense.cloud.points, flight, np.linalg.norm(gt.t))
+    assert np.median(rel) < 0.05

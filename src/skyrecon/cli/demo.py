@@ -163,7 +163,7 @@ def run(args: argparse.Namespace) -> int:
     finally:
         progress.close()
     doc = outcome.doc
-    report = out / "report.html"
+    report = os.path.abspath(out / "report.html")
     if outcome.refused:
         info(f"report: {report} (says why the mission is impossible)")
         raise InputError(f"impossible mission: {doc['message']}")

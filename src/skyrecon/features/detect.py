@@ -37,6 +37,8 @@ class FeatureSettings:
             strongest ``max_features`` are kept.
         sift_edge_threshold: OpenCV SIFT edge threshold.
         akaze_threshold: AKAZE detector response threshold.
+        sift_precise_upscale: OpenCV's exact 2x upsampling of the first octave (``x -> 2x``);
+            without it OpenCV's upsampled octave is shifted by a quarter pixel.
     """
 
     method: FeatureMethod = "rootsift"
@@ -45,6 +47,7 @@ class FeatureSettings:
     sift_contrast_threshold: float = 0.01
     sift_edge_threshold: float = 10.0
     akaze_threshold: float = 0.0008
+    sift_precise_upscale: bool = True
 
     def __post_init__(self) -> None:
         if self.method not in FEATURE_METHODS:
@@ -143,7 +146,7 @@ def _detector(settings: FeatureSettings):
             nfeatures=settings.max_features,
             contrastThreshold=settings.sift_contrast_threshold,
             edgeThreshold=settings.sift_edge_threshold,
-            enable_precise_upscale=True,
+            enable_precise_upscale=settings.sift_precise_upscale,
         )
     if settings.method == "orb":
         return cv2.ORB_create(nfeatures=settings.max_features or 8000, scaleFactor=1.2, nlevels=8, fastThreshold=10)

@@ -670,43 +670,6 @@ def _update_block(j, data, sat, coords, ids, kinds, B, voxel, R, t, cam, dist, p
         elif _all_at(blk, B, x0, y0, z0, h, c_lo):
             sat[k] |= bit
     return ch
-    wx0 = (coords[k, 0] * B + 0.5) * voxel
-    wy0 = (coords[k, 1] * B + 0.5) * voxel
-    wz0 = (coords[k, 2] * B + 0.5) * voxel
-    px = R[0, 0] * wx0 + R[0, 1] * wy0 + R[0, 2] * wz0 + t[0]
-    py = R[1, 0] * wx0 + R[1, 1] * wy0 + R[1, 2] * wz0 + t[1]
-    pz = R[2, 0] * wx0 + R[2, 1] * wy0 + R[2, 2] * wz0 + t[2]
-    ch = False
-    lj = loc[j]
-    for o in range(8):
-        x0 = h * (o >> 2)
-        y0 = h * ((o >> 1) & 1)
-        z0 = h * (o & 1)
-        # octant centre, camera frame
-        ox = (x0 + 0.5 * (h - 1)) * voxel
-        oy = (y0 + 0.5 * (h - 1)) * voxel
-        oz = (z0 + 0.5 * (h - 1)) * voxel
-        cxo = px + R[0, 0] * ox + R[0, 1] * oy + R[0, 2] * oz
-        cyo = py + R[1, 0] * ox + R[1, 1] * oy + R[1, 2] * oz
-        czo = pz + R[2, 0] * ox + R[2, 1] * oy + R[2, 2] * oz
-        c = _classify(cxo, cyo, czo, co, cam, planes, pyr_mn, pyr_mx, offs, ws, simple)
-        if lj >= 0 and octflag[lj, o]:
-            c = PARTIAL
-        if c == SKIP:
-            continue
-        if c == FREE:
-            counts[j, 0] += h * h * h
-            if not sat[k]:
-                c1, _full = _carve_range(blk, B, x0, x0 + h, y0, y0 + h, z0, z0 + h, l_miss, c_lo, c_hi, thr)
-                ch = ch or c1
-            continue
-        hm = hitmask[lj] if lj >= 0 else hitmask[0, :0]
-        c1, hit = _voxels(blk, hm, B, x0, x0 + h, y0, y0 + h, z0, z0 + h, px, py, pz, R, voxel, cam, dist,
-                          plane, lodds, counts, j, order)
-        ch = ch or c1
-        if hit:
-            sat[k] = 0
-    return ch
 
 
 @njit(cache=True)

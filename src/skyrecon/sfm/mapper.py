@@ -291,7 +291,8 @@ class IncrementalMapper:
         if len(obs) == 0:
             return 0
         e = self._obs_errors(obs)
-        good = obs[e < self.s.triangulation_max_error_px * self.px]
+        thr = min(self.s.triangulation_max_error_px, self.s.filter_max_error_px) * self.px
+        good = obs[e < thr]
         self.active[good] = True
         return len(good)
 
@@ -331,9 +332,11 @@ class IncrementalMapper:
         prob.constant_pose_coords[local_index[second], 3 + k] = True
 
     def _adjust(self, var_images: np.ndarray, tracks: np.ndarray, max_iterations: int, refine_intrinsics: bool,
-                function_tolerance: float = 1e-6) -> BundleReport:
+                function_tolerance: float = 1e-6, write_back: bool = True,
+                force_focal: bool = False) -> tuple[BundleReport, BundleProblem]:
         """Bundle-adjust the poses of ``var_images`` and the points of ``tracks`` (observations in
-        other registered images enter as constants)."""
+        other registered images enter as constants). With ``write_back`` off the mapper's state
+        is left as it was (a trial, e.g. the focal-length check)."""
         obs = _ranges(self.ptr, tracks)
         obs = obs[self.active[obs]]
         images = np.unique(np.concatenate([self.obs_img[obs], var_images]))
@@ -352,16 +355,18 @@ class IncrementalMapper:
         opts = BundleOptions(
             loss=self.b.loss, loss_scale=self.b.loss_scale_px, max_iterations=max_iterations,
             function_tolerance=function_tolerance,
-            refine_focal_length=refine_intrinsics and self.b.refine_focal_length,
+            refine_focal_length=force_focal or (refine_intrinsics and self.b.refine_focal_length),
             refine_distortion=refine_intrinsics and self.b.refine_distortion and any(self.radial),
         )
         rep = bundle_adjust(prob, opts)
+        if not write_back:
+            return rep, prob
         self.R[images] = prob.R
         self.t[images] = prob.t
         self.X[tracks] = prob.points
         if opts.refine_focal_length or opts.refine_distortion:
             self._set_camera_rows(prob.cameras)
-        return rep
+        return rep, prob
 
     def _filter(self, tracks: np.ndarray, check_angle: bool) -> int:
         """Deactivate observations with large errors; drop points left with < 2 observations or
@@ -412,7 +417,7 @@ class IncrementalMapper:
             tracks = tracks[self.has_pt[tracks]]
             if len(tracks) == 0:
                 break
-            self._adjust(var_images, tracks, self.b.local_max_iterations, False, self.b.local_function_tolerance)
+            _ = self._adjust(var_images, tracks, self.b.local_max_iterations, False, self.b.local_function_tolerance)
             n_bad = self._filter(tracks, check_angle=False)
             n_new = self._complete(tracks)
             if n_bad + n_new == 0:
@@ -430,7 +435,7 @@ class IncrementalMapper:
             var_images = np.nonzero(self.reg)[0]
             n_obs_before = int(self.active.sum())
             ftol = self.b.final_function_tolerance if final else self.b.global_function_tolerance
-            rep = self._adjust(var_images, tracks, max_iterations or self.b.global_max_iterations, True, ftol)
+            rep, _ = self._adjust(var_images, tracks, max_iterations or self.b.global_max_iterations, True, ftol)
             self._filter(tracks, check_angle=True)
             all_tracks = np.arange(self.n_tracks)
             self._complete(all_tracks)
@@ -638,8 +643,31 @@ class IncrementalMapper:
             self.register_all()
             if int(self.reg.sum()) == before:
                 break
+        self._focal_check()
         self.stats["mapper_s"] = time.perf_counter() - t0
         return self._output(init)
+
+    def _focal_check(self) -> None:
+        """With the focal length held fixed, find the focal length the model fits best (a trial
+        adjustment that changes nothing) and warn when it differs from K's noticeably."""
+        tol = self.s.focal_check_tolerance
+        if tol <= 0 or self.b.refine_focal_length or self.reg.sum() < 3:
+            return
+        tracks = np.nonzero(self.has_pt)[0]
+        if len(tracks) < 20:
+            return
+        rep, prob = self._adjust(np.nonzero(self.reg)[0], tracks, 20, False, 1e-5, write_back=False,
+                                 force_focal=True)
+        for c, cam in enumerate(self.cameras):
+            f_fit = float(prob.cameras[c, 0])
+            ratio = f_fit / cam.fx
+            self.stats.setdefault("focal_fit_ratio", {})[c] = ratio
+            if abs(ratio - 1.0) > tol:
+                self.warnings.append(
+                    f"the focal length in K seems off: the reconstruction fits best with fx = {f_fit:.1f} px instead "
+                    f"of {cam.fx:.1f} px ({100 * (ratio - 1):+.1f}%); check K (image size, lens, zoom) or refine "
+                    "the focal length (BundleSettings.refine_focal_length)"
+                )
 
     def _output(self, init: tuple[int, int] | None) -> MapperOutput:
         obs = np.nonzero(self.active)[0]

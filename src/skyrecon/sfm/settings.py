@@ -144,6 +144,9 @@ class MapperSettings:
         global_ba_ratio: a global adjustment runs whenever the registered images (or points) grew
             by this factor since the last one.
         final_refinements: rounds of (global adjustment, filtering, re-triangulation) at the end.
+        focal_check_tolerance: when the focal length is held fixed, a trial adjustment with it
+            free runs at the end; a best-fit focal length off by more than this fraction gives a
+            warning (K seems wrong). 0 disables the check.
     """
 
     init_min_inliers: int = 100
@@ -162,6 +165,7 @@ class MapperSettings:
     local_ba_images: int = 6
     global_ba_ratio: float = 1.1
     final_refinements: int = 3
+    focal_check_tolerance: float = 0.03
 
     def __post_init__(self) -> None:
         if self.init_min_inliers < 8 or self.pnp_min_inliers < 4 or self.init_min_points < 8:

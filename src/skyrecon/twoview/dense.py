@@ -234,6 +234,9 @@ def dense_model(
         image1, image2: full-resolution images matching intr1, intr2.
         geo: geometry with a pose.
         x1, x2: (K, 2) full-resolution pixels of the pose inliers (depth range, disparity range).
+    Returns:
+        DenseResult; with ``settings.dense_fallback`` a stereo failure (forward motion, too wide
+        a disparity range) falls back to the epipolar search and says so in ``warnings``.
     Raises:
         InputError: the geometry has no pose.
         EstimationError: the dense method cannot run on this geometry (see messages).
@@ -242,4 +245,16 @@ def dense_model(
         raise InputError("a dense model needs a relative pose (R and t)")
     if settings.dense_method == "epipolar":
         return dense_epipolar(image1, image2, intr1, intr2, geo, x1, x2, settings)
-    return dense_stereo(image1, image2, intr1, intr2, geo, x1, x2, settings)
+    try:
+        return dense_stereo(image1, image2, intr1, intr2, geo, x1, x2, settings)
+    except EstimationError as exc:
+        if not settings.dense_fallback:
+            raise
+        # rectification impossible (forward motion, huge disparity range): search along the
+        # epipolar lines directly instead
+        try:
+            out = dense_epipolar(image1, image2, intr1, intr2, geo, x1, x2, settings)
+        except EstimationError as exc2:
+            raise EstimationError(f"{exc}; the epipolar search failed too: {exc2}") from None
+        out.warnings.append(f"dense model from the epipolar window search instead of stereo: {exc}")
+        return out

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import replace
 
 import cv2
 import numpy as np
@@ -160,22 +159,11 @@ def reconstruct_two_view(
     dense: DenseResult | None = None
     if settings.dense and geo.has_pose:
         t0 = time.perf_counter()
-        xi1, xi2 = x1[geo.inliers], x2[geo.inliers]
         try:
-            dense = dense_model(img1, img2, intrinsics1, intrinsics2, geo, xi1, xi2, settings)
+            dense = dense_model(img1, img2, intrinsics1, intrinsics2, geo, x1[geo.inliers], x2[geo.inliers], settings)
+            geo.warnings.extend(dense.warnings)
         except EstimationError as exc:
-            if settings.dense_method == "stereo":
-                # rectification impossible (forward motion, huge disparity range): search along the
-                # epipolar lines directly instead
-                try:
-                    dense = dense_model(
-                        img1, img2, intrinsics1, intrinsics2, geo, xi1, xi2, replace(settings, dense_method="epipolar")
-                    )
-                    geo.warnings.append(f"dense model from the epipolar window search instead of stereo: {exc}")
-                except EstimationError as exc2:
-                    geo.warnings.append(f"no dense model: {exc}; {exc2}")
-            else:
-                geo.warnings.append(f"no dense model: {exc}")
+            geo.warnings.append(f"no dense model: {exc}")
         timings["dense"] = time.perf_counter() - t0
     elif settings.dense:
         geo.warnings.append("no dense model: the relative pose (with translation) is unknown")

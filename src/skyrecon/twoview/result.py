@@ -74,6 +74,7 @@ class DenseResult:
         disparity: (H, W) float32 disparity of the rectified left image, pixels, NaN where
             invalid (``x_right = x_left - d``), else None.
         matcher: name of the disparity matcher that ran.
+        warnings: what happened on the way (e.g. a fallback from stereo to epipolar search).
     """
 
     method: str
@@ -83,6 +84,7 @@ class DenseResult:
     right: np.ndarray | None = None
     disparity: np.ndarray | None = None
     matcher: str = ""
+    warnings: list[str] = field(default_factory=list)
 
 
 @dataclass

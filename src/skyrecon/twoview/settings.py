@@ -45,6 +45,8 @@ class TwoViewSettings:
         dense: compute the dense model.
         dense_method: ``"stereo"`` (rectify + disparity matcher; default) or ``"epipolar"``
             (direct NCC window search along epipolar lines on a pixel grid).
+        dense_fallback: when stereo is impossible (forward motion: the epipole is in the image;
+            a disparity range too wide), use the epipolar search instead of giving up.
         stereo_matcher: matcher name for the stereo engine (``"sgbm"`` uses OpenCV when the
             engine is not installed).
         rectification: ``"calibrated"`` (ours, from R, t), ``"opencv"`` (cv2.stereoRectify) or
@@ -77,6 +79,7 @@ class TwoViewSettings:
     min_parallax_deg: float = 0.25
     dense: bool = True
     dense_method: DenseMethod = "stereo"
+    dense_fallback: bool = True
     stereo_matcher: str = "sgbm"
     rectification: str = "calibrated"
     dense_max_image_size: int = 1536
