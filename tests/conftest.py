@@ -6,6 +6,11 @@ import os
 from pathlib import Path
 
 import pytest
+from hypothesis import settings
+
+# Property tests draw the same examples on every run, so a CI result is reproducible.
+settings.register_profile("skyrecon", derandomize=True, deadline=None)
+settings.load_profile("skyrecon")
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 

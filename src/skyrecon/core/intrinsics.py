@@ -135,8 +135,12 @@ class Intrinsics:
         yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
         return np.stack([xd, yd], axis=1)
 
-    def undistort_normalized(self, xy_d: np.ndarray, iterations: int = 20) -> np.ndarray:
-        """Invert :meth:`distort_normalized` by fixed-point iteration, (N, 2) -> (N, 2)."""
+    def undistort_normalized(self, xy_d: np.ndarray, iterations: int = 200) -> np.ndarray:
+        """Invert :meth:`distort_normalized` by fixed-point iteration, (N, 2) -> (N, 2).
+
+        Stops early once no point moves by more than 1e-15; strong barrel distortion near the
+        image corners needs many iterations.
+        """
         if not self.has_distortion:
             return xy_d.copy()
         k1, k2, p1, p2, k3 = self.dist
@@ -147,7 +151,11 @@ class Intrinsics:
             radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
             dx = 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
             dy = p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
-            xy = np.stack([(xy_d[:, 0] - dx) / radial, (xy_d[:, 1] - dy) / radial], axis=1)
+            new = np.stack([(xy_d[:, 0] - dx) / radial, (xy_d[:, 1] - dy) / radial], axis=1)
+            done = not np.nanmax(np.abs(new - xy), initial=0.0) > 1e-15
+            xy = new
+            if done:
+                break
         return xy
 
     # ----- projection -----------------------------------------------------
