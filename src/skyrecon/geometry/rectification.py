@@ -111,17 +111,25 @@ def _out_size(intr1: Intrinsics, scale: float) -> tuple[int, int]:
     return max(8, int(round(intr1.width * scale))), max(8, int(round(intr1.height * scale)))
 
 
-def _disparity_range(d: np.ndarray, num_max: int) -> tuple[int, int]:
-    """(min_disparity, num_disparities) covering robust percentiles of sparse disparities d."""
+def _disparity_range(d: np.ndarray, width: int, max_fraction: float = 0.5) -> tuple[int, int]:
+    """(min_disparity, num_disparities) covering robust percentiles of sparse disparities d.
+
+    The range spans the 1st to 99th percentile plus a margin; when that is wider than
+    ``max_fraction`` of the image width (a block matcher then loses that share of the image),
+    the far end (small disparities) is given up step by step, down to the 20th percentile.
+    """
     d = d[np.isfinite(d)]
+    num_max = max(16, width // 16 * 16)
     if len(d) < 5:
         return 0, int(min(num_max, 128))
-    lo, hi = np.percentile(d, [1.0, 99.0])
-    span = hi - lo
-    lo -= 0.15 * span + 8
-    hi += 0.15 * span + 8
-    lo_i = int(np.floor(lo))
-    num = int(np.ceil((hi - lo_i) / 16.0)) * 16
+    hi = float(np.percentile(d, 99.0))
+    for p_lo in (1.0, 2.0, 5.0, 10.0, 20.0):
+        lo = float(np.percentile(d, p_lo))
+        span = hi - lo
+        lo_i = int(np.floor(lo - 0.1 * span - 8))
+        num = int(np.ceil((hi + 0.1 * span + 8 - lo_i) / 16.0)) * 16
+        if num <= max_fraction * width:
+            break
     return lo_i, int(max(16, min(num, num_max)))
 
 
@@ -140,7 +148,7 @@ def _finish(
     rect = Rectification(method, size, M_left, M_right, swapped, K, doffs, baseline)
     if x1n is not None and x2n is not None and len(x1n) > 0:
         ql, qr = rect.to_rectified(x1n, x2n)
-        rect.min_disparity, rect.num_disparities = _disparity_range(ql[:, 0] - qr[:, 0], num_max=max(16, size[0] // 16 * 16))
+        rect.min_disparity, rect.num_disparities = _disparity_range(ql[:, 0] - qr[:, 0], size[0])
     return rect
 
 

@@ -29,6 +29,7 @@ from skyrecon.twoview.settings import TwoViewSettings
 __all__ = ["compute_disparity", "dense_stereo", "dense_epipolar", "dense_model"]
 
 MAX_DISPARITY_FRACTION = 0.5  # disparity ranges wider than this share of the image width are refused
+EPIPOLAR_MAX_WINDOWS = 1.0e7  # window comparisons of one epipolar search (about a second on 2 cores)
 
 
 _ALIASES = {"sgbm": "opencv-sgbm", "bm": "opencv-bm"}
@@ -183,7 +184,8 @@ def dense_epipolar(
 ) -> DenseResult:
     """The write-up's dense method: NCC windows searched along epipolar segments.
 
-    A grid of pixels of image 1 (``epipolar_step`` working pixels apart) is searched in image 2
+    A grid of pixels of image 1 (``epipolar_step`` working pixels apart, coarser when the total
+    search would exceed ``EPIPOLAR_MAX_WINDOWS`` window comparisons) is searched in image 2
     along the segment of its epipolar line between the near and far depths of the sparse
     inliers (x1, x2: (K, 2) full-resolution pixels); unambiguous matches with NCC above
     ``epipolar_min_ncc`` are triangulated optimally.
@@ -197,13 +199,22 @@ def dense_epipolar(
     z = X[:, 2][np.isfinite(X[:, 2]) & (X[:, 2] > 0)]
     if len(z) < 5:
         raise EstimationError("too few triangulated inliers to bound the depth of the epipolar search")
-    near, far = np.percentile(z, 2) * 0.7, np.percentile(z, 98) * 1.5
+    near, far = np.percentile(z, 2) * 0.8, np.percentile(z, 98) * 1.25
     half = settings.epipolar_window // 2 + 1
     st = settings.epipolar_step
-    vv, uu = np.mgrid[half : g1.shape[0] - half : st, half : g1.shape[1] - half : st]
-    p1 = np.stack([uu.ravel(), vv.ravel()], 1).astype(np.float64)
-    seg = search_segments_from_depth(p1, w1, w2, geo.R, geo.t, (near, far))
-    ok = np.all(np.isfinite(seg), axis=1)
+
+    def grid(step: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        vv, uu = np.mgrid[half : g1.shape[0] - half : step, half : g1.shape[1] - half : step]
+        q = np.stack([uu.ravel(), vv.ravel()], 1).astype(np.float64)
+        sg = search_segments_from_depth(q, w1, w2, geo.R, geo.t, (near, far))
+        return q, sg, np.all(np.isfinite(sg), axis=1)
+
+    p1, seg, ok = grid(st)
+    # bound the work (window evaluations along all segments): coarsen the grid if needed
+    work = float(np.sum(np.hypot(seg[ok, 2] - seg[ok, 0], seg[ok, 3] - seg[ok, 1]) + 1.0))
+    if work > EPIPOLAR_MAX_WINDOWS:
+        st = int(np.ceil(st * np.sqrt(work / EPIPOLAR_MAX_WINDOWS)))
+        p1, seg, ok = grid(st)
     res = match_along_epipolar_lines(g1, g2, p1[ok], seg[ok], settings.epipolar_window, "ncc")
     good = np.isfinite(res.scores) & (res.scores >= settings.epipolar_min_ncc)
     good &= ~(np.nan_to_num(res.second_scores, nan=-1.0) > res.scores - 0.05)
