@@ -10,9 +10,10 @@ blocks and a robust loss (IRLS weights).
 Frames and units: ``R``, ``t`` are ``cam_from_world`` (``p_cam = R p_world + t``); points are
 world coordinates in the reconstruction's units; observations are pixels (top-left pixel centre
 (0, 0)); cameras are rows ``[fx, fy, cx, cy, k1, k2]`` (pixels; radial coefficients on the
-normalised plane). The reduced camera system is solved densely (Cholesky) up to
-``BundleOptions.max_dense_columns`` columns and by preconditioned conjugate gradients on the
-implicit Schur complement above that.
+normalised plane). The reduced camera system (Schur complement of the 3 x 3 point blocks) is
+assembled as a dense matrix and solved by Cholesky factorisation up to
+``BundleOptions.max_dense_columns`` columns (1000 cameras by default) and by Jacobi-preconditioned
+conjugate gradients above that.
 """
 
 from __future__ import annotations
@@ -53,7 +54,8 @@ class BundleOptions:
             (``fx`` and ``fy`` together, aspect kept).
         refine_distortion: also estimate ``k1``, ``k2`` of every non-constant camera.
         max_dense_columns: reduced camera systems larger than this are solved by conjugate
-            gradients instead of a dense Cholesky factorisation.
+            gradients instead of a dense Cholesky factorisation (the system is still assembled
+            densely: memory grows with the square of the number of cameras).
     """
 
     loss: LossName = "cauchy"

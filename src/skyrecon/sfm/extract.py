@@ -12,7 +12,7 @@ from __future__ import annotations
 import hashlib
 import re
 from collections import OrderedDict
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -25,7 +25,7 @@ from skyrecon.sfm._threads import limited_threads
 
 __all__ = ["ExtractedImage", "ExtractTask", "extract_one", "load_features", "feature_cache_key"]
 
-_CACHE_VERSION = "sfm-features-2"
+_CACHE_VERSION = "sfm-features-3"
 
 
 @dataclass(frozen=True)
@@ -37,6 +37,7 @@ class ExtractTask:
     name: str
     settings: FeatureSettings
     cache_dir: str
+    target_features: int = 0
 
 
 @dataclass
@@ -69,9 +70,22 @@ class ExtractedImage:
     cached: bool
 
 
-def feature_cache_key(file_hash: str, settings: FeatureSettings) -> str:
+def feature_cache_key(file_hash: str, settings: FeatureSettings, target_features: int = 0) -> str:
     """Cache key of an image's features: file content + feature settings + format version."""
-    return hashlib.sha1(f"{_CACHE_VERSION}|{file_hash}|{settings!r}".encode()).hexdigest()[:20]
+    return hashlib.sha1(f"{_CACHE_VERSION}|{file_hash}|{settings!r}|{target_features}".encode()).hexdigest()[:20]
+
+
+def detect_adaptive(image: np.ndarray, settings: FeatureSettings, target: int):
+    """Detect features; when a SIFT detection finds fewer than ``target`` keypoints, detect again
+    with half the contrast threshold (at most twice): small or soft images get enough features
+    while large sharp ones keep the cheaper, more selective threshold."""
+    f = detect_features(image, settings)
+    tries = 0
+    while target > 0 and len(f) < target and settings.method in ("sift", "rootsift") and tries < 2:
+        settings = replace(settings, sift_contrast_threshold=settings.sift_contrast_threshold / 2)
+        f = detect_features(image, settings)
+        tries += 1
+    return f
 
 
 def _safe_stem(name: str) -> str:
@@ -102,7 +116,7 @@ def _extract_one(task: ExtractTask) -> ExtractedImage:
         return ExtractedImage(task.index, task.name, task.path, False, f"cannot read the file ({exc.strerror})",
                               0, 0, 0, "", "", 1.0, False)
     file_hash = hashlib.sha1(data).hexdigest()
-    key = feature_cache_key(file_hash, task.settings)
+    key = feature_cache_key(file_hash, task.settings, task.target_features)
     cache = Path(task.cache_dir) / f"{_safe_stem(task.name)}-{key}.npz"
     if cache.is_file():
         try:
@@ -120,7 +134,7 @@ def _extract_one(task: ExtractTask) -> ExtractedImage:
                               0, 0, 0, file_hash, "", 1.0, False)
     h, w = image.shape[:2]
     try:
-        f = detect_features(image, task.settings)
+        f = detect_adaptive(image, task.settings, task.target_features)
     except SkyreconError as exc:
         return ExtractedImage(task.index, task.name, task.path, False, str(exc), w, h, 0, file_hash, "", 1.0, False)
     colors = _colors_at(image, f.keypoints)

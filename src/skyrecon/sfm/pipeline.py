@@ -180,7 +180,7 @@ def _run(paths, names, cams_in, settings, executor, workers, seed, cache_dir, ti
     # ----- features ---------------------------------------------------------------------------
     t0 = time.perf_counter()
     fs = settings.feature_settings
-    tasks = [ExtractTask(k, str(p), names[k], fs, str(cache_dir)) for k, p in enumerate(paths)]
+    tasks = [ExtractTask(k, str(p), names[k], fs, str(cache_dir), settings.target_features) for k, p in enumerate(paths)]
     ext: list[ExtractedImage] = executor.map(extract_one, tasks, desc="features")
     timings["features"] = time.perf_counter() - t0
     diagnostics["features_cached"] = sum(1 for e in ext if e.cached)

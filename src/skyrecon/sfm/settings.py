@@ -197,7 +197,7 @@ class BundleSettings:
     """
 
     loss: LossName = "cauchy"
-    loss_scale_px: float = 0.5
+    loss_scale_px: float = 0.25
     local_max_iterations: int = 25
     global_max_iterations: int = 50
     local_function_tolerance: float = 1e-3
@@ -215,7 +215,8 @@ class BundleSettings:
 
 
 def _default_features() -> FeatureSettings:
-    return FeatureSettings(method="rootsift", max_image_size=1600, max_features=8192)
+    # contrast threshold 0.04 = COLMAP's SIFT peak threshold (0.04 / 3 octave layers / 2)
+    return FeatureSettings(method="rootsift", max_image_size=1600, max_features=8192, sift_contrast_threshold=0.04)
 
 
 @dataclass(frozen=True)
@@ -231,6 +232,8 @@ class SfMSettings:
         features, matching: detector/descriptor and descriptor matching.
         pairing, verification, mapper, bundle: see their classes.
         min_features: images with fewer keypoints are left out (too little texture).
+        target_features: SIFT detections with fewer keypoints are repeated with half the contrast
+            threshold (at most twice), so small images still get enough features (0: never).
     """
 
     max_image_size: int | None = 1600
@@ -242,8 +245,11 @@ class SfMSettings:
     mapper: MapperSettings = field(default_factory=MapperSettings)
     bundle: BundleSettings = field(default_factory=BundleSettings)
     min_features: int = 64
+    target_features: int = 800
 
     def __post_init__(self) -> None:
+        if self.target_features < 0:
+            raise InputError(f"target_features must be >= 0, got {self.target_features}")
         if self.max_image_size is not None and self.max_image_size < 0:
             raise InputError(f"max_image_size must be positive (or 0/None for the input size), got {self.max_image_size}")
         if self.max_image_size and self.max_image_size < 64:

@@ -1,0 +1,106 @@
+"""Point-cloud clean-up: normals by PCA, statistical outlier removal, voxel down-sampling.
+
+All clouds are (N, 3) float32 world points in metres; neighbour queries use ``scipy``'s cKDTree
+and run in chunks so that memory stays bounded for millions of points.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+__all__ = ["knn_mean_distance_and_normals", "statistical_outlier_mask", "voxel_downsample_indices",
+           "orient_normals"]
+
+_CHUNK = 100_000
+
+
+def knn_mean_distance_and_normals(points: np.ndarray, k: int = 16, workers: int = -1
+                                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Mean distance to the ``k`` nearest neighbours and the PCA normal of every point.
+
+    Args:
+        points: (N, 3) metres.
+        k: neighbours (the point itself excluded).
+        workers: threads for the KD-tree queries (-1: all cores).
+    Returns:
+        (mean_dist (N,) float64 metres, normals (N, 3) float32 unit, unoriented; the direction
+        of least variance of the point and its neighbours).
+    """
+    P = np.asarray(points, np.float64)
+    n = len(P)
+    if n == 0:
+        return np.zeros(0), np.zeros((0, 3), np.float32)
+    kk = min(k + 1, n)
+    tree = cKDTree(P)
+    mean_d = np.zeros(n)
+    normals = np.zeros((n, 3), np.float32)
+    for a in range(0, n, _CHUNK):
+        b = min(n, a + _CHUNK)
+        dist, idx = tree.query(P[a:b], k=kk, workers=workers)
+        dist = dist.reshape(b - a, kk)
+        idx = idx.reshape(b - a, kk)
+        mean_d[a:b] = dist[:, 1:].mean(axis=1) if kk > 1 else 0.0
+        nb = P[idx]  # (m, kk, 3)
+        c = nb - nb.mean(axis=1, keepdims=True)
+        cov = np.einsum("mki,mkj->mij", c, c)
+        _, vec = np.linalg.eigh(cov)
+        normals[a:b] = vec[:, :, 0]
+    return mean_d, normals
+
+
+def orient_normals(points: np.ndarray, normals: np.ndarray, viewpoints: np.ndarray) -> np.ndarray:
+    """Flip normals (N, 3) to face their viewpoints (N, 3) (e.g. the camera centres), world frame."""
+    to_cam = np.asarray(viewpoints, np.float64) - np.asarray(points, np.float64)
+    flip = np.sum(to_cam * normals, axis=1) < 0
+    out = np.array(normals, np.float32, copy=True)
+    out[flip] *= -1
+    return out
+
+
+def statistical_outlier_mask(mean_dist: np.ndarray, std_ratio: float = 2.0) -> np.ndarray:
+    """(N,) bool inliers: mean k-NN distance at most ``mean + std_ratio * std`` of all points."""
+    if len(mean_dist) == 0:
+        return np.zeros(0, bool)
+    mu = float(np.mean(mean_dist))
+    sd = float(np.std(mean_dist))
+    return mean_dist <= mu + std_ratio * sd
+
+
+def voxel_downsample_indices(points: np.ndarray, voxel_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Group points by voxel of size ``voxel_m`` metres.
+
+    Returns:
+        (inverse (N,) int64 voxel id of every point, counts (M,) int64 points per voxel); use
+        ``np.add.at`` or ``np.bincount`` with ``inverse`` to average attributes.
+    """
+    key = np.floor(np.asarray(points, np.float64) / voxel_m).astype(np.int64)
+    _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    return inverse.reshape(-1), counts
+
+
+def small_component_mask(points: np.ndarray, radius_m: float, min_fraction: float = 0.01, k: int = 8,
+                         workers: int = -1) -> np.ndarray:
+    """(N,) bool: points in connected components holding at least ``min_fraction`` of all points.
+
+    Two points are linked when one is among the other's ``k`` nearest neighbours and they are
+    closer than ``radius_m`` metres: detached clusters (floaters, background fragments) fall
+    into small components and are dropped.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    P = np.asarray(points, np.float64)
+    n = len(P)
+    if n == 0:
+        return np.zeros(0, bool)
+    kk = min(k + 1, n)
+    dist, idx = cKDTree(P).query(P, k=kk, workers=workers)
+    dist = dist.reshape(n, kk)[:, 1:]
+    idx = idx.reshape(n, kk)[:, 1:]
+    rows = np.repeat(np.arange(n), kk - 1)
+    ok = dist.ravel() <= radius_m
+    g = coo_matrix((np.ones(int(ok.sum()), np.int8), (rows[ok], idx.ravel()[ok])), shape=(n, n))
+    _, labels = connected_components(g, directed=False)
+    sizes = np.bincount(labels)
+    return sizes[labels] >= max(1, int(np.ceil(min_fraction * n)))
