@@ -16,7 +16,7 @@ from skyrecon.cli.common import ExampleFormatter, OneLineParser, add_global_opti
 from skyrecon.errors import EstimationError, InputError, SkyreconError
 
 # Command modules, in the order --help lists them. Each has add_parser(subparsers) and run(args) -> int.
-COMMANDS = ["render", "stereo", "two-view", "map", "plan", "eval", "demo"]
+COMMANDS = ["render", "stereo", "two-view", "sfm", "align", "mvs", "map", "plan", "eval", "demo"]
 
 EXAMPLES = """Examples:
   skyrecon render stereo --out scene/        # a synthetic stereo pair with ground truth

@@ -3,8 +3,11 @@
 SOURCE is one of:
 
 * a KITTI-layout stereo sequence (``image_2/``, ``image_3/``, ``calib.txt``, ``poses.txt``): depth
-  from the stereo engine, poses from ``poses.txt``; with ``--depth SUBDIR`` the depth maps
-  ``SOURCE/SUBDIR/<frame>.pfm`` are used instead (e.g. ``depth_2`` written by ``skyrecon render``);
+  from the stereo engine, poses from ``poses.txt``, frame by frame through
+  :class:`skyrecon.mapping.StereoMapper` (measured disparities only, obstacles only within the
+  rig's trusted range; see :mod:`skyrecon.mapping.stereo_sequence`); with ``--depth SUBDIR`` the
+  depth maps ``SOURCE/SUBDIR/<frame>.pfm`` are used instead (e.g. ``depth_2`` written by
+  ``skyrecon render``) with the plain map settings;
 * a fused point cloud (``.ply``, world frame) seen from ``--origin X Y Z``.
 
 Writes MAP_DIR with ``map.json`` + ``blocks.npz`` (the map, see ``skyrecon.mapping.storage``),
@@ -47,7 +50,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    help="stereo: mark obstacles only where a 0.25 px disparity error moves depth by less "
                         "than this, metres (default 2 voxels); farther measurements carve free space only")
     p.add_argument("--depth", metavar="SUBDIR", help="use SOURCE/SUBDIR/<frame>.pfm depth maps instead of stereo")
-    p.add_argument("--method", default="skyrecon-fast", help="stereo matcher (default skyrecon-fast)")
+    p.add_argument("--method", default="skyrecon", help="stereo matcher (default skyrecon)")
     p.add_argument("--max-disparity", type=positive_int, default=128, help="stereo search range, pixels (default 128)")
     p.add_argument("--frames", type=positive_int, help="use only the first N frames")
     p.add_argument("--origin", type=float, nargs=3, metavar=("X", "Y", "Z"), help="sensor position for a .ply source")
@@ -61,20 +64,13 @@ def run(args: argparse.Namespace) -> int:
     source = Path(args.source)
     if not source.exists():
         raise InputError("not found; give a sequence directory or a .ply point cloud", source)
-    max_range = args.max_range
-    uses_stereo = source.is_dir() and args.depth is None
-    if uses_stereo:
-        from skyrecon.io.sequence import read_sequence
-        from skyrecon.stereo import trusted_range_m
-
-        rig = read_sequence(source).rig
-        max_range = min(max_range, trusted_range_m(rig, args.max_depth_error or 2 * args.voxel_size))
-    occ = OccupancyMap(voxel_size_m=args.voxel_size, max_range_m=max_range)
     t0 = time.perf_counter()
     if source.is_file() and source.suffix.lower() == ".ply":
+        occ = OccupancyMap(voxel_size_m=args.voxel_size, max_range_m=args.max_range)
         summary = _integrate_cloud(occ, source, args)
     else:
-        summary = _integrate_sequence(occ, source, args)
+        occ, summary = _integrate_sequence(source, args)
+    max_range = occ.config.max_range_m
     seconds = time.perf_counter() - t0
     counts = occ.counts()
     if counts.get("occupied", 0) == 0:
@@ -108,50 +104,50 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _integrate_sequence(occ, root: Path, args) -> dict:
+def _integrate_sequence(root: Path, args) -> tuple:
+    """(map, summary) of a sequence: stereo through StereoMapper, or ``--depth`` maps."""
     from skyrecon.io.pfm import read_pfm
     from skyrecon.io.sequence import read_sequence
+    from skyrecon.mapping import OccupancyMap, StereoMapper, StereoMapSettings
+    from skyrecon.mapping.stereo_sequence import StereoMapTimings
     from skyrecon.progress import progress
-    from skyrecon.stereo import create_matcher, disparity_to_depth
 
     seq = read_sequence(root)
     if seq.world_from_left is None:
         raise InputError("the sequence has no poses.txt; a map needs one world_from_left_camera pose per frame", root)
     n = min(len(seq), args.frames or len(seq))
     rig = seq.rig
-    matcher = None
     if args.depth is None:
-        matcher = create_matcher(args.method, args.max_disparity)
-        if hasattr(matcher, "warmup"):
-            matcher.warmup()
-    depth_s, integrate_s = [], []
+        mapper = StereoMapper(rig, StereoMapSettings(
+            voxel_size_m=args.voxel_size, max_range_m=args.max_range, method=args.method,
+            max_disparity=args.max_disparity, max_depth_error_m=args.max_depth_error,
+        ))
+        _ = mapper.matcher  # build (and warm up) the matcher before the first frame
+        occ, timings = mapper.map, mapper.timings
+    else:
+        occ, timings = OccupancyMap(voxel_size_m=args.voxel_size, max_range_m=args.max_range), StereoMapTimings()
     for i in progress(range(n), desc="map frames"):
-        t0 = time.perf_counter()
-        if matcher is None:
-            path = root / args.depth / f"{seq.left_paths[i].stem}.pfm"
-            depth = read_pfm(path)
-            if depth.shape != rig.left.shape:
-                raise InputError(f"depth map is {depth.shape[1]}x{depth.shape[0]}, images are {rig.left.width}x{rig.left.height}", path)
-        else:
-            left, right = seq.frame(i)
-            result = matcher.compute(left, right)
-            # interpolated (filled) pixels are guesses, not measurements: they would become phantom obstacles
-            depth = disparity_to_depth(np.where(result.measured, result.disparity, np.float32(np.nan)), rig)
-        t1 = time.perf_counter()
         try:
-            occ.integrate_depth(depth, rig.left, seq.world_from_left[i])
+            if args.depth is None:
+                left, right = seq.frame(i)
+                mapper.add_frame(left, right, seq.world_from_left[i])
+            else:
+                path = root / args.depth / f"{seq.left_paths[i].stem}.pfm"
+                t0 = time.perf_counter()
+                depth = read_pfm(path)
+                if depth.shape != rig.left.shape:
+                    raise InputError(f"depth map is {depth.shape[1]}x{depth.shape[0]}, images are {rig.left.width}x{rig.left.height}", path)
+                t1 = time.perf_counter()
+                occ.integrate_depth(depth, rig.left, seq.world_from_left[i])
+                timings.depth_s.append(t1 - t0)
+                timings.integrate_s.append(time.perf_counter() - t1)
         except InputError as exc:
             raise InputError(f"frame {seq.left_paths[i].stem}: {exc}") from None
-        t2 = time.perf_counter()
-        depth_s.append(t1 - t0)
-        integrate_s.append(t2 - t1)
-    per_frame = np.add(depth_s, integrate_s)
-    return {
+    summary = timings.summary()
+    summary.pop("frames", None)
+    return occ, {
         "source": str(root), "frames": n, "depth_from": args.depth or f"stereo ({args.method})",
-        "frames_per_s": round(float(1.0 / np.median(per_frame)), 2),
-        "median_ms": {"depth": round(1000 * float(np.median(depth_s)), 1),
-                      "integration": round(1000 * float(np.median(integrate_s)), 1)},
-        "track": np.array([p.t for p in seq.world_from_left[:n]]),
+        **summary, "track": np.array([p.t for p in seq.world_from_left[:n]]),
     }
 
 

@@ -5,6 +5,8 @@ Main entry points:
 
 * :func:`build_map_from_depth_frames` and :class:`OccupancyMap` (``integrate_depth``,
   ``integrate_points``, ``save`` / ``load``, ``pop_changed_blocks``);
+* :class:`StereoMapper` / :func:`map_stereo_sequence`: a map from a rectified stereo sequence
+  (what ``skyrecon map`` runs);
 * :func:`export_occupied_ply`, :func:`write_octomap_bt`;
 * :class:`DistanceField` (``update``, ``query_distance``).
 """
@@ -14,8 +16,10 @@ from skyrecon.mapping.distance import DistanceField
 from skyrecon.mapping.occupancy import FREE, OCCUPIED, UNKNOWN, IntegrationStats, OccupancyMap, build_map_from_depth_frames
 from skyrecon.mapping.octomap_bt import write_octomap_bt
 from skyrecon.mapping.storage import export_occupied_ply, load_map, save_map
+from skyrecon.mapping.stereo_sequence import StereoMapper, StereoMapSettings, map_stereo_sequence, stereo_hit_range_m
 
 __all__ = [
     "MapConfig", "OccupancyMap", "IntegrationStats", "build_map_from_depth_frames", "DistanceField",
     "export_occupied_ply", "write_octomap_bt", "save_map", "load_map", "FREE", "OCCUPIED", "UNKNOWN",
+    "StereoMapper", "StereoMapSettings", "map_stereo_sequence", "stereo_hit_range_m",
 ]

@@ -25,6 +25,8 @@ from skyrecon.mapping.blocks import table_find
 
 SUPER = 4  # blocks per superblock edge
 SKIP, FREE, PARTIAL = 0, 1, 2
+# bits of the per-block change codes returned by update_blocks (and _raycast.apply_flags)
+CHANGED_STATE, CHANGED_OCCUPIED = 1, 2
 _NEG_INF = np.float32(-np.inf)
 
 
@@ -453,10 +455,16 @@ def collect_blocks(cls, s_lo, s_n):
 
 
 @njit(cache=True)
-def _state(l, thr):
-    if l != l:
-        return 0
-    return 2 if l >= thr else 1
+def _change(old, new, thr):
+    """Change code of one voxel update: ``CHANGED_STATE`` (unknown / free / occupied) plus
+    ``CHANGED_OCCUPIED`` when the voxel entered or left the occupied state; 0 for none."""
+    ob = old >= thr  # False for NaN (unknown)
+    nb = new >= thr
+    if ob != nb:
+        return CHANGED_STATE | CHANGED_OCCUPIED
+    if old != old:
+        return CHANGED_STATE
+    return 0
 
 
 @njit(cache=True)
@@ -475,9 +483,9 @@ def _add(l, delta, lo, hi):
 def _carve_range(blk, B, x0, x1, y0, y1, z0, z1, l_miss, c_lo, c_hi, thr):
     """Miss every voxel of the local box [x0, x1) x [y0, y1) x [z0, z1).
 
-    Returns (some voxel changed state, every voxel of the box now sits at ``c_lo``).
+    Returns (change code, see :func:`_change`; every voxel of the box now sits at ``c_lo``).
     """
-    ch = False
+    ch = 0
     sat = True
     for lx in range(x0, x1):
         for ly in range(y0, y1):
@@ -486,8 +494,7 @@ def _carve_range(blk, B, x0, x1, y0, y1, z0, z1, l_miss, c_lo, c_hi, thr):
                 old = blk[base + lz]
                 new = _add(old, l_miss, c_lo, c_hi)
                 blk[base + lz] = new
-                if not (old == old) or (old >= thr and new < thr):
-                    ch = True
+                ch |= _change(old, new, thr)
                 if new != c_lo:
                     sat = False
     return ch, sat
@@ -500,6 +507,7 @@ def _voxels(blk, hm, B, x0, x1, y0, y1, z0, z1, px, py, pz, R, voxel, cam, dist,
     ``hm`` (B^3,) uint8 flags the voxels holding a measured point (hit regardless), or is empty.
     ``order`` (3,) int64: world axes from the outer to the inner loop; the inner one should move
     along image rows (camera x), so that consecutive voxels read neighbouring pixels.
+    Returns (change code, see :func:`_change`; some voxel was hit).
     """
     use_hm = hm.shape[0] > 0
     l_hit, l_miss, c_lo, c_hi, thr = lodds[0], lodds[1], lodds[2], lodds[3], lodds[4]
@@ -518,7 +526,7 @@ def _voxels(blk, hm, B, x0, x1, y0, y1, z0, z1, px, py, pz, R, voxel, cam, dist,
     eb0, eb1, eb2 = R[0, b] * voxel, R[1, b] * voxel, R[2, b] * voxel
     ec0, ec1, ec2 = R[0, c] * voxel, R[1, c] * voxel, R[2, c] * voxel
     sa, sb, sc = stride[a], stride[b], stride[c]
-    ch = False
+    ch = 0
     nf = 0
     nh = 0
     umax = W - 0.5
@@ -534,13 +542,8 @@ def _voxels(blk, hm, B, x0, x1, y0, y1, z0, z1, px, py, pz, R, voxel, cam, dist,
                 if use_hm and hm[q]:
                     old = blk[q]
                     nh += 1
-                    if old == old:
-                        new = min(old + l_hit, c_hi)
-                        if old < thr and new >= thr:
-                            ch = True
-                    else:
-                        new = min(l_hit, c_hi)
-                        ch = True
+                    new = min(old + l_hit, c_hi) if old == old else min(l_hit, c_hi)
+                    ch |= _change(old, new, thr)
                     blk[q] = new
                     continue
                 z = qz + ic * ec2
@@ -568,24 +571,13 @@ def _voxels(blk, hm, B, x0, x1, y0, y1, z0, z1, px, py, pz, R, voxel, cam, dist,
                 old = blk[q]
                 if sd < -plane[iv, iu, 4]:
                     nf += 1
-                    if old == old:
-                        new = max(old + l_miss, c_lo)
-                        if old >= thr and new < thr:
-                            ch = True
-                    else:
-                        new = max(l_miss, c_lo)
-                        ch = True
+                    new = max(old + l_miss, c_lo) if old == old else max(l_miss, c_lo)
                 elif abs(sd) <= plane[iv, iu, 5]:
                     nh += 1
-                    if old == old:
-                        new = min(old + l_hit, c_hi)
-                        if old < thr and new >= thr:
-                            ch = True
-                    else:
-                        new = min(l_hit, c_hi)
-                        ch = True
+                    new = min(old + l_hit, c_hi) if old == old else min(l_hit, c_hi)
                 else:
                     continue  # behind the surface, or no valid depth (NaN compares False)
+                ch |= _change(old, new, thr)
                 blk[q] = new
     counts[j, 0] += nf
     counts[j, 1] += nh
@@ -607,14 +599,14 @@ def _all_at(blk, B, x0, y0, z0, h, value):
 @njit(cache=True)
 def _update_block(j, data, sat, coords, ids, kinds, B, voxel, R, t, cam, dist, plane, lodds,
                   planes, pyr_mn, pyr_mx, offs, ws, simple, loc, hitmask, octflag, co, counts, order):
-    """Update block ``ids[j]``; returns whether some voxel changed state (see :func:`update_blocks`)."""
+    """Update block ``ids[j]``; returns its change code (see :func:`update_blocks`)."""
     l_miss, c_lo, c_hi, thr = lodds[1], lodds[2], lodds[3], lodds[4]
     h = B // 2
     k = ids[j]
     blk = data[k]
     if kinds[j] == FREE:
         counts[j, 0] = B * B * B
-        ch = False
+        ch = 0
         for o in range(8):
             if sat[k] & (1 << o):
                 continue
@@ -622,7 +614,7 @@ def _update_block(j, data, sat, coords, ids, kinds, B, voxel, R, t, cam, dist, p
             y0 = h * ((o >> 1) & 1)
             z0 = h * (o & 1)
             c1, full = _carve_range(blk, B, x0, x0 + h, y0, y0 + h, z0, z0 + h, l_miss, c_lo, c_hi, thr)
-            ch = ch or c1
+            ch |= c1
             if full:
                 sat[k] |= 1 << o
         return ch
@@ -632,7 +624,7 @@ def _update_block(j, data, sat, coords, ids, kinds, B, voxel, R, t, cam, dist, p
     px = R[0, 0] * wx0 + R[0, 1] * wy0 + R[0, 2] * wz0 + t[0]
     py = R[1, 0] * wx0 + R[1, 1] * wy0 + R[1, 2] * wz0 + t[1]
     pz = R[2, 0] * wx0 + R[2, 1] * wy0 + R[2, 2] * wz0 + t[2]
-    ch = False
+    ch = 0
     lj = loc[j]
     for o in range(8):
         forced = lj >= 0 and octflag[lj, o] != 0
@@ -657,14 +649,14 @@ def _update_block(j, data, sat, coords, ids, kinds, B, voxel, R, t, cam, dist, p
         if c == FREE:
             counts[j, 0] += h * h * h
             c1, full = _carve_range(blk, B, x0, x0 + h, y0, y0 + h, z0, z0 + h, l_miss, c_lo, c_hi, thr)
-            ch = ch or c1
+            ch |= c1
             if full:
                 sat[k] |= bit
             continue
         hm = hitmask[lj] if lj >= 0 else hitmask[0, :0]
         c1, hit = _voxels(blk, hm, B, x0, x0 + h, y0, y0 + h, z0, z0 + h, px, py, pz, R, voxel, cam, dist,
                           plane, lodds, counts, j, order)
-        ch = ch or c1
+        ch |= c1
         if hit:
             sat[k] &= ~bit
         elif _all_at(blk, B, x0, y0, z0, h, c_lo):
@@ -716,7 +708,9 @@ def update_blocks(
             :func:`mark_endpoints`), -1 for none.
         lodds: (5,) float32 ``l_hit, l_miss, clamp_min, clamp_max, occupied_threshold``.
     Returns:
-        changed (M,) uint8: some voxel of the block changed state (unknown / free / occupied);
+        changed (M,) uint8 change code per block: bit ``CHANGED_STATE`` (1) when some voxel
+        changed state (unknown / free / occupied), bit ``CHANGED_OCCUPIED`` (2) when some voxel
+        entered or left the occupied state;
         counts (M, 2) int64: voxels updated as free and as occupied.
     """
     M = ids.shape[0]
@@ -725,7 +719,6 @@ def update_blocks(
     co = cube_corners(R, 0.5 * (B // 2) * voxel)
     order = _loop_order(R)
     for j in prange(M):
-        if _update_block(j, data, sat, coords, ids, kinds, B, voxel, R, t, cam, dist, plane, lodds,
-                         planes, pyr_mn, pyr_mx, offs, ws, simple, loc, hitmask, octflag, co, counts, order):
-            changed[j] = 1
+        changed[j] = _update_block(j, data, sat, coords, ids, kinds, B, voxel, R, t, cam, dist, plane, lodds,
+                                   planes, pyr_mn, pyr_mx, offs, ws, simple, loc, hitmask, octflag, co, counts, order)
     return changed, counts

@@ -12,7 +12,7 @@ import numpy as np
 from numba import njit
 
 from skyrecon.mapping.blocks import EMPTY, table_find
-from skyrecon.mapping._projective import _add, _state
+from skyrecon.mapping._projective import _add, _change
 
 
 @njit(cache=True)
@@ -135,7 +135,8 @@ def mark_rays(tkeys, tvals, local_of_pool, n_local, origin, ends, is_hit, B, max
 
 @njit(cache=True)
 def apply_flags(data, sat, pool_ids, free, hits, lodds):
-    """Apply hit (wins) / miss flags to blocks ``pool_ids``; returns changed (M,) uint8 and counts (M, 2).
+    """Apply hit (wins) / miss flags to blocks ``pool_ids``; returns changed (M,) uint8 (change
+    codes, see :func:`skyrecon.mapping._projective.update_blocks`) and counts (M, 2).
 
     ``sat`` (N,) uint8 (see :func:`skyrecon.mapping._projective.update_blocks`) is cleared for blocks with hits.
     """
@@ -145,7 +146,7 @@ def apply_flags(data, sat, pool_ids, free, hits, lodds):
     l_hit, l_miss, c_lo, c_hi, thr = lodds[0], lodds[1], lodds[2], lodds[3], lodds[4]
     for j in range(M):
         blk = data[pool_ids[j]]
-        ch = False
+        ch = 0
         for q in range(blk.shape[0]):
             if hits[j, q]:
                 delta = l_hit
@@ -159,7 +160,6 @@ def apply_flags(data, sat, pool_ids, free, hits, lodds):
             old = blk[q]
             new = _add(old, delta, c_lo, c_hi)
             blk[q] = new
-            if _state(old, thr) != _state(new, thr):
-                ch = True
-        changed[j] = 1 if ch else 0
+            ch |= _change(old, new, thr)
+        changed[j] = ch
     return changed, counts

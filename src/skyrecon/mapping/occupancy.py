@@ -10,8 +10,9 @@ spans ``[i, i + 1) * voxel_size``; see :mod:`skyrecon.mapping.blocks` for the bl
 
 Depth images are integrated projectively (each voxel of the frustum once per frame, see
 :mod:`skyrecon.mapping._projective`), point clouds by ray casting from the sensor origin
-(see :mod:`skyrecon.mapping._raycast`). Both record which blocks changed state so that the
-distance field can be updated incrementally (:meth:`OccupancyMap.pop_changed_blocks`).
+(see :mod:`skyrecon.mapping._raycast`). Both record which blocks changed state, and which
+blocks changed their set of occupied voxels, so that the distance field can be updated
+incrementally (:meth:`OccupancyMap.pop_changed_blocks`).
 """
 
 from __future__ import annotations
@@ -67,6 +68,7 @@ class OccupancyMap:
             base = MapConfig.from_dict({**base.to_dict(), **overrides})
         self.config = base
         self.grid = BlockGrid(base.block_size, np.nan)
+        # per block, bits of the changes not popped yet: CHANGED_STATE, CHANGED_OCCUPIED (see _projective)
         self._dirty = np.zeros(self.grid.coords.shape[0], np.uint8)
         self._sat = np.zeros(self.grid.coords.shape[0], np.uint8)  # block saturated free (see _projective)
         # per-frame scratch of depth integration (see _projective.mark_endpoints)
@@ -132,22 +134,47 @@ class OccupancyMap:
             self._local_of_pool = np.full(n, -1, np.int32)
 
     def _mark(self, ids: np.ndarray, changed: np.ndarray) -> int:
+        """Record the change codes ``changed`` (M,) uint8 of the distinct blocks ``ids`` (M,)."""
         self._grow_flags()
-        hit = ids[changed.astype(bool)]
-        self._dirty[hit] = 1
+        changed = np.asarray(changed, dtype=np.uint8)
+        sel = changed != 0
+        hit = ids[sel]
+        self._dirty[hit] |= changed[sel]
         if len(ids):
             self.version += 1
         return int(len(hit))
 
-    def changed_blocks(self) -> np.ndarray:
-        """(M, 3) int32 coordinates of blocks whose voxels changed state since the last pop."""
-        idx = np.flatnonzero(self._dirty[: self.grid.count])
+    def _changed_bit(self, occupied_only: bool) -> int:
+        return proj.CHANGED_OCCUPIED if occupied_only else proj.CHANGED_STATE
+
+    def changed_blocks(self, occupied_only: bool = False) -> np.ndarray:
+        """Blocks changed since they were last popped, without forgetting them.
+
+        Args:
+            occupied_only: False: blocks in which some voxel changed state (unknown, free or
+                occupied); True: blocks in which some voxel became or stopped being occupied
+                (what a distance field that counts unknown space as free depends on).
+        Returns:
+            (M, 3) int32 block coordinates (block ``b`` holds voxels ``b * block_size`` to
+            ``(b + 1) * block_size - 1`` per axis), in pool order.
+        """
+        idx = np.flatnonzero(self._dirty[: self.grid.count] & self._changed_bit(occupied_only))
         return self.grid.coords[idx].copy()
 
-    def pop_changed_blocks(self) -> np.ndarray:
-        """As :meth:`changed_blocks`, and forget them (for incremental distance updates)."""
-        out = self.changed_blocks()
-        self._dirty[:] = 0
+    def pop_changed_blocks(self, occupied_only: bool = False) -> np.ndarray:
+        """The blocks changed since the last call (as :meth:`changed_blocks`), and forget them.
+
+        The two kinds of record are kept and forgotten separately: ``pop_changed_blocks()``
+        (every state change, for a distance field that counts unknown space as occupied)
+        does not clear the record of ``pop_changed_blocks(occupied_only=True)`` (changes of
+        the occupied voxels, for one that counts unknown space as free), and vice versa, so
+        each consumer sees every change once.
+
+        Returns:
+            (M, 3) int32 block coordinates (see :meth:`changed_blocks`).
+        """
+        out = self.changed_blocks(occupied_only)
+        self._dirty[: self.grid.count] &= np.uint8(~self._changed_bit(occupied_only) & 0xFF)
         return out
 
     # ----- integration -----------------------------------------------------------------
@@ -414,7 +441,9 @@ class OccupancyMap:
         bc = np.stack(np.meshgrid(*rngs, indexing="ij"), -1).reshape(-1, 3)
         ids = m.grid.ensure(bc)
         m.grid.scatter(ids, lo, vals)
-        m._mark(ids, np.ones(len(ids), np.uint8))
+        with np.errstate(invalid="ignore"):
+            has_occupied = np.any(m.grid.data[ids] >= m._lodds[4], axis=1)
+        m._mark(ids, np.where(has_occupied, proj.CHANGED_STATE | proj.CHANGED_OCCUPIED, proj.CHANGED_STATE))
         return m
 
     # ----- persistence -----------------------------------------------------------------

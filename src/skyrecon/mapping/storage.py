@@ -111,7 +111,7 @@ def load_map(directory: str | Path):
         m.grid = BlockGrid.from_blocks(B, np.nan, coords, logodds.reshape(n, -1))
     except ValueError as e:
         raise InputError(f"corrupt block file ({e})", bp) from None
-    m._dirty = np.ones(m.grid.coords.shape[0], np.uint8)
+    m._dirty = np.full(m.grid.coords.shape[0], 3, np.uint8)  # every block changed, occupied ones included
     m._sat = np.zeros(m.grid.coords.shape[0], np.uint8)
     return m
 

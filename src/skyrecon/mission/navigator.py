@@ -16,9 +16,9 @@ unknown space, so that the goal lies inside it from the start):
   and at a corner it slows down, turns, looks, and goes on. Sky matches at infinite depth and
   carves free space up to the map's range, so open air above roofs gets observed too.
 * **Replanning.** Every cycle the new depth is integrated; the blocks whose *occupied* voxels
-  changed are passed to the distance field (with unknown space counted as free, a block that
-  only turned from unknown to free cannot change the field, so it is skipped, which keeps the
-  update small); the :class:`~skyrecon.planning.Replanner` re-checks the remaining path where
+  changed (``map.pop_changed_blocks(occupied_only=True)``) are passed to the distance field
+  (with unknown space counted as free, a block that only turned from unknown to free cannot
+  change the field, so it is skipped, which keeps the update small); the :class:`~skyrecon.planning.Replanner` re-checks the remaining path where
   the field changed, and the drone plans again from where it is when the path is blocked by
   more than ``replan_tolerance_m`` inside the clearance (hysteresis: a path planned at the
   clearance hugs it, and every new observation would otherwise nibble at it and trigger a
@@ -45,7 +45,12 @@ from skyrecon.planning import Planner, PlanResult, Replanner, remaining_path
 
 
 class OccupiedChangeFilter:
-    """Keeps, per map block, which voxels are occupied, and reports the blocks where that set changed.
+    """Reports, among the blocks a caller popped with ``occ_map.pop_changed_blocks()``, those
+    whose occupied voxels changed since this filter's last call.
+
+    Kept for callers that pop every state change themselves; it only intersects with the map's
+    own record, ``occ_map.pop_changed_blocks(occupied_only=True)``, which the :class:`Navigator`
+    reads directly.
 
     Args:
         occ_map: the map whose ``pop_changed_blocks()`` output is filtered.
@@ -53,28 +58,16 @@ class OccupiedChangeFilter:
 
     def __init__(self, occ_map: OccupancyMap):
         self.map = occ_map
-        self.B3 = occ_map.block_size**3
-        self.occupied = np.zeros((max(1024, occ_map.grid.count), self.B3), bool)
-        ids = np.arange(occ_map.grid.count)
-        if len(ids):
-            self.occupied[ids] = occ_map.classify(occ_map.grid.data[ids]) == OCCUPIED
+        occ_map.pop_changed_blocks(occupied_only=True)  # changes before the filter existed
 
     def filter(self, changed_blocks: np.ndarray) -> np.ndarray:
-        """(K, 3) int block coordinates among ``changed_blocks`` (M, 3) whose occupied voxels changed."""
+        """(K, 3) int64 block coordinates among ``changed_blocks`` (M, 3) whose occupied voxels changed."""
         c = np.asarray(changed_blocks, dtype=np.int64).reshape(-1, 3)
-        if len(c) == 0:
-            return c
-        ids = self.map.grid.find(c.astype(np.int32))
-        keep = ids >= 0
-        c, ids = c[keep], ids[keep].astype(np.int64)
-        if ids.max(initial=-1) >= len(self.occupied):
-            grown = np.zeros((int(ids.max() * 1.5) + 1, self.B3), bool)
-            grown[: len(self.occupied)] = self.occupied
-            self.occupied = grown
-        now = self.map.classify(self.map.grid.data[ids]) == OCCUPIED
-        diff = np.any(now != self.occupied[ids], axis=1)
-        self.occupied[ids] = now
-        return c[diff]
+        occ = self.map.pop_changed_blocks(occupied_only=True).astype(np.int64)
+        if len(c) == 0 or len(occ) == 0:
+            return c[:0]
+        keys = lambda a: a.view([("", a.dtype)] * 3).reshape(-1)  # noqa: E731 - rows as structured keys
+        return c[np.isin(keys(np.ascontiguousarray(c)), keys(np.ascontiguousarray(occ)))]
 
 
 @dataclass
@@ -110,7 +103,7 @@ class Navigator:
         nothing = np.zeros(box.shape, bool)
         self.map = OccupancyMap.from_occupancy_grid(nothing, box.origin, mc, known=nothing)
         self.map.pop_changed_blocks()
-        self.filter = OccupiedChangeFilter(self.map)
+        self.map.pop_changed_blocks(occupied_only=True)
         v = cfg.voxel_size_m
         need = cfg.clearance_m + cfg.planning_margin_m + 2 * v + 0.05  # what the Planner needs, no more
         self.df = DistanceField(self.map, max_distance_m=need, unknown_is_occupied=False)
@@ -129,8 +122,7 @@ class Navigator:
         Returns:
             (K, 3) int32 distance-field blocks that were rewritten.
         """
-        changed = self.filter.filter(self.map.pop_changed_blocks())
-        return self.planner.update(changed)
+        return self.planner.update(self.map.pop_changed_blocks(occupied_only=True))
 
     # ----- the path ----------------------------------------------------------------------
     @property

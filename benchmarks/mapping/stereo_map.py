@@ -1,0 +1,268 @@
+"""Mapping from stereo images: ``skyrecon map`` vs OpenCV SGBM depth fed to OctoMap (octomap-python).
+
+Scene: ``generate_city(seed, 200 m)``, a drone flight (``flight_poses``, 40 frames at 10 frames/s
+by default), a rectified stereo rig of 640x480 pixels, 90 degree field of view and 0.3 m baseline
+(what ``skyrecon render sequence`` writes), rendered in memory by ``render_stereo``.
+
+Methods (same frames, same voxel size 0.5 m, same maximum range --max-range, one process):
+  skyrecon        exactly what ``skyrecon map SEQUENCE --voxel-size 0.5`` runs on the sequence:
+                  :class:`skyrecon.mapping.StereoMapper` (default settings: the ``skyrecon-fast``
+                  matcher, measured pixels only, obstacles only within the rig's trusted range,
+                  projective integration of the full 640x480 depth).
+  octomap+sgbm    ``create_matcher("opencv-sgbm")`` (cv2.StereoSGBM, 5x5 blocks, 3-way, LR check
+                  1 px, uniqueness 10, speckle filter 100 px / 2), depth from every valid disparity,
+                  back-projected to world points and inserted with ``OcTree.insertPointCloud(points,
+                  camera centre, maxrange=--max-range)`` (OctoMap's default sensor model).
+Both search disparities 0..--max-disparity.
+
+Scores against the true geometry (``City.occupancy_grid``, ground z <= 0 included; a voxel is
+occupied when it overlaps an obstacle), over one voxel box holding both maps:
+  precision       occupied voxels that overlap an obstacle / occupied voxels;
+  recall@20m      true surface voxels observed within --near metres (default 20) of the camera in at
+                  least one frame / those that are occupied in the map. "Observed" uses the exact
+                  rendered depth of the left camera: the voxel holding the true surface point of a
+                  pixel (pushed 1 mm into the surface) whose Euclidean distance from the camera is
+                  at most 20 m;
+  recall          the same for surface points within --max-range (the far ones are what stereo
+                  cannot resolve: ours deliberately leaves them unknown);
+  precision near / far   precision of the occupied voxels whose centre is within / beyond --near
+                  metres of the nearest camera position of the flight;
+  free-in-obst.   free voxels that overlap an obstacle / free voxels (unsafe mistakes).
+Time: wall time per frame, mean over the frames, of depth (stereo matching, depth, and for the peer
+back-projection to world points) and of integration (map update), after a warm-up frame that
+compiles the Numba kernels and builds the matchers (not counted). Ratios are ours / peer.
+
+Target (issue #7): precision >= 2x the peer's, recall@20m >= the peer's, total time <= 1/5.
+Precision cannot exceed 1, so the precision target needs the peer at 0.5 or below. Here the peer
+scores about 0.66-0.71 (seeds 3, 7, 11), not the 0.27 quoted in the issue: the truth counts the
+inside of buildings as occupied, and most of the peer's far-range noise lands behind facades,
+inside them (its precision beyond 20 m is higher than within 20 m). Its phantom obstacles are
+near-range voxels in the air, where ours are fewer (see "precision near").
+
+Usage:
+  .venv/bin/python benchmarks/mapping/stereo_map.py
+  .venv/bin/python benchmarks/mapping/stereo_map.py --frames 20 --seed 3
+Writes benchmarks/mapping/results_stereo.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT / "src"))
+
+from skyrecon.mapping import OccupancyMap, StereoMapper, StereoMapSettings  # noqa: E402
+from skyrecon.sim import default_rig, flight_poses, generate_city, render_stereo  # noqa: E402
+from skyrecon.stereo import create_matcher, disparity_to_depth  # noqa: E402
+
+try:
+    import octomap  # type: ignore
+except ImportError:  # pragma: no cover - optional peer
+    octomap = None
+
+
+def flight(seed: int, frames: int, width: int, height: int, baseline: float):
+    """City, rig, poses (world_from_left) and rendered stereo frames of a flight."""
+    city = generate_city(seed, 200.0)
+    rig = default_rig(width, height, 90.0, baseline)
+    poses = flight_poses(city, frames, seed)
+    return city, rig, poses, [render_stereo(city, rig, p.inverse()) for p in poses]
+
+
+# ----- the two methods -------------------------------------------------------------------
+def run_ours(rig, poses, frames, voxel: float, max_range: float, max_disparity: int, **settings):
+    """StereoMapper as ``skyrecon map`` uses it; returns (map, depth_s, integrate_s)."""
+    s = StereoMapSettings(voxel_size_m=voxel, max_range_m=max_range, max_disparity=max_disparity, **settings)
+    warm = StereoMapper(rig, s)  # compile / load the kernels, build the matcher
+    warm.add_frame(frames[0].left, frames[0].right, poses[0])
+    mapper = StereoMapper(rig, s, matcher=warm.matcher)
+    for f, p in zip(frames, poses):
+        mapper.add_frame(f.left, f.right, p)
+    return mapper, np.array(mapper.timings.depth_s), np.array(mapper.timings.integrate_s)
+
+
+def world_points(rig, depth: np.ndarray, pose) -> np.ndarray:
+    """(N, 3) float64 world points of the valid pixels of a (H, W) depth image of the left camera."""
+    ok = np.isfinite(depth)
+    return pose.apply(rig.left.ray_directions()[ok] * depth[ok, None].astype(np.float64))
+
+
+def run_peer(rig, poses, frames, voxel: float, max_range: float, max_disparity: int):
+    """OpenCV SGBM + OctoMap insertPointCloud; returns (tree, depth_s, integrate_s, points)."""
+    matcher = create_matcher("opencv-sgbm", max_disparity)
+    matcher.compute(frames[0].left, frames[0].right)  # warm-up
+    tree = octomap.OcTree(voxel)
+    depth_s, integ_s, npts = [], [], 0
+    for f, p in zip(frames, poses):
+        t0 = time.perf_counter()
+        depth = disparity_to_depth(matcher.compute(f.left, f.right).disparity, rig)
+        pts = np.ascontiguousarray(world_points(rig, depth, p))
+        t1 = time.perf_counter()
+        tree.insertPointCloud(pts, np.ascontiguousarray(p.t, dtype=np.float64), maxrange=max_range)
+        t2 = time.perf_counter()
+        depth_s.append(t1 - t0)
+        integ_s.append(t2 - t1)
+        npts += len(pts)
+    return tree, np.array(depth_s), np.array(integ_s), npts
+
+
+# ----- scoring ---------------------------------------------------------------------------
+def ours_labels(m: OccupancyMap) -> tuple[np.ndarray, np.ndarray]:
+    """(occupied (N, 3), free (M, 3)) int64 voxel indices of our map."""
+    B = m.block_size
+    blocks = m.grid.blocks
+    thr = m.config.log_odds[4]
+    out = []
+    with np.errstate(invalid="ignore"):
+        for sel in (blocks >= thr, blocks < thr):
+            k, q = np.nonzero(sel)
+            local = np.stack([q // (B * B), (q // B) % B, q % B], axis=1)
+            out.append(m.grid.block_coords[k].astype(np.int64) * B + local)
+    return out[0], out[1]
+
+
+def octomap_labels(tree, voxel: float) -> tuple[np.ndarray, np.ndarray]:
+    """(occupied, free) int64 voxel indices of an OcTree (pruned leaves expanded to voxels)."""
+    occ, free = tree.extractPointCloud()
+    to_idx = lambda c: np.floor(np.asarray(c, dtype=np.float64).reshape(-1, 3) / voxel).astype(np.int64)  # noqa: E731
+    return to_idx(occ), to_idx(free)
+
+
+class Scorer:
+    """Ground truth over a voxel box ``[lo, hi)`` and the surface voxels the flight observed."""
+
+    def __init__(self, city, rig, poses, frames, voxel: float, lo: np.ndarray, hi: np.ndarray):
+        self.voxel, self.lo, self.hi = voxel, lo, hi
+        self.gt = city.occupancy_grid(lo * voxel, voxel, tuple(hi - lo), include_ground=True).reshape(-1)
+        dirs = rig.left.ray_directions()
+        norm = np.linalg.norm(dirs, axis=2)
+        self._obs = []  # per frame: (flat keys, range of the surface point, metres)
+        for f, pose in zip(frames, poses):
+            d = f.depth_left_m
+            ok = np.isfinite(d)
+            pc = dirs[ok] * d[ok, None].astype(np.float64)
+            r = d[ok] * norm[ok]
+            pc += 1e-3 * pc / r[:, None]
+            self._obs.append((self._flat(np.floor(pose.apply(pc) / voxel).astype(np.int64)), r))
+
+    def seen(self, max_range: float) -> np.ndarray:
+        """Flat keys of the surface voxels observed within ``max_range`` metres in some frame."""
+        k = np.unique(np.concatenate([keys[r <= max_range] for keys, r in self._obs]))
+        return k[k >= 0]
+
+    def _flat(self, idx: np.ndarray) -> np.ndarray:
+        rel = idx - self.lo
+        shape = self.hi - self.lo
+        inside = np.all((rel >= 0) & (rel < shape), axis=1)
+        out = np.full(len(idx), -1, np.int64)
+        out[inside] = np.ravel_multi_index(tuple(rel[inside].T), tuple(shape))
+        return out
+
+    def score(self, occ: np.ndarray, free: np.ndarray, near: float, max_range: float, cameras: np.ndarray) -> dict:
+        fo, ff = self._flat(occ), self._flat(free)
+        inside = fo >= 0
+        fo, ff = fo[inside], ff[ff >= 0]
+        centres = (occ[inside] + 0.5) * self.voxel
+        d = np.full(len(centres), np.inf)
+        for c in cameras:  # distance to the nearest camera position, metres
+            np.minimum(d, np.linalg.norm(centres - c, axis=1), out=d)
+        is_near = d <= near
+        near_keys, all_keys = self.seen(near), self.seen(max_range)
+        return {
+            "occupied": int(len(fo)), "free": int(len(ff)),
+            "precision": float(self.gt[fo].mean()) if len(fo) else float("nan"),
+            "precision_near": float(self.gt[fo[is_near]].mean()) if is_near.any() else float("nan"),
+            "precision_far": float(self.gt[fo[~is_near]].mean()) if (~is_near).any() else float("nan"),
+            "occupied_far": int((~is_near).sum()),
+            "recall_near": float(np.isin(near_keys, fo).mean()) if len(near_keys) else float("nan"),
+            "recall": float(np.isin(all_keys, fo).mean()) if len(all_keys) else float("nan"),
+            "free_in_obstacle": float(self.gt[ff].mean()) if len(ff) else float("nan"),
+            "surface_voxels_near": int(len(near_keys)), "surface_voxels": int(len(all_keys)),
+        }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--seed", type=int, default=7)
+    ap.add_argument("--frames", type=int, default=40)
+    ap.add_argument("--width", type=int, default=640)
+    ap.add_argument("--height", type=int, default=480)
+    ap.add_argument("--baseline", type=float, default=0.3, help="metres (skyrecon render's default)")
+    ap.add_argument("--voxel", type=float, default=0.5)
+    ap.add_argument("--max-range", type=float, default=40.0, help="metres (skyrecon map's default)")
+    ap.add_argument("--max-disparity", type=int, default=128)
+    ap.add_argument("--near", type=float, default=20.0, help="range of recall@near, metres")
+    ap.add_argument("--out", type=Path, default=Path(__file__).with_name("results_stereo.json"))
+    args = ap.parse_args()
+    if octomap is None:
+        sys.exit("octomap-python is not installed (pip install octomap-python); it is the peer of this benchmark")
+
+    t0 = time.perf_counter()
+    city, rig, poses, frames = flight(args.seed, args.frames, args.width, args.height, args.baseline)
+    load = os.getloadavg()[0]
+    print(f"scene: seed {args.seed}, {len(frames)} stereo frames {args.width}x{args.height}, baseline "
+          f"{args.baseline} m, rendered in {time.perf_counter() - t0:.1f} s; voxel {args.voxel} m, max range "
+          f"{args.max_range} m; {os.cpu_count()} CPUs, load average {load:.1f}")
+
+    mapper, o_depth, o_integ = run_ours(rig, poses, frames, args.voxel, args.max_range, args.max_disparity)
+    tree, p_depth, p_integ, npts = run_peer(rig, poses, frames, args.voxel, args.max_range, args.max_disparity)
+
+    labels = {"skyrecon": ours_labels(mapper.map), "octomap+sgbm": octomap_labels(tree, args.voxel)}
+    allv = np.concatenate([np.concatenate(v) for v in labels.values()])
+    lo, hi = allv.min(axis=0), allv.max(axis=0) + 1
+    scorer = Scorer(city, rig, poses, frames, args.voxel, lo, hi)
+    rows = []
+    for name, d, i in (("skyrecon", o_depth, o_integ), ("octomap+sgbm", p_depth, p_integ)):
+        s = scorer.score(*labels[name], args.near, args.max_range, np.array([p.t for p in poses]))
+        rows.append({
+            "method": name, "frames": len(d), "ms_depth": 1000 * float(d.mean()),
+            "ms_integration": 1000 * float(i.mean()), "ms_total": 1000 * float((d + i).mean()), **s,
+        })
+    ours, peer = rows
+    ratios = {
+        "precision": ours["precision"] / peer["precision"],
+        "recall_near": ours["recall_near"] / peer["recall_near"],
+        "recall": ours["recall"] / peer["recall"],
+        "time_depth": ours["ms_depth"] / peer["ms_depth"],
+        "time_integration": ours["ms_integration"] / peer["ms_integration"],
+        "time_total": ours["ms_total"] / peer["ms_total"],
+    }
+    target = {"precision_ratio>=2": ratios["precision"] >= 2.0,
+              "recall_near>=peer": ours["recall_near"] >= peer["recall_near"],
+              "time_ratio<=0.2": ratios["time_total"] <= 0.2}
+
+    near = f"recall@{args.near:g}m"
+    print(f"\n{'method':<14}{'precision':>10}{'near/far':>13}{near:>12}{'recall':>8}{'free-in-obst':>14}"
+          f"{'occupied':>10}{'ms depth':>10}{'ms integr.':>11}{'ms total':>10}")
+    for r in rows:
+        print(f"{r['method']:<14}{r['precision']:>10.3f}{r['precision_near']:>7.3f}/{r['precision_far']:<5.3f}"
+              f"{r['recall_near']:>12.3f}{r['recall']:>8.3f}{r['free_in_obstacle']:>14.5f}{r['occupied']:>10d}"
+              f"{r['ms_depth']:>10.1f}{r['ms_integration']:>11.1f}{r['ms_total']:>10.1f}")
+    print(f"{'ours/peer':<14}{ratios['precision']:>10.2f}{'':>13}{ratios['recall_near']:>12.3f}{ratios['recall']:>8.3f}"
+          f"{'':>14}{'':>10}{ratios['time_depth']:>10.3f}{ratios['time_integration']:>11.3f}{ratios['time_total']:>10.3f}")
+    print(f"skyrecon obstacles within {mapper.hit_range_m:.1f} m (trusted range of the rig); surface voxels "
+          f"observed: {ours['surface_voxels_near']} within {args.near:g} m, {ours['surface_voxels']} within "
+          f"{args.max_range:g} m; peer points inserted per frame: {npts / len(frames):.0f}")
+    print("target (precision >= 2x, recall@near >= peer, time <= 1/5): "
+          + ", ".join(f"{k} {'met' if v else 'MISSED'}" for k, v in target.items()))
+    args.out.write_text(json.dumps({
+        "seed": args.seed, "frames": args.frames, "size": [args.width, args.height], "baseline_m": args.baseline,
+        "voxel_m": args.voxel, "max_range_m": args.max_range, "near_m": args.near,
+        "max_disparity": args.max_disparity, "hit_range_m": mapper.hit_range_m,
+        "skyrecon_settings": asdict(mapper.settings),
+        "cpus": os.cpu_count(), "load_average": load, "results": rows, "ratios": ratios, "target": target,
+    }, indent=2, default=str) + "\n")
+    print(f"\nwrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,116 @@
+"""Occupancy map from a stereo sequence (what ``skyrecon map`` runs): accuracy against the true
+city, no obstacles beyond the trusted range, only measured pixels, the command uses the same code."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from skyrecon.errors import InputError
+from skyrecon.mapping import StereoMapper, StereoMapSettings, load_map, map_stereo_sequence, stereo_hit_range_m
+from skyrecon.mapping.stereo_sequence import disparity_discontinuities
+
+VOXEL = 0.5
+HALF_DIAGONAL = 0.5 * np.sqrt(3) * VOXEL
+
+
+@pytest.fixture(scope="module")
+def flight():
+    """(city, rig, poses, frames): 5 stereo frames 320x240 (0.6 m baseline: trusted range ~19.6 m
+    at 0.5 m voxels) of a flight down a street with buildings 5 to 40 m away."""
+    from skyrecon.sim import default_rig, flight_poses, generate_city, render_stereo
+
+    city = generate_city(7, 200.0)
+    rig = default_rig(320, 240, 90.0, 0.6)
+    poses = flight_poses(city, 5, seed=7, fps=2.0)
+    return city, rig, poses, [render_stereo(city, rig, p.inverse()) for p in poses]
+
+
+def _map(flight, **overrides) -> StereoMapper:
+    _, rig, poses, frames = flight
+    return map_stereo_sequence(((f.left, f.right) for f in frames), rig, poses, voxel_size_m=VOXEL, **overrides)
+
+
+def _nearest_camera_m(centres: np.ndarray, poses) -> np.ndarray:
+    cams = np.array([p.t for p in poses])
+    return np.min(np.linalg.norm(centres[:, None, :] - cams[None], axis=2), axis=1)
+
+
+def test_stereo_map_is_accurate_and_stops_at_the_trusted_range(flight):
+    city, rig, poses, _ = flight
+    mapper = _map(flight)
+    assert mapper.hit_range_m == pytest.approx(stereo_hit_range_m(rig, VOXEL, 40.0), rel=1e-9)
+    assert 18.0 < mapper.hit_range_m < 21.0 and mapper.map.config.max_range_m == mapper.hit_range_m
+    centres = mapper.map.occupied_centers()
+    assert len(centres) > 1000
+    # precision: occupied voxels overlap the true geometry (ground included)
+    precision = np.mean(city.distance(centres, include_ground=True) <= HALF_DIAGONAL)
+    assert precision > 0.85, precision
+    # no obstacle beyond the trusted range (plus the band of voxels a surface point may mark behind it)
+    band = mapper.map.config.grazing_cap_voxels * VOXEL + HALF_DIAGONAL
+    assert _nearest_camera_m(centres, poses).max() <= mapper.hit_range_m + band
+    # without the range limit the same frames put thousands of (noisier) obstacles farther away
+    loose = _map(flight, max_depth_error_m=100.0)
+    far = loose.map.occupied_centers()
+    far = far[_nearest_camera_m(far, poses) > mapper.hit_range_m + band]
+    assert len(far) > 1000
+    assert np.mean(city.distance(far, include_ground=True) <= HALF_DIAGONAL) < precision - 0.1
+    summary = mapper.timings.summary()
+    assert summary["frames"] == len(poses) and len(mapper.timings.integrate_s) == len(poses)
+
+
+def test_only_measured_pixels_away_from_discontinuities_are_used(flight):
+    _, rig, _, frames = flight
+    mapper = StereoMapper(rig, voxel_size_m=VOXEL)
+    f = frames[0]
+    depth = mapper.depth(f.left, f.right)
+    result = mapper.matcher.compute(f.left, f.right)
+    assert result.filled.any()  # the matcher did fill some pixels...
+    ok = np.isfinite(depth)
+    assert not np.any(ok & ~result.measured)  # ...that never reach the map
+    assert not np.any(ok & disparity_discontinuities(result.disparity, 1.0))
+    assert ok.mean() > 0.5
+    # measured depth agrees with the truth where the map may use it
+    near = ok & (depth < mapper.hit_range_m)
+    err = np.abs(depth[near] - f.depth_left_m[near])
+    assert np.median(err) < 0.3 and np.mean(err < 1.0) > 0.9, (np.median(err), np.mean(err < 1.0))
+
+
+def test_disparity_discontinuities():
+    d = np.full((10, 12), 20.0, np.float32)
+    d[:, 6:] = 30.0
+    d[0, 0] = np.nan
+    edge = disparity_discontinuities(d, 1.0)
+    assert edge[:, 5:7].all() and not edge[5:, :5].any() and not edge[:, 8:].any()
+    assert edge[0, 1] and edge[1, 1]  # next to an invalid pixel
+
+
+def test_bad_input(flight):
+    _, rig, poses, frames = flight
+    pairs = [(f.left, f.right) for f in frames]
+    with pytest.raises(InputError, match="poses"):
+        map_stereo_sequence(pairs, rig, poses[:2], voxel_size_m=VOXEL)
+    with pytest.raises(InputError, match="no stereo frames"):
+        map_stereo_sequence([], rig, poses, voxel_size_m=VOXEL)
+    with pytest.raises(InputError):
+        StereoMapSettings(voxel_size_m=-1.0)
+    with pytest.raises(InputError, match="frame 0"):
+        map_stereo_sequence([(frames[0].left[:100], frames[0].right[:100])], rig, poses, voxel_size_m=VOXEL)
+
+
+def test_command_line_runs_the_same_stereo_mapper(flight, tmp_path):
+    from skyrecon.cli.main import main
+    from skyrecon.io.sequence import write_sequence
+
+    _, rig, poses, frames = flight
+    seq = tmp_path / "seq"
+    write_sequence(seq, rig, ((f.left, f.right) for f in frames), poses)
+    out = tmp_path / "map"
+    assert main(["map", str(seq), "--out", str(out), "--voxel-size", str(VOXEL), "--quiet"]) == 0
+    cli = load_map(out)
+    lib = _map(flight).map
+    assert cli.config.max_range_m == pytest.approx(lib.config.max_range_m)
+    assert cli.config.prob_hit == lib.config.prob_hit and cli.config.prob_miss == lib.config.prob_miss
+    a = {tuple(v) for v in cli.occupied_voxels().tolist()}
+    b = {tuple(v) for v in lib.occupied_voxels().tolist()}
+    assert len(a ^ b) <= 0.01 * len(b)
