@@ -6,7 +6,7 @@ by default), a rectified stereo rig of 640x480 pixels, 90 degree field of view a
 
 Methods (same frames, same voxel size 0.5 m, same maximum range --max-range, one process):
   skyrecon        exactly what ``skyrecon map SEQUENCE --voxel-size 0.5`` runs on the sequence:
-                  :class:`skyrecon.mapping.StereoMapper` (default settings: the ``skyrecon-fast``
+                  :class:`skyrecon.mapping.StereoMapper` (default settings: the ``skyrecon``
                   matcher, measured pixels only, obstacles only within the rig's trusted range,
                   projective integration of the full 640x480 depth).
   octomap+sgbm    ``create_matcher("opencv-sgbm")`` (cv2.StereoSGBM, 5x5 blocks, 3-way, LR check
@@ -25,6 +25,9 @@ occupied when it overlaps an obstacle), over one voxel box holding both maps:
                   at most 20 m;
   recall          the same for surface points within --max-range (the far ones are what stereo
                   cannot resolve: ours deliberately leaves them unknown);
+  precision@surface  occupied voxels whose centre lies within one voxel of a true surface
+                  (|signed distance| <= voxel size) / occupied voxels: phantom obstacles in the air
+                  and noise buried deep behind facades both count as wrong;
   precision near / far   precision of the occupied voxels whose centre is within / beyond --near
                   metres of the nearest camera position of the flight;
   free-in-obst.   free voxels that overlap an obstacle / free voxels (unsafe mistakes).
@@ -141,7 +144,7 @@ class Scorer:
     """Ground truth over a voxel box ``[lo, hi)`` and the surface voxels the flight observed."""
 
     def __init__(self, city, rig, poses, frames, voxel: float, lo: np.ndarray, hi: np.ndarray):
-        self.voxel, self.lo, self.hi = voxel, lo, hi
+        self.voxel, self.lo, self.hi, self.city = voxel, lo, hi, city
         self.gt = city.occupancy_grid(lo * voxel, voxel, tuple(hi - lo), include_ground=True).reshape(-1)
         dirs = rig.left.ray_directions()
         norm = np.linalg.norm(dirs, axis=2)
@@ -180,6 +183,8 @@ class Scorer:
         return {
             "occupied": int(len(fo)), "free": int(len(ff)),
             "precision": float(self.gt[fo].mean()) if len(fo) else float("nan"),
+            "precision_surface": float(np.mean(np.abs(self.city.distance(centres, include_ground=True)) <= self.voxel))
+            if len(fo) else float("nan"),
             "precision_near": float(self.gt[fo[is_near]].mean()) if is_near.any() else float("nan"),
             "precision_far": float(self.gt[fo[~is_near]].mean()) if (~is_near).any() else float("nan"),
             "occupied_far": int((~is_near).sum()),
@@ -230,6 +235,7 @@ def main() -> None:
     ours, peer = rows
     ratios = {
         "precision": ours["precision"] / peer["precision"],
+        "precision_surface": ours["precision_surface"] / peer["precision_surface"],
         "recall_near": ours["recall_near"] / peer["recall_near"],
         "recall": ours["recall"] / peer["recall"],
         "time_depth": ours["ms_depth"] / peer["ms_depth"],
@@ -241,13 +247,13 @@ def main() -> None:
               "time_ratio<=0.2": ratios["time_total"] <= 0.2}
 
     near = f"recall@{args.near:g}m"
-    print(f"\n{'method':<14}{'precision':>10}{'near/far':>13}{near:>12}{'recall':>8}{'free-in-obst':>14}"
+    print(f"\n{'method':<14}{'precision':>10}{'@surface':>9}{'near/far':>13}{near:>12}{'recall':>8}{'free-in-obst':>14}"
           f"{'occupied':>10}{'ms depth':>10}{'ms integr.':>11}{'ms total':>10}")
     for r in rows:
-        print(f"{r['method']:<14}{r['precision']:>10.3f}{r['precision_near']:>7.3f}/{r['precision_far']:<5.3f}"
+        print(f"{r['method']:<14}{r['precision']:>10.3f}{r['precision_surface']:>9.3f}{r['precision_near']:>7.3f}/{r['precision_far']:<5.3f}"
               f"{r['recall_near']:>12.3f}{r['recall']:>8.3f}{r['free_in_obstacle']:>14.5f}{r['occupied']:>10d}"
               f"{r['ms_depth']:>10.1f}{r['ms_integration']:>11.1f}{r['ms_total']:>10.1f}")
-    print(f"{'ours/peer':<14}{ratios['precision']:>10.2f}{'':>13}{ratios['recall_near']:>12.3f}{ratios['recall']:>8.3f}"
+    print(f"{'ours/peer':<14}{ratios['precision']:>10.2f}{ratios['precision_surface']:>9.2f}{'':>13}{ratios['recall_near']:>12.3f}{ratios['recall']:>8.3f}"
           f"{'':>14}{'':>10}{ratios['time_depth']:>10.3f}{ratios['time_integration']:>11.3f}{ratios['time_total']:>10.3f}")
     print(f"skyrecon obstacles within {mapper.hit_range_m:.1f} m (trusted range of the rig); surface voxels "
           f"observed: {ours['surface_voxels_near']} within {args.near:g} m, {ours['surface_voxels']} within "
