@@ -40,7 +40,10 @@ bench: $(VENV)/.installed-bench
 	$(BIN)/python benchmarks/render_speed.py
 	$(BIN)/python benchmarks/stereo/run.py
 	$(BIN)/python benchmarks/two_view/run.py
+	$(BIN)/python benchmarks/sfm/run.py
+	$(BIN)/python benchmarks/mvs/run.py
 	$(BIN)/python benchmarks/mapping/run.py
+	$(BIN)/python benchmarks/mapping/stereo_map.py
 	$(BIN)/python benchmarks/planning/run.py
 
 clean:

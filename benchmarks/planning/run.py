@@ -190,7 +190,9 @@ def main() -> None:
           f"{'len/best mean':>14}{'median':>8}{'max':>8}{'>1.02':>7}{'len/straight':>13}{'collisions':>11}{'<clear.':>8}")
     for k, v in rows.items():
         n = len(v)
-        ok = np.array([r["success"] for r in v])
+        if n == 0:  # e.g. --ompl-pairs 0
+            continue
+        ok = np.array([r["success"] for r in v], dtype=bool)
         t = np.array([r["wall_s"] for r in v]) * 1000
         ratio = L[k][ok] / best[:n][ok]
         rs = L[k][ok] / straight[:n][ok]
