@@ -15,6 +15,7 @@ import numpy as np
 
 from skyrecon.core.rigid import Rigid3
 from skyrecon.core.view import PosedView
+from skyrecon.geometry.epipolar import skew as skew_matrix  # (3, 3) [v]x, public name kept
 
 __all__ = [
     "relative_pose",
@@ -24,12 +25,6 @@ __all__ = [
     "epipolar_distances",
     "symmetric_epipolar_distance",
 ]
-
-
-def skew_matrix(v: np.ndarray) -> np.ndarray:
-    """(3, 3) cross-product matrix ``[v]x`` of a (3,) vector: ``[v]x @ w == cross(v, w)``."""
-    x, y, z = np.asarray(v, dtype=np.float64).reshape(3)
-    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
 
 
 def relative_pose(view1: PosedView, view2: PosedView) -> Rigid3:

@@ -315,6 +315,38 @@ def pose_candidates(E: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
     return [(R1, t), (R1, -t), (R2, t), (R2, -t)]
 
 
+def ray_closest_points(
+    R: np.ndarray, t: np.ndarray, x1n: np.ndarray, x2n: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Where the rays of each match come closest to each other (camera 1's frame).
+
+    Solves ``l1 * f1 - l2 * R^T f2 = -R^T t`` in the least-squares sense: the closest points are
+    ``l1 * f1`` on ray 1 and ``c2 + l2 * g2`` on ray 2.
+
+    Args:
+        R, t: cam2_from_cam1.
+        x1n, x2n: (N, 2) normalised coordinates.
+    Returns:
+        ``(l1, l2, f1, g2, c2, parallelism)``: (N,) ray parameters (= depths, since the ray
+        directions have z = 1 in their own camera), (N, 3) ray directions ``f1`` and ``g2 = R^T f2``
+        in camera 1's frame, camera 2's centre ``c2`` (3,), and (N,) ``|det| / (|f1|^2 |g2|^2)``,
+        which is 0 for parallel rays (their parameters are then meaningless).
+    """
+    f1 = homogeneous(x1n)
+    g2 = homogeneous(x2n) @ R  # rows: R^T f2
+    c2 = -R.T @ t
+    a = np.sum(f1 * f1, axis=1)
+    b = np.sum(f1 * g2, axis=1)
+    c = np.sum(g2 * g2, axis=1)
+    d = f1 @ c2
+    e = g2 @ c2
+    den = a * c - b * b
+    with np.errstate(divide="ignore", invalid="ignore"):
+        l1 = (c * d - b * e) / den
+        l2 = (b * d - a * e) / den
+    return l1, l2, f1, g2, c2, np.abs(den) / (a * c)
+
+
 def cheirality_depths(
     R: np.ndarray, t: np.ndarray, x1n: np.ndarray, x2n: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -326,26 +358,9 @@ def cheirality_depths(
     Returns:
         ``(z1, z2)``: (N,) depth along each optical axis (units of t); NaN for parallel rays.
     """
-    f1 = homogeneous(x1n)
-    f2 = homogeneous(x2n)
-    # Solve  l1 * f1 - l2 * R^T f2 = -R^T t  (cam1 frame; camera-2 centre c2 = -R^T t).
-    g2 = f2 @ R  # rows: R^T f2
-    c2 = -R.T @ t
-    a = np.sum(f1 * f1, axis=1)
-    b = np.sum(f1 * g2, axis=1)
-    c = np.sum(g2 * g2, axis=1)
-    d = f1 @ c2
-    e = g2 @ c2
-    den = a * c - b * b
-    with np.errstate(divide="ignore", invalid="ignore"):
-        l1 = (c * d - b * e) / den
-        l2 = (b * d - a * e) / den
-    z1 = l1  # f1 has z = 1
-    z2 = l2  # f2 has z = 1
-    bad = np.abs(den) < 1e-14 * a * c
-    z1 = np.where(bad, np.nan, z1)
-    z2 = np.where(bad, np.nan, z2)
-    return z1, z2
+    z1, z2, _, _, _, parallelism = ray_closest_points(R, t, x1n, x2n)  # f1, f2 have z = 1
+    bad = parallelism < 1e-14
+    return np.where(bad, np.nan, z1), np.where(bad, np.nan, z2)
 
 
 def select_pose(

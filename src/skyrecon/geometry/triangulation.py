@@ -14,7 +14,7 @@ from typing import Literal
 import numpy as np
 
 from skyrecon.errors import InputError
-from skyrecon.geometry.epipolar import essential_from_pose, homogeneous
+from skyrecon.geometry.epipolar import essential_from_pose, homogeneous, ray_closest_points
 
 __all__ = [
     "TriangulationMethod",
@@ -98,20 +98,9 @@ def triangulate_midpoint(R: np.ndarray, t: np.ndarray, x1n: np.ndarray, x2n: np.
     x1n, x2n = _check(x1n, x2n)
     R = np.asarray(R, np.float64)
     t = np.asarray(t, np.float64).reshape(3)
-    f1 = homogeneous(x1n)
-    g2 = homogeneous(x2n) @ R  # R^T f2
-    c2 = -R.T @ t
-    a = np.sum(f1 * f1, axis=1)
-    b = np.sum(f1 * g2, axis=1)
-    c = np.sum(g2 * g2, axis=1)
-    d = f1 @ c2
-    e = g2 @ c2
-    den = a * c - b * b
-    with np.errstate(divide="ignore", invalid="ignore"):
-        l1 = (c * d - b * e) / den
-        l2 = (b * d - a * e) / den
+    l1, l2, f1, g2, c2, parallelism = ray_closest_points(R, t, x1n, x2n)
     X = 0.5 * (l1[:, None] * f1 + c2 + l2[:, None] * g2)
-    X[np.abs(den) < 1e-15 * a * c] = np.nan
+    X[parallelism < 1e-15] = np.nan
     return X
 
 
