@@ -8,6 +8,19 @@ import numpy as np
 __all__ = ["msac_costs", "sampson_sq_many"]
 
 
+@numba.njit(cache=True, inline="always")
+def _sampson_sq(F: np.ndarray, u1: float, v1: float, u2: float, v2: float) -> float:
+    """Squared Sampson error of one match (u1, v1) <-> (u2, v2) under ``x2^T F x1 = 0`` (inf if undefined)."""
+    a0 = F[0, 0] * u1 + F[0, 1] * v1 + F[0, 2]
+    a1 = F[1, 0] * u1 + F[1, 1] * v1 + F[1, 2]
+    a2 = F[2, 0] * u1 + F[2, 1] * v1 + F[2, 2]
+    b0 = F[0, 0] * u2 + F[1, 0] * v2 + F[2, 0]
+    b1 = F[0, 1] * u2 + F[1, 1] * v2 + F[2, 1]
+    num = u2 * a0 + v2 * a1 + a2
+    den = a0 * a0 + a1 * a1 + b0 * b0 + b1 * b1
+    return num * num / den if den > 0 else np.inf
+
+
 @numba.njit(cache=True, fastmath=False)
 def msac_costs(Fs: np.ndarray, x1: np.ndarray, x2: np.ndarray, thr2: float) -> tuple[np.ndarray, np.ndarray]:
     """MSAC cost and inlier count of K models on N matches.
@@ -25,24 +38,10 @@ def msac_costs(Fs: np.ndarray, x1: np.ndarray, x2: np.ndarray, thr2: float) -> t
     count = np.zeros(K, dtype=np.int64)
     for k in range(K):
         f = Fs[k]
-        f00, f01, f02 = f[0, 0], f[0, 1], f[0, 2]
-        f10, f11, f12 = f[1, 0], f[1, 1], f[1, 2]
-        f20, f21, f22 = f[2, 0], f[2, 1], f[2, 2]
         c = 0.0
         m = 0
         for i in range(N):
-            u1 = x1[i, 0]
-            v1 = x1[i, 1]
-            u2 = x2[i, 0]
-            v2 = x2[i, 1]
-            a0 = f00 * u1 + f01 * v1 + f02
-            a1 = f10 * u1 + f11 * v1 + f12
-            a2 = f20 * u1 + f21 * v1 + f22
-            b0 = f00 * u2 + f10 * v2 + f20
-            b1 = f01 * u2 + f11 * v2 + f21
-            num = u2 * a0 + v2 * a1 + a2
-            den = a0 * a0 + a1 * a1 + b0 * b0 + b1 * b1
-            e = num * num / den if den > 0 else np.inf
+            e = _sampson_sq(f, x1[i, 0], x1[i, 1], x2[i, 0], x2[i, 1])
             if e < thr2:
                 c += e
                 m += 1
@@ -62,18 +61,7 @@ def sampson_sq_many(Fs: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> np.ndarra
     for k in range(K):
         f = Fs[k]
         for i in range(N):
-            u1 = x1[i, 0]
-            v1 = x1[i, 1]
-            u2 = x2[i, 0]
-            v2 = x2[i, 1]
-            a0 = f[0, 0] * u1 + f[0, 1] * v1 + f[0, 2]
-            a1 = f[1, 0] * u1 + f[1, 1] * v1 + f[1, 2]
-            a2 = f[2, 0] * u1 + f[2, 1] * v1 + f[2, 2]
-            b0 = f[0, 0] * u2 + f[1, 0] * v2 + f[2, 0]
-            b1 = f[0, 1] * u2 + f[1, 1] * v2 + f[2, 1]
-            num = u2 * a0 + v2 * a1 + a2
-            den = a0 * a0 + a1 * a1 + b0 * b0 + b1 * b1
-            out[k, i] = num * num / den if den > 0 else np.inf
+            out[k, i] = _sampson_sq(f, x1[i, 0], x1[i, 1], x2[i, 0], x2[i, 1])
     return out
 
 
@@ -95,19 +83,20 @@ def msac_costs_pose(Rs: np.ndarray, ts: np.ndarray, x1: np.ndarray, x2: np.ndarr
     N = x1.shape[0]
     cost = np.zeros(K)
     count = np.zeros(K, dtype=np.int64)
+    E = np.empty((3, 3))
     for k in range(K):
         R = Rs[k]
         tx, ty, tz = ts[k, 0], ts[k, 1], ts[k, 2]
         # E = [t]x R
-        e00 = -tz * R[1, 0] + ty * R[2, 0]
-        e01 = -tz * R[1, 1] + ty * R[2, 1]
-        e02 = -tz * R[1, 2] + ty * R[2, 2]
-        e10 = tz * R[0, 0] - tx * R[2, 0]
-        e11 = tz * R[0, 1] - tx * R[2, 1]
-        e12 = tz * R[0, 2] - tx * R[2, 2]
-        e20 = -ty * R[0, 0] + tx * R[1, 0]
-        e21 = -ty * R[0, 1] + tx * R[1, 1]
-        e22 = -ty * R[0, 2] + tx * R[1, 2]
+        E[0, 0] = -tz * R[1, 0] + ty * R[2, 0]
+        E[0, 1] = -tz * R[1, 1] + ty * R[2, 1]
+        E[0, 2] = -tz * R[1, 2] + ty * R[2, 2]
+        E[1, 0] = tz * R[0, 0] - tx * R[2, 0]
+        E[1, 1] = tz * R[0, 1] - tx * R[2, 1]
+        E[1, 2] = tz * R[0, 2] - tx * R[2, 2]
+        E[2, 0] = -ty * R[0, 0] + tx * R[1, 0]
+        E[2, 1] = -ty * R[0, 1] + tx * R[1, 1]
+        E[2, 2] = -ty * R[0, 2] + tx * R[1, 2]
         # camera-2 centre in camera-1 frame: c2 = -R^T t
         cx = -(R[0, 0] * tx + R[1, 0] * ty + R[2, 0] * tz)
         cy = -(R[0, 1] * tx + R[1, 1] * ty + R[2, 1] * tz)
@@ -119,14 +108,7 @@ def msac_costs_pose(Rs: np.ndarray, ts: np.ndarray, x1: np.ndarray, x2: np.ndarr
             v1 = x1[i, 1]
             u2 = x2[i, 0]
             v2 = x2[i, 1]
-            a0 = e00 * u1 + e01 * v1 + e02
-            a1 = e10 * u1 + e11 * v1 + e12
-            a2 = e20 * u1 + e21 * v1 + e22
-            b0 = e00 * u2 + e10 * v2 + e20
-            b1 = e01 * u2 + e11 * v2 + e21
-            num = u2 * a0 + v2 * a1 + a2
-            den = a0 * a0 + a1 * a1 + b0 * b0 + b1 * b1
-            err = num * num / den if den > 0 else np.inf
+            err = _sampson_sq(E, u1, v1, u2, v2)
             if err < thr2:
                 # g2 = R^T f2
                 gx = R[0, 0] * u2 + R[1, 0] * v2 + R[2, 0]
