@@ -44,32 +44,6 @@ from skyrecon.mission.vehicle import sample_path
 from skyrecon.planning import Planner, PlanResult, Replanner, remaining_path
 
 
-class OccupiedChangeFilter:
-    """Reports, among the blocks a caller popped with ``occ_map.pop_changed_blocks()``, those
-    whose occupied voxels changed since this filter's last call.
-
-    Kept for callers that pop every state change themselves; it only intersects with the map's
-    own record, ``occ_map.pop_changed_blocks(occupied_only=True)``, which the :class:`Navigator`
-    reads directly.
-
-    Args:
-        occ_map: the map whose ``pop_changed_blocks()`` output is filtered.
-    """
-
-    def __init__(self, occ_map: OccupancyMap):
-        self.map = occ_map
-        occ_map.pop_changed_blocks(occupied_only=True)  # changes before the filter existed
-
-    def filter(self, changed_blocks: np.ndarray) -> np.ndarray:
-        """(K, 3) int64 block coordinates among ``changed_blocks`` (M, 3) whose occupied voxels changed."""
-        c = np.asarray(changed_blocks, dtype=np.int64).reshape(-1, 3)
-        occ = self.map.pop_changed_blocks(occupied_only=True).astype(np.int64)
-        if len(c) == 0 or len(occ) == 0:
-            return c[:0]
-        keys = lambda a: a.view([("", a.dtype)] * 3).reshape(-1)  # noqa: E731 - rows as structured keys
-        return c[np.isin(keys(np.ascontiguousarray(c)), keys(np.ascontiguousarray(occ)))]
-
-
 @dataclass
 class CheckOutcome:
     """The path check of one cycle.
@@ -267,4 +241,4 @@ def timed(fn, *args, **kwargs):
     return out, 1e3 * (time.perf_counter() - t0)
 
 
-__all__ = ["Navigator", "OccupiedChangeFilter", "CheckOutcome", "timed", "OCCUPIED", "FREE", "UNKNOWN"]
+__all__ = ["Navigator", "CheckOutcome", "timed", "OCCUPIED", "FREE", "UNKNOWN"]
