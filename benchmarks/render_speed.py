@@ -44,16 +44,20 @@ def main() -> None:
         valid = np.isfinite(frame.depth_left_m).mean()
         rows.append((k, 1000 * min(times), 1000 * float(np.median(times)), 1000 * min(cpu), 100 * valid))
 
-    print(f"city seed {args.seed}: {len(city.boxes)} boxes ({city.num_buildings} buildings), "
-          f"{len(city.cylinders)} cylinders; generated + imported in {1000 * t_gen:.0f} ms")
+    print(
+        f"city seed {args.seed}: {len(city.boxes)} boxes ({city.num_buildings} buildings), "
+        f"{len(city.cylinders)} cylinders; generated + imported in {1000 * t_gen:.0f} ms"
+    )
     print(f"threads: {num_threads()}; first pair (JIT compile or cache load): {1000 * t_first:.0f} ms")
     print(f"{'view':>4} {'min ms/pair':>12} {'median ms/pair':>15} {'CPU ms/pair':>12} {'valid %':>8}")
     for k, best, med, cpu, valid in rows:
         print(f"{k:>4} {best:>12.1f} {med:>15.1f} {cpu:>12.1f} {valid:>8.1f}")
     allbest = np.median([r[1] for r in rows])
     allcpu = np.median([r[3] for r in rows])
-    print(f"median over views of the best time: {allbest:.1f} ms per {args.width}x{args.height} stereo pair "
-          f"({allcpu:.1f} ms of CPU time over all threads; other load on the machine inflates the wall time)")
+    print(
+        f"median over views of the best time: {allbest:.1f} ms per {args.width}x{args.height} stereo pair "
+        f"({allcpu:.1f} ms of CPU time over all threads; other load on the machine inflates the wall time)"
+    )
 
 
 if __name__ == "__main__":

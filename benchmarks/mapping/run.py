@@ -178,16 +178,23 @@ def main() -> None:
     ap.add_argument("--voxels", type=float, nargs="+", default=[0.5, 0.2])
     ap.add_argument("--max-range", type=float, default=60.0)
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--octomap-full-frames", type=int, nargs="+", default=[60, 5],
-                    help="frames integrated at full resolution by OctoMap, per voxel size")
+    ap.add_argument(
+        "--octomap-full-frames",
+        type=int,
+        nargs="+",
+        default=[60, 5],
+        help="frames integrated at full resolution by OctoMap, per voxel size",
+    )
     ap.add_argument("--out", type=Path, default=Path(__file__).with_name("results.json"))
     args = ap.parse_args()
 
     t0 = time.perf_counter()
     city, cam, poses, depths = flight(args.seed, args.frames)
-    print(f"scene: seed {args.seed}, {len(depths)} frames {cam.width}x{cam.height}, rendered in "
-          f"{time.perf_counter() - t0:.1f} s; max range {args.max_range} m; "
-          f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}")
+    print(
+        f"scene: seed {args.seed}, {len(depths)} frames {cam.width}x{cam.height}, rendered in "
+        f"{time.perf_counter() - t0:.1f} s; max range {args.max_range} m; "
+        f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}"
+    )
     if octomap is None:
         print("[skip] octomap-python is not installed: pip install octomap-python")
     results = []
@@ -198,8 +205,10 @@ def main() -> None:
         npts = sum(int(np.isfinite(d).sum()) for d in depths)
         lo, hi = m.voxel_bounds()
         rows = []
-        entries = [("skyrecon", m, wall, npts, args.frames, m.memory_bytes()),
-                   ("skyrecon-1thread", m1, wall1, npts, args.frames, m1.memory_bytes())]
+        entries = [
+            ("skyrecon", m, wall, npts, args.frames, m.memory_bytes()),
+            ("skyrecon-1thread", m1, wall1, npts, args.frames, m1.memory_bytes()),
+        ]
         if octomap is not None:
             tree, w_sub, n_sub = run_octomap(cam, poses, depths, voxel, args.max_range, 4, args.frames)
             entries.append(("octomap-sub", tree, w_sub, n_sub, args.frames, tree.memoryUsage()))
@@ -221,10 +230,15 @@ def main() -> None:
             occ, free = octomap_labels(obj, voxel) if name.startswith("octomap") else ours_labels(obj)
             s = scorer.score(occ, free, frames)
             row = {
-                "method": name, "voxel_m": voxel, "frames": frames,
-                "ms_per_frame_mean": float(1000 * w.mean()), "ms_per_frame_median": float(1000 * np.median(w)),
-                "frames_per_s": float(len(w) / w.sum()), "points_per_s": float(n / w.sum()),
-                "memory_mb": float(mem / 1e6), **s,
+                "method": name,
+                "voxel_m": voxel,
+                "frames": frames,
+                "ms_per_frame_mean": float(1000 * w.mean()),
+                "ms_per_frame_median": float(1000 * np.median(w)),
+                "frames_per_s": float(len(w) / w.sum()),
+                "points_per_s": float(n / w.sum()),
+                "memory_mb": float(mem / 1e6),
+                **s,
             }
             if name == "skyrecon":
                 row["cpu_ms_per_frame_one_thread"] = float(1000 * cpu.mean())
@@ -232,19 +246,36 @@ def main() -> None:
             rows.append(row)
         base = rows[0]["ms_per_frame_mean"]
         print(f"\nvoxel {voxel} m")
-        print(f"{'method':<20}{'ms/frame':>10}{'median':>9}{'frames/s':>10}{'Mpts/s':>9}{'MB':>8}"
-              f"{'precision':>11}{'recall':>8}{'free-in-obst':>14}{'time/skyrecon':>15}")
+        print(
+            f"{'method':<20}{'ms/frame':>10}{'median':>9}{'frames/s':>10}{'Mpts/s':>9}{'MB':>8}"
+            f"{'precision':>11}{'recall':>8}{'free-in-obst':>14}{'time/skyrecon':>15}"
+        )
         for r in rows:
-            print(f"{r['method']:<20}{r['ms_per_frame_mean']:>10.1f}{r['ms_per_frame_median']:>9.1f}"
-                  f"{r['frames_per_s']:>10.2f}{r['points_per_s'] / 1e6:>9.2f}{r['memory_mb']:>8.1f}"
-                  f"{r['precision']:>11.4f}{r['recall']:>8.4f}{r['free_in_obstacle']:>14.5f}"
-                  f"{r['ms_per_frame_mean'] / base:>15.2f}")
+            print(
+                f"{r['method']:<20}{r['ms_per_frame_mean']:>10.1f}{r['ms_per_frame_median']:>9.1f}"
+                f"{r['frames_per_s']:>10.2f}{r['points_per_s'] / 1e6:>9.2f}{r['memory_mb']:>8.1f}"
+                f"{r['precision']:>11.4f}{r['recall']:>8.4f}{r['free_in_obstacle']:>14.5f}"
+                f"{r['ms_per_frame_mean'] / base:>15.2f}"
+            )
         sk = rows[0]
-        print(f"skyrecon stages (ms, mean of per-frame minima): {sk['stage_ms']}; on one thread: "
-              f"{sk['cpu_ms_per_frame_one_thread']:.1f} ms CPU per frame (unaffected by other processes' load)")
+        print(
+            f"skyrecon stages (ms, mean of per-frame minima): {sk['stage_ms']}; on one thread: "
+            f"{sk['cpu_ms_per_frame_one_thread']:.1f} ms CPU per frame (unaffected by other processes' load)"
+        )
         results.extend(rows)
-    args.out.write_text(json.dumps({"seed": args.seed, "frames": args.frames, "max_range_m": args.max_range,
-                                    "load_average": os.getloadavg()[0], "results": results}, indent=2) + "\n")
+    args.out.write_text(
+        json.dumps(
+            {
+                "seed": args.seed,
+                "frames": args.frames,
+                "max_range_m": args.max_range,
+                "load_average": os.getloadavg()[0],
+                "results": results,
+            },
+            indent=2,
+        )
+        + "\n"
+    )
     print(f"\nwrote {args.out}")
 
 

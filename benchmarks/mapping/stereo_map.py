@@ -170,7 +170,9 @@ class Scorer:
         out[inside] = np.ravel_multi_index(tuple(rel[inside].T), tuple(shape))
         return out
 
-    def score(self, occ: np.ndarray, free: np.ndarray, near: float, max_range: float, cameras: np.ndarray) -> dict:
+    def score(
+        self, occ: np.ndarray, free: np.ndarray, near: float, max_range: float, cameras: np.ndarray
+    ) -> dict:
         fo, ff = self._flat(occ), self._flat(free)
         inside = fo >= 0
         fo, ff = fo[inside], ff[ff >= 0]
@@ -181,17 +183,22 @@ class Scorer:
         is_near = d <= near
         near_keys, all_keys = self.seen(near), self.seen(max_range)
         return {
-            "occupied": int(len(fo)), "free": int(len(ff)),
+            "occupied": int(len(fo)),
+            "free": int(len(ff)),
             "precision": float(self.gt[fo].mean()) if len(fo) else float("nan"),
-            "precision_surface": float(np.mean(np.abs(self.city.distance(centres, include_ground=True)) <= self.voxel))
-            if len(fo) else float("nan"),
+            "precision_surface": float(
+                np.mean(np.abs(self.city.distance(centres, include_ground=True)) <= self.voxel)
+            )
+            if len(fo)
+            else float("nan"),
             "precision_near": float(self.gt[fo[is_near]].mean()) if is_near.any() else float("nan"),
             "precision_far": float(self.gt[fo[~is_near]].mean()) if (~is_near).any() else float("nan"),
             "occupied_far": int((~is_near).sum()),
             "recall_near": float(np.isin(near_keys, fo).mean()) if len(near_keys) else float("nan"),
             "recall": float(np.isin(all_keys, fo).mean()) if len(all_keys) else float("nan"),
             "free_in_obstacle": float(self.gt[ff].mean()) if len(ff) else float("nan"),
-            "surface_voxels_near": int(len(near_keys)), "surface_voxels": int(len(all_keys)),
+            "surface_voxels_near": int(len(near_keys)),
+            "surface_voxels": int(len(all_keys)),
         }
 
 
@@ -209,17 +216,23 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=Path(__file__).with_name("results_stereo.json"))
     args = ap.parse_args()
     if octomap is None:
-        sys.exit("octomap-python is not installed (pip install octomap-python); it is the peer of this benchmark")
+        sys.exit(
+            "octomap-python is not installed (pip install octomap-python); it is the peer of this benchmark"
+        )
 
     t0 = time.perf_counter()
     city, rig, poses, frames = flight(args.seed, args.frames, args.width, args.height, args.baseline)
     load = os.getloadavg()[0]
-    print(f"scene: seed {args.seed}, {len(frames)} stereo frames {args.width}x{args.height}, baseline "
-          f"{args.baseline} m, rendered in {time.perf_counter() - t0:.1f} s; voxel {args.voxel} m, max range "
-          f"{args.max_range} m; {os.cpu_count()} CPUs, load average {load:.1f}")
+    print(
+        f"scene: seed {args.seed}, {len(frames)} stereo frames {args.width}x{args.height}, baseline "
+        f"{args.baseline} m, rendered in {time.perf_counter() - t0:.1f} s; voxel {args.voxel} m, max range "
+        f"{args.max_range} m; {os.cpu_count()} CPUs, load average {load:.1f}"
+    )
 
     mapper, o_depth, o_integ = run_ours(rig, poses, frames, args.voxel, args.max_range, args.max_disparity)
-    tree, p_depth, p_integ, npts = run_peer(rig, poses, frames, args.voxel, args.max_range, args.max_disparity)
+    tree, p_depth, p_integ, npts = run_peer(
+        rig, poses, frames, args.voxel, args.max_range, args.max_disparity
+    )
 
     labels = {"skyrecon": ours_labels(mapper.map), "octomap+sgbm": octomap_labels(tree, args.voxel)}
     allv = np.concatenate([np.concatenate(v) for v in labels.values()])
@@ -228,10 +241,16 @@ def main() -> None:
     rows = []
     for name, d, i in (("skyrecon", o_depth, o_integ), ("octomap+sgbm", p_depth, p_integ)):
         s = scorer.score(*labels[name], args.near, args.max_range, np.array([p.t for p in poses]))
-        rows.append({
-            "method": name, "frames": len(d), "ms_depth": 1000 * float(d.mean()),
-            "ms_integration": 1000 * float(i.mean()), "ms_total": 1000 * float((d + i).mean()), **s,
-        })
+        rows.append(
+            {
+                "method": name,
+                "frames": len(d),
+                "ms_depth": 1000 * float(d.mean()),
+                "ms_integration": 1000 * float(i.mean()),
+                "ms_total": 1000 * float((d + i).mean()),
+                **s,
+            }
+        )
     ours, peer = rows
     ratios = {
         "precision": ours["precision"] / peer["precision"],
@@ -242,31 +261,60 @@ def main() -> None:
         "time_integration": ours["ms_integration"] / peer["ms_integration"],
         "time_total": ours["ms_total"] / peer["ms_total"],
     }
-    target = {"precision_ratio>=2": ratios["precision"] >= 2.0,
-              "recall_near>=peer": ours["recall_near"] >= peer["recall_near"],
-              "time_ratio<=0.2": ratios["time_total"] <= 0.2}
+    target = {
+        "precision_ratio>=2": ratios["precision"] >= 2.0,
+        "recall_near>=peer": ours["recall_near"] >= peer["recall_near"],
+        "time_ratio<=0.2": ratios["time_total"] <= 0.2,
+    }
 
     near = f"recall@{args.near:g}m"
-    print(f"\n{'method':<14}{'precision':>10}{'@surface':>9}{'near/far':>13}{near:>12}{'recall':>8}{'free-in-obst':>14}"
-          f"{'occupied':>10}{'ms depth':>10}{'ms integr.':>11}{'ms total':>10}")
+    print(
+        f"\n{'method':<14}{'precision':>10}{'@surface':>9}{'near/far':>13}{near:>12}{'recall':>8}{'free-in-obst':>14}"
+        f"{'occupied':>10}{'ms depth':>10}{'ms integr.':>11}{'ms total':>10}"
+    )
     for r in rows:
-        print(f"{r['method']:<14}{r['precision']:>10.3f}{r['precision_surface']:>9.3f}{r['precision_near']:>7.3f}/{r['precision_far']:<5.3f}"
-              f"{r['recall_near']:>12.3f}{r['recall']:>8.3f}{r['free_in_obstacle']:>14.5f}{r['occupied']:>10d}"
-              f"{r['ms_depth']:>10.1f}{r['ms_integration']:>11.1f}{r['ms_total']:>10.1f}")
-    print(f"{'ours/peer':<14}{ratios['precision']:>10.2f}{ratios['precision_surface']:>9.2f}{'':>13}{ratios['recall_near']:>12.3f}{ratios['recall']:>8.3f}"
-          f"{'':>14}{'':>10}{ratios['time_depth']:>10.3f}{ratios['time_integration']:>11.3f}{ratios['time_total']:>10.3f}")
-    print(f"skyrecon obstacles within {mapper.hit_range_m:.1f} m (trusted range of the rig); surface voxels "
-          f"observed: {ours['surface_voxels_near']} within {args.near:g} m, {ours['surface_voxels']} within "
-          f"{args.max_range:g} m; peer points inserted per frame: {npts / len(frames):.0f}")
-    print("target (precision >= 2x, recall@near >= peer, time <= 1/5): "
-          + ", ".join(f"{k} {'met' if v else 'MISSED'}" for k, v in target.items()))
-    args.out.write_text(json.dumps({
-        "seed": args.seed, "frames": args.frames, "size": [args.width, args.height], "baseline_m": args.baseline,
-        "voxel_m": args.voxel, "max_range_m": args.max_range, "near_m": args.near,
-        "max_disparity": args.max_disparity, "hit_range_m": mapper.hit_range_m,
-        "skyrecon_settings": asdict(mapper.settings),
-        "cpus": os.cpu_count(), "load_average": load, "results": rows, "ratios": ratios, "target": target,
-    }, indent=2, default=str) + "\n")
+        print(
+            f"{r['method']:<14}{r['precision']:>10.3f}{r['precision_surface']:>9.3f}{r['precision_near']:>7.3f}/{r['precision_far']:<5.3f}"
+            f"{r['recall_near']:>12.3f}{r['recall']:>8.3f}{r['free_in_obstacle']:>14.5f}{r['occupied']:>10d}"
+            f"{r['ms_depth']:>10.1f}{r['ms_integration']:>11.1f}{r['ms_total']:>10.1f}"
+        )
+    print(
+        f"{'ours/peer':<14}{ratios['precision']:>10.2f}{ratios['precision_surface']:>9.2f}{'':>13}{ratios['recall_near']:>12.3f}{ratios['recall']:>8.3f}"
+        f"{'':>14}{'':>10}{ratios['time_depth']:>10.3f}{ratios['time_integration']:>11.3f}{ratios['time_total']:>10.3f}"
+    )
+    print(
+        f"skyrecon obstacles within {mapper.hit_range_m:.1f} m (trusted range of the rig); surface voxels "
+        f"observed: {ours['surface_voxels_near']} within {args.near:g} m, {ours['surface_voxels']} within "
+        f"{args.max_range:g} m; peer points inserted per frame: {npts / len(frames):.0f}"
+    )
+    print(
+        "target (precision >= 2x, recall@near >= peer, time <= 1/5): "
+        + ", ".join(f"{k} {'met' if v else 'MISSED'}" for k, v in target.items())
+    )
+    args.out.write_text(
+        json.dumps(
+            {
+                "seed": args.seed,
+                "frames": args.frames,
+                "size": [args.width, args.height],
+                "baseline_m": args.baseline,
+                "voxel_m": args.voxel,
+                "max_range_m": args.max_range,
+                "near_m": args.near,
+                "max_disparity": args.max_disparity,
+                "hit_range_m": mapper.hit_range_m,
+                "skyrecon_settings": asdict(mapper.settings),
+                "cpus": os.cpu_count(),
+                "load_average": load,
+                "results": rows,
+                "ratios": ratios,
+                "target": target,
+            },
+            indent=2,
+            default=str,
+        )
+        + "\n"
+    )
     print(f"\nwrote {args.out}")
 
 

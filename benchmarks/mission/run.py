@@ -74,8 +74,14 @@ def main() -> int:
 
     cfg = MissionConfig()
     if args.small:
-        cfg = cfg.with_overrides(width=320, height=240, max_disparity=32, city_size_m=100.0, min_goal_distance_m=50.0,
-                                 max_goal_distance_m=90.0)
+        cfg = cfg.with_overrides(
+            width=320,
+            height=240,
+            max_disparity=32,
+            city_size_m=100.0,
+            min_goal_distance_m=50.0,
+            max_goal_distance_m=90.0,
+        )
     if args.max_altitude is not None:
         cfg = cfg.with_overrides(max_altitude_m=args.max_altitude)
     out = Path(args.out)
@@ -90,8 +96,11 @@ def main() -> int:
             rows[s] = row
         else:
             todo.append(MissionJob(s, str(folder), cfg.to_dict()))
-    print(f"{len(rows)} seeds already flown, {len(todo)} to fly ({cfg.width}x{cfg.height}, "
-          f"{cfg.city_size_m:g} m city), {args.parallel} at a time", flush=True)
+    print(
+        f"{len(rows)} seeds already flown, {len(todo)} to fly ({cfg.width}x{cfg.height}, "
+        f"{cfg.city_size_m:g} m city), {args.parallel} at a time",
+        flush=True,
+    )
     t0 = time.perf_counter()
     if args.parallel > 1 and todo:
         ProcessExecutor(args.parallel).map(fly_job, todo, desc="missions")
@@ -99,7 +108,11 @@ def main() -> int:
         for job in todo:  # every mission folder is complete as soon as its mission ends (resumable)
             fly_job(job)
     for job in todo:
-        rows[job.seed] = row_from_folder(Path(job.out)) or {"seed": job.seed, "success": False, "reason": "error"}
+        rows[job.seed] = row_from_folder(Path(job.out)) or {
+            "seed": job.seed,
+            "success": False,
+            "reason": "error",
+        }
     ordered = [rows[s] for s in seeds]
     totals = summarize(ordered)
 
@@ -109,35 +122,66 @@ def main() -> int:
     print("-" * len(hdr))
     for r in ordered:
         st = r.get("stage_ms") or {}
-        stages = " ".join(f"{k}={st[k]:.0f}" for k in ("stereo", "integrate", "distance", "check", "replan", "render")
-                          if st.get(k) is not None)
+        stages = " ".join(
+            f"{k}={st[k]:.0f}"
+            for k in ("stereo", "integrate", "distance", "check", "replan", "render")
+            if st.get(k) is not None
+        )
 
         def f(v, fmt):
             return "-" if v is None else fmt.format(v)
 
-        print(f"{r['seed']:>4} {'yes' if r.get('success') else 'NO':>3} {f(r.get('collisions'), '{:d}'):>4} "
-              f"{f(r.get('min_clearance_m'), '{:.2f}'):>8} {f(r.get('path_length_m'), '{:.1f}'):>8} "
-              f"{f(r.get('shortest_feasible_m'), '{:.1f}'):>8} {f(r.get('length_ratio'), '{:.3f}'):>6} "
-              f"{f(r.get('replans'), '{:d}'):>7} {f(r.get('loop_hz'), '{:.1f}'):>7}  {stages}"
-              + ("" if r.get("success") else f"  [{r.get('reason')}: {r.get('message', '')}]"))
+        print(
+            f"{r['seed']:>4} {'yes' if r.get('success') else 'NO':>3} {f(r.get('collisions'), '{:d}'):>4} "
+            f"{f(r.get('min_clearance_m'), '{:.2f}'):>8} {f(r.get('path_length_m'), '{:.1f}'):>8} "
+            f"{f(r.get('shortest_feasible_m'), '{:.1f}'):>8} {f(r.get('length_ratio'), '{:.3f}'):>6} "
+            f"{f(r.get('replans'), '{:d}'):>7} {f(r.get('loop_hz'), '{:.1f}'):>7}  {stages}"
+            + ("" if r.get("success") else f"  [{r.get('reason')}: {r.get('message', '')}]")
+        )
     print()
     margin = cfg.safety_margin_m
     print("summary:")
-    print(f"  delivered        {totals['succeeded']} / {totals['missions']}   (target {totals['missions']} / {totals['missions']})")
+    print(
+        f"  delivered        {totals['succeeded']} / {totals['missions']}   (target {totals['missions']} / {totals['missions']})"
+    )
     print(f"  collisions       {totals['collisions']}        (target 0)")
     if totals["min_clearance_m"] is not None:
         print(f"  min clearance    {totals['min_clearance_m']:.2f} m  (target > {margin:g} m)")
     if totals["length_ratio_max"] is not None:
-        print(f"  length ratio     median {totals['length_ratio_median']:.3f}, worst {totals['length_ratio_max']:.3f}  (target <= 1.3)")
+        print(
+            f"  length ratio     median {totals['length_ratio_median']:.3f}, worst {totals['length_ratio_max']:.3f}  (target <= 1.3)"
+        )
     if totals["loop_hz_median"] is not None:
-        print(f"  loop rate        median of medians {totals['loop_hz_median']:.1f} Hz, slowest mission {totals['loop_hz_min']:.1f} Hz  (target >= 10)")
+        print(
+            f"  loop rate        median of medians {totals['loop_hz_median']:.1f} Hz, slowest mission {totals['loop_hz_min']:.1f} Hz  (target >= 10)"
+        )
     print(f"  wall time        {time.perf_counter() - t0:.0f} s for {len(todo)} missions flown now")
-    write_text_atomic(out / "summary.json", json.dumps({"totals": totals, "missions": ordered}, indent=2) + "\n")
+    write_text_atomic(
+        out / "summary.json", json.dumps({"totals": totals, "missions": ordered}, indent=2) + "\n"
+    )
     write_text_atomic(out / "summary.md", summary_markdown(ordered, totals))
     write_text_atomic(out / "summary.html", render_summary_report(ordered))
-    res = {"config": {"width": cfg.width, "height": cfg.height, "city_size_m": cfg.city_size_m},
-           "cpu_count": os.cpu_count(), "totals": totals,
-           "missions": [{k: r.get(k) for k in ("seed", "success", "collisions", "min_clearance_m", "length_ratio", "loop_hz", "replans", "reason")} for r in ordered]}
+    res = {
+        "config": {"width": cfg.width, "height": cfg.height, "city_size_m": cfg.city_size_m},
+        "cpu_count": os.cpu_count(),
+        "totals": totals,
+        "missions": [
+            {
+                k: r.get(k)
+                for k in (
+                    "seed",
+                    "success",
+                    "collisions",
+                    "min_clearance_m",
+                    "length_ratio",
+                    "loop_hz",
+                    "replans",
+                    "reason",
+                )
+            }
+            for r in ordered
+        ],
+    }
     if not args.small and args.first_seed == 0 and args.max_altitude is None and args.seeds == 20:
         write_text_atomic(ROOT / "benchmarks" / "mission" / "results.json", json.dumps(res, indent=2) + "\n")
     return 0

@@ -96,19 +96,41 @@ def ring_scene(name: str, seed: int, n: int, radius: float, height: float, hfov:
     return city, views, [r.image for r in renders], ref, box, size
 
 
-def run_ring(name: str, seed: int, n: int, radius: float, height: float, hfov: float, workers: int) -> list[dict]:
+def run_ring(
+    name: str, seed: int, n: int, radius: float, height: float, hfov: float, workers: int
+) -> list[dict]:
     city, views, images, ref, box, size = ring_scene(name, seed, n, radius, height, hfov)
     taus = [0.005 * size, 0.01 * size]
     rows, clouds = [], {}
     for method, settings in METHODS.items():
         res, wall, cpu = timed_run(views, images, settings, workers)
-        m = evaluate_cloud(res.cloud.points, ref, taus, crop=box,
-                           reference_distance=lambda p: np.abs(city.distance(p, include_ground=True)))
+        m = evaluate_cloud(
+            res.cloud.points,
+            ref,
+            taus,
+            crop=box,
+            reference_distance=lambda p: np.abs(city.distance(p, include_ground=True)),
+        )
         clouds[method] = res.cloud
-        rows.append(dict(scene=name, method=method, points=len(res.cloud), wall_s=wall, cpu_s=cpu,
-                         scene_size_m=size, tau_m=taus, precision=m.precision, recall=m.recall, fscore=m.fscore,
-                         acc_mean_m=m.accuracy_mean, acc_median_m=m.accuracy_median, acc90_m=m.accuracy_90,
-                         comp_median_m=m.completeness_median, warnings=res.warnings))
+        rows.append(
+            dict(
+                scene=name,
+                method=method,
+                points=len(res.cloud),
+                wall_s=wall,
+                cpu_s=cpu,
+                scene_size_m=size,
+                tau_m=taus,
+                precision=m.precision,
+                recall=m.recall,
+                fscore=m.fscore,
+                acc_mean_m=m.accuracy_mean,
+                acc_median_m=m.accuracy_median,
+                acc90_m=m.accuracy_90,
+                comp_median_m=m.completeness_median,
+                warnings=res.warnings,
+            )
+        )
     picture(clouds, views[0], OUT / f"{name}.png")
     return rows
 
@@ -128,11 +150,26 @@ def run_rock(workers: int) -> list[dict]:
         m = evaluate_cloud(res.cloud.points, ref, taus, crop=box)
         clouds[method] = res.cloud
         write_ply(OUT / f"rock_{method}.ply", res.cloud)
-        rows.append(dict(scene="rock", method=method, points=len(res.cloud), wall_s=wall, cpu_s=cpu, tau_m=taus,
-                         precision=m.precision, recall=m.recall, fscore=m.fscore, acc_mean_m=m.accuracy_mean,
-                         acc_median_m=m.accuracy_median, acc90_m=m.accuracy_90,
-                         comp_median_m=m.completeness_median, cropped_out=m.num_cropped_out,
-                         timings_s=res.timings_s, warnings=res.warnings))
+        rows.append(
+            dict(
+                scene="rock",
+                method=method,
+                points=len(res.cloud),
+                wall_s=wall,
+                cpu_s=cpu,
+                tau_m=taus,
+                precision=m.precision,
+                recall=m.recall,
+                fscore=m.fscore,
+                acc_mean_m=m.accuracy_mean,
+                acc_median_m=m.accuracy_median,
+                acc90_m=m.accuracy_90,
+                comp_median_m=m.completeness_median,
+                cropped_out=m.num_cropped_out,
+                timings_s=res.timings_s,
+                warnings=res.warnings,
+            )
+        )
     picture(clouds, views[0], OUT / "rock.png")
     return rows
 
@@ -148,10 +185,19 @@ def run_temple(workers: int) -> list[dict]:
         res, wall, cpu = timed_run(views, None, settings, workers)
         clouds[method] = res.cloud
         write_ply(OUT / f"temple_{method}.ply", res.cloud)
-        rows.append(dict(scene="temple", method=method, points=len(res.cloud), wall_s=wall, cpu_s=cpu,
-                         outside_bbox=fraction_outside_box(res.cloud.points, *TEMPLE_BOX),
-                         outside_bbox_5mm=fraction_outside_box(res.cloud.points, *TEMPLE_BOX, margin=0.005),
-                         timings_s=res.timings_s, warnings=res.warnings))
+        rows.append(
+            dict(
+                scene="temple",
+                method=method,
+                points=len(res.cloud),
+                wall_s=wall,
+                cpu_s=cpu,
+                outside_bbox=fraction_outside_box(res.cloud.points, *TEMPLE_BOX),
+                outside_bbox_5mm=fraction_outside_box(res.cloud.points, *TEMPLE_BOX, margin=0.005),
+                timings_s=res.timings_s,
+                warnings=res.warnings,
+            )
+        )
     picture(clouds, views[5], OUT / "temple.png")
     return rows
 
@@ -169,7 +215,9 @@ def fmt_row(r: dict) -> str:
 def summary(rows: list[dict]) -> list[str]:
     out = []
     by = {(r["scene"], r["method"]): r for r in rows}
-    for scene, base in [(s, b) for s in dict.fromkeys(r["scene"] for r in rows) for b in ("concat", "concat+")]:
+    for scene, base in [
+        (s, b) for s in dict.fromkeys(r["scene"] for r in rows) for b in ("concat", "concat+")
+    ]:
         a, b = by.get((scene, "skyrecon")), by.get((scene, base))
         if not a or not b:
             continue
@@ -179,19 +227,27 @@ def summary(rows: list[dict]) -> list[str]:
             fr = a["fscore"][i] / max(b["fscore"][i], 1e-9)
             ar = b["acc90_m"] / max(a["acc90_m"], 1e-12)
             am = b["acc_mean_m"] / max(a["acc_mean_m"], 1e-12)
-            out.append(f"{scene}: F@{a['tau_m'][i]:.4g} m  {a['fscore'][i]:.3f} vs {b['fscore'][i]:.3f} "
-                       f"(x{fr:.2f});  accuracy90 better x{ar:.1f}, mean x{am:.1f};  recall "
-                       f"{a['recall'][i]:.3f} vs {b['recall'][i]:.3f};  wall {a['wall_s']:.1f} s (cpu {a['cpu_s']:.1f} s)")
+            out.append(
+                f"{scene}: F@{a['tau_m'][i]:.4g} m  {a['fscore'][i]:.3f} vs {b['fscore'][i]:.3f} "
+                f"(x{fr:.2f});  accuracy90 better x{ar:.1f}, mean x{am:.1f};  recall "
+                f"{a['recall'][i]:.3f} vs {b['recall'][i]:.3f};  wall {a['wall_s']:.1f} s (cpu {a['cpu_s']:.1f} s)"
+            )
         else:
-            out.append(f"{scene}: outside bbox {100 * a['outside_bbox']:.2f} % vs {100 * b['outside_bbox']:.2f} %;"
-                       f"  wall {a['wall_s']:.1f} s (cpu {a['cpu_s']:.1f} s)")
+            out.append(
+                f"{scene}: outside bbox {100 * a['outside_bbox']:.2f} % vs {100 * b['outside_bbox']:.2f} %;"
+                f"  wall {a['wall_s']:.1f} s (cpu {a['cpu_s']:.1f} s)"
+            )
     return out
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--scenes", nargs="+", default=["ring-a", "ring-b", "rock", "temple"],
-                    choices=["ring-a", "ring-b", "rock", "temple"])
+    ap.add_argument(
+        "--scenes",
+        nargs="+",
+        default=["ring-a", "ring-b", "rock", "temple"],
+        choices=["ring-a", "ring-b", "rock", "temple"],
+    )
     ap.add_argument("--workers", type=int, default=2)
     args = ap.parse_args()
     OUT.mkdir(parents=True, exist_ok=True)

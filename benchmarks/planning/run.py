@@ -43,8 +43,7 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "src"))
 
 from skyrecon.mapping import OccupancyMap  # noqa: E402
-from skyrecon.planning import Planner  # noqa: E402
-from skyrecon.planning import _geom  # noqa: E402
+from skyrecon.planning import Planner, _geom  # noqa: E402
 from skyrecon.sim import generate_city  # noqa: E402
 
 try:
@@ -74,8 +73,10 @@ def sample_pairs(city, n: int, min_dist: float, rng, z_range=(2.0, 50.0)) -> tup
 
 
 def true_min_distance(city, w: np.ndarray) -> float:
-    segs = [a + (b - a) * np.linspace(0, 1, max(2, int(np.ceil(np.linalg.norm(b - a) / 0.05)) + 1))[:, None]
-            for a, b in zip(w[:-1], w[1:])]
+    segs = [
+        a + (b - a) * np.linspace(0, 1, max(2, int(np.ceil(np.linalg.norm(b - a) / 0.05)) + 1))[:, None]
+        for a, b in zip(w[:-1], w[1:])
+    ]
     return float(city.distance(np.concatenate(segs), include_ground=True).min())
 
 
@@ -89,14 +90,23 @@ def ompl_solve(grid, planner_name: str, budget: float, s: np.ndarray, g: np.ndar
     space.setBounds(bounds)
     si = ob.SpaceInformation(space)
     ctx = grid.ctx()
-    dist, origin, inv_v, zmin, zmax, thr = grid.dist, grid.origin, grid.inv_v, grid.zmin, grid.zmax, grid.threshold
+    dist, origin, inv_v, zmin, zmax, thr = (
+        grid.dist,
+        grid.origin,
+        grid.inv_v,
+        grid.zmin,
+        grid.zmax,
+        grid.threshold,
+    )
 
     def valid(state) -> bool:
         return _geom.trilinear(dist, origin, inv_v, zmin, zmax, state[0], state[1], state[2]) >= thr
 
     class Motion(ob.MotionValidator):
         def checkMotion(self, s1, s2, *rest):  # noqa: N802 (OMPL's name)
-            return bool(_geom.clear(*ctx, np.array([s1[0], s1[1], s1[2]]), np.array([s2[0], s2[1], s2[2]]), True))
+            return bool(
+                _geom.clear(*ctx, np.array([s1[0], s1[1], s1[2]]), np.array([s2[0], s2[1], s2[2]]), True)
+            )
 
     si.setStateValidityChecker(valid)
     mv = Motion(si)
@@ -131,8 +141,13 @@ def main() -> None:
     ap.add_argument("--voxel", type=float, default=0.5)
     ap.add_argument("--pairs", type=int, default=100)
     ap.add_argument("--clearance", type=float, default=2.0)
-    ap.add_argument("--z-range", type=float, nargs=2, default=[2.0, 50.0],
-                    help="altitude range of the random start and goal points, metres")
+    ap.add_argument(
+        "--z-range",
+        type=float,
+        nargs=2,
+        default=[2.0, 50.0],
+        help="altitude range of the random start and goal points, metres",
+    )
     ap.add_argument("--ompl-pairs", type=int, default=20)
     ap.add_argument("--ompl-budgets", type=float, nargs="+", default=[1.0, 5.0])
     ap.add_argument("--ompl-planners", nargs="+", default=["RRTstar", "BITstar"])
@@ -141,10 +156,12 @@ def main() -> None:
 
     t0 = time.perf_counter()
     city, m, top = build(args.seed, args.voxel)
-    print(f"city seed {args.seed}: {len(city.boxes)} boxes, {len(city.cylinders)} cylinders, tallest "
-          f"{city.max_height_m:.1f} m, ceiling {top:.1f} m; "
-          f"map {m.grid.count} blocks at {args.voxel} m in {time.perf_counter() - t0:.1f} s; "
-          f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}")
+    print(
+        f"city seed {args.seed}: {len(city.boxes)} boxes, {len(city.cylinders)} cylinders, tallest "
+        f"{city.max_height_m:.1f} m, ceiling {top:.1f} m; "
+        f"map {m.grid.count} blocks at {args.voxel} m in {time.perf_counter() - t0:.1f} s; "
+        f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}"
+    )
     t0 = time.perf_counter()
     ours = Planner(m, args.clearance, min_z=1.0, max_z=top)
     ref = Planner(ours.df, args.clearance, min_z=1.0, max_z=top, levels=(1,), max_expansions=20_000_000)
@@ -152,8 +169,10 @@ def main() -> None:
     S, G = sample_pairs(city, args.pairs, args.clearance + ours.margin + 0.2, rng, tuple(args.z_range))
     ours.plan(S[0], G[0])  # builds the distance field and grid, compiles the kernels
     ref._grid = ours._grid
-    print(f"setup (distance field, dense grid, compilation): {time.perf_counter() - t0:.1f} s; "
-          f"{args.pairs} pairs, clearance {args.clearance} m + margin {ours.margin:.3f} m")
+    print(
+        f"setup (distance field, dense grid, compilation): {time.perf_counter() - t0:.1f} s; "
+        f"{args.pairs} pairs, clearance {args.clearance} m + margin {ours.margin:.3f} m"
+    )
 
     rows = {"skyrecon": [], "reference": []}
     for name, P in (("skyrecon", ours), ("reference", ref)):
@@ -162,8 +181,17 @@ def main() -> None:
             r = P.plan(s, g)
             wall, cpu = time.perf_counter() - w0, time.thread_time() - c0
             td = true_min_distance(city, r.waypoints) if r.success else np.nan
-            rows[name].append({"success": r.success, "length": r.length_m, "wall_s": wall, "cpu_s": cpu,
-                               "true_min_m": td, "reason": r.reason, "expansions": r.expansions})
+            rows[name].append(
+                {
+                    "success": r.success,
+                    "length": r.length_m,
+                    "wall_s": wall,
+                    "cpu_s": cpu,
+                    "true_min_m": td,
+                    "reason": r.reason,
+                    "expansions": r.expansions,
+                }
+            )
     if ob is not None:
         grid = ours._grid
         lo = np.array([-100.0, -100.0, 1.0])
@@ -175,19 +203,39 @@ def main() -> None:
                 for s, g in zip(S[: args.ompl_pairs], G[: args.ompl_pairs]):
                     raw, simp, dt, w, status = ompl_solve(grid, pname, T, s, g, lo, hi)
                     td = true_min_distance(city, w) if w is not None else np.nan
-                    rows[key + "-raw"].append({"success": np.isfinite(raw), "length": raw, "wall_s": dt, "cpu_s": dt,
-                                               "true_min_m": td, "reason": status})
-                    rows[key + "-simpl"].append({"success": np.isfinite(simp), "length": simp, "wall_s": dt,
-                                                 "cpu_s": dt, "true_min_m": td, "reason": status})
+                    rows[key + "-raw"].append(
+                        {
+                            "success": np.isfinite(raw),
+                            "length": raw,
+                            "wall_s": dt,
+                            "cpu_s": dt,
+                            "true_min_m": td,
+                            "reason": status,
+                        }
+                    )
+                    rows[key + "-simpl"].append(
+                        {
+                            "success": np.isfinite(simp),
+                            "length": simp,
+                            "wall_s": dt,
+                            "cpu_s": dt,
+                            "true_min_m": td,
+                            "reason": status,
+                        }
+                    )
     else:
         print("[skip] OMPL is not installed: pip install ompl")
 
     L = {k: np.array([r["length"] for r in v]) for k, v in rows.items()}
     straight = np.linalg.norm(G - S, axis=1)
-    best = np.min(np.stack([np.pad(v, (0, args.pairs - len(v)), constant_values=np.inf) for v in L.values()]), axis=0)
+    best = np.min(
+        np.stack([np.pad(v, (0, args.pairs - len(v)), constant_values=np.inf) for v in L.values()]), axis=0
+    )
     summary = []
-    print(f"\n{'method':<26}{'pairs':>6}{'success':>9}{'ms mean':>9}{'median':>8}{'p95':>8}{'max':>8}"
-          f"{'len/best mean':>14}{'median':>8}{'max':>8}{'>1.02':>7}{'len/straight':>13}{'collisions':>11}{'<clear.':>8}")
+    print(
+        f"\n{'method':<26}{'pairs':>6}{'success':>9}{'ms mean':>9}{'median':>8}{'p95':>8}{'max':>8}"
+        f"{'len/best mean':>14}{'median':>8}{'max':>8}{'>1.02':>7}{'len/straight':>13}{'collisions':>11}{'<clear.':>8}"
+    )
     for k, v in rows.items():
         n = len(v)
         if n == 0:  # e.g. --ompl-pairs 0
@@ -198,8 +246,12 @@ def main() -> None:
         rs = L[k][ok] / straight[:n][ok]
         td = np.array([r["true_min_m"] for r in v])[ok]
         row = {
-            "method": k, "pairs": n, "success": int(ok.sum()),
-            "ms_mean": float(t.mean()), "ms_median": float(np.median(t)), "ms_p95": float(np.percentile(t, 95)),
+            "method": k,
+            "pairs": n,
+            "success": int(ok.sum()),
+            "ms_mean": float(t.mean()),
+            "ms_median": float(np.median(t)),
+            "ms_p95": float(np.percentile(t, 95)),
             "ms_max": float(t.max()),
             "cpu_ms_mean": float(np.mean([r["cpu_s"] for r in v]) * 1000),
             "ratio_best_mean": float(ratio.mean()) if len(ratio) else None,
@@ -207,24 +259,41 @@ def main() -> None:
             "ratio_best_max": float(ratio.max()) if len(ratio) else None,
             "over_1_02": int((ratio > 1.02).sum()),
             "ratio_straight_mean": float(rs.mean()) if len(rs) else None,
-            "collisions": int((td <= 0).sum()), "clearance_violations": int((td < args.clearance).sum()),
+            "collisions": int((td <= 0).sum()),
+            "clearance_violations": int((td < args.clearance).sum()),
             "true_min_distance_m": float(td.min()) if len(td) else None,
             "failures": sorted({r["reason"] for r in v if not r["success"]}),
         }
         summary.append(row)
-        print(f"{k:<26}{n:>6}{row['success']:>9}{row['ms_mean']:>9.1f}{row['ms_median']:>8.1f}{row['ms_p95']:>8.1f}"
-              f"{row['ms_max']:>8.1f}{row['ratio_best_mean'] or float('nan'):>14.4f}"
-              f"{row['ratio_best_median'] or float('nan'):>8.4f}{row['ratio_best_max'] or float('nan'):>8.4f}"
-              f"{row['over_1_02']:>7}{row['ratio_straight_mean'] or float('nan'):>13.4f}"
-              f"{row['collisions']:>11}{row['clearance_violations']:>8}")
+        print(
+            f"{k:<26}{n:>6}{row['success']:>9}{row['ms_mean']:>9.1f}{row['ms_median']:>8.1f}{row['ms_p95']:>8.1f}"
+            f"{row['ms_max']:>8.1f}{row['ratio_best_mean'] or float('nan'):>14.4f}"
+            f"{row['ratio_best_median'] or float('nan'):>8.4f}{row['ratio_best_max'] or float('nan'):>8.4f}"
+            f"{row['over_1_02']:>7}{row['ratio_straight_mean'] or float('nan'):>13.4f}"
+            f"{row['collisions']:>11}{row['clearance_violations']:>8}"
+        )
     sk = summary[0]
-    print(f"\nskyrecon: CPU {sk['cpu_ms_mean']:.1f} ms per query (single thread), true minimum distance to obstacles "
-          f"{sk['true_min_distance_m']:.3f} m (clearance {args.clearance} m); failures: {sk['failures'] or 'none'}")
-    args.out.write_text(json.dumps({"seed": args.seed, "voxel_m": args.voxel, "clearance_m": args.clearance,
-                                    "z_range_m": args.z_range, "straight_line_pairs": int(sum(
-                                        r["expansions"] == 0 for r in rows["skyrecon"])),
-                                    "load_average": os.getloadavg()[0], "summary": summary,
-                                    "per_pair": {k: v for k, v in rows.items()}}, indent=2, default=float) + "\n")
+    print(
+        f"\nskyrecon: CPU {sk['cpu_ms_mean']:.1f} ms per query (single thread), true minimum distance to obstacles "
+        f"{sk['true_min_distance_m']:.3f} m (clearance {args.clearance} m); failures: {sk['failures'] or 'none'}"
+    )
+    args.out.write_text(
+        json.dumps(
+            {
+                "seed": args.seed,
+                "voxel_m": args.voxel,
+                "clearance_m": args.clearance,
+                "z_range_m": args.z_range,
+                "straight_line_pairs": int(sum(r["expansions"] == 0 for r in rows["skyrecon"])),
+                "load_average": os.getloadavg()[0],
+                "summary": summary,
+                "per_pair": {k: v for k, v in rows.items()},
+            },
+            indent=2,
+            default=float,
+        )
+        + "\n"
+    )
     print(f"wrote {args.out}")
 
 

@@ -130,28 +130,65 @@ def flight_inputs(n_max: int, cache: Path, seed: int = 3) -> tuple[list[Path], I
 # ----------------------------------------------------------------------------------------------
 # methods
 # ----------------------------------------------------------------------------------------------
-def _row(scene: str, method: str, est: dict[str, Rigid3], gt: dict[str, Rigid3], reproj: float, points: int,
-         seconds: float, extra: dict) -> Row:
+def _row(
+    scene: str,
+    method: str,
+    est: dict[str, Rigid3],
+    gt: dict[str, Rigid3],
+    reproj: float,
+    points: int,
+    seconds: float,
+    extra: dict,
+) -> Row:
     ev = evaluate_sfm_poses(est, gt)
     s = ev.summary()
-    return Row(scene, method, len(ev.names), len(gt), s["rotation_median_deg"], s["rotation_max_deg"],
-               s["center_median_m"], s["center_max_m"], s["center_median_pct"], s["center_max_pct"], ev.extent_m,
-               reproj, points, seconds, extra)
+    return Row(
+        scene,
+        method,
+        len(ev.names),
+        len(gt),
+        s["rotation_median_deg"],
+        s["rotation_max_deg"],
+        s["center_median_m"],
+        s["center_max_m"],
+        s["center_median_pct"],
+        s["center_max_pct"],
+        ev.extent_m,
+        reproj,
+        points,
+        seconds,
+        extra,
+    )
 
 
-def run_skyrecon(scene: str, paths: list[Path], intr: Intrinsics, gt: dict, sequential: bool, seed: int) -> Row:
+def run_skyrecon(
+    scene: str, paths: list[Path], intr: Intrinsics, gt: dict, sequential: bool, seed: int
+) -> Row:
     ws = Path(tempfile.mkdtemp(prefix="sfm-bench-ws-"))
     try:
         t0 = time.perf_counter()
-        res = run_sfm(paths, intr, SfMSettings(max_image_size=None, sequential=sequential), seed=seed, workspace=ws)
+        res = run_sfm(
+            paths, intr, SfMSettings(max_image_size=None, sequential=sequential), seed=seed, workspace=ws
+        )
         dt = time.perf_counter() - t0
     finally:
         shutil.rmtree(ws, ignore_errors=True)
     est = {im.name: im.cam_from_world for im in res.reconstruction.images.values()}
-    extra = {"timings": {k: round(v, 2) for k, v in res.timings.items()},
-             "pairs": res.diagnostics.get("pairing"), "left_out": res.unregistered}
-    return _row(scene, "skyrecon", est, gt, res.mean_reprojection_error_px(), len(res.reconstruction.points3d), dt,
-                extra)
+    extra = {
+        "timings": {k: round(v, 2) for k, v in res.timings.items()},
+        "pairs": res.diagnostics.get("pairing"),
+        "left_out": res.unregistered,
+    }
+    return _row(
+        scene,
+        "skyrecon",
+        est,
+        gt,
+        res.mean_reprojection_error_px(),
+        len(res.reconstruction.points3d),
+        dt,
+        extra,
+    )
 
 
 def _pose(img) -> Rigid3:
@@ -168,9 +205,14 @@ def run_pycolmap(scene: str, paths: list[Path], intr: Intrinsics, gt: dict, sequ
         ro.camera_model = "PINHOLE"
         ro.camera_params = f"{intr.fx},{intr.fy},{intr.cx + 0.5},{intr.cy + 0.5}"
         t0 = time.perf_counter()
-        pycolmap.extract_features(db, image_dir, image_names=[p.name for p in paths],
-                                  camera_mode=pycolmap.CameraMode.SINGLE, reader_options=ro,
-                                  device=pycolmap.Device.cpu)
+        pycolmap.extract_features(
+            db,
+            image_dir,
+            image_names=[p.name for p in paths],
+            camera_mode=pycolmap.CameraMode.SINGLE,
+            reader_options=ro,
+            device=pycolmap.Device.cpu,
+        )
         t1 = time.perf_counter()
         if sequential:
             pycolmap.match_sequential(db, device=pycolmap.Device.cpu)
@@ -198,8 +240,14 @@ def run_pycolmap(scene: str, paths: list[Path], intr: Intrinsics, gt: dict, sequ
         reproj = float(best.compute_mean_reprojection_error())
         points = int(best.num_points3D())
     shutil.rmtree(work, ignore_errors=True)
-    extra = {"timings": {"features": round(t1 - t0, 2), "matching": round(t2 - t1, 2), "mapping": round(t3 - t2, 2)},
-             "models": len(recs)}
+    extra = {
+        "timings": {
+            "features": round(t1 - t0, 2),
+            "matching": round(t2 - t1, 2),
+            "mapping": round(t3 - t2, 2),
+        },
+        "models": len(recs),
+    }
     return _row(scene, "pycolmap", est, gt, reproj, points, t3 - t0, extra)
 
 
@@ -207,18 +255,26 @@ def run_pycolmap(scene: str, paths: list[Path], intr: Intrinsics, gt: dict, sequ
 # report
 # ----------------------------------------------------------------------------------------------
 def print_table(rows: list[Row]) -> None:
-    head = (f"{'scene':<16}{'method':<10}{'reg':>8}{'rot med':>9}{'rot max':>9}{'ctr med m':>11}{'ctr max m':>11}"
-            f"{'med %':>8}{'max %':>8}{'reproj':>8}{'points':>8}{'time s':>9}{'ratio':>7}")
+    head = (
+        f"{'scene':<16}{'method':<10}{'reg':>8}{'rot med':>9}{'rot max':>9}{'ctr med m':>11}{'ctr max m':>11}"
+        f"{'med %':>8}{'max %':>8}{'reproj':>8}{'points':>8}{'time s':>9}{'ratio':>7}"
+    )
     print(head)
     print("-" * len(head))
     peer = {r.scene: r for r in rows if r.method == "pycolmap"}
     for r in rows:
-        ratio = r.seconds / peer[r.scene].seconds if r.method == "skyrecon" and r.scene in peer else float("nan")
-        print(f"{r.scene:<16}{r.method:<10}{f'{r.registered}/{r.total}':>8}{r.rot_med:>9.4f}{r.rot_max:>9.4f}"
-              f"{r.ctr_med_m:>11.5f}{r.ctr_max_m:>11.5f}{r.ctr_med_pct:>8.4f}{r.ctr_max_pct:>8.4f}{r.reproj_px:>8.3f}"
-              f"{r.points:>8d}{r.seconds:>9.1f}{ratio:>7.2f}")
-    print("extent = largest distance between two ground-truth camera centres; rot after the best global "
-          "rotation, ctr after a similarity alignment")
+        ratio = (
+            r.seconds / peer[r.scene].seconds if r.method == "skyrecon" and r.scene in peer else float("nan")
+        )
+        print(
+            f"{r.scene:<16}{r.method:<10}{f'{r.registered}/{r.total}':>8}{r.rot_med:>9.4f}{r.rot_max:>9.4f}"
+            f"{r.ctr_med_m:>11.5f}{r.ctr_max_m:>11.5f}{r.ctr_med_pct:>8.4f}{r.ctr_max_pct:>8.4f}{r.reproj_px:>8.3f}"
+            f"{r.points:>8d}{r.seconds:>9.1f}{ratio:>7.2f}"
+        )
+    print(
+        "extent = largest distance between two ground-truth camera centres; rot after the best global "
+        "rotation, ctr after a similarity alignment"
+    )
 
 
 def main() -> None:
@@ -247,13 +303,19 @@ def main() -> None:
                     paths, intr, gt = fountain_inputs(size, work)
                     scene = f"fountain@{size}"
                     print(f"{scene}: {len(paths)} images {intr.width}x{intr.height}", flush=True)
-                    for method in (["skyrecon", "pycolmap"] if peer else ["skyrecon"]):
+                    for method in ["skyrecon", "pycolmap"] if peer else ["skyrecon"]:
                         best = None
                         for _ in range(args.repeat):
-                            r = (run_skyrecon(scene, paths, intr, gt, False, args.seed) if method == "skyrecon"
-                                 else run_pycolmap(scene, paths, intr, gt, False))
-                            print(f"  {method}: {r.registered}/{r.total} registered, {r.seconds:.1f} s, "
-                                  f"{r.extra.get('timings')}", flush=True)
+                            r = (
+                                run_skyrecon(scene, paths, intr, gt, False, args.seed)
+                                if method == "skyrecon"
+                                else run_pycolmap(scene, paths, intr, gt, False)
+                            )
+                            print(
+                                f"  {method}: {r.registered}/{r.total} registered, {r.seconds:.1f} s, "
+                                f"{r.extra.get('timings')}",
+                                flush=True,
+                            )
                             best = r if best is None or r.seconds < best.seconds else best
                         rows.append(best)
         if "flight" in args.scenes:
@@ -266,8 +328,10 @@ def main() -> None:
                 scene = f"flight-{n}"
                 print(f"{scene}: {n} frames {intr.width}x{intr.height}", flush=True)
                 r = run_skyrecon(scene, paths, intr, gt, True, args.seed)
-                print(f"  skyrecon: {r.registered}/{r.total} registered, {r.seconds:.1f} s, {r.extra.get('timings')}",
-                      flush=True)
+                print(
+                    f"  skyrecon: {r.registered}/{r.total} registered, {r.seconds:.1f} s, {r.extra.get('timings')}",
+                    flush=True,
+                )
                 rows.append(r)
                 if peer and args.peer_flights:
                     r = run_pycolmap(scene, paths, intr, gt, True)

@@ -38,8 +38,17 @@ from skyrecon.io.images import read_image  # noqa: E402
 from skyrecon.stereo import create_matcher  # noqa: E402
 from skyrecon.stereo.sgm import available_cores  # noqa: E402
 
-OPENCV_REFERENCE = dict(mode="sgbm_3way", block_size=5, P1=8 * 3 * 5**2, P2=32 * 3 * 5**2, uniqueness_ratio=10,
-                        speckle_window_size=100, speckle_range=2, disp12_max_diff=1, use_colour=True)
+OPENCV_REFERENCE = dict(
+    mode="sgbm_3way",
+    block_size=5,
+    P1=8 * 3 * 5**2,
+    P2=32 * 3 * 5**2,
+    uniqueness_ratio=10,
+    speckle_window_size=100,
+    speckle_range=2,
+    disp12_max_diff=1,
+    use_colour=True,
+)
 METHODS = ("opencv-sgbm", "skyrecon", "skyrecon-fast")
 
 
@@ -59,8 +68,16 @@ def load_pairs(use_sim: bool) -> list[tuple[str, np.ndarray, np.ndarray, np.ndar
     cones = root / "middlebury-2003-cones" / "cones"
     if cones.is_dir():
         gt = read_middlebury_disparity_pgm(cones / "disp2.pgm", scale=4)
-        pairs.append(("cones", read_image(cones / "im2.png"), read_image(cones / "im6.png"), gt,
-                       round16(np.nanmax(gt)), "bad1"))
+        pairs.append(
+            (
+                "cones",
+                read_image(cones / "im2.png"),
+                read_image(cones / "im6.png"),
+                gt,
+                round16(np.nanmax(gt)),
+                "bad1",
+            )
+        )
     else:
         print(f"(Cones not found under {root}; skipped)")
     kitti = root / "kitti2015-stereo-sample" / "training"
@@ -116,11 +133,15 @@ def main() -> None:
 
     import cv2
 
-    print(f"cores available: {available_cores()}, OpenCV threads: {cv2.getNumThreads()}, "
-          f"load average: {os.getloadavg()[0]:.2f}")
+    print(
+        f"cores available: {available_cores()}, OpenCV threads: {cv2.getNumThreads()}, "
+        f"load average: {os.getloadavg()[0]:.2f}"
+    )
     pairs = load_pairs(not args.no_sim)
-    header = (f"{'pair':20s} {'D':>4s} {'method':14s} {'metric':6s} {'error %':>8s} {'density %':>9s} "
-              f"{'ms':>8s} {'err/ocv':>8s} {'time/ocv':>8s}")
+    header = (
+        f"{'pair':20s} {'D':>4s} {'method':14s} {'metric':6s} {'error %':>8s} {'density %':>9s} "
+        f"{'ms':>8s} {'err/ocv':>8s} {'time/ocv':>8s}"
+    )
     print(header)
     print("-" * len(header))
     summary = []
@@ -131,8 +152,10 @@ def main() -> None:
         ref_err, ref_ms = scores["opencv-sgbm"][metric], ms["opencv-sgbm"]
         for m in METHODS:
             e = scores[m]
-            print(f"{name:20s} {D:4d} {m:14s} {metric:6s} {100 * e[metric]:8.2f} {100 * e['density']:9.1f} "
-                  f"{ms[m]:8.1f} {e[metric] / ref_err if ref_err else float('nan'):8.2f} {ms[m] / ref_ms:8.2f}")
+            print(
+                f"{name:20s} {D:4d} {m:14s} {metric:6s} {100 * e[metric]:8.2f} {100 * e['density']:9.1f} "
+                f"{ms[m]:8.1f} {e[metric] / ref_err if ref_err else float('nan'):8.2f} {ms[m] / ref_ms:8.2f}"
+            )
         summary.append((name, scores, ms, metric))
         print()
 
@@ -150,14 +173,18 @@ def main() -> None:
     for m in METHODS:
         print(f"  {m:14s} {ms[m]:7.1f} ms  {1000.0 / ms[m]:6.1f} fps")
 
-    print("\ntargets: default error <= 0.5 x OpenCV and time <= OpenCV on every pair; "
-          "fast >= 30 fps at 640x480/128 with error <= OpenCV")
+    print(
+        "\ntargets: default error <= 0.5 x OpenCV and time <= OpenCV on every pair; "
+        "fast >= 30 fps at 640x480/128 with error <= OpenCV"
+    )
     for name, scores, t, metric in summary:
         e_ratio = scores["skyrecon"][metric] / scores["opencv-sgbm"][metric]
         t_ratio = t["skyrecon"] / t["opencv-sgbm"]
         f_ok = scores["skyrecon-fast"][metric] <= scores["opencv-sgbm"][metric]
-        print(f"  {name:20s} error x{e_ratio:.2f} {'OK ' if e_ratio <= 0.5 else 'MISS'}  "
-              f"time x{t_ratio:.2f} {'OK ' if t_ratio <= 1.0 else 'MISS'}  fast error {'OK' if f_ok else 'MISS'}")
+        print(
+            f"  {name:20s} error x{e_ratio:.2f} {'OK ' if e_ratio <= 0.5 else 'MISS'}  "
+            f"time x{t_ratio:.2f} {'OK ' if t_ratio <= 1.0 else 'MISS'}  fast error {'OK' if f_ok else 'MISS'}"
+        )
     fps = 1000.0 / ms["skyrecon-fast"]
     print(f"  fast 640x480/128: {fps:.1f} fps {'OK' if fps >= 30 else 'MISS'}")
 

@@ -38,10 +38,10 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "src"))
 
 from skyrecon.core import Intrinsics, PosedView  # noqa: E402
+from skyrecon.errors import EstimationError  # noqa: E402
 from skyrecon.eval.gt_geometry import relative_pose  # noqa: E402
 from skyrecon.eval.pose_metrics import rotation_error_deg, translation_direction_error_deg  # noqa: E402
 from skyrecon.features.detect import resize_longer_side  # noqa: E402
-from skyrecon.errors import EstimationError  # noqa: E402
 from skyrecon.twoview import TwoViewSettings, dense_model, reconstruct_two_view  # noqa: E402
 
 try:
@@ -103,7 +103,18 @@ def fountain_pairs(data: Path, size: int) -> tuple[list[Pair], float]:
         for i in range(len(views) - gap):
             j = i + gap
             rel = relative_pose(views[i], views[j])
-            pairs.append(Pair("fountain", f"{i:02d}-{j:02d}", imgs[i][0], imgs[j][0], imgs[i][1], imgs[j][1], rel.R, rel.t))
+            pairs.append(
+                Pair(
+                    "fountain",
+                    f"{i:02d}-{j:02d}",
+                    imgs[i][0],
+                    imgs[j][0],
+                    imgs[i][1],
+                    imgs[j][1],
+                    rel.R,
+                    rel.t,
+                )
+            )
     return pairs, load
 
 
@@ -126,7 +137,18 @@ def synthetic_pairs(kind: str, size: int) -> tuple[list[Pair], float]:
             rendered = dict(zip(need, render_views(scene, [views[k] for k in need])))
             for i, j in idx:
                 rel = relative_pose(views[i], views[j])
-                pairs.append(Pair("object", f"s{seed}:{i:02d}-{j:02d}", rendered[i].image, rendered[j].image, intr, intr, rel.R, rel.t))
+                pairs.append(
+                    Pair(
+                        "object",
+                        f"s{seed}:{i:02d}-{j:02d}",
+                        rendered[i].image,
+                        rendered[j].image,
+                        intr,
+                        intr,
+                        rel.R,
+                        rel.t,
+                    )
+                )
     else:
         city = generate_city(seed=3)
         poses = flight_poses(city, 60, seed=3, pitch_deg=25.0)
@@ -136,7 +158,11 @@ def synthetic_pairs(kind: str, size: int) -> tuple[list[Pair], float]:
         rendered = dict(zip(need, render_views(city, [views[k] for k in need])))
         for i, j in idx:
             rel = relative_pose(views[i], views[j])
-            pairs.append(Pair("city", f"{i:02d}-{j:02d}", rendered[i].image, rendered[j].image, intr, intr, rel.R, rel.t))
+            pairs.append(
+                Pair(
+                    "city", f"{i:02d}-{j:02d}", rendered[i].image, rendered[j].image, intr, intr, rel.R, rel.t
+                )
+            )
     return pairs, time.perf_counter() - t0
 
 
@@ -154,7 +180,9 @@ def run_skyrecon(p: Pair, settings: TwoViewSettings, dense: bool) -> Row:
     if dense and r.geometry.has_pose:
         t1 = time.perf_counter()
         try:
-            d = dense_model(p.image1, p.image2, p.intr1, p.intr2, r.geometry, r.x1[r.inliers], r.x2[r.inliers], settings)
+            d = dense_model(
+                p.image1, p.image2, p.intr1, p.intr2, r.geometry, r.x1[r.inliers], r.x2[r.inliers], settings
+            )
             extra["dense_points"] = len(d.cloud)
         except EstimationError as exc:
             extra["dense_error"] = str(exc)
@@ -184,8 +212,17 @@ def run_opencv(p: Pair, x1: np.ndarray, x2: np.ndarray, t_feat: float, c_feat: f
         E = E[:3]
     n, R, t, mask2 = cv2.recoverPose(E, x1, x2, K, mask=mask)
     dt, dc = time.perf_counter() - t0, time.process_time() - c0
-    return Row(p.scene, p.name, "opencv", rotation_error_deg(R, p.R_gt), translation_direction_error_deg(t.ravel(), p.t_gt),
-               int(n), len(x1), t_feat + dt, {"pose_s": dt, "cpu_s": c_feat + dc})
+    return Row(
+        p.scene,
+        p.name,
+        "opencv",
+        rotation_error_deg(R, p.R_gt),
+        translation_direction_error_deg(t.ravel(), p.t_gt),
+        int(n),
+        len(x1),
+        t_feat + dt,
+        {"pose_s": dt, "cpu_s": c_feat + dc},
+    )
 
 
 def run_poselib(p: Pair, x1: np.ndarray, x2: np.ndarray, t_feat: float, c_feat: float) -> Row | None:
@@ -193,13 +230,29 @@ def run_poselib(p: Pair, x1: np.ndarray, x2: np.ndarray, t_feat: float, c_feat: 
         return None
 
     def cam(intr: Intrinsics) -> dict:
-        return {"model": "PINHOLE", "width": intr.width, "height": intr.height, "params": [intr.fx, intr.fy, intr.cx, intr.cy]}
+        return {
+            "model": "PINHOLE",
+            "width": intr.width,
+            "height": intr.height,
+            "params": [intr.fx, intr.fy, intr.cx, intr.cy],
+        }
 
     t0, c0 = time.perf_counter(), time.process_time()
-    pose, info = poselib.estimate_relative_pose(x1, x2, cam(p.intr1), cam(p.intr2), {"max_epipolar_error": 1.0}, {})
+    pose, info = poselib.estimate_relative_pose(
+        x1, x2, cam(p.intr1), cam(p.intr2), {"max_epipolar_error": 1.0}, {}
+    )
     dt, dc = time.perf_counter() - t0, time.process_time() - c0
-    return Row(p.scene, p.name, "poselib", rotation_error_deg(pose.R, p.R_gt), translation_direction_error_deg(pose.t, p.t_gt),
-               int(info["num_inliers"]), len(x1), t_feat + dt, {"pose_s": dt, "cpu_s": c_feat + dc})
+    return Row(
+        p.scene,
+        p.name,
+        "poselib",
+        rotation_error_deg(pose.R, p.R_gt),
+        translation_direction_error_deg(pose.t, p.t_gt),
+        int(info["num_inliers"]),
+        len(x1),
+        t_feat + dt,
+        {"pose_s": dt, "cpu_s": c_feat + dc},
+    )
 
 
 # ----------------------------------------------------------------------------------------------
@@ -217,8 +270,10 @@ def summarize(rows: list[Row]) -> dict:
             tr = np.array([r.trans_deg for r in rs])
             out[scene][method] = {
                 "pairs": len(rs),
-                "rot_median": float(np.nanmedian(rot)), "rot_max": float(np.nanmax(rot)),
-                "trans_median": float(np.nanmedian(tr)), "trans_max": float(np.nanmax(tr)),
+                "rot_median": float(np.nanmedian(rot)),
+                "rot_max": float(np.nanmax(rot)),
+                "trans_median": float(np.nanmedian(tr)),
+                "trans_max": float(np.nanmax(tr)),
                 "failures": int(np.sum(~np.isfinite(rot) | ~np.isfinite(tr))),
                 "inliers_median": float(np.median([r.inliers for r in rs])),
                 "seconds_mean": float(np.mean([r.seconds for r in rs])),
@@ -232,19 +287,25 @@ def summarize(rows: list[Row]) -> dict:
 
 
 def print_table(summary: dict) -> None:
-    hdr = (f"{'scene':9s} {'method':9s} {'pairs':>5s} {'rot med':>8s} {'rot max':>8s} {'t med':>8s} {'t max':>8s} "
-           f"{'inl med':>8s} {'s/pair':>7s} {'cpu s':>6s}   ratios vs opencv (rot med, t med, s) | vs poselib (rot med, t med)")
+    hdr = (
+        f"{'scene':9s} {'method':9s} {'pairs':>5s} {'rot med':>8s} {'rot max':>8s} {'t med':>8s} {'t max':>8s} "
+        f"{'inl med':>8s} {'s/pair':>7s} {'cpu s':>6s}   ratios vs opencv (rot med, t med, s) | vs poselib (rot med, t med)"
+    )
     print(hdr)
     print("-" * len(hdr))
     for scene, ms in summary.items():
         base = ms.get("opencv")
         pl = ms.get("poselib")
         for method, s in ms.items():
-            line = (f"{scene:9s} {method:9s} {s['pairs']:5d} {s['rot_median']:8.4f} {s['rot_max']:8.4f} {s['trans_median']:8.4f} "
-                    f"{s['trans_max']:8.4f} {s['inliers_median']:8.0f} {s['seconds_mean']:7.3f} {s['cpu_seconds_mean']:6.2f}")
+            line = (
+                f"{scene:9s} {method:9s} {s['pairs']:5d} {s['rot_median']:8.4f} {s['rot_max']:8.4f} {s['trans_median']:8.4f} "
+                f"{s['trans_max']:8.4f} {s['inliers_median']:8.0f} {s['seconds_mean']:7.3f} {s['cpu_seconds_mean']:6.2f}"
+            )
             if base and method != "opencv":
-                line += (f"   {s['rot_median'] / base['rot_median']:.2f} {s['trans_median'] / base['trans_median']:.2f} "
-                         f"{s['seconds_mean'] / base['seconds_mean']:.2f}")
+                line += (
+                    f"   {s['rot_median'] / base['rot_median']:.2f} {s['trans_median'] / base['trans_median']:.2f} "
+                    f"{s['seconds_mean'] / base['seconds_mean']:.2f}"
+                )
             if pl and method == "skyrecon":
                 line += f" | {s['rot_median'] / pl['rot_median']:.2f} {s['trans_median'] / pl['trans_median']:.2f}"
             if "dense_seconds_mean" in s:
@@ -254,7 +315,9 @@ def print_table(summary: dict) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--data", type=Path, default=Path(os.environ.get("SKYRECON_DATA", ROOT.parent / "shared" / "data")))
+    ap.add_argument(
+        "--data", type=Path, default=Path(os.environ.get("SKYRECON_DATA", ROOT.parent / "shared" / "data"))
+    )
     ap.add_argument("--size", type=int, default=1536, help="longer image side, pixels")
     ap.add_argument("--scenes", default="fountain,object,city")
     ap.add_argument("--dense", action="store_true", help="also build (and time) the dense model")
@@ -279,7 +342,9 @@ def main(argv: list[str] | None = None) -> int:
         run_skyrecon(pairs[0], settings, args.dense)
 
     rows: list[Row] = []
-    print(f"{'scene':9s} {'pair':12s} {'method':9s} {'rot':>8s} {'trans':>8s} {'inl':>6s} {'match':>6s} {'sec':>6s}")
+    print(
+        f"{'scene':9s} {'pair':12s} {'method':9s} {'rot':>8s} {'trans':>8s} {'inl':>6s} {'match':>6s} {'sec':>6s}"
+    )
     for p in pairs:
         this = []
         if "skyrecon" in methods:
@@ -293,15 +358,26 @@ def main(argv: list[str] | None = None) -> int:
                 if r is not None:
                     this.append(r)
         for r in this:
-            print(f"{r.scene:9s} {r.pair:12s} {r.method:9s} {r.rot_deg:8.4f} {r.trans_deg:8.4f} {r.inliers:6d} {r.matches:6d} {r.seconds:6.3f}"
-                  + (f"  {r.extra.get('status')} {r.extra.get('warnings')}" if r.method == "skyrecon" and r.extra.get("warnings") else ""))
+            print(
+                f"{r.scene:9s} {r.pair:12s} {r.method:9s} {r.rot_deg:8.4f} {r.trans_deg:8.4f} {r.inliers:6d} {r.matches:6d} {r.seconds:6.3f}"
+                + (
+                    f"  {r.extra.get('status')} {r.extra.get('warnings')}"
+                    if r.method == "skyrecon" and r.extra.get("warnings")
+                    else ""
+                )
+            )
         rows += this
         sys.stdout.flush()
     summary = summarize(rows)
     print()
     print_table(summary)
-    args.out.write_text(json.dumps({"summary": summary, "load_seconds": load, "size": args.size,
-                                    "rows": [r.__dict__ for r in rows]}, indent=1, default=float))
+    args.out.write_text(
+        json.dumps(
+            {"summary": summary, "load_seconds": load, "size": args.size, "rows": [r.__dict__ for r in rows]},
+            indent=1,
+            default=float,
+        )
+    )
     print(f"\nwrote {args.out}")
     return 0
 

@@ -27,8 +27,7 @@ R = TypeVar("R")
 class Executor(Protocol):
     """Runs ``fn`` over items and returns the results in input order."""
 
-    def map(self, fn: Callable[[T], R], items: Iterable[T], *, desc: str | None = None) -> list[R]:
-        ...
+    def map(self, fn: Callable[[T], R], items: Iterable[T], *, desc: str | None = None) -> list[R]: ...
 
 
 class SerialExecutor:
@@ -115,7 +114,9 @@ def get_executor(kind: str | None = None, workers: int | None = None) -> Executo
         try:
             workers = int(os.environ["SKYRECON_WORKERS"])
         except ValueError:
-            raise InputError(f"SKYRECON_WORKERS must be an integer, got {os.environ['SKYRECON_WORKERS']!r}") from None
+            raise InputError(
+                f"SKYRECON_WORKERS must be an integer, got {os.environ['SKYRECON_WORKERS']!r}"
+            ) from None
     if kind not in _REGISTRY:
         raise InputError(f"unknown executor {kind!r}; choose one of {', '.join(available_executors())}")
     return _REGISTRY[kind](workers)

@@ -31,7 +31,9 @@ def progress_enabled() -> bool:
     return sys.stderr.isatty()
 
 
-def progress(iterable: Iterable | None = None, *, desc: str | None = None, total: int | None = None, **kw: Any) -> tqdm:
+def progress(
+    iterable: Iterable | None = None, *, desc: str | None = None, total: int | None = None, **kw: Any
+) -> tqdm:
     """A tqdm bar over ``iterable`` (or a manual one with ``total``) that respects the settings."""
     return tqdm(
         iterable,

@@ -24,7 +24,9 @@ CAM = Intrinsics.from_fov(160, 120, 70)
 MODEL_FROM_WORLD = Sim3(rotvec_to_matrix([0.3, -1.2, 0.5]), [1.0, 2.0, -3.0], 0.37)
 
 
-def _reconstruction(views, xyz: np.ndarray, rgb: np.ndarray, names=None, noise_m: float = 0.0) -> Reconstruction:
+def _reconstruction(
+    views, xyz: np.ndarray, rgb: np.ndarray, names=None, noise_m: float = 0.0
+) -> Reconstruction:
     """A COLMAP-like model of the true cameras and points: keypoints are the exact projections;
     ``noise_m`` jitters the stored points like triangulation noise (seeded)."""
     rec = Reconstruction({1: CAM})
@@ -39,7 +41,9 @@ def _reconstruction(views, xyz: np.ndarray, rgb: np.ndarray, names=None, noise_m
             tracks[p].append((k, j))
     stored = xyz + np.random.default_rng(7).normal(0.0, noise_m, xyz.shape) if noise_m else xyz
     for p in range(len(xyz)):
-        rec.points3d[p + 1] = Point3D(p + 1, stored[p], rgb[p], 0.0, np.array(tracks[p], np.int64).reshape(-1, 2))
+        rec.points3d[p + 1] = Point3D(
+            p + 1, stored[p], rgb[p], 0.0, np.array(tracks[p], np.int64).reshape(-1, 2)
+        )
     return rec
 
 
@@ -49,8 +53,10 @@ def world(tmp_path_factory):
     d = tmp_path_factory.mktemp("world")
     scene = generate_object_scene(2)
     views = orbit_views(scene, 8, CAM, seed=1, arc_deg=150)
-    clouds = [DepthMap(r.depth_m, CAM, v.cam_from_world).to_points_world(r.image)
-              for v, r in zip(views, render_views(scene, views))]
+    clouds = [
+        DepthMap(r.depth_m, CAM, v.cam_from_world).to_points_world(r.image)
+        for v, r in zip(views, render_views(scene, views))
+    ]
     dense = PointCloud.concatenate(clouds)
     rng = np.random.default_rng(0)
     near = np.linalg.norm(dense.points - scene.center, axis=1) < 12.0  # the monument and the plaza around it
@@ -59,15 +65,23 @@ def world(tmp_path_factory):
     cloud = dense.select(np.sort(idx[1500:31500]))
     write_ply(d / "cloud.ply", cloud)
     xyz = sparse.points.astype(np.float64)
-    return {"dir": d, "views": views, "xyz": xyz, "rgb": sparse.colors, "cloud": d / "cloud.ply",
-            "extent": float(np.ptp(np.stack([v.cam_from_world.center for v in views]), axis=0).max())}
+    return {
+        "dir": d,
+        "views": views,
+        "xyz": xyz,
+        "rgb": sparse.colors,
+        "cloud": d / "cloud.ply",
+        "extent": float(np.ptp(np.stack([v.cam_from_world.center for v in views]), axis=0).max()),
+    }
 
 
 @pytest.fixture(scope="module")
 def model(world):
     """The world in an arbitrary gauge, written as a run directory holding sparse/."""
     d = world["dir"] / "run"
-    rec = MODEL_FROM_WORLD.transform_reconstruction(_reconstruction(world["views"], world["xyz"], world["rgb"]))
+    rec = MODEL_FROM_WORLD.transform_reconstruction(
+        _reconstruction(world["views"], world["xyz"], world["rgb"])
+    )
     write_colmap_text(d / "sparse", rec)
     return d
 
@@ -131,8 +145,10 @@ def test_a_gps_glitch_is_ignored_and_named(world, model, tmp_path, capsys):
 
 def test_rigid_alignment_keeps_the_scale(world, tmp_path, capsys):
     turn = Sim3(MODEL_FROM_WORLD.R, MODEL_FROM_WORLD.t, 1.0)
-    write_colmap_text(tmp_path / "m", turn.transform_reconstruction(
-        _reconstruction(world["views"], world["xyz"][:50], world["rgb"][:50])))
+    write_colmap_text(
+        tmp_path / "m",
+        turn.transform_reconstruction(_reconstruction(world["views"], world["xyz"][:50], world["rgb"][:50])),
+    )
     pos = _positions_file(tmp_path / "gps.txt", world["views"])
     code, _ = _run(capsys, tmp_path / "m", "--positions", pos, "--no-scale", "--out", tmp_path / "out")
     assert code == 0
@@ -142,14 +158,20 @@ def test_rigid_alignment_keeps_the_scale(world, tmp_path, capsys):
 
 def test_to_model_merges_two_overlapping_models(world, tmp_path, capsys):
     views = world["views"]
-    ref_from_world = Sim3(rotvec_to_matrix([0.0, 0.0, 0.7]), [100.0, 50.0, 3.0], 1.0)  # e.g. a local metric frame
+    ref_from_world = Sim3(
+        rotvec_to_matrix([0.0, 0.0, 0.7]), [100.0, 50.0, 3.0], 1.0
+    )  # e.g. a local metric frame
     ref = ref_from_world.transform_reconstruction(
-        _reconstruction(views[:6], world["xyz"][:900], world["rgb"][:900]))
+        _reconstruction(views[:6], world["xyz"][:900], world["rgb"][:900])
+    )
     src = MODEL_FROM_WORLD.transform_reconstruction(
-        _reconstruction(views[2:], world["xyz"][600:], world["rgb"][600:]))
+        _reconstruction(views[2:], world["xyz"][600:], world["rgb"][600:])
+    )
     write_colmap_text(tmp_path / "ref", ref)
     write_colmap_text(tmp_path / "src", src)
-    code, err = _run(capsys, tmp_path / "src", "--to-model", tmp_path / "ref", "--merge", "--out", tmp_path / "out")
+    code, err = _run(
+        capsys, tmp_path / "src", "--to-model", tmp_path / "ref", "--merge", "--out", tmp_path / "out"
+    )
     assert code == 0, err
     result = json.loads((tmp_path / "out" / "align.json").read_text())
     assert result["num_correspondences"] == 4 and result["init"] == "camera centres"
@@ -158,38 +180,61 @@ def test_to_model_merges_two_overlapping_models(world, tmp_path, capsys):
     assert np.allclose(result["world_from_model"]["matrix"], truth.matrix, atol=1e-4)
     aligned = read_colmap_text(tmp_path / "out" / "sparse")
     for v in views[2:]:
-        assert np.linalg.norm(aligned.image_by_name(v.name).center_world - ref_from_world.apply(
-            v.cam_from_world.center)) < 1e-4 * world["extent"]
+        assert (
+            np.linalg.norm(
+                aligned.image_by_name(v.name).center_world - ref_from_world.apply(v.cam_from_world.center)
+            )
+            < 1e-4 * world["extent"]
+        )
     assert len(read_ply(tmp_path / "out" / "merged.ply")) == 900 + 900
 
 
 def test_to_model_without_common_names_needs_an_initial_alignment(world, tmp_path, capsys):
     views = world["views"]
-    ref = _reconstruction(views, world["xyz"], world["rgb"], names=[f"flight1_{k}.jpg" for k in range(len(views))])
+    ref = _reconstruction(
+        views, world["xyz"], world["rgb"], names=[f"flight1_{k}.jpg" for k in range(len(views))]
+    )
     write_colmap_text(tmp_path / "ref", ref)
     src = MODEL_FROM_WORLD.transform_reconstruction(
-        _reconstruction(views, world["xyz"][::2], world["rgb"][::2], noise_m=0.005))
+        _reconstruction(views, world["xyz"][::2], world["rgb"][::2], noise_m=0.005)
+    )
     write_colmap_text(tmp_path / "src", src)
     code, err = _run(capsys, tmp_path / "src", "--to-model", tmp_path / "ref", "--out", tmp_path / "o1")
     assert code == 2 and len(err) == 1 and err[0].startswith("error:") and "--init" in err[0]
     # a rough initial alignment (a few degrees, 2 % in scale, 0.3 m off) is refined by ICP
     truth = MODEL_FROM_WORLD.inverse()
     rough = Sim3(rotvec_to_matrix([0.03, -0.02, 0.04]), [0.3, -0.2, 0.1], 1.02) @ truth
-    (tmp_path / "init.txt").write_text("\n".join(" ".join(f"{x:.12g}" for x in row) for row in rough.matrix) + "\n")
-    code, err = _run(capsys, tmp_path / "src", "--to-model", tmp_path / "ref", "--init", tmp_path / "init.txt",
-                     "--out", tmp_path / "o2")
+    (tmp_path / "init.txt").write_text(
+        "\n".join(" ".join(f"{x:.12g}" for x in row) for row in rough.matrix) + "\n"
+    )
+    code, err = _run(
+        capsys,
+        tmp_path / "src",
+        "--to-model",
+        tmp_path / "ref",
+        "--init",
+        tmp_path / "init.txt",
+        "--out",
+        tmp_path / "o2",
+    )
     assert code == 0, err
     result = json.loads((tmp_path / "o2" / "align.json").read_text())
     assert result["init"] == "file" and result["icp"]["converged"]
     aligned = read_colmap_text(tmp_path / "o2" / "sparse")
-    err_m = max(np.linalg.norm(aligned.image_by_name(v.name).center_world - v.cam_from_world.center) for v in views)
+    err_m = max(
+        np.linalg.norm(aligned.image_by_name(v.name).center_world - v.cam_from_world.center) for v in views
+    )
     assert err_m < 0.01 * world["extent"]
 
 
 def test_to_cloud_refines_a_nearly_aligned_model(world, tmp_path, capsys):
     off = Sim3(rotvec_to_matrix([0.02, -0.015, 0.03]), [0.15, -0.1, 0.05], 1.03)  # model_from_world
-    write_colmap_text(tmp_path / "m", off.transform_reconstruction(
-        _reconstruction(world["views"], world["xyz"], world["rgb"], noise_m=0.005)))
+    write_colmap_text(
+        tmp_path / "m",
+        off.transform_reconstruction(
+            _reconstruction(world["views"], world["xyz"], world["rgb"], noise_m=0.005)
+        ),
+    )
     code, err = _run(capsys, tmp_path / "m", "--to-cloud", world["cloud"], "--out", tmp_path / "out")
     assert code == 0, err
     result = json.loads((tmp_path / "out" / "align.json").read_text())
@@ -197,39 +242,74 @@ def test_to_cloud_refines_a_nearly_aligned_model(world, tmp_path, capsys):
     assert abs(result["scale"] * 1.03 - 1) < 1e-3
     assert result["residual_median_m"] < 0.01  # point-to-plane, with 5 mm noise on the points
     aligned = read_colmap_text(tmp_path / "out" / "sparse")
-    err_m = max(np.linalg.norm(aligned.image_by_name(v.name).center_world - v.cam_from_world.center)
-                for v in world["views"])
+    err_m = max(
+        np.linalg.norm(aligned.image_by_name(v.name).center_world - v.cam_from_world.center)
+        for v in world["views"]
+    )
     assert err_m < 0.005 * world["extent"]
 
 
 def test_to_cloud_from_centroids_and_a_far_scale(world, tmp_path, capsys):
     off = Sim3(np.eye(3), [30.0, -20.0, 5.0], 0.5)
-    write_colmap_text(tmp_path / "m", off.transform_reconstruction(
-        _reconstruction(world["views"], world["xyz"], world["rgb"], noise_m=0.005)))
+    write_colmap_text(
+        tmp_path / "m",
+        off.transform_reconstruction(
+            _reconstruction(world["views"], world["xyz"], world["rgb"], noise_m=0.005)
+        ),
+    )
     code, err = _run(capsys, tmp_path / "m", "--to-cloud", world["cloud"], "--out", tmp_path / "out")
     assert code == 0, err
     assert any("centroids" in line for line in err)
     result = json.loads((tmp_path / "out" / "align.json").read_text())
     assert result["init"].startswith("centroids") and abs(result["scale"] - 2.0) < 0.01
     aligned = read_colmap_text(tmp_path / "out" / "sparse")
-    err_m = max(np.linalg.norm(aligned.image_by_name(v.name).center_world - v.cam_from_world.center)
-                for v in world["views"])
+    err_m = max(
+        np.linalg.norm(aligned.image_by_name(v.name).center_world - v.cam_from_world.center)
+        for v in world["views"]
+    )
     assert err_m < 0.01 * world["extent"]
 
 
 def test_icp_that_does_not_converge_says_so(world, tmp_path, capsys):
     off = Sim3(rotvec_to_matrix([0.05, 0.0, 0.05]), [0.4, 0.0, 0.0], 1.0)
-    write_colmap_text(tmp_path / "m", off.transform_reconstruction(
-        _reconstruction(world["views"], world["xyz"], world["rgb"], noise_m=0.005)))
-    code, err = _run(capsys, tmp_path / "m", "--to-cloud", world["cloud"], "--no-scale", "--max-iterations", "1",
-                     "--quiet", "--out", tmp_path / "out")
+    write_colmap_text(
+        tmp_path / "m",
+        off.transform_reconstruction(
+            _reconstruction(world["views"], world["xyz"], world["rgb"], noise_m=0.005)
+        ),
+    )
+    code, err = _run(
+        capsys,
+        tmp_path / "m",
+        "--to-cloud",
+        world["cloud"],
+        "--no-scale",
+        "--max-iterations",
+        "1",
+        "--quiet",
+        "--out",
+        tmp_path / "out",
+    )
     assert code == 0
     assert len(err) == 1 and err[0].startswith("warning: ICP did not converge")
     assert json.loads((tmp_path / "out" / "align.json").read_text())["icp"]["converged"] is False
 
 
-@pytest.mark.parametrize("case", ["no_match", "two_match", "collinear", "nan", "no_positions_file", "missing_model",
-                                  "not_a_model", "missing_cloud", "merge_positions", "bad_init"])
+@pytest.mark.parametrize(
+    "case",
+    [
+        "no_match",
+        "two_match",
+        "collinear",
+        "nan",
+        "no_positions_file",
+        "missing_model",
+        "not_a_model",
+        "missing_cloud",
+        "merge_positions",
+        "bad_init",
+    ],
+)
 def test_bad_input_is_one_line_and_exit_2(world, model, tmp_path, capsys, case):
     names = [v.name for v in world["views"]]
     pos = tmp_path / "pos.txt"

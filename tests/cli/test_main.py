@@ -10,7 +10,9 @@ from skyrecon.cli.main import main
 
 
 def run_cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "skyrecon", *args], capture_output=True, text=True, timeout=300)
+    return subprocess.run(
+        [sys.executable, "-m", "skyrecon", *args], capture_output=True, text=True, timeout=300
+    )
 
 
 def test_help_and_version(capsys):

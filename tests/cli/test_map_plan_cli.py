@@ -40,12 +40,31 @@ def test_map_from_sequence(flight, tmp_path, depth):
 
 def test_plan_on_map(flight, tmp_path, capsys):
     out = tmp_path / "map"
-    assert main(["map", str(flight), "--depth", "depth_2", "--out", str(out), "--voxel-size", "0.5", "--quiet"]) == 0
+    assert (
+        main(["map", str(flight), "--depth", "depth_2", "--out", str(out), "--voxel-size", "0.5", "--quiet"])
+        == 0
+    )
     track = np.array([p.t for p in read_sequence(flight).world_from_left])
     start, goal = track[0], track[-1]
     route = tmp_path / "route"
-    args = ["plan", str(out), "--start", *map(str, start), "--goal", *map(str, goal), "--clearance", "1.0", "--allow-unknown",
-            "--out", str(route), "--origin", "47.3769", "8.5417", "408", "--quiet"]
+    args = [
+        "plan",
+        str(out),
+        "--start",
+        *map(str, start),
+        "--goal",
+        *map(str, goal),
+        "--clearance",
+        "1.0",
+        "--allow-unknown",
+        "--out",
+        str(route),
+        "--origin",
+        "47.3769",
+        "8.5417",
+        "408",
+        "--quiet",
+    ]
     assert main(args) == 0
     doc = json.loads((route / "path.json").read_text())
     waypoints = np.array(doc["waypoints"])

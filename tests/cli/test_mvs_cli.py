@@ -17,15 +17,49 @@ SEED = 4
 @pytest.fixture(scope="module")
 def photos(tmp_path_factory):
     out = tmp_path_factory.mktemp("mvs_photos")
-    assert main(["render", "images", "--views", "8", "--width", "256", "--height", "192", "--seed", str(SEED),
-                 "--quiet", "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "render",
+                "images",
+                "--views",
+                "8",
+                "--width",
+                "256",
+                "--height",
+                "192",
+                "--seed",
+                str(SEED),
+                "--quiet",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     return out
 
 
 def test_fused_cloud_lies_on_the_true_surfaces(photos, tmp_path):
     out = tmp_path / "mvs"
-    assert main(["mvs", str(photos / "images"), "--cameras", str(photos / "gt_sparse"), "--out", str(out),
-                 "--max-image-size", "256", "--workers", "1", "--quiet"]) == 0
+    assert (
+        main(
+            [
+                "mvs",
+                str(photos / "images"),
+                "--cameras",
+                str(photos / "gt_sparse"),
+                "--out",
+                str(out),
+                "--max-image-size",
+                "256",
+                "--workers",
+                "1",
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     cloud = read_ply(out / "fused.ply")
     assert len(cloud) > 5000 and cloud.colors is not None
     scene = generate_object_scene(SEED)
@@ -43,9 +77,28 @@ def test_fused_cloud_lies_on_the_true_surfaces(photos, tmp_path):
 
 def test_concat_baseline_and_named_topology(photos, tmp_path):
     out = tmp_path / "concat"
-    assert main(["mvs", str(photos / "images"), "--cameras", str(photos / "gt_sparse"), "--out", str(out),
-                 "--max-image-size", "256", "--fusion", "concat", "--topology", "adjacent", "--workers", "1",
-                 "--quiet"]) == 0
+    assert (
+        main(
+            [
+                "mvs",
+                str(photos / "images"),
+                "--cameras",
+                str(photos / "gt_sparse"),
+                "--out",
+                str(out),
+                "--max-image-size",
+                "256",
+                "--fusion",
+                "concat",
+                "--topology",
+                "adjacent",
+                "--workers",
+                "1",
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     assert len(read_ply(out / "fused.ply")) > 1000
 
 
@@ -59,7 +112,9 @@ def test_extra_image_without_camera_is_named(photos, tmp_path, capsys):
     images = tmp_path / "images"
     shutil.copytree(photos / "images", images)
     shutil.copy(images / "orbit_000.png", images / "stray.png")
-    assert main(["mvs", str(images), "--cameras", str(photos / "gt_sparse"), "--out", str(tmp_path / "o")]) == 2
+    assert (
+        main(["mvs", str(images), "--cameras", str(photos / "gt_sparse"), "--out", str(tmp_path / "o")]) == 2
+    )
     assert "stray.png" in _one_error_line(capsys)
 
 
@@ -70,12 +125,19 @@ def test_image_size_mismatch_is_an_error(photos, tmp_path, capsys):
     shutil.copytree(photos / "images", images)
     small = cv2.imread(str(images / "orbit_003.png"))
     cv2.imwrite(str(images / "orbit_003.png"), cv2.resize(small, (128, 96)))
-    assert main(["mvs", str(images), "--cameras", str(photos / "gt_sparse"), "--out", str(tmp_path / "o")]) == 2
+    assert (
+        main(["mvs", str(images), "--cameras", str(photos / "gt_sparse"), "--out", str(tmp_path / "o")]) == 2
+    )
     assert "orbit_003.png" in _one_error_line(capsys)
 
 
 def test_missing_cameras_and_black_images(photos, tmp_path, capsys):
-    assert main(["mvs", str(photos / "images"), "--cameras", str(tmp_path / "nope"), "--out", str(tmp_path / "o")]) == 2
+    assert (
+        main(
+            ["mvs", str(photos / "images"), "--cameras", str(tmp_path / "nope"), "--out", str(tmp_path / "o")]
+        )
+        == 2
+    )
     _one_error_line(capsys)
     images = tmp_path / "black"
     shutil.copytree(photos / "images", images)
@@ -83,6 +145,20 @@ def test_missing_cameras_and_black_images(photos, tmp_path, capsys):
         import cv2
 
         cv2.imwrite(str(p), np.zeros((192, 256, 3), np.uint8))
-    assert main(["mvs", str(images), "--cameras", str(photos / "gt_sparse"), "--out", str(tmp_path / "o2"),
-                 "--workers", "1", "--quiet"]) == 2
+    assert (
+        main(
+            [
+                "mvs",
+                str(images),
+                "--cameras",
+                str(photos / "gt_sparse"),
+                "--out",
+                str(tmp_path / "o2"),
+                "--workers",
+                "1",
+                "--quiet",
+            ]
+        )
+        == 2
+    )
     assert "blank" in _one_error_line(capsys)

@@ -41,8 +41,22 @@ def sfm_run(photos, tmp_path_factory):
     """One run of the command (features at 256 px: the outputs must still be at 320x240)."""
     d, _ = photos
     out = tmp_path_factory.mktemp("sfm")
-    code = main(["sfm", str(d / "images"), "--camera", str(d / "K.txt"), "--out", str(out), "--max-image-size", "256",
-                 "--workers", "1", "--frusta", "--quiet"])
+    code = main(
+        [
+            "sfm",
+            str(d / "images"),
+            "--camera",
+            str(d / "K.txt"),
+            "--out",
+            str(out),
+            "--max-image-size",
+            "256",
+            "--workers",
+            "1",
+            "--frusta",
+            "--quiet",
+        ]
+    )
     return code, out
 
 
@@ -99,7 +113,9 @@ def test_align_to_true_camera_positions(photos, sfm_run, tmp_path, capsys):
         c = gt[n].center + (np.array([3.0, 0.0, 0.0]) if n == glitch else 0.0)
         lines.append(f"{n} {c[0]:.6f} {c[1]:.6f} {c[2]:.6f}")
     (tmp_path / "gps.txt").write_text("\n".join(lines) + "\n")
-    assert main(["align", str(out), "--positions", str(tmp_path / "gps.txt"), "--out", str(tmp_path / "a")]) == 0
+    assert (
+        main(["align", str(out), "--positions", str(tmp_path / "gps.txt"), "--out", str(tmp_path / "a")]) == 0
+    )
     err = _err_lines(capsys)
     assert any(line.startswith("warning:") and glitch in line for line in err)
     result = json.loads((tmp_path / "a" / "align.json").read_text())
@@ -124,9 +140,26 @@ def test_bad_images_are_left_out_with_a_warning(photos, sfm_run, tmp_path, capsy
     shutil.copy(d / "images" / names[3], images / "zz_duplicate.png")
     write_image(images / "zz_flat.png", np.full((240, 320, 3), 128, np.uint8))
     write_image(images / "zz_small.png", cv2.resize(read_image(d / "images" / names[4]), (240, 180)))
-    code = main(["sfm", str(images), "--camera", str(d / "K.txt"), "--out", str(tmp_path / "o"), "--workers", "1",
-                 "--max-image-size", "256", "--workspace", str(out / "workspace"),
-                 "--pairing", "sequential", "--window", "3"])
+    code = main(
+        [
+            "sfm",
+            str(images),
+            "--camera",
+            str(d / "K.txt"),
+            "--out",
+            str(tmp_path / "o"),
+            "--workers",
+            "1",
+            "--max-image-size",
+            "256",
+            "--workspace",
+            str(out / "workspace"),
+            "--pairing",
+            "sequential",
+            "--window",
+            "3",
+        ]
+    )
     assert code == 0
     err = _err_lines(capsys)
     warning = [line for line in err if line.startswith("warning:") and "left out" in line]
@@ -146,8 +179,19 @@ def test_bad_images_are_left_out_with_a_warning(photos, sfm_run, tmp_path, capsy
     assert sorted(im.name for im in rec.images.values()) == names[:6]
 
 
-@pytest.mark.parametrize("case", ["missing_dir", "one_image", "no_images", "K_missing", "K_corrupt", "K_other_size",
-                                  "only_duplicates", "only_flat"])
+@pytest.mark.parametrize(
+    "case",
+    [
+        "missing_dir",
+        "one_image",
+        "no_images",
+        "K_missing",
+        "K_corrupt",
+        "K_other_size",
+        "only_duplicates",
+        "only_flat",
+    ],
+)
 def test_bad_input_is_one_error_line_and_exit_2(photos, tmp_path, capsys, case):
     d, gt = photos
     images, k = tmp_path / "images", d / "K.txt"
@@ -184,7 +228,9 @@ def test_bad_input_is_one_error_line_and_exit_2(photos, tmp_path, capsys, case):
         for name in ("a.png", "b.png", "c.png"):
             write_image(images / name, np.full((240, 320, 3), 200, np.uint8))
         expect = "a.png: only 0 features"
-    code = main(["sfm", str(images), "--camera", str(k), "--out", str(tmp_path / "out"), "--workers", "1", "--quiet"])
+    code = main(
+        ["sfm", str(images), "--camera", str(k), "--out", str(tmp_path / "out"), "--workers", "1", "--quiet"]
+    )
     err = _err_lines(capsys)
     assert code == 2
     assert len(err) == 1 and err[0].startswith("error:") and expect in err[0], err

@@ -13,8 +13,26 @@ from skyrecon.io import read_cameras, read_ply
 @pytest.fixture(scope="module")
 def photos(tmp_path_factory):
     out = tmp_path_factory.mktemp("photos")
-    assert main(["render", "images", "--views", "8", "--width", "480", "--height", "360", "--seed", "4",
-                 "--quiet", "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "render",
+                "images",
+                "--views",
+                "8",
+                "--width",
+                "480",
+                "--height",
+                "360",
+                "--seed",
+                "4",
+                "--quiet",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     return out
 
 
@@ -22,8 +40,21 @@ def test_pose_matches_ground_truth(photos, tmp_path):
     views = {v.name: v for v in read_cameras(photos / "gt_sparse")}
     names = sorted(views)[:2]
     out = tmp_path / "pair"
-    assert main(["two-view", str(photos / "images" / names[0]), str(photos / "images" / names[1]),
-                 "--camera", str(photos / "K.txt"), "--out", str(out), "--quiet"]) == 0
+    assert (
+        main(
+            [
+                "two-view",
+                str(photos / "images" / names[0]),
+                str(photos / "images" / names[1]),
+                "--camera",
+                str(photos / "K.txt"),
+                "--out",
+                str(out),
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     result = json.loads((out / "two_view.json").read_text())
     gt = views[names[1]].cam_from_world @ views[names[0]].cam_from_world.inverse()
     R, t = np.array(result["R"]), np.array(result["t"])
@@ -38,7 +69,18 @@ def test_pose_matches_ground_truth(photos, tmp_path):
 
 def test_identical_images_are_refused(photos, tmp_path, capsys):
     image = str(photos / "images" / sorted(p.name for p in (photos / "images").iterdir())[0])
-    code = main(["two-view", image, image, "--camera", str(photos / "K.txt"), "--out", str(tmp_path / "o"), "--no-dense"])
+    code = main(
+        [
+            "two-view",
+            image,
+            image,
+            "--camera",
+            str(photos / "K.txt"),
+            "--out",
+            str(tmp_path / "o"),
+            "--no-dense",
+        ]
+    )
     assert code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err[-1].startswith("error:")

@@ -32,7 +32,10 @@ def test_behind_camera_is_nan_and_not_in_image():
 
 @settings(max_examples=100, deadline=None)
 @given(
-    st.floats(-0.3, 0.3), st.floats(-0.1, 0.1), st.floats(-0.01, 0.01), st.floats(-0.01, 0.01),
+    st.floats(-0.3, 0.3),
+    st.floats(-0.1, 0.1),
+    st.floats(-0.01, 0.01),
+    st.floats(-0.01, 0.01),
 )
 def test_distortion_round_trip(k1, k2, p1, p2):
     cam = Intrinsics(400, 400, 200, 150, 400, 300, dist=[k1, k2, p1, p2, 0.0])

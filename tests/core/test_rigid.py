@@ -35,7 +35,9 @@ def test_composition_order_matches_point_mapping():
     rng = np.random.default_rng(1)
     b_from_a, c_from_b = random_pose(rng, "b", "a"), random_pose(rng, "c", "b")
     p_a = rng.normal(size=(10, 3))
-    np.testing.assert_allclose((c_from_b @ b_from_a).apply(p_a), c_from_b.apply(b_from_a.apply(p_a)), atol=1e-12)
+    np.testing.assert_allclose(
+        (c_from_b @ b_from_a).apply(p_a), c_from_b.apply(b_from_a.apply(p_a)), atol=1e-12
+    )
     assert (c_from_b @ b_from_a).name == "c_from_a"
 
 

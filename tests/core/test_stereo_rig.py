@@ -55,4 +55,4 @@ def test_bad_baseline_and_unrectified_Q():
     rig = StereoRig(cam, cam, Rigid3.from_rotvec([0, 0.1, 0], [-0.2, 0, 0]))
     assert not rig.is_rectified
     with pytest.raises(InputError, match="not rectified"):
-        rig.Q
+        _ = rig.Q

@@ -53,7 +53,9 @@ def test_epipolar_distance_is_in_pixels() -> None:
 def test_relative_pose_and_essential() -> None:
     v1, v2, pts = two_views()
     rel = relative_pose(v1, v2)
-    np.testing.assert_allclose(rel.apply(v1.cam_from_world.apply(pts)), v2.cam_from_world.apply(pts), atol=1e-12)
+    np.testing.assert_allclose(
+        rel.apply(v1.cam_from_world.apply(pts)), v2.cam_from_world.apply(pts), atol=1e-12
+    )
     E = essential_from_views(v1, v2)
     np.testing.assert_allclose(np.linalg.svd(E, compute_uv=False), [1, 1, 0], atol=1e-12)
     np.testing.assert_allclose(skew_matrix([1, 2, 3]) @ [4, 5, 6], np.cross([1, 2, 3], [4, 5, 6]))

@@ -76,6 +76,8 @@ def make_pair(
     x1 = x1_true + rng.normal(scale=noise_px, size=x1_true.shape) if noise_px > 0 else x1_true.copy()
     x2 = x2_true + rng.normal(scale=noise_px, size=x2_true.shape) if noise_px > 0 else x2_true.copy()
     outlier = rng.random(n) < outlier_ratio
-    x2[outlier] = np.stack([rng.uniform(0, width - 1, outlier.sum()), rng.uniform(0, height - 1, outlier.sum())], 1)
+    x2[outlier] = np.stack(
+        [rng.uniform(0, width - 1, outlier.sum()), rng.uniform(0, height - 1, outlier.sum())], 1
+    )
     tn = np.linalg.norm(t)
     return SyntheticPair(intr, intr, R, t / tn, X / tn, x1, x2, x1_true, x2_true, outlier)

@@ -106,7 +106,9 @@ def test_decomposition_contains_the_true_pose(seed):
 @pytest.mark.parametrize("seed", range(4))
 def test_cheirality_selects_the_true_pose(seed):
     p = make_pair(seed=seed, n=50)
-    R, t, front = select_pose(essential_from_pose(p.R, p.t), p.intr1.normalized(p.x1), p.intr2.normalized(p.x2))
+    R, t, front = select_pose(
+        essential_from_pose(p.R, p.t), p.intr1.normalized(p.x1), p.intr2.normalized(p.x2)
+    )
     assert np.abs(R - p.R).max() < 1e-12 and np.abs(t - p.t).max() < 1e-12
     assert front.all()
 
@@ -119,7 +121,9 @@ def test_sampson_matches_opencv():
     h2 = np.concatenate([p.x2, np.ones((50, 1))], 1)
     ref = np.array([cv2.sampsonDistance(a[:, None], b[:, None], F) for a, b in zip(h1, h2)])
     np.testing.assert_allclose(ours, ref, rtol=1e-9)
-    np.testing.assert_allclose(sampson_sq_batch(np.stack([F, 2 * F]), p.x1, p.x2), np.stack([ours, ours]), rtol=1e-9)
+    np.testing.assert_allclose(
+        sampson_sq_batch(np.stack([F, 2 * F]), p.x1, p.x2), np.stack([ours, ours]), rtol=1e-9
+    )
 
 
 def test_sampson_close_to_geometric_error_for_small_noise():

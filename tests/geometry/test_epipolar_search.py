@@ -8,12 +8,18 @@ import pytest
 
 from skyrecon.core import Intrinsics
 from skyrecon.errors import InputError
-from skyrecon.geometry.epipolar_search import clip_segments, match_along_epipolar_lines, search_segments_from_depth
+from skyrecon.geometry.epipolar_search import (
+    clip_segments,
+    match_along_epipolar_lines,
+    search_segments_from_depth,
+)
 
 
 def _texture(w: int = 320, h: int = 240, seed: int = 0) -> np.ndarray:
     rng = np.random.default_rng(seed)
-    img = cv2.resize(rng.integers(0, 256, (h // 4, w // 4), dtype=np.uint8), (w, h), interpolation=cv2.INTER_CUBIC)
+    img = cv2.resize(
+        rng.integers(0, 256, (h // 4, w // 4), dtype=np.uint8), (w, h), interpolation=cv2.INTER_CUBIC
+    )
     return cv2.GaussianBlur(img, (0, 0), 0.8)
 
 
@@ -49,5 +55,11 @@ def test_clipping_and_bad_arguments():
     with pytest.raises(InputError):
         match_along_epipolar_lines(a, a, np.zeros((1, 2)), np.zeros((1, 4)), metric="sad")  # type: ignore[arg-type]
     with pytest.raises(InputError):
-        search_segments_from_depth(np.zeros((1, 2)), Intrinsics.from_fov(320, 240, 60), Intrinsics.from_fov(320, 240, 60),
-                                   np.eye(3), np.array([1.0, 0, 0]), (5.0, 1.0))
+        search_segments_from_depth(
+            np.zeros((1, 2)),
+            Intrinsics.from_fov(320, 240, 60),
+            Intrinsics.from_fov(320, 240, 60),
+            np.eye(3),
+            np.array([1.0, 0, 0]),
+            (5.0, 1.0),
+        )

@@ -32,11 +32,17 @@ def test_calibrated_rectification_is_exact(side):
         p.x1, p.x2 = p.x2, p.x1
         p.R, p.t = R, t
         p.X = p.X @ R.T + t * 0  # not used below
-    rect = rectify_calibrated(p.intr1, p.intr2, p.R, p.t, 1.0, p.intr1.normalized(p.x1), p.intr2.normalized(p.x2))
+    rect = rectify_calibrated(
+        p.intr1, p.intr2, p.R, p.t, 1.0, p.intr1.normalized(p.x1), p.intr2.normalized(p.x2)
+    )
     assert rect.swapped == (side < 0)
     dy, d, ql = _row_and_disparity(rect, p)
     assert np.abs(dy).max() < 1e-8
-    assert np.all(d > 0) and rect.min_disparity <= d.min() and d.max() < rect.min_disparity + rect.num_disparities
+    assert (
+        np.all(d > 0)
+        and rect.min_disparity <= d.min()
+        and d.max() < rect.min_disparity + rect.num_disparities
+    )
     # the disparities of the matches triangulate back onto the rays of the matches
     disp = np.full(rect.size[::-1], np.nan)
     xi = np.round(ql).astype(int)

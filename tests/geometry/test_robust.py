@@ -6,6 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
+from skyrecon.core import rotvec_to_matrix
 from skyrecon.errors import EstimationError, InputError
 from skyrecon.eval.pose_metrics import rotation_error_deg, translation_direction_error_deg
 from skyrecon.geometry.epipolar import essential_from_pose, sampson_sq
@@ -14,7 +15,6 @@ from skyrecon.geometry.fundamental import estimate_fundamental, fundamental_7poi
 from skyrecon.geometry.homography import estimate_homography, homography_dlt, homography_transfer_sq
 from skyrecon.geometry.refine import refine_relative_pose
 from skyrecon.geometry.sampling import RansacOptions, draw_samples, required_iterations
-from skyrecon.core import rotvec_to_matrix
 from tests.geometry.synthetic import make_pair
 
 

@@ -45,7 +45,8 @@ def test_optimal_correction_satisfies_the_constraint_and_is_minimal():
     assert np.abs(np.sum(h2 * (h1 @ E.T), 1)).max() < 1e-14
     # the correction is the minimum over all 3D points of the summed squared reprojection error
     for i in range(5):
-        def residuals(X):
+
+        def residuals(X, i=i):
             Y = p.R @ X + p.t
             return np.concatenate([X[:2] / X[2] - x1n[i], Y[:2] / Y[2] - x2n[i]])
 
@@ -57,7 +58,10 @@ def test_optimal_correction_satisfies_the_constraint_and_is_minimal():
 def test_optimal_is_more_accurate_than_linear_with_noise():
     p = make_pair(seed=4, n=400, noise_px=1.0, baseline=0.3)
     x1n, x2n = p.intr1.normalized(p.x1), p.intr2.normalized(p.x2)
-    e = {m: np.median(np.linalg.norm(triangulate(p.R, p.t, x1n, x2n, m) - p.X, axis=1)) for m in ("dlt", "optimal")}
+    e = {
+        m: np.median(np.linalg.norm(triangulate(p.R, p.t, x1n, x2n, m) - p.X, axis=1))
+        for m in ("dlt", "optimal")
+    }
     assert e["optimal"] <= e["dlt"] * 1.05
 
 

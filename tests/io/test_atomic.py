@@ -1,5 +1,3 @@
-
-
 def test_written_files_get_the_usual_permissions(tmp_path):
     import os
     import stat

@@ -41,8 +41,13 @@ def test_K_txt_round_trip_exact(tmp_path):
 
 @settings(max_examples=40, deadline=None)
 @given(
-    st.floats(1e-3, 1e6), st.floats(1e-3, 1e6), st.floats(-1e4, 1e4), st.floats(-1e4, 1e4),
-    st.floats(-10, 10), st.integers(1, 10000), st.integers(1, 10000),
+    st.floats(1e-3, 1e6),
+    st.floats(1e-3, 1e6),
+    st.floats(-1e4, 1e4),
+    st.floats(-1e4, 1e4),
+    st.floats(-10, 10),
+    st.integers(1, 10000),
+    st.integers(1, 10000),
 )
 def test_property_K_txt_round_trip(tmp_path_factory, fx, fy, cx, cy, skew, w, h):
     K = Intrinsics(fx, fy, cx, cy, w, h, skew=skew)
@@ -112,7 +117,16 @@ def test_middlebury_adirondack(tmp_path):
     assert c.doffs_px == pytest.approx(209.059, abs=1e-9)
     assert (c.rig.left.fx, c.rig.left.cx, c.rig.left.cy) == (4161.221, 1445.577, 984.686)
     assert c.rig.right.cx == 1654.636
-    assert (c.width, c.height, c.ndisp, c.isint, c.vmin, c.vmax, c.dyavg, c.dymax) == (2880, 1988, 280, 0, 33, 218, 0, 0)
+    assert (c.width, c.height, c.ndisp, c.isint, c.vmin, c.vmax, c.dyavg, c.dymax) == (
+        2880,
+        1988,
+        280,
+        0,
+        33,
+        218,
+        0,
+        0,
+    )
     np.testing.assert_array_equal(c.K1[0], [4161.221, 0, 1654.636])
     # Middlebury's formula: Z [mm] = baseline * f / (d + doffs).
     z = c.rig.disparity_to_depth(np.array([[100.0]]))[0, 0]
@@ -141,7 +155,10 @@ def _without(key: str) -> str:
         (ADIRONDACK.replace("baseline=176.252", "baseline=-1"), "positive"),
         (ADIRONDACK.replace("baseline=176.252", "baseline=1 2"), "needs one number"),
         (ADIRONDACK.replace("ndisp=280", "ndisp=28.5"), "integer"),
-        (ADIRONDACK.replace("0 4161.221 984.686; 0 0 1]\ncam1", "0 4161.221; 0 0 1]\ncam1"), "line 1: expected a 3x3 matrix"),
+        (
+            ADIRONDACK.replace("0 4161.221 984.686; 0 0 1]\ncam1", "0 4161.221; 0 0 1]\ncam1"),
+            "line 1: expected a 3x3 matrix",
+        ),
         (ADIRONDACK.replace("cam1=[4161.221", "cam1=[4000"), "share f"),
         (ADIRONDACK + "garbage\n", "line 13: expected 'key=value'"),
         ("", "empty"),
@@ -242,7 +259,10 @@ def test_kitti_odometry_format(tmp_path):
 
 
 def test_kitti_object_format_with_R0_rect(tmp_path):
-    text = ODOMETRY.replace("Tr:", "Tr_velo_to_cam:") + "R0_rect: 1 0 0 0 1 0 0 0 1\nTr_imu_to_velo: 1 0 0 0 0 1 0 0 0 0 1 0\n"
+    text = (
+        ODOMETRY.replace("Tr:", "Tr_velo_to_cam:")
+        + "R0_rect: 1 0 0 0 1 0 0 0 1\nTr_imu_to_velo: 1 0 0 0 0 1 0 0 0 0 1 0\n"
+    )
     (tmp_path / "000046.txt").write_text(text)
     c = read_kitti_calib(tmp_path / "000046.txt", 1242, 375)
     assert c.cam0_from_velo is not None and c.entries["R0_rect"].size == 9
@@ -264,7 +284,9 @@ def test_from_projections_keeps_the_tiny_offsets_rectified_rig_drops_them(tmp_pa
 
 @pytest.mark.parametrize("doffs", [0.0, 12.5])
 def test_write_kitti_calib_round_trip(tmp_path, doffs):
-    rig = StereoRig.rectified(Intrinsics(700.123456789, 700.123456789, 600.5, 180.25, 1240, 370), 0.54321, doffs)
+    rig = StereoRig.rectified(
+        Intrinsics(700.123456789, 700.123456789, 600.5, 180.25, 1240, 370), 0.54321, doffs
+    )
     write_kitti_calib(tmp_path / "calib.txt", rig)
     lines = (tmp_path / "calib.txt").read_text().splitlines()
     assert [line.split(":")[0] for line in lines] == ["P0", "P1", "P2", "P3"]
@@ -279,7 +301,9 @@ def test_write_kitti_calib_round_trip(tmp_path, doffs):
 
 
 @settings(max_examples=30, deadline=None)
-@given(st.floats(10, 5000), st.floats(-100, 2000), st.floats(-100, 2000), st.floats(1e-3, 10), st.floats(-50, 50))
+@given(
+    st.floats(10, 5000), st.floats(-100, 2000), st.floats(-100, 2000), st.floats(1e-3, 10), st.floats(-50, 50)
+)
 def test_property_kitti_rig_round_trip(tmp_path_factory, f, cx, cy, baseline, doffs):
     rig = StereoRig.rectified(Intrinsics(f, f, cx, cy, 640, 480), baseline, doffs)
     path = tmp_path_factory.mktemp("kitti") / "calib.txt"
@@ -305,7 +329,10 @@ P2_LINE = ODOMETRY.splitlines()[2]
 @pytest.mark.parametrize(
     "text, words",
     [
-        ("".join(line + "\n" for line in ODOMETRY.splitlines() if not line.startswith("P3")), "no 'P2:'/'P3:'"),
+        (
+            "".join(line + "\n" for line in ODOMETRY.splitlines() if not line.startswith("P3")),
+            "no 'P2:'/'P3:'",
+        ),
         (ODOMETRY.replace(P2_LINE, P2_LINE.rsplit(" ", 1)[0]), "line 3: 'P2' needs 12 numbers"),
         (ODOMETRY.replace("4.538225000000e+01", "nan"), "line 3: NaN"),
         (ODOMETRY.replace("4.538225000000e+01", "abc"), "line 3: expected numbers"),
@@ -326,7 +353,9 @@ def test_kitti_malformed(tmp_path, text, words):
 
 def test_kitti_bad_S_rect(tmp_path):
     path = tmp_path / "c.txt"
-    path.write_text(CAM_TO_CAM.replace("S_rect_02: 1.242000e+03 3.750000e+02", "S_rect_02: 1.2425e+03 3.75e+02"))
+    path.write_text(
+        CAM_TO_CAM.replace("S_rect_02: 1.242000e+03 3.750000e+02", "S_rect_02: 1.2425e+03 3.75e+02")
+    )
     with pytest.raises(InputError, match="S_rect_02"):
         read_kitti_calib(path)
 

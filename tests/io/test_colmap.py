@@ -116,7 +116,9 @@ def test_written_format_is_colmap(tmp_path: Path) -> None:
     tok = imgs[4].split()
     assert len(tok) == 10 and tok[0] == "10" and tok[9] == "frame_000.jpg"
     im = rec.images[10]
-    np.testing.assert_allclose(quaternion_to_matrix(np.array(tok[1:5], float)), im.cam_from_world.R, atol=1e-12)
+    np.testing.assert_allclose(
+        quaternion_to_matrix(np.array(tok[1:5], float)), im.cam_from_world.R, atol=1e-12
+    )
     np.testing.assert_allclose(np.array(tok[5:8], float), im.cam_from_world.t, atol=0)
     pts = np.array(imgs[5].split(), float).reshape(-1, 3)
     np.testing.assert_allclose(pts[:, :2], im.keypoints + 0.5, atol=1e-12)
@@ -142,10 +144,14 @@ def test_empty_reconstruction_round_trip(tmp_path: Path) -> None:
         ("1 PINHOLE 100 80 90 91 50.5 40.5", (90, 91, 50, 40, [0, 0, 0, 0, 0])),
         ("1 SIMPLE_RADIAL 100 80 90 50.5 40.5 0.1", (90, 90, 50, 40, [0.1, 0, 0, 0, 0])),
         ("1 RADIAL 100 80 90 50.5 40.5 0.1 -0.02", (90, 90, 50, 40, [0.1, -0.02, 0, 0, 0])),
-        ("1 OPENCV 100 80 90 91 50.5 40.5 0.1 -0.02 0.001 0.002",
-         (90, 91, 50, 40, [0.1, -0.02, 0.001, 0.002, 0])),
-        ("1 FULL_OPENCV 100 80 90 91 50.5 40.5 0.1 -0.02 0.001 0.002 0.003 0 0 0",
-         (90, 91, 50, 40, [0.1, -0.02, 0.001, 0.002, 0.003])),
+        (
+            "1 OPENCV 100 80 90 91 50.5 40.5 0.1 -0.02 0.001 0.002",
+            (90, 91, 50, 40, [0.1, -0.02, 0.001, 0.002, 0]),
+        ),
+        (
+            "1 FULL_OPENCV 100 80 90 91 50.5 40.5 0.1 -0.02 0.001 0.002 0.003 0 0 0",
+            (90, 91, 50, 40, [0.1, -0.02, 0.001, 0.002, 0.003]),
+        ),
     ],
 )
 def test_camera_models(tmp_path: Path, line: str, expect) -> None:
@@ -168,7 +174,10 @@ def test_writer_model_choice() -> None:
 @pytest.mark.parametrize(
     ("line", "match"),
     [
-        ("1 FULL_OPENCV 100 80 90 91 50 40 0.1 0 0 0 0 0.2 0 0", "line 1: FULL_OPENCV .* k4..k6 .* undistort"),
+        (
+            "1 FULL_OPENCV 100 80 90 91 50 40 0.1 0 0 0 0 0.2 0 0",
+            "line 1: FULL_OPENCV .* k4..k6 .* undistort",
+        ),
         ("1 OPENCV_FISHEYE 100 80 90 91 50 40 0.1 0 0 0", "OPENCV_FISHEYE cannot be represented"),
         ("1 SIMPLE_RADIAL_FISHEYE 100 80 90 50 40 0.1", "cannot be represented"),
         ("1 WEIRD 100 80 90 50 40", "unknown COLMAP camera model 'WEIRD'"),
@@ -226,19 +235,35 @@ def test_points3d_optional(tmp_path: Path) -> None:
     ("images", "points", "match"),
     [
         ("1 1 0 0 0 0 0 0 1\n\n", "", "images.txt: line 1: expected 'IMAGE_ID QW"),
-        ("1 1 0 0 0 0 0 0 1 a.png\n1 2 -1 3\n", "", "images.txt: line 2: POINTS2D of image a.png must be triples"),
+        (
+            "1 1 0 0 0 0 0 0 1 a.png\n1 2 -1 3\n",
+            "",
+            "images.txt: line 2: POINTS2D of image a.png must be triples",
+        ),
         ("1 1 0 0 0 0 0 0 1 a.png\n1 2 x\n", "", "images.txt: line 2: POINT3D_IDs of a.png: 'x'"),
         ("1 1 0 0 0 0 0 0 1 a.png\n1 nan -1\n", "", "images.txt: line 2: keypoints of a.png contains NaN"),
         ("1 0 0 0 0 0 0 0 1 a.png\n\n", "", "images.txt: line 1: the quaternion of image a.png is zero"),
         ("1 1 0 0 0 0 inf 0 1 a.png\n\n", "", "images.txt: line 1: translation contains NaN"),
         ("1 1 0 0 0 0 0 0 1 a.png\n\n1 1 0 0 0 0 0 0 1 b.png\n\n", "", "line 3: image id 1 appears twice"),
         ("1 1 0 0 0 0 0 0 2 a.png\n\n", "", "inconsistent model: image a.png refers to missing camera 2"),
-        ("1 1 0 0 0 0 0 0 1 a.png\n\n", "5 0 0 1 1 2 3 0.5 9 0\n", "inconsistent model: point 5 .* missing image 9"),
+        (
+            "1 1 0 0 0 0 0 0 1 a.png\n\n",
+            "5 0 0 1 1 2 3 0.5 9 0\n",
+            "inconsistent model: point 5 .* missing image 9",
+        ),
         ("1 1 0 0 0 0 0 0 1 a.png\n\n", "5 0 0 1 1 2 3 0.5 1 0\n", "point 5 refers to keypoint 0 of a.png"),
-        ("1 1 0 0 0 0 0 0 1 a.png\n\n", "5 0 0 1 1 2 3 0.5 1\n", "points3D.txt: line 1: expected 'POINT3D_ID"),
+        (
+            "1 1 0 0 0 0 0 0 1 a.png\n\n",
+            "5 0 0 1 1 2 3 0.5 1\n",
+            "points3D.txt: line 1: expected 'POINT3D_ID",
+        ),
         ("1 1 0 0 0 0 0 0 1 a.png\n\n", "5 0 0 1 1 2 300 0.5\n", "points3D.txt: line 1: colour"),
         ("1 1 0 0 0 0 0 0 1 a.png\n\n", "5 0 nan 1 1 2 3 0.5\n", "points3D.txt: line 1: X Y Z contains NaN"),
-        ("1 1 0 0 0 0 0 0 1 a.png\n\n", "5 0 0 1 1 2 3 0.5\n5 0 0 1 1 2 3 0.5\n", "line 2: point id 5 appears twice"),
+        (
+            "1 1 0 0 0 0 0 0 1 a.png\n\n",
+            "5 0 0 1 1 2 3 0.5\n5 0 0 1 1 2 3 0.5\n",
+            "line 2: point id 5 appears twice",
+        ),
     ],
 )
 def test_malformed_models(tmp_path: Path, images: str, points: str, match: str) -> None:

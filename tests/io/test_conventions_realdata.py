@@ -148,8 +148,10 @@ def test_temple_bounding_box_seen_by_every_camera(real_data: Path) -> None:
     depths = np.array([v.project(pts[-1:])[1][0] for v in views])
     assert np.all((depths > 0.45) & (depths < 0.7))
     wrong = visible(other_reading(views), pts)
-    print(f"temple: box corners + centre inside {right.mean():.0%} of (point, camera) pairs; "
-          f"inverted {wrong.mean():.0%}")
+    print(
+        f"temple: box corners + centre inside {right.mean():.0%} of (point, camera) pairs; "
+        f"inverted {wrong.mean():.0%}"
+    )
     assert wrong.mean() < 0.2, f"the inverted reading also sees the temple ({wrong.mean():.0%})"
 
 
@@ -165,7 +167,9 @@ def test_fountain_axes_point_seen_by_every_camera(real_data: Path) -> None:
     right = check(views)
     assert right.all(), f"cameras {[v.name for v, ok in zip(views, right) if not ok]} do not see the point"
     wrong = check(other_reading(views))
-    print(f"fountain: axes point inside {right.sum()}/{len(views)} images; inverted {wrong.sum()}/{len(views)}")
+    print(
+        f"fountain: axes point inside {right.sum()}/{len(views)} images; inverted {wrong.sum()}/{len(views)}"
+    )
     assert wrong.mean() < 0.2, f"the inverted reading also sees it in {wrong.sum()} cameras"
 
 
@@ -187,8 +191,10 @@ def test_rock_reference_cloud_seen_by_every_camera(real_data: Path) -> None:
     wrong_views = other_reading(views)
     assert not visible(wrong_views, cloud.mean(axis=0)[None]).all()
     wrong = visible(wrong_views, cloud).all(axis=0).mean()
-    print(f"rock: {right:.1%} of reference points inside all 12 images (median depth {depth:.3f} m); "
-          f"inverted {wrong:.1%}")
+    print(
+        f"rock: {right:.1%} of reference points inside all 12 images (median depth {depth:.3f} m); "
+        f"inverted {wrong:.1%}"
+    )
     assert wrong < 0.5, f"the inverted reading also sees {wrong:.1%} of the points"
 
 
@@ -200,8 +206,13 @@ CASES = {
     "fountain-0004-0005": (FOUNTAIN, ("0004.jpg", "0005.jpg"), dict(longer_side=1000), 2.0, 0.6),
     "temple-0001-0002": (TEMPLE, ("templeSR0001.png", "templeSR0002.png"), dict(), 1.5, 0.6),
     "temple-0008-0009": (TEMPLE, ("templeSR0008.png", "templeSR0009.png"), dict(), 1.5, 0.6),
-    "rock-01-02": (ROCK, ("image_camera01.png", "image_camera02.png"),
-                   dict(longer_side=640, clahe=True, use_alpha=True), 1.5, 0.6),
+    "rock-01-02": (
+        ROCK,
+        ("image_camera01.png", "image_camera02.png"),
+        dict(longer_side=640, clahe=True, use_alpha=True),
+        1.5,
+        0.6,
+    ),
 }
 
 

@@ -115,7 +115,9 @@ def test_kitti_write_rejects_3d(tmp_path):
 def test_middlebury_scale_and_png(tmp_path):
     values = np.array([[0, 8, 255]], dtype=np.uint8)
     write_image(tmp_path / "d.png", values)
-    np.testing.assert_array_equal(read_middlebury_disparity_pgm(tmp_path / "d.png", scale=8), [[np.nan, 1.0, 31.875]])
+    np.testing.assert_array_equal(
+        read_middlebury_disparity_pgm(tmp_path / "d.png", scale=8), [[np.nan, 1.0, 31.875]]
+    )
     np.testing.assert_array_equal(read_disparity(tmp_path / "d.png"), [[np.nan, 2.0, 63.75]])
     with pytest.raises(InputError, match="scale"):
         read_middlebury_disparity_pgm(tmp_path / "d.png", scale=0)
@@ -201,7 +203,9 @@ def test_colorize_depth_inverse_depth():
 
 
 @settings(max_examples=25, deadline=None)
-@given(hnp.arrays(np.float32, hnp.array_shapes(min_dims=2, max_dims=2, max_side=6), elements=st.floats(width=32)))
+@given(
+    hnp.arrays(np.float32, hnp.array_shapes(min_dims=2, max_dims=2, max_side=6), elements=st.floats(width=32))
+)
 def test_property_colorize_any_values(disp):
     rgb = colorize_disparity(disp)
     assert rgb.shape == disp.shape + (3,) and rgb.dtype == np.uint8

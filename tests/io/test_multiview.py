@@ -64,8 +64,17 @@ def write_strecha(directory: Path, views: list[PosedView]) -> None:
         world_from_cam = v.cam_from_world.inverse()
         K = v.intrinsics.K
         text = "\n".join(
-            [_row(K[0]), _row(K[1]), _row(K[2]), "0 0 0", _row(world_from_cam.R[0]), _row(world_from_cam.R[1]),
-             _row(world_from_cam.R[2]), _row(world_from_cam.t), f"{v.intrinsics.width} {v.intrinsics.height}"]
+            [
+                _row(K[0]),
+                _row(K[1]),
+                _row(K[2]),
+                "0 0 0",
+                _row(world_from_cam.R[0]),
+                _row(world_from_cam.R[1]),
+                _row(world_from_cam.R[2]),
+                _row(world_from_cam.t),
+                f"{v.intrinsics.width} {v.intrinsics.height}",
+            ]
         )
         (directory / f"{v.name}.camera").write_text(text + "\n")
 
@@ -134,8 +143,16 @@ def write_halcon(directory: Path, views: list[PosedView], poly1: float = 0.0) ->
     for i, v in enumerate(views, start=1):
         k = v.intrinsics
         (directory / f"intrinsics_camera{i:02d}.txt").write_text(
-            HALCON_TEMPLATE.format(focus=focus, poly1=poly1, sx=focus / k.fx, sy=focus / k.fy, cx=k.cx, cy=k.cy,
-                                   w=k.width, h=k.height)
+            HALCON_TEMPLATE.format(
+                focus=focus,
+                poly1=poly1,
+                sx=focus / k.fx,
+                sy=focus / k.fy,
+                cx=k.cx,
+                cy=k.cy,
+                w=k.width,
+                h=k.height,
+            )
         )
         world_from_cam = v.cam_from_world.inverse()
         (directory / f"extrinsics_camera{i:02d}.txt").write_text(_row(world_from_cam.matrix3x4) + " \n")
@@ -208,7 +225,10 @@ def test_middlebury_image_dir(tmp_path: Path) -> None:
         (lambda ls: ["two"] + ls[1:], "line 1: expected the number of images"),
         (lambda ls: [ls[0], ls[1], ls[2].rsplit(" ", 1)[0]], "line 3: expected an image name and 21 numbers"),
         (lambda ls: [ls[0], ls[1].replace(ls[1].split()[5], "nan", 1), ls[2]], "line 2: .*NaN"),
-        (lambda ls: [ls[0], ls[1], ls[2].replace(ls[2].split()[12], "abc", 1)], "line 3: .*'abc' is not a number"),
+        (
+            lambda ls: [ls[0], ls[1], ls[2].replace(ls[2].split()[12], "abc", 1)],
+            "line 3: .*'abc' is not a number",
+        ),
         (lambda ls: [ls[0], _scale_R(ls[1], 2.0), ls[2]], "line 2: R of .* is not a rotation"),
         (lambda ls: [ls[0], _scale_R(ls[1], -1.0), ls[2]], "line 2: R of .* is not a rotation"),
         (lambda ls: [ls[0], ls[1], ls[1]], "listed twice"),
@@ -365,11 +385,22 @@ def test_halcon_rejects_distortion(tmp_path: Path) -> None:
         ("extrinsics_camera02.txt", lambda s: " ".join(s.split()[:11]), "expected 12 numbers .* got 11"),
         ("extrinsics_camera02.txt", lambda s: s.replace(s.split()[0], "nan", 1), "NaN"),
         ("extrinsics_camera02.txt", lambda s: "1 0 0 0 0 1 0 0 0 1 0 0", "R .* is not a rotation"),
-        ("intrinsics_camera02.txt", lambda s: s.replace("Cy:cy:", "Cyy:cyy:"), "missing HALCON camera parameters Cy"),
+        (
+            "intrinsics_camera02.txt",
+            lambda s: s.replace("Cy:cy:", "Cyy:cyy:"),
+            "missing HALCON camera parameters Cy",
+        ),
         ("intrinsics_camera02.txt", lambda s: s[: s.index("Sx:sx:")], "missing .*Sx, Sy, Cx, Cy"),
-        ("intrinsics_camera02.txt", lambda s: s.replace("Focus:foc:\t0.016", "Focus:foc:\tabc"),
-         "'abc' is not a number"),
-        ("intrinsics_camera02.txt", lambda s: s.replace("Focus:foc:\t0.016", "Focus:foc:\t0.0"), "telecentric"),
+        (
+            "intrinsics_camera02.txt",
+            lambda s: s.replace("Focus:foc:\t0.016", "Focus:foc:\tabc"),
+            "'abc' is not a number",
+        ),
+        (
+            "intrinsics_camera02.txt",
+            lambda s: s.replace("Focus:foc:\t0.016", "Focus:foc:\t0.0"),
+            "telecentric",
+        ),
     ],
 )
 def test_halcon_malformed(tmp_path: Path, which: str, mutate, match: str) -> None:
@@ -384,7 +415,9 @@ def test_halcon_malformed(tmp_path: Path, which: str, mutate, match: str) -> Non
 def test_halcon_missing_pair(tmp_path: Path) -> None:
     write_halcon(tmp_path, ring_views(2))
     (tmp_path / "extrinsics_camera02.txt").unlink()
-    with pytest.raises(InputError, match="camera 02 has intrinsics_camera02.txt but no extrinsics_camera02.txt"):
+    with pytest.raises(
+        InputError, match="camera 02 has intrinsics_camera02.txt but no extrinsics_camera02.txt"
+    ):
         read_halcon_cameras(tmp_path)
     with pytest.raises(InputError, match="no HALCON"):
         read_halcon_cameras(tmp_path / "..")
@@ -408,10 +441,14 @@ def test_read_cameras_detects_every_layout(tmp_path: Path) -> None:
     assert_same_views(read_cameras(tmp_path / "st"), views)
     assert_same_views(read_cameras(tmp_path / "st" / "gt_dense_cameras"), views)
     assert read_cameras(tmp_path / "st")[0].image_path == tmp_path / "st" / "images" / views[0].name
-    assert_same_views(read_cameras(tmp_path / "st" / "gt_dense_cameras" / f"{views[1].name}.camera"), views[1:2])
+    assert_same_views(
+        read_cameras(tmp_path / "st" / "gt_dense_cameras" / f"{views[1].name}.camera"), views[1:2]
+    )
 
     write_halcon(tmp_path / "ha", views)
-    assert_same_views(read_cameras(tmp_path / "ha"), views, names=[f"image_camera{i:02d}.png" for i in (1, 2, 3)])
+    assert_same_views(
+        read_cameras(tmp_path / "ha"), views, names=[f"image_camera{i:02d}.png" for i in (1, 2, 3)]
+    )
     assert len(read_cameras(tmp_path / "ha" / "intrinsics_camera01.txt")) == 3
 
     rec = Reconstruction(

@@ -41,7 +41,7 @@ def test_file_layout_little_endian_bottom_up_inf(tmp_path):
     data = (tmp_path / "a.pfm").read_bytes()
     header = b"Pf\n3 2\n-1\n"
     assert data.startswith(header)
-    stored = np.frombuffer(data[len(header):], "<f4").reshape(2, 3)
+    stored = np.frombuffer(data[len(header) :], "<f4").reshape(2, 3)
     np.testing.assert_array_equal(stored[0], [4, 5, np.inf])  # last image row first
     np.testing.assert_array_equal(stored[1], [1, 2, 3])
 

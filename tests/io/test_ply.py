@@ -75,9 +75,15 @@ def test_binary_header_layout(tmp_path):
     assert "format binary_little_endian 1.0" in header
     props = [line.split()[1:] for line in header.splitlines() if line.startswith("property")]
     assert props == [
-        ["float", "x"], ["float", "y"], ["float", "z"],
-        ["uchar", "red"], ["uchar", "green"], ["uchar", "blue"],
-        ["float", "nx"], ["float", "ny"], ["float", "nz"],
+        ["float", "x"],
+        ["float", "y"],
+        ["float", "z"],
+        ["uchar", "red"],
+        ["uchar", "green"],
+        ["uchar", "blue"],
+        ["float", "nx"],
+        ["float", "ny"],
+        ["float", "nz"],
     ]
     assert len(data) - len(header) == 3 * (12 + 3 + 12)
 
@@ -119,7 +125,11 @@ def test_one_million_points_binary_is_fast(tmp_path):
 
 @settings(max_examples=30, deadline=None)
 @given(
-    hnp.arrays(np.float32, st.tuples(st.integers(0, 20), st.just(3)), elements=st.floats(width=32, allow_nan=False, allow_infinity=False)),
+    hnp.arrays(
+        np.float32,
+        st.tuples(st.integers(0, 20), st.just(3)),
+        elements=st.floats(width=32, allow_nan=False, allow_infinity=False),
+    ),
     st.booleans(),
 )
 def test_property_round_trip(tmp_path_factory, points, binary):
@@ -134,13 +144,33 @@ def test_property_round_trip(tmp_path_factory, points, binary):
 def test_big_endian_doubles_any_order_extra_props_float_colours(tmp_path):
     header = _header(
         "binary_big_endian",
-        ("vertex", 2, ["float confidence", "double z", "float red", "float green", "float blue",
-                       "double x", "uchar alpha", "double y"]),
+        (
+            "vertex",
+            2,
+            [
+                "float confidence",
+                "double z",
+                "float red",
+                "float green",
+                "float blue",
+                "double x",
+                "uchar alpha",
+                "double y",
+            ],
+        ),
     )
     rows = np.array(
         [(0.9, 3.0, 1.0, 0.5, 0.0, 1.0, 255, 2.0), (0.1, -3.0, 0.0, 0.2, 1.0, -1.0, 7, -2.0)],
-        dtype=[("c", ">f4"), ("z", ">f8"), ("r", ">f4"), ("g", ">f4"), ("b", ">f4"), ("x", ">f8"),
-               ("a", "u1"), ("y", ">f8")],
+        dtype=[
+            ("c", ">f4"),
+            ("z", ">f8"),
+            ("r", ">f4"),
+            ("g", ">f4"),
+            ("b", ">f4"),
+            ("x", ">f8"),
+            ("a", "u1"),
+            ("y", ">f8"),
+        ],
     )
     (tmp_path / "be.ply").write_bytes(header + rows.tobytes())
     cloud = read_ply(tmp_path / "be.ply")
@@ -150,8 +180,14 @@ def test_big_endian_doubles_any_order_extra_props_float_colours(tmp_path):
 
 
 def test_integer_coordinates_and_ushort_colours(tmp_path):
-    header = _header("binary_little_endian", ("vertex", 1, ["int x", "short y", "char z", "ushort red", "ushort green", "ushort blue"]))
-    rows = np.array([(5, -6, -7, 65535, 0, 257 * 10)], dtype=[("x", "<i4"), ("y", "<i2"), ("z", "i1"), ("r", "<u2"), ("g", "<u2"), ("b", "<u2")])
+    header = _header(
+        "binary_little_endian",
+        ("vertex", 1, ["int x", "short y", "char z", "ushort red", "ushort green", "ushort blue"]),
+    )
+    rows = np.array(
+        [(5, -6, -7, 65535, 0, 257 * 10)],
+        dtype=[("x", "<i4"), ("y", "<i2"), ("z", "i1"), ("r", "<u2"), ("g", "<u2"), ("b", "<u2")],
+    )
     (tmp_path / "i.ply").write_bytes(header + rows.tobytes())
     cloud = read_ply(tmp_path / "i.ply")
     np.testing.assert_array_equal(cloud.points, [[5, -6, -7]])
@@ -160,26 +196,47 @@ def test_integer_coordinates_and_ushort_colours(tmp_path):
 
 def test_binary_faces_before_and_after_vertices(tmp_path):
     verts = np.array([(0, 0, 0), (1, 0, 0), (0, 1, 0), (0, 0, 1)], dtype="<f4")
-    tri = np.array([(3, (0, 1, 2), 9), (3, (0, 2, 3), 8)], dtype=[("n", "u1"), ("i", "<i4", (3,)), ("flag", "u1")])
+    tri = np.array(
+        [(3, (0, 1, 2), 9), (3, (0, 2, 3), 8)], dtype=[("n", "u1"), ("i", "<i4", (3,)), ("flag", "u1")]
+    )
     face_props = ["list uchar int vertex_indices", "uchar flag"]
     # Uniform triangles before the vertices (vectorised skip).
-    data = _header("binary_little_endian", ("face", 2, face_props), ("vertex", 4, ["float x", "float y", "float z"]))
+    data = _header(
+        "binary_little_endian", ("face", 2, face_props), ("vertex", 4, ["float x", "float y", "float z"])
+    )
     (tmp_path / "a.ply").write_bytes(data + tri.tobytes() + verts.tobytes())
     np.testing.assert_array_equal(read_ply(tmp_path / "a.ply").points, verts)
     # Ragged lists before the vertices (row-by-row skip).
-    ragged = (np.array([3], "u1").tobytes() + np.array([0, 1, 2], "<i4").tobytes() + b"\x01"
-              + np.array([4], "u1").tobytes() + np.array([0, 1, 2, 3], "<i4").tobytes() + b"\x02")
+    ragged = (
+        np.array([3], "u1").tobytes()
+        + np.array([0, 1, 2], "<i4").tobytes()
+        + b"\x01"
+        + np.array([4], "u1").tobytes()
+        + np.array([0, 1, 2, 3], "<i4").tobytes()
+        + b"\x02"
+    )
     (tmp_path / "b.ply").write_bytes(data + ragged + verts.tobytes())
     np.testing.assert_array_equal(read_ply(tmp_path / "b.ply").points, verts)
     # Faces after the vertices, including a zero-count face element.
-    data = _header("binary_little_endian", ("vertex", 4, ["float x", "float y", "float z"]), ("face", 2, face_props), ("edge", 0, ["int vertex1"]))
+    data = _header(
+        "binary_little_endian",
+        ("vertex", 4, ["float x", "float y", "float z"]),
+        ("face", 2, face_props),
+        ("edge", 0, ["int vertex1"]),
+    )
     (tmp_path / "c.ply").write_bytes(data + verts.tobytes() + tri.tobytes())
     np.testing.assert_array_equal(read_ply(tmp_path / "c.ply").points, verts)
 
 
 def test_truncated_ragged_list_before_vertices(tmp_path):
-    data = _header("binary_little_endian", ("face", 2, ["list uchar int vertex_indices"]), ("vertex", 1, ["float x", "float y", "float z"]))
-    body = np.array([3], "u1").tobytes() + np.array([0, 1, 2], "<i4").tobytes() + np.array([200], "u1").tobytes()
+    data = _header(
+        "binary_little_endian",
+        ("face", 2, ["list uchar int vertex_indices"]),
+        ("vertex", 1, ["float x", "float y", "float z"]),
+    )
+    body = (
+        np.array([3], "u1").tobytes() + np.array([0, 1, 2], "<i4").tobytes() + np.array([200], "u1").tobytes()
+    )
     (tmp_path / "t.ply").write_bytes(data + body)
     with pytest.raises(InputError, match="truncated"):
         read_ply(tmp_path / "t.ply")
@@ -202,7 +259,21 @@ def test_ascii_faces_around_vertices_crlf_and_blank_lines(tmp_path):
 
 
 def test_diffuse_colour_names(tmp_path):
-    text = _header("ascii", ("vertex", 1, ["float x", "float y", "float z", "uchar diffuse_red", "uchar diffuse_green", "uchar diffuse_blue"]))
+    text = _header(
+        "ascii",
+        (
+            "vertex",
+            1,
+            [
+                "float x",
+                "float y",
+                "float z",
+                "uchar diffuse_red",
+                "uchar diffuse_green",
+                "uchar diffuse_blue",
+            ],
+        ),
+    )
     (tmp_path / "d.ply").write_bytes(text + b"0 0 0 1 2 3\n")
     np.testing.assert_array_equal(read_ply(tmp_path / "d.ply").colors, [[1, 2, 3]])
 
@@ -218,11 +289,17 @@ XYZ = ["float x", "float y", "float z"]
         (b"PLY?\n", "not a PLY"),
         (b"solid cube\nfacet\n", "not a PLY"),
         (b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\n", "end_header"),
-        (b"ply\nelement vertex 0\nproperty float x\nproperty float y\nproperty float z\nend_header\n", "format"),
+        (
+            b"ply\nelement vertex 0\nproperty float x\nproperty float y\nproperty float z\nend_header\n",
+            "format",
+        ),
         (b"ply\nformat binary_middle_endian 1.0\nend_header\n", "unknown PLY format"),
         (_header("ascii", ("face", 0, ["list uchar int vertex_indices"])), "no 'vertex'"),
         (_header("ascii", ("vertex", 1, ["float x", "float y"])) + b"1 2\n", "z"),
-        (_header("ascii", ("vertex", 1, ["float x", "float y", "float z", "quad w"])), "unknown PLY property type"),
+        (
+            _header("ascii", ("vertex", 1, ["float x", "float y", "float z", "quad w"])),
+            "unknown PLY property type",
+        ),
         (b"ply\nformat ascii 1.0\nproperty float x\nend_header\n", "property before any element"),
         (b"ply\nformat ascii 1.0\nelement vertex many\nend_header\n", "non-negative integer"),
         (b"ply\nformat ascii 1.0\nelement vertex -1\nend_header\n", "non-negative integer"),
@@ -231,11 +308,20 @@ XYZ = ["float x", "float y", "float z"]
         (_header("ascii", ("vertex", 1, XYZ + ["list uchar int idx"])) + b"1 2 3 0\n", "list properties"),
         (_header("binary_little_endian", ("vertex", 3, XYZ)) + bytes(30), "truncated"),
         (_header("ascii", ("vertex", 3, XYZ)) + b"1 2 3\n4 5 6\n", "truncated"),
-        (_header("ascii", ("vertex", 2, XYZ)) + b"1 2 3\n4 5\n", "line 10: expected 3 vertex values, found 2"),
+        (
+            _header("ascii", ("vertex", 2, XYZ)) + b"1 2 3\n4 5\n",
+            "line 10: expected 3 vertex values, found 2",
+        ),
         (_header("ascii", ("vertex", 2, XYZ)) + b"1 2 3\n4 5 6 7\n", "line 10"),
-        (_header("ascii", ("vertex", 2, XYZ)) + b"1 2 3\n4 five 6\n", "line 10: vertex values must be numbers"),
+        (
+            _header("ascii", ("vertex", 2, XYZ)) + b"1 2 3\n4 five 6\n",
+            "line 10: vertex values must be numbers",
+        ),
         (_header("ascii", ("vertex", 2, XYZ)) + b"1 2 3\n4 nan 6\n", "NaN"),
-        (_header("binary_little_endian", ("vertex", 1, XYZ)) + np.array([1, np.inf, 2], "<f4").tobytes(), "NaN or infinite"),
+        (
+            _header("binary_little_endian", ("vertex", 1, XYZ)) + np.array([1, np.inf, 2], "<f4").tobytes(),
+            "NaN or infinite",
+        ),
     ],
 )
 def test_malformed_files_raise_input_error_naming_the_file(tmp_path, content, words):
@@ -256,7 +342,10 @@ def test_missing_file(tmp_path):
 @given(st.binary(max_size=80))
 def test_property_garbage_after_header_never_crashes(tmp_path_factory, junk):
     path = tmp_path_factory.mktemp("ply") / "g.ply"
-    path.write_bytes(_header("binary_little_endian", ("face", 1, ["list uchar int vertex_indices"]), ("vertex", 2, XYZ)) + junk)
+    path.write_bytes(
+        _header("binary_little_endian", ("face", 1, ["list uchar int vertex_indices"]), ("vertex", 2, XYZ))
+        + junk
+    )
     try:
         cloud = read_ply(path)
     except InputError as exc:

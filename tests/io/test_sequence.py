@@ -26,7 +26,9 @@ def _frames(n: int, seed: int = 0) -> list[tuple[np.ndarray, np.ndarray]]:
 
 def _poses(n: int, seed: int = 0) -> list[Rigid3]:
     rng = np.random.default_rng(seed)
-    return [Rigid3.from_rotvec(rng.normal(size=3), rng.normal(size=3) * 10, "world", "left") for _ in range(n)]
+    return [
+        Rigid3.from_rotvec(rng.normal(size=3), rng.normal(size=3) * 10, "world", "left") for _ in range(n)
+    ]
 
 
 def test_round_trip_with_poses(tmp_path):
@@ -199,8 +201,10 @@ def test_read_bad_pose_lines(seq_dir, bad_row, words):
 
 def test_read_kitti_style_poses_with_seven_digits(seq_dir):
     # KITTI's own poses.txt prints 7 significant digits: rotations are orthonormal to ~1e-7.
-    rows = ["1.000000e+00 9.043680e-12 2.326809e-11 5.551115e-17 9.043683e-12 1.000000e+00 "
-            "2.392370e-10 3.330669e-16 2.326810e-11 2.392370e-10 9.999999e-01 -4.440892e-16"] * 3
+    rows = [
+        "1.000000e+00 9.043680e-12 2.326809e-11 5.551115e-17 9.043683e-12 1.000000e+00 "
+        "2.392370e-10 3.330669e-16 2.326810e-11 2.392370e-10 9.999999e-01 -4.440892e-16"
+    ] * 3
     (seq_dir / "poses.txt").write_text("\n".join(rows) + "\n")
     assert len(read_sequence(seq_dir).world_from_left) == 3
 

@@ -9,7 +9,11 @@ from skyrecon.core import Intrinsics, Rigid3
 from skyrecon.mapping import OccupancyMap, load_map, save_map
 
 CAM = Intrinsics.from_fov(64, 48, 60.0)
-POSE = Rigid3.look_at(np.array([0.05, 0.05, 0.05]), np.array([10.05, 0.05, 0.05])).inverse().with_frames("world", "cam")
+POSE = (
+    Rigid3.look_at(np.array([0.05, 0.05, 0.05]), np.array([10.05, 0.05, 0.05]))
+    .inverse()
+    .with_frames("world", "cam")
+)
 
 
 def wall(d: float) -> np.ndarray:

@@ -36,7 +36,9 @@ def test_distance_field_matches_brute_force(unknown_is_occupied):
     q = (q_vox + 0.5) * v
     obst = m.occupied_centers()
     if unknown_is_occupied:
-        ring = np.stack(np.meshgrid(*[np.arange(a - 8, a + s + 8) for a, s in zip(lo_v, occ.shape)], indexing="ij"), -1)
+        ring = np.stack(
+            np.meshgrid(*[np.arange(a - 8, a + s + 8) for a, s in zip(lo_v, occ.shape)], indexing="ij"), -1
+        )
         ring = ring.reshape(-1, 3)
         inside = np.all((ring >= lo_v) & (ring < lo_v + np.array(occ.shape)), axis=1)
         # unknown voxels within reach of the queries (the clipping radius is 4 voxels)

@@ -13,7 +13,11 @@ from skyrecon.mapping.config import logit
 
 def look(eye, target) -> Rigid3:
     """``world_from_cam`` of a camera at ``eye`` looking at ``target`` (world metres)."""
-    return Rigid3.look_at(np.asarray(eye, float), np.asarray(target, float)).inverse().with_frames("world", "cam")
+    return (
+        Rigid3.look_at(np.asarray(eye, float), np.asarray(target, float))
+        .inverse()
+        .with_frames("world", "cam")
+    )
 
 
 CAM = Intrinsics.from_fov(64, 48, 60.0)
@@ -35,8 +39,14 @@ def test_log_odds_hits_misses_and_clamping():
     for k in range(1, 9):
         m.integrate_points(end[None], origin)
         assert m.log_odds_at(end[None])[0] == pytest.approx(min(k * l_hit, hi), abs=1e-5)
-        assert m.log_odds_at(np.array([[2.25, 0.25, 0.25]]))[0] == pytest.approx(max(k * l_miss, lo), abs=1e-5)
-    assert m.state_at(np.array([end, [2.25, 0.25, 0.25], [0.25, 3.25, 0.25]])).tolist() == [OCCUPIED, FREE, UNKNOWN]
+        assert m.log_odds_at(np.array([[2.25, 0.25, 0.25]]))[0] == pytest.approx(
+            max(k * l_miss, lo), abs=1e-5
+        )
+    assert m.state_at(np.array([end, [2.25, 0.25, 0.25], [0.25, 3.25, 0.25]])).tolist() == [
+        OCCUPIED,
+        FREE,
+        UNKNOWN,
+    ]
     # clamping keeps the map able to change its mind: a few misses free the voxel again
     for _ in range(10):  # 3.51 / 0.405 > 8 misses from the upper clamp
         m.integrate_points(np.array([[9.25, 0.25, 0.25]]), origin)
@@ -118,7 +128,9 @@ def test_map_from_depth_matches_ground_truth(small_city, city_frames):
 
 def test_depth_map_objects_and_raycast_agree(city_frames):
     cam, depths, poses = city_frames
-    a = build_map_from_depth_frames([DepthMap(depths[0], cam, poses[0].inverse())], None, None, voxel_size_m=0.5)
+    a = build_map_from_depth_frames(
+        [DepthMap(depths[0], cam, poses[0].inverse())], None, None, voxel_size_m=0.5
+    )
     b = OccupancyMap(voxel_size_m=0.5, max_range_m=60.0)
     d = depths[0]
     ok = np.isfinite(d)

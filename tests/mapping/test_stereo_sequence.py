@@ -7,7 +7,13 @@ import numpy as np
 import pytest
 
 from skyrecon.errors import InputError
-from skyrecon.mapping import StereoMapper, StereoMapSettings, load_map, map_stereo_sequence, stereo_hit_range_m
+from skyrecon.mapping import (
+    StereoMapper,
+    StereoMapSettings,
+    load_map,
+    map_stereo_sequence,
+    stereo_hit_range_m,
+)
 from skyrecon.mapping.stereo_sequence import disparity_discontinuities
 
 VOXEL = 0.5
@@ -28,7 +34,9 @@ def flight():
 
 def _map(flight, **overrides) -> StereoMapper:
     _, rig, poses, frames = flight
-    return map_stereo_sequence(((f.left, f.right) for f in frames), rig, poses, voxel_size_m=VOXEL, **overrides)
+    return map_stereo_sequence(
+        ((f.left, f.right) for f in frames), rig, poses, voxel_size_m=VOXEL, **overrides
+    )
 
 
 def _nearest_camera_m(centres: np.ndarray, poses) -> np.ndarray:

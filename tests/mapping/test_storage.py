@@ -11,7 +11,6 @@ import pytest
 from skyrecon.errors import InputError
 from skyrecon.io.ply import read_ply
 from skyrecon.mapping import OccupancyMap, export_occupied_ply, load_map, write_octomap_bt
-from skyrecon.mapping import storage
 
 
 @pytest.fixture()
@@ -113,5 +112,5 @@ def test_octomap_bt_export(tmp_path):
         if known[tuple(i)]:
             assert tree.isNodeOccupied(node) == occ[tuple(i)]
         else:
-            with pytest.raises(Exception):
+            with pytest.raises(Exception):  # noqa: B017  (octomap-python raises its own base class)
                 tree.isNodeOccupied(node)

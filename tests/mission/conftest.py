@@ -46,5 +46,12 @@ def tiny_config():
     """A 60 m city, 160x120 images, 20-35 m deliveries: a mission in a few seconds."""
     from skyrecon.mission import small_test_config
 
-    return small_test_config(width=160, height=120, max_disparity=16, city_size_m=60.0, min_goal_distance_m=20.0,
-                             max_goal_distance_m=35.0, map_padding_m=15.0)
+    return small_test_config(
+        width=160,
+        height=120,
+        max_disparity=16,
+        city_size_m=60.0,
+        min_goal_distance_m=20.0,
+        max_goal_distance_m=35.0,
+        map_padding_m=15.0,
+    )

@@ -14,8 +14,20 @@ from skyrecon.cli.main import main
 from skyrecon.sim import generate_city
 
 METRIC_KEYS = {
-    "success", "collisions", "min_clearance_m", "path_length_m", "straight_line_m", "shortest_feasible_m",
-    "replans", "loop_hz", "stage_ms", "seed", "reason", "length_ratio", "safety_margin_m", "cycles",
+    "success",
+    "collisions",
+    "min_clearance_m",
+    "path_length_m",
+    "straight_line_m",
+    "shortest_feasible_m",
+    "replans",
+    "loop_hz",
+    "stage_ms",
+    "seed",
+    "reason",
+    "length_ratio",
+    "safety_margin_m",
+    "cycles",
 }
 STAGES = {"render", "stereo", "integrate", "distance", "check", "replan", "control", "loop"}
 
@@ -35,7 +47,9 @@ def test_mission_delivers_without_touching_the_true_city(flight):
     path = json.loads((flight.out / "path.json").read_text())
     track = np.array(path["waypoints"])
     city = generate_city(m["seed"], m["config"]["city_size_m"])
-    dense = np.concatenate([a + (b - a) * np.linspace(0, 1, 12)[:, None] for a, b in zip(track[:-1], track[1:])])
+    dense = np.concatenate(
+        [a + (b - a) * np.linspace(0, 1, 12)[:, None] for a, b in zip(track[:-1], track[1:])]
+    )
     clearance = city.distance(dense, include_ground=True)
     assert clearance.min() > m["config"]["drone_radius_m"]
     assert clearance.min() > m["safety_margin_m"]
@@ -83,8 +97,23 @@ def test_goal_inside_a_building_is_refused_with_a_report(flight, tmp_path):
     goal = [(b[0] + b[3]) / 2, (b[1] + b[4]) / 2, 15.0]
     start = m["scenario"]["start"]
     out = tmp_path / "refused"
-    code, stdout, stderr = _run(["demo", "--seed", "0", "--city-size", "80", "--width", "320", "--out", str(out),
-                                 "--start", *map(str, start), "--goal", *map(str, goal)])
+    code, stdout, stderr = _run(
+        [
+            "demo",
+            "--seed",
+            "0",
+            "--city-size",
+            "80",
+            "--width",
+            "320",
+            "--out",
+            str(out),
+            "--start",
+            *map(str, start),
+            "--goal",
+            *map(str, goal),
+        ]
+    )
     assert code == 2
     errors = [line for line in stderr.splitlines() if line.startswith("error:")]
     assert len(errors) == 1 and "inside a building" in errors[0] and "goal" in errors[0]
@@ -95,11 +124,14 @@ def test_goal_inside_a_building_is_refused_with_a_report(flight, tmp_path):
     assert "impossible" in html and "inside a building" in html
 
 
-@pytest.mark.parametrize("argv, text", [
-    (["--start", "0", "0", "15"], "both --start and --goal"),
-    (["--goal", "0", "0", "15", "--start", "0", "0", "abc"], "three numbers"),
-    (["--missions", "2", "--start", "0", "0", "15", "--goal", "5", "5", "15"], "--missions"),
-])
+@pytest.mark.parametrize(
+    "argv, text",
+    [
+        (["--start", "0", "0", "15"], "both --start and --goal"),
+        (["--goal", "0", "0", "15", "--start", "0", "0", "abc"], "three numbers"),
+        (["--missions", "2", "--start", "0", "0", "15", "--goal", "5", "5", "15"], "--missions"),
+    ],
+)
 def test_bad_options_give_one_error_line(tmp_path, argv, text):
     code, _, stderr = _run(["demo", "--out", str(tmp_path / "x"), *argv])
     assert code == 2

@@ -47,12 +47,14 @@ def test_same_seed_flies_the_same_path(batch, tiny_config):
 def _courtyard(goal_xy, half=4.0, height=40.0, wall=2.0):
     """Four walls closing a square courtyard around goal_xy, taller than the flight band."""
     x, y = goal_xy
-    return np.array([
-        [x - half - wall, y - half - wall, 0, x + half + wall, y - half, height],
-        [x - half - wall, y + half, 0, x + half + wall, y + half + wall, height],
-        [x - half - wall, y - half, 0, x - half, y + half, height],
-        [x + half, y - half, 0, x + half + wall, y + half, height],
-    ])
+    return np.array(
+        [
+            [x - half - wall, y - half - wall, 0, x + half + wall, y - half, height],
+            [x - half - wall, y + half, 0, x + half + wall, y + half + wall, height],
+            [x - half - wall, y - half, 0, x - half, y + half, height],
+            [x + half, y - half, 0, x + half + wall, y + half, height],
+        ]
+    )
 
 
 def test_no_way_through_is_impossible(tiny_config):
@@ -62,12 +64,15 @@ def test_no_way_through_is_impossible(tiny_config):
     assert "no way through" in str(err.value) and "enclosed" in str(err.value)
 
 
-@pytest.mark.parametrize("goal, code", [
-    ([10.0, -5.0, 15.0], "goal_in_obstacle"),
-    ([10.0, -2.5, 15.0], "goal_too_close"),
-    ([10.0, 0.0, 50.0], "goal_altitude"),
-    ([500.0, 0.0, 15.0], "goal_outside"),
-])
+@pytest.mark.parametrize(
+    "goal, code",
+    [
+        ([10.0, -5.0, 15.0], "goal_in_obstacle"),
+        ([10.0, -2.5, 15.0], "goal_too_close"),
+        ([10.0, 0.0, 50.0], "goal_altitude"),
+        ([500.0, 0.0, 15.0], "goal_outside"),
+    ],
+)
 def test_bad_goals_say_why(tiny_config, goal, code):
     city = City.from_obstacles(_courtyard((10.0, 0.0)), extent=np.array([-25.0, -25.0, 25.0, 25.0]))
     with pytest.raises(ImpossibleMission) as err:

@@ -9,7 +9,14 @@ import numpy as np
 from skyrecon.mission import MissionConfig, make_scenario
 from skyrecon.mission.navigator import Navigator
 from skyrecon.mission.scenario import MapBox, _segment_blocked
-from skyrecon.mission.vehicle import DroneState, corner_speed_limit, point_along, sample_path, step, wrap_angle
+from skyrecon.mission.vehicle import (
+    DroneState,
+    corner_speed_limit,
+    point_along,
+    sample_path,
+    step,
+    wrap_angle,
+)
 
 
 def test_step_respects_speed_acceleration_and_turn_rate():

@@ -25,7 +25,9 @@ def plane_views(n: int = 4) -> tuple[list[WorkingView], list[np.ndarray]]:
         t = -eye[2] / dirs[:, 2]  # ray-plane intersection (z = 0)
         depth = t.reshape(H, W).astype(np.float32)  # z-component of the camera ray is 1
         rgb = np.full((H, W, 3), 100 + 30 * k, np.uint8)
-        views.append(WorkingView(f"v{k}.png", intr, pose, rgb, rgb[..., 0].astype(np.float32), np.ones((H, W), bool)))
+        views.append(
+            WorkingView(f"v{k}.png", intr, pose, rgb, rgb[..., 0].astype(np.float32), np.ones((H, W), bool))
+        )
         depths.append(depth)
     return views, depths
 

@@ -11,7 +11,6 @@ from skyrecon.core import Image, Reconstruction
 from skyrecon.errors import InputError
 from skyrecon.io import write_colmap_text, write_image
 from skyrecon.mvs import load_views_and_images
-
 from tests.mvs.synthetic import make_ring
 
 

@@ -7,7 +7,6 @@ import numpy as np
 from skyrecon.core import PointCloud
 from skyrecon.mvs.export import encode_mesh_ply
 from skyrecon.mvs.mesh import mesh_from_depth_maps, surface_nets
-
 from tests.mvs.test_fusion import plane_views
 
 

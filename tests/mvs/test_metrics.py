@@ -57,8 +57,13 @@ def test_exact_distance_function_and_crop() -> None:
     rng = np.random.default_rng(1)
     rec = np.c_[rng.uniform(0, 1, (1000, 2)), rng.normal(0, 0.002, 1000)]
     far = np.array([[5.0, 5.0, 0.5]])
-    m = evaluate_cloud(np.vstack([rec, far]), ref, [0.004], reference_distance=lambda p: np.abs(p[:, 2]),
-                       crop=([-0.1, -0.1, -1], [1.1, 1.1, 1]))
+    m = evaluate_cloud(
+        np.vstack([rec, far]),
+        ref,
+        [0.004],
+        reference_distance=lambda p: np.abs(p[:, 2]),
+        crop=([-0.1, -0.1, -1], [1.1, 1.1, 1]),
+    )
     assert m.num_cropped_out == 1 and m.num_reconstructed == 1000
     assert m.precision[0] == pytest.approx(np.mean(np.abs(rec[:, 2]) <= 0.004))
 

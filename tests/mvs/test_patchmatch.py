@@ -11,7 +11,6 @@ from skyrecon.errors import InputError
 from skyrecon.mvs import PatchMatchSettings, patchmatch_depth
 from skyrecon.mvs.frames import make_working_view
 from skyrecon.mvs.patchmatch import texture_mask
-
 from tests.mvs.synthetic import make_ring
 
 

@@ -5,13 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from skyrecon.core import Rigid3
+from skyrecon.core import DepthMap, Rigid3
 from skyrecon.errors import InputError
 from skyrecon.eval.mvs_metrics import evaluate_cloud, reference_from_depth_maps
 from skyrecon.executor import SerialExecutor
 from skyrecon.mvs import MVSSettings, run_mvs
-from skyrecon.core import DepthMap
-
 from tests.mvs.synthetic import make_ring
 
 
@@ -31,8 +29,9 @@ def ring():
 
 @pytest.fixture(scope="module")
 def default_result(ring):
-    return run_mvs(ring.views, ring.images, MVSSettings(max_image_size=None), executor=SerialExecutor(),
-                   progress=False)
+    return run_mvs(
+        ring.views, ring.images, MVSSettings(max_image_size=None), executor=SerialExecutor(), progress=False
+    )
 
 
 def test_default_pipeline_is_accurate_and_complete(ring, default_result) -> None:
@@ -41,8 +40,13 @@ def test_default_pipeline_is_accurate_and_complete(ring, default_result) -> None
     box = ring.eval_box
     ref = reference(ring, box)
     tau = 0.01 * scene_size(ref)
-    m = evaluate_cloud(res.cloud.points, ref, [tau], crop=box,
-                       reference_distance=lambda p: np.abs(ring.city.distance(p, include_ground=True)))
+    m = evaluate_cloud(
+        res.cloud.points,
+        ref,
+        [tau],
+        crop=box,
+        reference_distance=lambda p: np.abs(ring.city.distance(p, include_ground=True)),
+    )
     assert m.fscore[0] >= 0.8, m
     assert m.precision[0] >= 0.9, m
     # outputs: colours, unit normals facing the cameras, depth maps keyed by stem
@@ -61,11 +65,19 @@ def test_default_pipeline_is_accurate_and_complete(ring, default_result) -> None
 
 
 def test_writeup_baseline_runs_and_is_noisier(ring, default_result) -> None:
-    res = run_mvs(ring.views, ring.images, MVSSettings.writeup_baseline(max_image_size=None),
-                  executor=SerialExecutor(), progress=False)
+    res = run_mvs(
+        ring.views,
+        ring.images,
+        MVSSettings.writeup_baseline(max_image_size=None),
+        executor=SerialExecutor(),
+        progress=False,
+    )
     assert res.pairs == [(i, (i + 1) % 10) for i in range(10)]
     assert len(res.cloud) > 0
-    dist = lambda r: np.median(np.abs(ring.city.distance(r.cloud.points.astype(np.float64), include_ground=True)))  # noqa: E731
+
+    def dist(r):
+        return np.median(np.abs(ring.city.distance(r.cloud.points.astype(np.float64), include_ground=True)))  # noqa: E731
+
     assert dist(default_result) < dist(res)
 
 
@@ -83,10 +95,14 @@ def test_too_few_views_and_mismatched_images(ring) -> None:
 def test_blank_images(ring) -> None:
     black = [np.zeros_like(im) for im in ring.images]
     with pytest.raises(InputError, match="blank"):
-        run_mvs(ring.views, black, MVSSettings(max_image_size=None), executor=SerialExecutor(), progress=False)
+        run_mvs(
+            ring.views, black, MVSSettings(max_image_size=None), executor=SerialExecutor(), progress=False
+        )
     some = list(ring.images)
     some[2] = np.zeros_like(some[2])
-    res = run_mvs(ring.views, some, MVSSettings(max_image_size=None), executor=SerialExecutor(), progress=False)
+    res = run_mvs(
+        ring.views, some, MVSSettings(max_image_size=None), executor=SerialExecutor(), progress=False
+    )
     assert any("ring_002" in w and "blank" in w for w in res.warnings)
     assert "ring_002" not in res.depth_maps and len(res.cloud) > 0
 
@@ -97,8 +113,13 @@ def test_views_that_see_nothing_in_common(ring) -> None:
     away = Rigid3.look_at(v1.center_world, v1.center_world + (v1.center_world - ring.city.center))
     views = [v0, type(v1)(v1.name, v1.intrinsics, away)]
     with pytest.raises(InputError, match=r"ring_000.*in common|in common.*ring_000"):
-        run_mvs(views, [ring.images[0], ring.images[5]], MVSSettings(max_image_size=None),
-                executor=SerialExecutor(), progress=False)
+        run_mvs(
+            views,
+            [ring.images[0], ring.images[5]],
+            MVSSettings(max_image_size=None),
+            executor=SerialExecutor(),
+            progress=False,
+        )
 
 
 @pytest.mark.parametrize("turn", [0, 1])

@@ -9,7 +9,6 @@ from skyrecon.eval.mvs_metrics import evaluate_cloud, fraction_outside_box
 from skyrecon.executor import SerialExecutor
 from skyrecon.io import read_ply
 from skyrecon.mvs import MVSSettings, load_views_and_images, run_mvs
-
 from tests.conftest import real_data, require  # noqa: F401
 
 pytestmark = pytest.mark.realdata
@@ -31,7 +30,6 @@ def test_rock_against_reference_at_low_resolution(real_data) -> None:  # noqa: F
     views, _ = load_views_and_images(d, d)
     ref = read_ply(d / "reference.ply").points.astype(np.float64)
     box = (ref.min(0) - 0.002, ref.max(0) + 0.002)
-    res = run_mvs(views, None, MVSSettings(max_image_size=256),
-                  executor=SerialExecutor(), progress=False)
+    res = run_mvs(views, None, MVSSettings(max_image_size=256), executor=SerialExecutor(), progress=False)
     m = evaluate_cloud(res.cloud.points, ref, [0.002], crop=box)
     assert m.fscore[0] > 0.6, m

@@ -9,7 +9,6 @@ from skyrecon.errors import InputError
 from skyrecon.mvs import neighbors_from_pairs, select_neighbors, topology_pairs
 from skyrecon.mvs.frames import make_working_view
 from skyrecon.mvs.topology import angle_weight
-
 from tests.mvs.synthetic import make_ring
 
 # The write-up's lists for its 12 cameras, verbatim.

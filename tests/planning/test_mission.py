@@ -21,9 +21,13 @@ def test_enu_to_geodetic_is_exact():
     # back to ENU through ECEF
     o = geodetic_to_ecef(*ORIGIN)
     la, lo = np.radians(ORIGIN[0]), np.radians(ORIGIN[1])
-    R = np.array([[-np.sin(lo), np.cos(lo), 0],
-                  [-np.sin(la) * np.cos(lo), -np.sin(la) * np.sin(lo), np.cos(la)],
-                  [np.cos(la) * np.cos(lo), np.cos(la) * np.sin(lo), np.sin(la)]])
+    R = np.array(
+        [
+            [-np.sin(lo), np.cos(lo), 0],
+            [-np.sin(la) * np.cos(lo), -np.sin(la) * np.sin(lo), np.cos(la)],
+            [np.cos(la) * np.cos(lo), np.cos(la) * np.sin(lo), np.sin(la)],
+        ]
+    )
     back = np.array([R @ (geodetic_to_ecef(*g) - o) for g in geo])
     np.testing.assert_allclose(back, enu, atol=1e-6)
     # 1 km east is about 1000 / (R cos(lat)) radians of longitude

@@ -83,10 +83,16 @@ def test_no_collisions_with_the_true_city(small_city):
             continue
         n_ok += 1
         w = r.waypoints
-        samples = np.concatenate([a + (b - a) * np.linspace(0, 1, max(2, int(np.linalg.norm(b - a) / 0.05)))[:, None]
-                                  for a, b in zip(w[:-1], w[1:])])
+        samples = np.concatenate(
+            [
+                a + (b - a) * np.linspace(0, 1, max(2, int(np.linalg.norm(b - a) / 0.05)))[:, None]
+                for a, b in zip(w[:-1], w[1:])
+            ]
+        )
         true = small_city.distance(samples, include_ground=True)
-        assert true.min() >= clearance - 1e-6, f"path from {s} to {g} comes {true.min():.3f} m from an obstacle"
+        assert true.min() >= clearance - 1e-6, (
+            f"path from {s} to {g} comes {true.min():.3f} m from an obstacle"
+        )
         assert np.all((samples[:, 2] >= 1.0 - 1e-9) & (samples[:, 2] <= 28.0 + 1e-9))
     assert n_ok >= 8
 
@@ -174,8 +180,12 @@ def test_paths_on_a_map_built_from_depth_avoid_the_true_city(small_city, city_de
             continue
         n_ok += 1
         w = r.waypoints
-        samples = np.concatenate([a + (b - a) * np.linspace(0, 1, max(2, int(np.linalg.norm(b - a) / 0.05)))[:, None]
-                                  for a, b in zip(w[:-1], w[1:])])
+        samples = np.concatenate(
+            [
+                a + (b - a) * np.linspace(0, 1, max(2, int(np.linalg.norm(b - a) / 0.05)))[:, None]
+                for a, b in zip(w[:-1], w[1:])
+            ]
+        )
         assert small_city.distance(samples, include_ground=True).min() > clearance - 1e-6
         assert np.all(m.state_at(samples) == 0)  # never through unknown or occupied voxels
     assert n_ok >= 3

@@ -112,8 +112,12 @@ def test_icp_recovers_a_known_motion(point_to_plane):
     target = _box_surface(600, 0)
     T = Sim3(rotvec_to_matrix([0.05, -0.03, 0.08]), [0.2, -0.1, 0.15], 1.0)
     source = T.inverse().apply(_box_surface(600, 1))  # different samples of the same surface
-    res = icp(PointCloud(source.astype(np.float32)), PointCloud(target.astype(np.float32)),
-              point_to_plane=point_to_plane, max_iterations=80)
+    res = icp(
+        PointCloud(source.astype(np.float32)),
+        PointCloud(target.astype(np.float32)),
+        point_to_plane=point_to_plane,
+        max_iterations=80,
+    )
     assert res.converged
     assert np.abs(res.transform.apply(source) - T.apply(source)).max() < 0.03
     assert res.fitness == 1.0

@@ -15,8 +15,14 @@ from skyrecon.sfm.bundle import BundleOptions, BundleProblem, bundle_adjust
 from skyrecon.sfm.pnp import estimate_absolute_pose
 
 
-def _scene(seed: int = 0, n_img: int = 6, n_pt: int = 300, noise_px: float = 0.5, f: float = 500.0,
-           dist: tuple[float, float] = (0.0, 0.0)):
+def _scene(
+    seed: int = 0,
+    n_img: int = 6,
+    n_pt: int = 300,
+    noise_px: float = 0.5,
+    f: float = 500.0,
+    dist: tuple[float, float] = (0.0, 0.0),
+):
     """Cameras on an arc looking at a cloud of points; returns truth and noisy observations."""
     rng = np.random.default_rng(seed)
     X = rng.uniform(-2.0, 2.0, (n_pt, 3))
@@ -71,7 +77,9 @@ def test_analytic_jacobians_match_finite_differences():
 
     def ev(R_, t_, X_, c_):
         out = [np.zeros((1, 2)), np.zeros((1, 2, 6)), np.zeros((1, 2, 3)), np.zeros((1, 2, 3)), np.zeros(1)]
-        K.evaluate(R_, t_, X_, c_, idx, idx, idx, np.array([[300.0, 200.0]]), np.array([0.5]), 0, 1.0, True, *out)
+        K.evaluate(
+            R_, t_, X_, c_, idx, idx, idx, np.array([[300.0, 200.0]]), np.array([0.5]), 0, 1.0, True, *out
+        )
         return out
 
     r, Jp, Ji, Jx, _ = ev(R, t, X, cams)
@@ -120,8 +128,10 @@ def test_converges_to_ground_truth_within_noise(loss):
     # and the truth within the noise, after a similarity alignment (the gauge drifts with the noise)
     fit = umeyama(_centres(prob.R, prob.t), _centres(R, t))
     assert fit.residuals.max() < 0.01  # metres, cameras ~9 m from the points
-    ev = evaluate_sfm_poses({k: Rigid3(prob.R[k], prob.t[k]) for k in range(len(R))},
-                            {k: Rigid3(R[k], t[k]) for k in range(len(R))})
+    ev = evaluate_sfm_poses(
+        {k: Rigid3(prob.R[k], prob.t[k]) for k in range(len(R))},
+        {k: Rigid3(R[k], t[k]) for k in range(len(R))},
+    )
     assert ev.rotation_errors_deg.max() < 0.2  # narrow field of view: rotation and translation trade off
     assert np.median(np.linalg.norm(fit.transform.apply(prob.points) - X, axis=1)) < 0.02
 
@@ -175,7 +185,9 @@ def test_refines_focal_length_and_radial_distortion():
     Rp, tp, Xp = _perturb(R, t, X, rot=0.005, trans=0.02, pts=0.02)
     prob = BundleProblem(Rp, tp, Xp, start, np.zeros(len(R), np.int64), oi, op, uv)
     _fix_gauge(prob, R, t)
-    rep = bundle_adjust(prob, BundleOptions(refine_focal_length=True, refine_distortion=True, max_iterations=100))
+    rep = bundle_adjust(
+        prob, BundleOptions(refine_focal_length=True, refine_distortion=True, max_iterations=100)
+    )
     assert rep.final_rms_px < 0.3
     assert rep.termination != "max iterations"
     assert abs(prob.cameras[0, 0] / cams[0, 0] - 1) < 0.003

@@ -8,7 +8,13 @@ from skyrecon.core import PointCloud
 from skyrecon.core.rigid import rotvec_to_matrix
 from skyrecon.errors import InputError
 from skyrecon.sfm.align import Sim3, estimate_normals
-from skyrecon.sfm.model_align import centroid_init, check_spread, fit_camera_centres, icp_plane_with_scale, icp_refine
+from skyrecon.sfm.model_align import (
+    centroid_init,
+    check_spread,
+    fit_camera_centres,
+    icp_plane_with_scale,
+    icp_refine,
+)
 
 
 def _box_surface(n: int, seed: int) -> np.ndarray:
@@ -34,7 +40,8 @@ def test_point_to_plane_icp_recovers_scale():
     tree = cKDTree(target)
     normals = estimate_normals(target, 12, tree)
     T, iterations, converged, rmse, fitness, n = icp_plane_with_scale(
-        source, Sim3(np.eye(3), np.zeros(3), 1.0), target, normals, tree, 1.0, 100, 10.0)
+        source, Sim3(np.eye(3), np.zeros(3), 1.0), target, normals, tree, 1.0, 100, 10.0
+    )
     assert converged and fitness > 0.9
     assert abs(T.scale - TRUE.scale) < 2e-3
     assert np.degrees(np.arccos(np.clip((np.trace(T.R @ TRUE.R.T) - 1) / 2, -1, 1))) < 0.1

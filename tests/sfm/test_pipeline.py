@@ -77,8 +77,15 @@ def test_same_seed_same_result_and_features_are_cached(orbit, orbit_result):
 def test_outputs_are_written_and_read_back(orbit_result, tmp_path):
     res, _ = orbit_result
     files = write_sfm_outputs(tmp_path, res, frusta=True)
-    for name in ("sparse/cameras.txt", "sparse/images.txt", "sparse/points3D.txt", "sparse.ply", "transforms.json",
-                 "report.html", "summary.json"):
+    for name in (
+        "sparse/cameras.txt",
+        "sparse/images.txt",
+        "sparse/points3D.txt",
+        "sparse.ply",
+        "transforms.json",
+        "report.html",
+        "summary.json",
+    ):
         assert (tmp_path / name).is_file(), name
         assert name in files
     rec = read_colmap_text(tmp_path / "sparse")
@@ -115,7 +122,9 @@ def test_bad_images_are_left_out_with_reasons(orbit, tmp_path):
     write_image(noise, cv2.GaussianBlur(rng.integers(0, 255, (240, 320, 3), dtype=np.uint8), (0, 0), 1.5))
     broken = tmp_path / "zz_broken.png"
     broken.write_bytes(b"this is not an image")
-    res = run_sfm([*good, dup, flat, small, noise, broken], INTR, SfMSettings(), executor=SerialExecutor(), seed=0)
+    res = run_sfm(
+        [*good, dup, flat, small, noise, broken], INTR, SfMSettings(), executor=SerialExecutor(), seed=0
+    )
     left = res.unregistered
     assert set(left) == {"zz_duplicate.png", "zz_flat.png", "zz_small.png", "zz_noise.png", "zz_broken.png"}
     assert "duplicate" in left["zz_duplicate.png"] and paths[3].name in left["zz_duplicate.png"]

@@ -75,8 +75,12 @@ def test_pair_selection_modes():
     np.fill_diagonal(S, -np.inf)
     loops = retrieval_pairs(S, 1, exclude_within=2, min_similarity=0.5)
     assert loops.tolist() == [[0, 5]]
-    sel = select_pairs(40, "sequential", PairingSettings(window=2, max_offset=8, loop_candidates=1),
-                       lambda: np.eye(40)[np.r_[np.arange(20), np.arange(20)]])
+    sel = select_pairs(
+        40,
+        "sequential",
+        PairingSettings(window=2, max_offset=8, loop_candidates=1),
+        lambda: np.eye(40)[np.r_[np.arange(20), np.arange(20)]],
+    )
     assert sel.mode == "sequential" and sel.num_loop_pairs > 0
     assert select_pairs(6, "auto", PairingSettings()).mode == "exhaustive"
     with pytest.raises(InputError):
@@ -117,8 +121,8 @@ def test_multiview_triangulation_rejects_outlier_observations():
 def test_sfm_metrics_are_invariant_to_a_similarity():
     R, t = _cams(5)
     gt = {f"{k}": Rigid3(R[k], t[k]) for k in range(5)}
-    from skyrecon.sfm.align import Sim3
     from skyrecon.core import rotvec_to_matrix
+    from skyrecon.sfm.align import Sim3
 
     S = Sim3(rotvec_to_matrix([0.3, -0.2, 1.0]), [5, 6, 7], 0.25)
     est = {k: S.transform_pose(v) for k, v in gt.items()}
@@ -144,7 +148,9 @@ def test_view_graph_rejects_pairs_with_inconsistent_rotations():
     for i in range(8):
         for j in range(i + 1, min(8, i + 3)):
             Rij = R[j] @ R[i].T @ rotvec_to_matrix(rng.normal(0, 0.002, 3))
-            pairs.append(PairGeometry(i, j, "ok", 300, np.zeros((300 - 10 * (j - i), 2), np.int32), Rij, np.ones(3)))
+            pairs.append(
+                PairGeometry(i, j, "ok", 300, np.zeros((300 - 10 * (j - i), 2), np.int32), Rij, np.ones(3))
+            )
     # a repeated-structure pair: many matches, rotation off by 90 degrees
     wrong = R[7] @ R[1].T @ rotvec_to_matrix([0, 0, np.pi / 2])
     pairs.append(PairGeometry(1, 7, "ok", 250, np.zeros((250, 2), np.int32), wrong, np.ones(3)))

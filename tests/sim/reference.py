@@ -42,7 +42,7 @@ def raycast_brute(city, o: np.ndarray, d: np.ndarray, include_ground: bool = Tru
             px, py = o[:, 0] - c[0], o[:, 1] - c[1]
             a = d[:, 0] ** 2 + d[:, 1] ** 2
             bb = px * d[:, 0] + py * d[:, 1]
-            cc = px ** 2 + py ** 2 - c[2] ** 2
+            cc = px**2 + py**2 - c[2] ** 2
             disc = bb * bb - a * cc
             t = (-bb - np.sqrt(np.maximum(disc, 0))) / a
             z = o[:, 2] + t * d[:, 2]
@@ -51,6 +51,6 @@ def raycast_brute(city, o: np.ndarray, d: np.ndarray, include_ground: bool = Tru
             for zc, sgn in ((c[4], -1), (c[3], 1)):
                 t = (zc - o[:, 2]) / d[:, 2]
                 hx, hy = px + t * d[:, 0], py + t * d[:, 1]
-                cap = (np.sign(d[:, 2]) == sgn) & (t >= 0) & (hx ** 2 + hy ** 2 <= c[2] ** 2)
+                cap = (np.sign(d[:, 2]) == sgn) & (t >= 0) & (hx**2 + hy**2 <= c[2] ** 2)
                 best = np.where(cap & (t < best), t, best)
     return best

@@ -26,9 +26,11 @@ def test_same_seed_same_city_different_seed_different_city(city):
 def test_layout_ranges(city):
     b = city.boxes[city.box_kind == KIND_BUILDING]
     foot = np.stack([b[:, 3] - b[:, 0], b[:, 4] - b[:, 1]], axis=1)
-    print(f"\ncity seed 3: {city.num_buildings} buildings, {len(city.boxes)} boxes, {len(city.cylinders)} cylinders, "
-          f"footprint {foot.min():.1f}-{foot.max():.1f} m, height {b[:, 5].min():.1f}-{b[:, 5].max():.1f} m, "
-          f"{np.sum(city.box_material == MAT_PLAIN)} plain facades")
+    print(
+        f"\ncity seed 3: {city.num_buildings} buildings, {len(city.boxes)} boxes, {len(city.cylinders)} cylinders, "
+        f"footprint {foot.min():.1f}-{foot.max():.1f} m, height {b[:, 5].min():.1f}-{b[:, 5].max():.1f} m, "
+        f"{np.sum(city.box_material == MAT_PLAIN)} plain facades"
+    )
     assert 80 <= city.num_buildings <= 300
     assert foot.min() >= 5.0 - 1e-9 and foot.max() <= 30.0 + 1e-9
     assert b[:, 5].max() <= 60.0 + 1e-9 and b[b[:, 2] == 0, 5].min() >= 6.0 - 1e-9

@@ -11,14 +11,18 @@ from tests.sim.reference import raycast_brute, sdf_brute
 
 def _random_points(city, rng, n):
     x0, y0, x1, y1 = city.extent
-    pts = np.column_stack([rng.uniform(x0 - 10, x1 + 10, n), rng.uniform(y0 - 10, y1 + 10, n), rng.uniform(-1, 70, n)])
+    pts = np.column_stack(
+        [rng.uniform(x0 - 10, x1 + 10, n), rng.uniform(y0 - 10, y1 + 10, n), rng.uniform(-1, 70, n)]
+    )
     # and points near surfaces: on box faces and pole sides, nudged in and out
     k = rng.integers(len(city.boxes), size=n // 2)
     b = city.boxes[k]
     near = b[:, :3] + rng.random((len(k), 3)) * (b[:, 3:] - b[:, :3])
     axis = rng.integers(3, size=len(k))
     side = rng.integers(2, size=len(k))
-    near[np.arange(len(k)), axis] = np.where(side == 1, b[np.arange(len(k)), axis + 3], b[np.arange(len(k)), axis])
+    near[np.arange(len(k)), axis] = np.where(
+        side == 1, b[np.arange(len(k)), axis + 3], b[np.arange(len(k)), axis]
+    )
     near += rng.normal(0, 0.05, near.shape)
     c = city.cylinders[rng.integers(len(city.cylinders), size=n // 4)]
     a = rng.uniform(0, 2 * np.pi, len(c))
@@ -35,8 +39,10 @@ def test_distance_matches_brute_force(city, include_ground):
     got = city.distance(p, include_ground=include_ground)
     ref = sdf_brute(city, p, include_ground)
     err = np.abs(got - ref)
-    print(f"\ndistance vs brute force (ground={include_ground}): {len(p)} points, max |error| {err.max():.2e} m, "
-          f"{np.mean(ref < 0) * 100:.1f} % inside")
+    print(
+        f"\ndistance vs brute force (ground={include_ground}): {len(p)} points, max |error| {err.max():.2e} m, "
+        f"{np.mean(ref < 0) * 100:.1f} % inside"
+    )
     assert err.max() < 1e-9
     assert np.array_equal(city.is_occupied(p, include_ground), ref <= 0)
 
@@ -52,12 +58,16 @@ def test_occupancy_grid_matches_point_and_box_queries(city):
     # a voxel whose centre is inside an obstacle overlaps it; the reverse fails only at boundaries
     assert np.all(occ[centre_occ])
     extra = occ & ~centre_occ
-    print(f"\noccupancy grid {shape} at {vs} m: {occ.mean() * 100:.2f} % occupied, {centre_occ.mean() * 100:.2f} % "
-          f"by centre, {extra.sum()} voxels occupied only off-centre")
+    print(
+        f"\noccupancy grid {shape} at {vs} m: {occ.mean() * 100:.2f} % occupied, {centre_occ.mean() * 100:.2f} % "
+        f"by centre, {extra.sum()} voxels occupied only off-centre"
+    )
     d = city.distance(centres[extra.ravel()])
     assert np.all(d <= vs * np.sqrt(3) / 2 + 1e-9)  # within half a voxel diagonal of an obstacle
     sample = idx[rng.integers(len(idx), size=400)]
-    sample = np.vstack([sample, np.argwhere(extra)[:100], np.argwhere(occ)[rng.integers(occ.sum(), size=100)]])
+    sample = np.vstack(
+        [sample, np.argwhere(extra)[:100], np.argwhere(occ)[rng.integers(occ.sum(), size=100)]]
+    )
     for i, j, k in sample:
         lo = origin + np.array([i, j, k]) * vs
         assert occ[i, j, k] == city.box_occupied(lo, lo + vs), (i, j, k)
@@ -81,8 +91,10 @@ def test_raycast_matches_brute_force_and_lands_on_surfaces(city):
     rel = np.abs(t[hit] - ref[hit]) / np.maximum(ref[hit], 1.0)
     p = o[hit] + t[hit, None] * d[hit]
     on = np.abs(city.distance(p, include_ground=True))
-    print(f"\nraycast: {len(o)} rays, {hit.mean() * 100:.1f} % hit; vs brute force max rel error {rel.max():.1e}; "
-          f"|distance| at hit points: median {np.median(on):.1e} m, max {on.max():.1e} m")
+    print(
+        f"\nraycast: {len(o)} rays, {hit.mean() * 100:.1f} % hit; vs brute force max rel error {rel.max():.1e}; "
+        f"|distance| at hit points: median {np.median(on):.1e} m, max {on.max():.1e} m"
+    )
     assert rel.max() < 1e-9
     assert on.max() < 1e-6
     # the segment up to the hit is free space

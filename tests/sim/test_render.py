@@ -3,11 +3,19 @@
 from __future__ import annotations
 
 import cv2
-import pytest
 import numpy as np
+import pytest
 
 from skyrecon.core import DepthMap, Intrinsics, Rigid3
-from skyrecon.sim import City, generate_city, render, render_depth, render_stereo, ring_views, street_view_pose
+from skyrecon.sim import (
+    City,
+    generate_city,
+    render,
+    render_depth,
+    render_stereo,
+    ring_views,
+    street_view_pose,
+)
 from skyrecon.sim.texture import MAT_BRICK, MAT_CONCRETE, MAT_PLAIN
 
 
@@ -36,30 +44,46 @@ def photometric_residual(frame) -> dict:
     H, W = d.shape
     xr = np.arange(W, dtype=np.float32)[None, :] - d
     ys = np.repeat(np.arange(H, dtype=np.float32)[:, None], W, axis=1)
-    warped = cv2.remap(R, np.where(np.isfinite(xr), xr, -10.0).astype(np.float32), ys, cv2.INTER_LINEAR,
-                       borderMode=cv2.BORDER_CONSTANT)
+    warped = cv2.remap(
+        R,
+        np.where(np.isfinite(xr), xr, -10.0).astype(np.float32),
+        ys,
+        cv2.INTER_LINEAR,
+        borderMode=cv2.BORDER_CONSTANT,
+    )
     err = np.abs(warped - L).mean(axis=2)
     dr = frame.disparity_right_px
     x0 = np.clip(np.floor(np.nan_to_num(xr)).astype(int), 0, W - 1)
     x1 = np.clip(x0 + 1, 0, W - 1)
     rows = np.arange(H)[:, None]
     with np.errstate(invalid="ignore"):
-        lr = (np.isfinite(d) & (xr >= 0) & (xr <= W - 1) & (np.abs(dr[rows, x0] - d) < 0.5)
-              & (np.abs(dr[rows, x1] - d) < 0.5))
+        lr = (
+            np.isfinite(d)
+            & (xr >= 0)
+            & (xr <= W - 1)
+            & (np.abs(dr[rows, x0] - d) < 0.5)
+            & (np.abs(dr[rows, x1] - d) < 0.5)
+        )
     lid, rid = frame.left_result.object_id, frame.right_result.object_id
     same = lr & (rid[rows, x0] == lid) & (rid[rows, x1] == lid)
-    return {"mae_lr": float(err[lr].mean()), "mae_same": float(err[same].mean()),
-            "p99_same": float(np.percentile(err[same], 99)), "used_lr": float(lr.mean()),
-            "used_same": float(same.mean())}
+    return {
+        "mae_lr": float(err[lr].mean()),
+        "mae_same": float(err[same].mean()),
+        "p99_same": float(np.percentile(err[same], 99)),
+        "used_lr": float(lr.mean()),
+        "used_same": float(same.mean()),
+    }
 
 
 def test_right_image_warped_by_gt_disparity_reproduces_left(city, small_rig, street_frame):
     for seed in (3, 11):
         frame = street_frame if seed == 3 else render_stereo(city, small_rig, street_view_pose(city, seed))
         r = photometric_residual(frame)
-        print(f"\nphotometric residual (seed {seed}, 320x240): MAE {r['mae_lr']:.2f} grey levels over "
-              f"{r['used_lr'] * 100:.0f} % non-occluded pixels; {r['mae_same']:.2f} (p99 {r['p99_same']:.1f}) "
-              f"over {r['used_same'] * 100:.0f} % same-surface pixels")
+        print(
+            f"\nphotometric residual (seed {seed}, 320x240): MAE {r['mae_lr']:.2f} grey levels over "
+            f"{r['used_lr'] * 100:.0f} % non-occluded pixels; {r['mae_same']:.2f} (p99 {r['p99_same']:.1f}) "
+            f"over {r['used_same'] * 100:.0f} % same-surface pixels"
+        )
         assert r["used_lr"] > 0.4 and r["used_same"] > 0.4
         assert r["mae_lr"] < 3.0
         assert r["mae_same"] < 1.5
@@ -69,8 +93,10 @@ def test_depth_lies_on_surfaces_and_matches_raycast(city, small_rig, street_fram
     f = street_frame
     cloud = DepthMap(f.depth_left_m, small_rig.left, f.left_from_world).to_points_world()
     res = np.abs(city.distance(cloud.points.astype(np.float64), include_ground=True))
-    print(f"\nsurface residual of back-projected depth: median {np.median(res):.1e} m, "
-          f"p99 {np.percentile(res, 99):.1e} m, max {res.max():.1e} m over {len(res)} points")
+    print(
+        f"\nsurface residual of back-projected depth: median {np.median(res):.1e} m, "
+        f"p99 {np.percentile(res, 99):.1e} m, max {res.max():.1e} m over {len(res)} points"
+    )
     assert np.percentile(res, 99) < 1e-3 and res.max() < 1e-3
     # depth agrees with an independent ray cast through the same pixels
     rng = np.random.default_rng(0)
@@ -86,9 +112,11 @@ def test_depth_lies_on_surfaces_and_matches_raycast(city, small_rig, street_fram
     ok = np.isfinite(z)
     assert np.allclose(depth[ok], z[ok], rtol=1e-6)
     # disparity is exactly fx * B / z, and the right depth is the left scene seen from the right
-    assert np.allclose(f.disparity_left_px[np.isfinite(f.depth_left_m)],
-                       (small_rig.left.fx * small_rig.baseline_m / f.depth_left_m)[np.isfinite(f.depth_left_m)],
-                       rtol=1e-6)
+    assert np.allclose(
+        f.disparity_left_px[np.isfinite(f.depth_left_m)],
+        (small_rig.left.fx * small_rig.baseline_m / f.depth_left_m)[np.isfinite(f.depth_left_m)],
+        rtol=1e-6,
+    )
     right = DepthMap(f.depth_right_m, small_rig.right, f.right_from_world).to_points_world()
     assert np.abs(city.distance(right.points.astype(np.float64), include_ground=True)).max() < 1e-3
 
@@ -116,10 +144,14 @@ def test_textures_rich_with_some_low_texture_surfaces(city, street_frame):
     box = np.where((ids >= 1) & (ids <= len(city.boxes)), ids - 1, 0)
     mat = np.where((ids >= 1) & (ids <= len(city.boxes)), city.box_material[box], -1)
     interior = cv2.erode((ids >= 0).astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
-    same = cv2.erode(ids.astype(np.float32), np.ones((5, 5))) == cv2.dilate(ids.astype(np.float32), np.ones((5, 5)))
+    same = cv2.erode(ids.astype(np.float32), np.ones((5, 5))) == cv2.dilate(
+        ids.astype(np.float32), np.ones((5, 5))
+    )
     textured = interior & same & np.isin(mat, (MAT_BRICK, MAT_CONCRETE))
-    print(f"\nstreet view 320x240: {n_corners} Shi-Tomasi corners; mean gradient on brick/concrete facades "
-          f"{grad[textured].mean():.1f}")
+    print(
+        f"\nstreet view 320x240: {n_corners} Shi-Tomasi corners; mean gradient on brick/concrete facades "
+        f"{grad[textured].mean():.1f}"
+    )
     assert n_corners > 300
     assert grad[textured].mean() > 20
     # a plain facade rendered up close is almost flat
@@ -169,6 +201,9 @@ def test_hand_made_and_empty_scenes():
     empty = City.from_obstacles(np.zeros((0, 6)))
     r = render(empty, cam, pose)
     assert set(np.unique(r.object_id)) <= {-1, 0}
-    assert np.isinf(empty.distance([0.0, 0.0, 1.0])[0]) and empty.distance([0, 0, 1.0], include_ground=True)[0] == 1.0
+    assert (
+        np.isinf(empty.distance([0.0, 0.0, 1.0])[0])
+        and empty.distance([0, 0, 1.0], include_ground=True)[0] == 1.0
+    )
     assert np.isinf(empty.raycast([0, 0, 1.0], [1.0, 0, 0])[0])
     assert not empty.occupancy_grid(np.zeros(3), 1.0, (2, 2, 2)).any()

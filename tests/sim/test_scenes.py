@@ -7,7 +7,14 @@ import pytest
 
 from skyrecon.core import Intrinsics, PosedView
 from skyrecon.sim import (
-    default_rig, flight_poses, generate_city, orbit_views, render, render_views, ring_views, street_view_pose,
+    default_rig,
+    flight_poses,
+    generate_city,
+    orbit_views,
+    render,
+    render_views,
+    ring_views,
+    street_view_pose,
 )
 
 
@@ -34,8 +41,10 @@ def test_flight_poses_clear_smooth_and_deterministic(city, small_rig):
     steps = np.linalg.norm(np.diff(c, axis=0), axis=1)
     fwd = np.array([p.R[:, 2] for p in poses])  # camera z axis in the world
     turn = np.degrees(np.arccos(np.clip(np.sum(fwd[1:] * fwd[:-1], axis=1), -1, 1)))
-    print(f"\nflight: {n} frames, {steps.sum():.1f} m, clearance min {clear.min():.2f} m, "
-          f"step {steps.min():.3f}-{steps.max():.3f} m, max turn {turn.max():.2f} deg/frame")
+    print(
+        f"\nflight: {n} frames, {steps.sum():.1f} m, clearance min {clear.min():.2f} m, "
+        f"step {steps.min():.3f}-{steps.max():.3f} m, max turn {turn.max():.2f} deg/frame"
+    )
     assert clear.min() >= 2.0
     assert np.all(np.abs(steps - speed / fps) < 0.05)
     assert turn.max() < 8.0

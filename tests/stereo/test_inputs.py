@@ -5,7 +5,6 @@ import pytest
 
 from skyrecon.errors import InputError
 from skyrecon.stereo import SkyreconSettings, available_matchers, create_matcher, prepare_pair
-
 from tests.stereo.conftest import warp_pair
 
 METHODS = ["skyrecon", "skyrecon-fast", "opencv-sgbm", "opencv-bm"]

@@ -12,7 +12,6 @@ from skyrecon.stereo import (
     SkyreconSettings,
     create_matcher,
 )
-
 from tests.stereo.conftest import warp_pair
 
 INNER = (slice(8, -8), slice(40, -8))  # away from the borders and the left band without matches
@@ -155,9 +154,20 @@ def test_sequence_reuses_buffers_without_recompiling(slanted_pair, fronto_pair):
 @pytest.mark.parametrize("mode", ["sgbm", "hh", "sgbm_3way", "hh4"])
 def test_every_opencv_sgbm_mode(mode, slanted_pair):
     left, right, d = slanted_pair
-    m = create_matcher("opencv-sgbm", 32, mode=mode, block_size=3, P1=100, P2=800, disp12_max_diff=-1,
-                       pre_filter_cap=31, uniqueness_ratio=5, speckle_window_size=50, speckle_range=1,
-                       use_colour=False)
+    m = create_matcher(
+        "opencv-sgbm",
+        32,
+        mode=mode,
+        block_size=3,
+        P1=100,
+        P2=800,
+        disp12_max_diff=-1,
+        pre_filter_cap=31,
+        uniqueness_ratio=5,
+        speckle_window_size=50,
+        speckle_range=1,
+        use_colour=False,
+    )
     r = m.compute(left, right)
     assert r.diagnostics["channels"] == 1
     assert np.nanmedian(np.abs(r.disparity[INNER] - d[INNER])) < 0.35
@@ -166,8 +176,18 @@ def test_every_opencv_sgbm_mode(mode, slanted_pair):
 @pytest.mark.parametrize("prefilter", ["xsobel", "normalized_response"])
 def test_opencv_bm_prefilters(prefilter, slanted_pair):
     left, right, d = slanted_pair
-    m = create_matcher("opencv-bm", 32, pre_filter_type=prefilter, pre_filter_size=9, pre_filter_cap=31,
-                       block_size=11, texture_threshold=0, uniqueness_ratio=5, speckle_window_size=0,
-                       speckle_range=0, disp12_max_diff=1)
+    m = create_matcher(
+        "opencv-bm",
+        32,
+        pre_filter_type=prefilter,
+        pre_filter_size=9,
+        pre_filter_cap=31,
+        block_size=11,
+        texture_threshold=0,
+        uniqueness_ratio=5,
+        speckle_window_size=0,
+        speckle_range=0,
+        disp12_max_diff=1,
+    )
     r = m.compute(left, right)
     assert np.nanmedian(np.abs(r.disparity[INNER] - d[INNER])) < 0.5

@@ -12,7 +12,6 @@ from skyrecon.eval.stereo_metrics import evaluate_disparity
 from skyrecon.io.disparity import read_kitti_disparity_png, read_middlebury_disparity_pgm
 from skyrecon.io.images import read_image
 from skyrecon.stereo import create_matcher
-
 from tests.conftest import require
 
 pytestmark = pytest.mark.realdata

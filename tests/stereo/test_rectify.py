@@ -48,8 +48,10 @@ def test_rectified_geometry(zero_disparity):
     d = uv_l[inside, 0] - uv_r[inside, 0]
     np.testing.assert_allclose(r.disparity_to_depth(d[None])[0], p_rect_l[inside, 2], rtol=1e-5)
     # the remap tables send each rectified pixel back to the distorted original pixel
-    for maps, uv_rect, intr, pts in ((rect.map_left, uv_l, rig.left, P),
-                                     (rect.map_right, uv_r, rig.right, rig.right_from_left.apply(P))):
+    for maps, uv_rect, intr, pts in (
+        (rect.map_left, uv_l, rig.left, P),
+        (rect.map_right, uv_r, rig.right, rig.right_from_left.apply(P)),
+    ):
         mx, my = cv2.convertMaps(maps[0], maps[1], cv2.CV_32FC1)
         src = intr.project(pts)
         ui = np.rint(uv_rect[inside]).astype(int)
@@ -103,7 +105,9 @@ def test_end_to_end_rendered_unrectified_pair():
     rect = rectify_rig(rig, alpha=0.0)
     lr, rr = rect.apply(left.image, right.image)
     res = create_matcher("skyrecon", 32).compute(lr, rr)
-    cloud = disparity_to_points(res.disparity, rect.rig, lr, min_depth_m=2.0, max_depth_m=25.0, mask=res.measured)
+    cloud = disparity_to_points(
+        res.disparity, rect.rig, lr, min_depth_m=2.0, max_depth_m=25.0, mask=res.measured
+    )
     assert len(cloud) > 5000
     # back to the original left camera frame, then compare with the rendered depth there
     p = rect.left_rect_from_left.inverse().apply(cloud.points.astype(np.float64))

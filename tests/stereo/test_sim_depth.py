@@ -47,8 +47,9 @@ def test_depth_error_within_first_order_bound(sim_frame, sim_results):
 def test_points_in_left_frame_match_ground_truth(sim_frame, sim_results):
     rig = sim_frame.rig
     res = sim_results["skyrecon"]
-    cloud = disparity_to_points(res.disparity, rig, sim_frame.left, min_depth_m=1.0, max_depth_m=40.0,
-                                mask=res.measured)
+    cloud = disparity_to_points(
+        res.disparity, rig, sim_frame.left, min_depth_m=1.0, max_depth_m=40.0, mask=res.measured
+    )
     assert len(cloud) > 1000 and cloud.colors is not None and cloud.colors.shape == (len(cloud), 3)
     z = cloud.points[:, 2]
     assert z.min() >= 1.0 and z.max() <= 40.0

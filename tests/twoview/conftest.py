@@ -44,8 +44,12 @@ def monument() -> Scene:
     eye = views[0].cam_from_world.center
     # 2: same centre as 0, turned (pure rotation); 3, 4: looking down at the plaza (a plane)
     views.append(PosedView("rot", intr, Rigid3.look_at(eye, city.center + np.array([1.5, 0.5, 0.3]))))
-    views.append(PosedView("planeA", intr, Rigid3.look_at(np.array([9.0, 0.0, 6.0]), np.array([10.0, 0.0, 0.0]))))
-    views.append(PosedView("planeB", intr, Rigid3.look_at(np.array([9.0, 1.5, 6.2]), np.array([10.0, 0.5, 0.0]))))
+    views.append(
+        PosedView("planeA", intr, Rigid3.look_at(np.array([9.0, 0.0, 6.0]), np.array([10.0, 0.0, 0.0])))
+    )
+    views.append(
+        PosedView("planeB", intr, Rigid3.look_at(np.array([9.0, 1.5, 6.2]), np.array([10.0, 0.5, 0.0])))
+    )
     rs = sim.render_views(city, views)
     return Scene(intr, views, [r.image for r in rs], [r.depth_m for r in rs], city)
 

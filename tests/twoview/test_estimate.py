@@ -45,7 +45,9 @@ def test_random_matches_fail():
 
 def test_wrong_focal_length_is_flagged():
     p = make_pair(seed=3, n=400, noise_px=0.3, depth=(3, 30), rotation_deg=20)
-    wrong = Intrinsics(p.intr1.fx * 0.6, p.intr1.fy * 0.6, p.intr1.cx, p.intr1.cy, p.intr1.width, p.intr1.height)
+    wrong = Intrinsics(
+        p.intr1.fx * 0.6, p.intr1.fy * 0.6, p.intr1.cx, p.intr1.cy, p.intr1.width, p.intr1.height
+    )
     g = estimate_two_view_geometry(p.x1, p.x2, wrong, wrong, TwoViewSettings(), 0)
     assert g.status == "uncertain" and any("K seem wrong" in w for w in g.warnings)
     good = estimate_two_view_geometry(p.x1, p.x2, p.intr1, p.intr2, TwoViewSettings(), 0)

@@ -10,8 +10,8 @@ import pytest
 
 from skyrecon.core import Intrinsics
 from skyrecon.errors import EstimationError, InputError
-from skyrecon.geometry.epipolar import sampson_distance
 from skyrecon.eval.pose_metrics import rotation_error_deg, translation_direction_error_deg
+from skyrecon.geometry.epipolar import sampson_distance
 from skyrecon.twoview import (
     dense_model,
     draw_epipolar_lines,
@@ -27,7 +27,9 @@ from tests.twoview.conftest import small_settings
 
 @pytest.fixture(scope="module")
 def result(monument):
-    return reconstruct_two_view(monument.images[0], monument.images[1], monument.intr, monument.intr, small_settings(), seed=0)
+    return reconstruct_two_view(
+        monument.images[0], monument.images[1], monument.intr, monument.intr, small_settings(), seed=0
+    )
 
 
 def test_synthetic_pose(result, monument):
@@ -72,18 +74,36 @@ def test_sparse_and_dense_clouds_match_the_rendered_depth(result, monument):
 def test_metric_baseline_scales_the_clouds(result, monument):
     b = float(np.linalg.norm(monument.gt(0, 1).t))
     s = small_settings(baseline_m=b)
-    cloud, idx = sparse_cloud(monument.images[0], result.geometry, result.x1, result.x2, monument.intr, monument.intr, s, 1.0)
+    cloud, idx = sparse_cloud(
+        monument.images[0], result.geometry, result.x1, result.x2, monument.intr, monument.intr, s, 1.0
+    )
     assert len(cloud) == len(idx) > 100
     rel = _depth_error(cloud.points, monument, 1.0)
     assert np.median(rel) < 0.005
-    d = dense_model(monument.images[0], monument.images[1], monument.intr, monument.intr, result.geometry,
-                    result.x1[result.inliers], result.x2[result.inliers], small_settings(baseline_m=b, dense_max_image_size=320))
+    d = dense_model(
+        monument.images[0],
+        monument.images[1],
+        monument.intr,
+        monument.intr,
+        result.geometry,
+        result.x1[result.inliers],
+        result.x2[result.inliers],
+        small_settings(baseline_m=b, dense_max_image_size=320),
+    )
     assert np.median(_depth_error(d.cloud.points, monument, 1.0)) < 0.03
 
 
 def _dense(result, monument, **kw):
-    return dense_model(monument.images[0], monument.images[1], monument.intr, monument.intr, result.geometry,
-                       result.x1[result.inliers], result.x2[result.inliers], small_settings(**kw))
+    return dense_model(
+        monument.images[0],
+        monument.images[1],
+        monument.intr,
+        monument.intr,
+        result.geometry,
+        result.x1[result.inliers],
+        result.x2[result.inliers],
+        small_settings(**kw),
+    )
 
 
 def test_epipolar_dense_method(result, monument):
@@ -104,29 +124,45 @@ def test_other_rectifications(result, monument, rect):
 def test_fundamental_route(result, monument):
     gt = monument.gt(0, 1)
     for method in ("ransac", "magsac", "lmeds"):
-        g = estimate_two_view_geometry(result.x1, result.x2, monument.intr, monument.intr,
-                                       small_settings(pose_method="fundamental", fundamental_method=method), 0)
+        g = estimate_two_view_geometry(
+            result.x1,
+            result.x2,
+            monument.intr,
+            monument.intr,
+            small_settings(pose_method="fundamental", fundamental_method=method),
+            0,
+        )
         assert g.status == "ok"
         assert rotation_error_deg(g.R, gt.R) < 0.3 and translation_direction_error_deg(g.t, gt.t) < 1.0
 
 
 def test_deterministic(result, monument):
-    again = reconstruct_two_view(monument.images[0], monument.images[1], monument.intr, monument.intr,
-                                 small_settings(dense=False), seed=0)
+    again = reconstruct_two_view(
+        monument.images[0],
+        monument.images[1],
+        monument.intr,
+        monument.intr,
+        small_settings(dense=False),
+        seed=0,
+    )
     assert np.array_equal(again.R, result.R) and np.array_equal(again.t, result.t)
     assert np.array_equal(again.inliers, result.inliers)
 
 
 # ----- degenerate pairs: warnings, not made-up poses ------------------------------------------
 def test_identical_images(monument):
-    r = reconstruct_two_view(monument.images[0], monument.images[0], monument.intr, monument.intr, small_settings(), seed=0)
+    r = reconstruct_two_view(
+        monument.images[0], monument.images[0], monument.intr, monument.intr, small_settings(), seed=0
+    )
     assert r.status == "no_translation" and r.t is None and r.dense is None
     assert "identical" in r.warnings[0]
     assert rotation_error_deg(r.R, np.eye(3)) < 0.01
 
 
 def test_pure_rotation(monument):
-    r = reconstruct_two_view(monument.images[0], monument.images[2], monument.intr, monument.intr, small_settings(), seed=0)
+    r = reconstruct_two_view(
+        monument.images[0], monument.images[2], monument.intr, monument.intr, small_settings(), seed=0
+    )
     assert r.status == "no_translation" and r.t is None and r.E is None
     assert "rotation" in r.warnings[0]
     assert rotation_error_deg(r.R, monument.gt(0, 2).R) < 0.05
@@ -134,7 +170,9 @@ def test_pure_rotation(monument):
 
 def test_unrelated_images(monument, other_scene_image):
     try:
-        r = reconstruct_two_view(monument.images[0], other_scene_image, monument.intr, monument.intr, small_settings(), seed=0)
+        r = reconstruct_two_view(
+            monument.images[0], other_scene_image, monument.intr, monument.intr, small_settings(), seed=0
+        )
     except EstimationError as exc:  # so few matches that not even 8 survive: also a clear answer
         assert "matches" in str(exc)
         return
@@ -145,13 +183,22 @@ def test_unrelated_images(monument, other_scene_image):
 def test_wrong_intrinsics_are_flagged(monument):
     i = monument.intr
     wrong = Intrinsics(i.fx * 1.5, i.fy * 1.5, i.cx + 80, i.cy - 60, i.width, i.height)
-    r = reconstruct_two_view(monument.images[0], monument.images[1], wrong, wrong, small_settings(dense=False), seed=0)
+    r = reconstruct_two_view(
+        monument.images[0], monument.images[1], wrong, wrong, small_settings(dense=False), seed=0
+    )
     assert r.status == "uncertain"
     assert any("K seem wrong" in w for w in r.warnings)
 
 
 def test_planar_scene(monument):
-    r = reconstruct_two_view(monument.images[3], monument.images[4], monument.intr, monument.intr, small_settings(dense=False), seed=0)
+    r = reconstruct_two_view(
+        monument.images[3],
+        monument.images[4],
+        monument.intr,
+        monument.intr,
+        small_settings(dense=False),
+        seed=0,
+    )
     gt = monument.gt(3, 4)
     assert any("planar" in w for w in r.warnings)
     assert r.R is not None and rotation_error_deg(r.R, gt.R) < 0.5
@@ -205,7 +252,9 @@ def test_fountain_pair(real_data):
     v1, v2 = views["0004.jpg"], views["0005.jpg"]
     s = TwoViewSettings()
     s = replace(s, features=replace(s.features, max_image_size=1024), dense_max_image_size=384)
-    r = reconstruct_two_view(read_image(v1.image_path), read_image(v2.image_path), v1.intrinsics, v2.intrinsics, s, seed=0)
+    r = reconstruct_two_view(
+        read_image(v1.image_path), read_image(v2.image_path), v1.intrinsics, v2.intrinsics, s, seed=0
+    )
     gt = relative_pose(v1, v2)
     assert r.status == "ok"
     assert rotation_error_deg(r.R, gt.R) < 0.2
@@ -216,10 +265,24 @@ def test_fountain_pair(real_data):
 def test_dense_refuses_forward_motion_and_unknown_matchers(result, monument):
     from skyrecon.twoview import TwoViewGeometry, compute_disparity
 
-    fwd = TwoViewGeometry("ok", np.eye(3), np.array([0.0, 0.0, -1.0]), np.zeros((3, 3)), np.zeros((3, 3)),
-                          result.inliers, result.geometry.errors_px)
-    args = (monument.images[0], monument.images[1], monument.intr, monument.intr, fwd,
-            result.x1[result.inliers], result.x2[result.inliers])
+    fwd = TwoViewGeometry(
+        "ok",
+        np.eye(3),
+        np.array([0.0, 0.0, -1.0]),
+        np.zeros((3, 3)),
+        np.zeros((3, 3)),
+        result.inliers,
+        result.geometry.errors_px,
+    )
+    args = (
+        monument.images[0],
+        monument.images[1],
+        monument.intr,
+        monument.intr,
+        fwd,
+        result.x1[result.inliers],
+        result.x2[result.inliers],
+    )
     with pytest.raises(EstimationError, match="viewing direction"):
         dense_model(*args, small_settings(dense_fallback=False))
     # with the fallback, the epipolar search runs instead (on this wrong geometry it finds little)
@@ -231,9 +294,16 @@ def test_dense_refuses_forward_motion_and_unknown_matchers(result, monument):
     with pytest.raises(InputError, match="stereo matcher"):
         compute_disparity(monument.images[0], monument.images[1], 0, 64, "no-such-matcher")
     with pytest.raises(InputError):
-        dense_model(monument.images[0], monument.images[1], monument.intr, monument.intr,
-                    TwoViewGeometry("failed", None, None, None, None, result.inliers, result.geometry.errors_px),
-                    result.x1, result.x2, small_settings())
+        dense_model(
+            monument.images[0],
+            monument.images[1],
+            monument.intr,
+            monument.intr,
+            TwoViewGeometry("failed", None, None, None, None, result.inliers, result.geometry.errors_px),
+            result.x1,
+            result.x2,
+            small_settings(),
+        )
 
 
 def test_grey_images_of_different_sizes(monument):
@@ -254,8 +324,9 @@ def test_grey_images_of_different_sizes(monument):
 
 
 def test_forward_flight_falls_back_to_epipolar_search(flight):
-    r = reconstruct_two_view(flight.images[0], flight.images[1], flight.intr, flight.intr,
-                             small_settings(epipolar_step=6), seed=0)
+    r = reconstruct_two_view(
+        flight.images[0], flight.images[1], flight.intr, flight.intr, small_settings(epipolar_step=6), seed=0
+    )
     gt = flight.gt(0, 1)
     assert r.status == "ok"
     assert rotation_error_deg(r.R, gt.R) < 0.1 and translation_direction_error_deg(r.t, gt.t) < 1.0

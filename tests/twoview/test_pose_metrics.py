@@ -7,7 +7,12 @@ import pytest
 
 from skyrecon.core import Rigid3, rotvec_to_matrix
 from skyrecon.errors import InputError
-from skyrecon.eval.pose_metrics import pose_auc, relative_pose_errors, rotation_error_deg, translation_direction_error_deg
+from skyrecon.eval.pose_metrics import (
+    pose_auc,
+    relative_pose_errors,
+    rotation_error_deg,
+    translation_direction_error_deg,
+)
 
 
 def test_rotation_error():

@@ -54,23 +54,37 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         description=__doc__.split("\n\n")[0].split(": ", 1)[1],
         examples=EXAMPLES,
     )
-    p.add_argument("model_dir", metavar="MODEL_DIR",
-                   help="COLMAP text model directory (or a run directory with sparse/)")
+    p.add_argument(
+        "model_dir", metavar="MODEL_DIR", help="COLMAP text model directory (or a run directory with sparse/)"
+    )
     p.add_argument("--out", required=True, help="output directory (created if missing)")
     ref = p.add_mutually_exclusive_group(required=True)
-    ref.add_argument("--positions", metavar="FILE", help="camera centres, one line per image: NAME X Y Z (metres)")
+    ref.add_argument(
+        "--positions", metavar="FILE", help="camera centres, one line per image: NAME X Y Z (metres)"
+    )
     ref.add_argument("--to-model", metavar="MODEL_DIR2", help="a reference COLMAP text model")
     ref.add_argument("--to-cloud", metavar="PLY", help="a reference point cloud (PLY)")
     p.add_argument("--no-scale", action="store_true", help="rigid alignment (rotation and translation only)")
-    p.add_argument("--max-distance", type=positive_float, metavar="M",
-                   help="--positions: inlier distance of the robust fit (default 5%% of the positions' extent); "
-                        "--to-model/--to-cloud: largest ICP correspondence distance (default: automatic)")
-    p.add_argument("--init", metavar="FILE",
-                   help="initial world_from_model: an align.json, or 12 or 16 numbers (3x4 or 4x4 [sR | t], rows)")
+    p.add_argument(
+        "--max-distance",
+        type=positive_float,
+        metavar="M",
+        help="--positions: inlier distance of the robust fit (default 5%% of the positions' extent); "
+        "--to-model/--to-cloud: largest ICP correspondence distance (default: automatic)",
+    )
+    p.add_argument(
+        "--init",
+        metavar="FILE",
+        help="initial world_from_model: an align.json, or 12 or 16 numbers (3x4 or 4x4 [sR | t], rows)",
+    )
     p.add_argument("--no-icp", action="store_true", help="--to-model: camera centres only, no ICP refinement")
-    p.add_argument("--max-iterations", type=positive_int, default=50, help="ICP iterations per stage (default 50)")
+    p.add_argument(
+        "--max-iterations", type=positive_int, default=50, help="ICP iterations per stage (default 50)"
+    )
     p.add_argument("--frusta", action="store_true", help="add the camera frusta to sparse.ply")
-    p.add_argument("--merge", action="store_true", help="also write merged.ply: aligned points + reference points")
+    p.add_argument(
+        "--merge", action="store_true", help="also write merged.ply: aligned points + reference points"
+    )
     p.add_argument("--seed", type=int, default=0, help="seed of RANSAC and ICP subsampling (default 0)")
     return p
 
@@ -127,7 +141,9 @@ def read_positions(path: str | Path) -> dict[str, np.ndarray]:
         try:
             xyz = np.array([float(w) for w in words[-3:]], np.float64)
         except ValueError:
-            raise InputError(f"line {lineno}: X Y Z must be numbers, got {' '.join(words[-3:])!r}", p) from None
+            raise InputError(
+                f"line {lineno}: X Y Z must be numbers, got {' '.join(words[-3:])!r}", p
+            ) from None
         if not np.all(np.isfinite(xyz)):
             raise InputError(f"line {lineno}: NaN or infinite position {' '.join(words[-3:])!r}", p)
         name = " ".join(words[:-3])
@@ -204,7 +220,9 @@ def read_init(path: str | Path):
     s = det ** (1.0 / 3.0)
     R = sR / s
     if np.abs(R @ R.T - np.eye(3)).max() > 1e-3:
-        raise InputError("the 3x3 part is not a scaled rotation (its columns are not orthogonal and equally long)", p)
+        raise InputError(
+            "the 3x3 part is not a scaled rotation (its columns are not orthogonal and equally long)", p
+        )
     return Sim3(orthonormalize(R), t, s)
 
 
@@ -223,14 +241,14 @@ def _rotation_deg(R: np.ndarray) -> float:
 # the command
 # ----------------------------------------------------------------------------------------------
 def run(args: argparse.Namespace) -> int:
+    from skyrecon.core.depth import PointCloud
+    from skyrecon.io.colmap import write_colmap_text
+    from skyrecon.io.ply import read_ply, write_ply
     from skyrecon.sfm.model_align import centroid_init as _centroid_init
     from skyrecon.sfm.model_align import fit_camera_centres as _fit_centres
     from skyrecon.sfm.model_align import icp_refine as _icp_refine
     from skyrecon.sfm.model_align import scene_extent as _extent
     from skyrecon.sfm.model_align import subsample_cloud as _subsample
-    from skyrecon.core.depth import PointCloud
-    from skyrecon.io.colmap import write_colmap_text
-    from skyrecon.io.ply import read_ply, write_ply
     from skyrecon.sfm.outputs import sparse_cloud
 
     t_start = time.perf_counter()
@@ -251,7 +269,9 @@ def run(args: argparse.Namespace) -> int:
 
     if args.positions:
         if args.init:
-            raise InputError("--init is for --to-model and --to-cloud; --positions needs no initial alignment")
+            raise InputError(
+                "--init is for --to-model and --to-cloud; --positions needs no initial alignment"
+            )
         positions = read_positions(args.positions)
         pairs = match_names(names, list(positions))
         if not pairs:
@@ -263,8 +283,11 @@ def run(args: argparse.Namespace) -> int:
             )
         matched = [n for n in names if n in pairs]
         if len(matched) < 3:
-            raise InputError(f"only {len(matched)} model images have a position ({', '.join(matched)}); "
-                             "at least 3 are needed", args.positions)
+            raise InputError(
+                f"only {len(matched)} model images have a position ({', '.join(matched)}); "
+                "at least 3 are needed",
+                args.positions,
+            )
         src = np.stack([centres[n] for n in matched])
         dst = np.stack([positions[pairs[n]] for n in matched])
         fit, thr = _fit_centres(src, dst, matched, with_scale, args.max_distance, args.seed, "positions")
@@ -273,27 +296,35 @@ def run(args: argparse.Namespace) -> int:
         inl = fit.inliers
         outliers = [n for n, ok in zip(matched, inl) if not ok]
         if outliers:
-            warnings.append(f"{len(outliers)} positions do not fit the others (more than {thr:.3g} m off) and were "
-                            f"ignored: " + ", ".join(f"{n} ({r:.2f} m)" for n, r, ok in zip(matched, res, inl)
-                                                     if not ok)[:400])
+            warnings.append(
+                f"{len(outliers)} positions do not fit the others (more than {thr:.3g} m off) and were "
+                f"ignored: "
+                + ", ".join(f"{n} ({r:.2f} m)" for n, r, ok in zip(matched, res, inl) if not ok)[:400]
+            )
         unmatched = sorted(set(positions) - set(pairs.values()))
-        result.update({
-            "method": "positions", "reference": str(Path(args.positions)),
-            "residuals_of": "camera centres",
-            "num_correspondences": len(matched), "num_inliers": int(inl.sum()),
-            "inlier_threshold_m": thr,
-            "residual_rms_m": float(np.sqrt(np.mean(res[inl] ** 2))),
-            "residual_median_m": float(np.median(res[inl])),
-            "residual_max_m": float(res[inl].max()),
-            "residuals_m": {n: float(r) for n, r in zip(matched, res)},
-            "outliers": outliers,
-            "positions_without_image": unmatched,
-            "images_without_position": [n for n in names if n not in pairs],
-        })
+        result.update(
+            {
+                "method": "positions",
+                "reference": str(Path(args.positions)),
+                "residuals_of": "camera centres",
+                "num_correspondences": len(matched),
+                "num_inliers": int(inl.sum()),
+                "inlier_threshold_m": thr,
+                "residual_rms_m": float(np.sqrt(np.mean(res[inl] ** 2))),
+                "residual_median_m": float(np.median(res[inl])),
+                "residual_max_m": float(res[inl].max()),
+                "residuals_m": {n: float(r) for n, r in zip(matched, res)},
+                "outliers": outliers,
+                "positions_without_image": unmatched,
+                "images_without_position": [n for n in names if n not in pairs],
+            }
+        )
         scale_hint = float(np.ptp(dst[:, :2], axis=0).max())
         if np.all(np.abs(dst[:, 0]) <= 180) and np.all(np.abs(dst[:, 1]) <= 90) and scale_hint < 0.05:
-            warnings.append("the positions look like latitude/longitude in degrees; convert them to metres "
-                            "(e.g. local east-north-up or UTM) first")
+            warnings.append(
+                "the positions look like latitude/longitude in degrees; convert them to metres "
+                "(e.g. local east-north-up or UTM) first"
+            )
     elif args.to_model:
         ref, ref_dir = read_model(args.to_model)
         ref_centres = {im.name: im.center_world for im in ref.images.values()}
@@ -305,7 +336,9 @@ def run(args: argparse.Namespace) -> int:
         if len(matched) >= 3:
             src = np.stack([centres[n] for n in matched])
             dst = np.stack([ref_centres[pairs[n]] for n in matched])
-            fit, _ = _fit_centres(src, dst, matched, with_scale, None, args.seed, "reference model's camera centres")
+            fit, _ = _fit_centres(
+                src, dst, matched, with_scale, None, args.seed, "reference model's camera centres"
+            )
             T0, init_kind = fit.transform, "camera centres"
             if init is not None:
                 warnings.append("--init ignored: the common images give the initial alignment")
@@ -316,36 +349,57 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(
                 f"the models have {len(matched) or 'no'} image names in common{common}; at least 3 are needed to align "
                 "by camera centres: give --init FILE (e.g. the align.json of both models aligned to GPS), or align "
-                "each with --positions", ref_dir,
+                "each with --positions",
+                ref_dir,
             )
         T, icp_stats = T0, None
         if not args.no_icp:
             if len(xyz) < 10 or len(ref_xyz) < 10:
                 warnings.append("too few 3D points for ICP; the camera centres alone give the alignment")
             else:
-                T, icp_stats = _icp_refine(xyz, _subsample(reference_points, MAX_TARGET_POINTS, args.seed), T0,
-                                           with_scale and init_kind == "file", args.max_distance,
-                                           args.max_iterations, args.seed)
-        result.update({"method": "model", "reference": str(ref_dir), "init": init_kind,
-                       "initial_world_from_model": _sim_json(T0), "icp": icp_stats})
+                T, icp_stats = _icp_refine(
+                    xyz,
+                    _subsample(reference_points, MAX_TARGET_POINTS, args.seed),
+                    T0,
+                    with_scale and init_kind == "file",
+                    args.max_distance,
+                    args.max_iterations,
+                    args.seed,
+                )
+        result.update(
+            {
+                "method": "model",
+                "reference": str(ref_dir),
+                "init": init_kind,
+                "initial_world_from_model": _sim_json(T0),
+                "icp": icp_stats,
+            }
+        )
         if matched:
             src = np.stack([centres[n] for n in matched])
             dst = np.stack([ref_centres[pairs[n]] for n in matched])
             res = np.linalg.norm(T.apply(src) - dst, axis=1)
             inl = fit.inliers if fit is not None else np.ones(len(matched), bool)
-            result.update({
-                "residuals_of": "camera centres of common images",
-                "num_correspondences": len(matched), "num_inliers": int(inl.sum()),
-                "residual_rms_m": float(np.sqrt(np.mean(res[inl] ** 2))),
-                "residual_median_m": float(np.median(res[inl])),
-                "residuals_m": {n: float(r) for n, r in zip(matched, res)},
-                "outliers": [n for n, ok in zip(matched, inl) if not ok],
-            })
+            result.update(
+                {
+                    "residuals_of": "camera centres of common images",
+                    "num_correspondences": len(matched),
+                    "num_inliers": int(inl.sum()),
+                    "residual_rms_m": float(np.sqrt(np.mean(res[inl] ** 2))),
+                    "residual_median_m": float(np.median(res[inl])),
+                    "residuals_m": {n: float(r) for n, r in zip(matched, res)},
+                    "outliers": [n for n, ok in zip(matched, inl) if not ok],
+                }
+            )
         else:
-            result.update({"residuals_of": "point-to-plane distances of the 3D points (ICP)",
-                           "num_correspondences": icp_stats["num_correspondences"],
-                           "residual_rms_m": icp_stats["point_to_plane_rms_m"],
-                           "residual_median_m": icp_stats["point_to_plane_median_m"]})
+            result.update(
+                {
+                    "residuals_of": "point-to-plane distances of the 3D points (ICP)",
+                    "num_correspondences": icp_stats["num_correspondences"],
+                    "residual_rms_m": icp_stats["point_to_plane_rms_m"],
+                    "residual_median_m": icp_stats["point_to_plane_median_m"],
+                }
+            )
     else:
         cloud = read_ply(args.to_cloud)
         if len(cloud) < 10:
@@ -368,30 +422,44 @@ def run(args: argparse.Namespace) -> int:
                 T0, init_kind = Sim3(), "identity (the model already overlaps the cloud)"
             else:
                 T0, init_kind = _centroid_init(xyz, tgt, with_scale), "centroids and spread (no rotation)"
-                warnings.append("initial alignment from the centroids and spreads of both clouds, without rotation; "
-                                "if the model is turned relative to the cloud give --init (or align with "
-                                "--positions first)")
-        T, icp_stats = _icp_refine(xyz, target, T0, with_scale, args.max_distance, args.max_iterations, args.seed)
-        result.update({
-            "method": "cloud", "reference": str(Path(args.to_cloud)), "init": init_kind,
-            "initial_world_from_model": _sim_json(T0), "icp": icp_stats,
-            "residuals_of": "point-to-plane distances of the model's points to the cloud (within the ICP distance)",
-            "num_correspondences": icp_stats["num_correspondences"],
-            "residual_rms_m": icp_stats["point_to_plane_rms_m"],
-            "residual_median_m": icp_stats["point_to_plane_median_m"],
-        })
+                warnings.append(
+                    "initial alignment from the centroids and spreads of both clouds, without rotation; "
+                    "if the model is turned relative to the cloud give --init (or align with "
+                    "--positions first)"
+                )
+        T, icp_stats = _icp_refine(
+            xyz, target, T0, with_scale, args.max_distance, args.max_iterations, args.seed
+        )
+        result.update(
+            {
+                "method": "cloud",
+                "reference": str(Path(args.to_cloud)),
+                "init": init_kind,
+                "initial_world_from_model": _sim_json(T0),
+                "icp": icp_stats,
+                "residuals_of": "point-to-plane distances of the model's points to the cloud (within the ICP distance)",
+                "num_correspondences": icp_stats["num_correspondences"],
+                "residual_rms_m": icp_stats["point_to_plane_rms_m"],
+                "residual_median_m": icp_stats["point_to_plane_median_m"],
+            }
+        )
         if len(target) < len(cloud):
             result["cloud_points_used"] = len(target)
     icp_stats = result.get("icp")
     if icp_stats:
         if not icp_stats["converged"]:
             last = icp_stats["stages"][-1]
-            warnings.insert(0, f"ICP did not converge in {last['iterations']} iterations (RMS {last['rmse_m']:.3g} m); "
-                               "the alignment may be off: check it, give --init, or raise --max-iterations")
+            warnings.insert(
+                0,
+                f"ICP did not converge in {last['iterations']} iterations (RMS {last['rmse_m']:.3g} m); "
+                "the alignment may be off: check it, give --init, or raise --max-iterations",
+            )
         if icp_stats["fitness"] < 0.2:
-            warnings.append(f"only {100 * icp_stats['fitness']:.0f} % of the model's points lie within "
-                            f"{icp_stats['max_distance_m']:.3g} m of the reference after ICP: the two may overlap "
-                            "little, or the initial alignment was too far off")
+            warnings.append(
+                f"only {100 * icp_stats['fitness']:.0f} % of the model's points lie within "
+                f"{icp_stats['max_distance_m']:.3g} m of the reference after ICP: the two may overlap "
+                "little, or the initial alignment was too far off"
+            )
 
     if not (np.all(np.isfinite(T.matrix)) and T.scale > 0):
         raise EstimationError("the alignment is not finite")
@@ -400,16 +468,23 @@ def run(args: argparse.Namespace) -> int:
     write_colmap_text(out / "sparse", aligned)
     cloud_out = sparse_cloud(aligned, args.frusta)
     if len(cloud_out) and float(np.abs(cloud_out.points).max()) > 1e5:
-        warnings.append("coordinates above 100 km: sparse.ply stores float32 (about 1 cm or worse at this size); "
-                        "sparse/ keeps full precision")
+        warnings.append(
+            "coordinates above 100 km: sparse.ply stores float32 (about 1 cm or worse at this size); "
+            "sparse/ keeps full precision"
+        )
     write_ply(out / "sparse.ply", cloud_out)
     files = ["sparse/cameras.txt", "sparse/images.txt", "sparse/points3D.txt", "sparse.ply", "align.json"]
     if args.merge and reference_points is not None:
         a_xyz, a_rgb = aligned.points_array()
-        ref_rgb = reference_points.colors if reference_points.colors is not None else \
-            np.full((len(reference_points), 3), 160, np.uint8)
-        merged = PointCloud(np.concatenate([a_xyz.astype(np.float32), reference_points.points]),
-                            np.concatenate([a_rgb, ref_rgb]))
+        ref_rgb = (
+            reference_points.colors
+            if reference_points.colors is not None
+            else np.full((len(reference_points), 3), 160, np.uint8)
+        )
+        merged = PointCloud(
+            np.concatenate([a_xyz.astype(np.float32), reference_points.points]),
+            np.concatenate([a_rgb, ref_rgb]),
+        )
         write_ply(out / "merged.ply", merged)
         files.append("merged.ply")
 
@@ -417,10 +492,13 @@ def run(args: argparse.Namespace) -> int:
     summary = {
         **{k: v for k, v in result.items() if k == "method"},
         "world_from_model": _sim_json(T),
-        "scale": T.scale, "R": T.R.tolist(), "t": T.t.tolist(),
+        "scale": T.scale,
+        "R": T.R.tolist(),
+        "t": T.t.tolist(),
         "rotation_deg": R_deg,
         **{k: v for k, v in result.items() if k != "method"},
-        "num_images": len(names), "num_points": len(xyz),
+        "num_images": len(names),
+        "num_points": len(xyz),
         "with_scale": with_scale,
         "warnings": warnings,
         "files": files,
@@ -442,12 +520,20 @@ def run(args: argparse.Namespace) -> int:
             what = f"the cloud {result['reference']}"
         icp_note = ""
         if result.get("icp"):
-            icp_note = f"; ICP {'converged' if result['icp']['converged'] else 'did NOT converge'}, " \
-                       f"{100 * result['icp']['fitness']:.0f} % of points matched"
-        info(f"aligned {len(names)} images and {len(xyz)} points to {what}: scale {T.scale:.6g}, rotation "
-             f"{R_deg:.2f} deg, residual RMS {result['residual_rms_m']:.4g} m, "
-             f"median {result['residual_median_m']:.4g} m{icp_note}")
-        info(f"wrote {out}/sparse/ (COLMAP text), sparse.ply" + (", merged.ply" if args.merge else "") + ", align.json")
+            icp_note = (
+                f"; ICP {'converged' if result['icp']['converged'] else 'did NOT converge'}, "
+                f"{100 * result['icp']['fitness']:.0f} % of points matched"
+            )
+        info(
+            f"aligned {len(names)} images and {len(xyz)} points to {what}: scale {T.scale:.6g}, rotation "
+            f"{R_deg:.2f} deg, residual RMS {result['residual_rms_m']:.4g} m, "
+            f"median {result['residual_median_m']:.4g} m{icp_note}"
+        )
+        info(
+            f"wrote {out}/sparse/ (COLMAP text), sparse.ply"
+            + (", merged.ply" if args.merge else "")
+            + ", align.json"
+        )
     return 0
 
 

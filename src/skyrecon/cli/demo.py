@@ -50,19 +50,35 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         examples=EXAMPLES,
     )
     p.add_argument("--seed", type=int, default=0, help="city seed; also picks start and goal (default 0)")
-    p.add_argument("--out", default="demo_out", help="output directory, created if missing (default ./demo_out)")
+    p.add_argument(
+        "--out", default="demo_out", help="output directory, created if missing (default ./demo_out)"
+    )
     p.add_argument("--start", nargs=3, metavar=("X", "Y", "Z"), help="start position, world metres (z up)")
     p.add_argument("--goal", nargs=3, metavar=("X", "Y", "Z"), help="delivery point, world metres (z up)")
-    p.add_argument("--missions", type=positive_int, default=1, help="fly this many seeds (seed, seed+1, ...) in parallel")
-    p.add_argument("--workers", type=positive_int, help="parallel missions with --missions (default: CPU count)")
+    p.add_argument(
+        "--missions", type=positive_int, default=1, help="fly this many seeds (seed, seed+1, ...) in parallel"
+    )
+    p.add_argument(
+        "--workers", type=positive_int, help="parallel missions with --missions (default: CPU count)"
+    )
     p.add_argument("--city-size", type=positive_float, help="side of the city, metres (default 200)")
     p.add_argument("--width", type=positive_int, help="camera image width, pixels (default 640)")
     p.add_argument("--height", type=positive_int, help="camera image height, pixels (default 480)")
     p.add_argument("--speed", type=positive_float, help="cruise speed, m/s (default 6)")
-    p.add_argument("--clearance", type=positive_float, help="distance kept from mapped obstacles, metres (default 2)")
-    p.add_argument("--max-altitude", type=positive_float, help="ceiling of the flight band, metres (default 30; "
-                   "lower makes the drone go round more buildings instead of over them)")
-    p.add_argument("--time-limit", type=positive_float, help="simulated seconds before giving up (default: from the distance)")
+    p.add_argument(
+        "--clearance", type=positive_float, help="distance kept from mapped obstacles, metres (default 2)"
+    )
+    p.add_argument(
+        "--max-altitude",
+        type=positive_float,
+        help="ceiling of the flight band, metres (default 30; "
+        "lower makes the drone go round more buildings instead of over them)",
+    )
+    p.add_argument(
+        "--time-limit",
+        type=positive_float,
+        help="simulated seconds before giving up (default: from the distance)",
+    )
     return p
 
 
@@ -70,12 +86,21 @@ def _config(args):
     from skyrecon.mission import MissionConfig
 
     cfg = MissionConfig()
-    changes = dict(width=args.width, height=args.height, cruise_speed_mps=args.speed, clearance_m=args.clearance,
-                   time_limit_s=args.time_limit, max_altitude_m=args.max_altitude)
+    changes = dict(
+        width=args.width,
+        height=args.height,
+        cruise_speed_mps=args.speed,
+        clearance_m=args.clearance,
+        time_limit_s=args.time_limit,
+        max_altitude_m=args.max_altitude,
+    )
     if args.city_size is not None:
         scale = min(1.0, args.city_size / cfg.city_size_m)
-        changes.update(city_size_m=args.city_size, min_goal_distance_m=cfg.min_goal_distance_m * scale,
-                       max_goal_distance_m=cfg.max_goal_distance_m * scale)
+        changes.update(
+            city_size_m=args.city_size,
+            min_goal_distance_m=cfg.min_goal_distance_m * scale,
+            max_goal_distance_m=cfg.max_goal_distance_m * scale,
+        )
     if args.width is not None and args.height is None:
         changes["height"] = max(48, round(args.width * 3 / 4))
     if args.width is not None or args.height is not None:
@@ -109,8 +134,10 @@ class _Progress:
             return
         srt = sorted(self.loop)
         hz = 1000.0 / srt[len(srt) // 2] if srt and srt[len(srt) // 2] > 0 else float("nan")
-        text = (f"t {rec.time_s:5.1f} s | to go {rec.to_go_m:6.1f} m | {rec.speed_mps:3.1f} m/s | "
-                f"loop {hz:5.1f} Hz | {self.replans} replans | clearance {rec.clearance_m:5.2f} m")
+        text = (
+            f"t {rec.time_s:5.1f} s | to go {rec.to_go_m:6.1f} m | {rec.speed_mps:3.1f} m/s | "
+            f"loop {hz:5.1f} Hz | {self.replans} replans | clearance {rec.clearance_m:5.2f} m"
+        )
         if self.bar is not None:
             self.bar.set_postfix_str(text, refresh=False)
             self.bar.update(1)
@@ -145,8 +172,10 @@ def run(args: argparse.Namespace) -> int:
             info(f"flying {len(seeds)} missions (seeds {seeds[0]}..{seeds[-1]}) into {out}/seed_NNNN/")
         rows, totals = run_missions(seeds, out, cfg, get_executor(workers=args.workers), quiet=args.quiet)
         if not args.quiet:
-            info(f"{totals['succeeded']} of {totals['missions']} delivered, {totals['collisions']} collisions; "
-                 f"summary: {out / 'summary.html'} (and summary.json, summary.md)")
+            info(
+                f"{totals['succeeded']} of {totals['missions']} delivered, {totals['collisions']} collisions; "
+                f"summary: {out / 'summary.html'} (and summary.json, summary.md)"
+            )
         return 0 if totals["succeeded"] == totals["missions"] else 1
 
     t0 = time.perf_counter()
@@ -154,9 +183,11 @@ def run(args: argparse.Namespace) -> int:
 
     def announce(sc) -> None:
         if not args.quiet:
-            info(f"seed {sc.seed}: {cfg.city_size_m:g} m city with {sc.city.num_buildings} buildings; flying from "
-                 f"{_fmt(sc.start)} to {_fmt(sc.goal)} ({sc.straight_line_m:.0f} m apart, shortest feasible "
-                 f"{sc.shortest.length_m:.0f} m); the drone has no map yet")
+            info(
+                f"seed {sc.seed}: {cfg.city_size_m:g} m city with {sc.city.num_buildings} buildings; flying from "
+                f"{_fmt(sc.start)} to {_fmt(sc.goal)} ({sc.straight_line_m:.0f} m apart, shortest feasible "
+                f"{sc.shortest.length_m:.0f} m); the drone has no map yet"
+            )
 
     try:
         outcome = fly_and_write(args.seed, out, cfg, start, goal, on_cycle=progress, on_scenario=announce)

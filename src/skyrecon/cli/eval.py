@@ -31,7 +31,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("what", choices=["stereo"], help="what to evaluate")
     p.add_argument("prediction", help="the result to score")
     p.add_argument("ground_truth", help="the ground truth")
-    p.add_argument("--gt-scale", type=float, help="8-bit ground truth: disparity = value / scale (default 4, Middlebury 2003)")
+    p.add_argument(
+        "--gt-scale",
+        type=float,
+        help="8-bit ground truth: disparity = value / scale (default 4, Middlebury 2003)",
+    )
     p.add_argument("--json", help="also write the scores to this JSON file")
     return p
 

@@ -67,7 +67,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"error: {_one_line(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("error: interrupted; outputs already written are complete, the rest were not written", file=sys.stderr)
+        print(
+            "error: interrupted; outputs already written are complete, the rest were not written",
+            file=sys.stderr,
+        )
         return 130
     except MemoryError:
         if debug:

@@ -38,22 +38,38 @@ EXAMPLES = """  skyrecon map flight/ --out flight_map/ --voxel-size 0.2
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
     p = add_command(
-        subparsers, "map", help="occupancy map from a stereo sequence, depth maps or a point cloud",
-        description=__doc__.split("\n\n")[0].split(": ", 1)[1], examples=EXAMPLES,
+        subparsers,
+        "map",
+        help="occupancy map from a stereo sequence, depth maps or a point cloud",
+        description=__doc__.split("\n\n")[0].split(": ", 1)[1],
+        examples=EXAMPLES,
     )
     p.add_argument("source", help="sequence directory or .ply point cloud")
     p.add_argument("--out", required=True, help="map directory to write")
     p.add_argument("--voxel-size", type=positive_float, default=0.2, help="voxel edge, metres (default 0.2)")
-    p.add_argument("--max-range", type=positive_float, default=40.0,
-                   help="measurements farther than this carve free space only, metres (default 40)")
-    p.add_argument("--max-depth-error", type=positive_float,
-                   help="stereo: mark obstacles only where a 0.25 px disparity error moves depth by less "
-                        "than this, metres (default 2 voxels); farther measurements carve free space only")
-    p.add_argument("--depth", metavar="SUBDIR", help="use SOURCE/SUBDIR/<frame>.pfm depth maps instead of stereo")
+    p.add_argument(
+        "--max-range",
+        type=positive_float,
+        default=40.0,
+        help="measurements farther than this carve free space only, metres (default 40)",
+    )
+    p.add_argument(
+        "--max-depth-error",
+        type=positive_float,
+        help="stereo: mark obstacles only where a 0.25 px disparity error moves depth by less "
+        "than this, metres (default 2 voxels); farther measurements carve free space only",
+    )
+    p.add_argument(
+        "--depth", metavar="SUBDIR", help="use SOURCE/SUBDIR/<frame>.pfm depth maps instead of stereo"
+    )
     p.add_argument("--method", default="skyrecon", help="stereo matcher (default skyrecon)")
-    p.add_argument("--max-disparity", type=positive_int, default=128, help="stereo search range, pixels (default 128)")
+    p.add_argument(
+        "--max-disparity", type=positive_int, default=128, help="stereo search range, pixels (default 128)"
+    )
     p.add_argument("--frames", type=positive_int, help="use only the first N frames")
-    p.add_argument("--origin", type=float, nargs=3, metavar=("X", "Y", "Z"), help="sensor position for a .ply source")
+    p.add_argument(
+        "--origin", type=float, nargs=3, metavar=("X", "Y", "Z"), help="sensor position for a .ply source"
+    )
     p.add_argument("--bt", action="store_true", help="also write an OctoMap .bt file (map.bt)")
     return p
 
@@ -74,7 +90,9 @@ def run(args: argparse.Namespace) -> int:
     seconds = time.perf_counter() - t0
     counts = occ.counts()
     if counts.get("occupied", 0) == 0:
-        raise InputError("no occupied voxel was observed: check the depth (metres?), the poses and --max-range", source)
+        raise InputError(
+            "no occupied voxel was observed: check the depth (metres?), the poses and --max-range", source
+        )
 
     out = Path(args.out)
     if out.exists() and not out.is_dir():
@@ -88,8 +106,11 @@ def run(args: argparse.Namespace) -> int:
             write_octomap_bt(occ, tmp / "map.bt")
         _write_preview(occ, tmp / "preview.png", summary.pop("track", None))
         summary.update(
-            voxel_size_m=args.voxel_size, max_range_m=round(max_range, 2), seconds=round(seconds, 2),
-            voxels={k: int(v) for k, v in counts.items()}, memory_mb=round(occ.memory_bytes() / 1e6, 1),
+            voxel_size_m=args.voxel_size,
+            max_range_m=round(max_range, 2),
+            seconds=round(seconds, 2),
+            voxels={k: int(v) for k, v in counts.items()},
+            memory_mb=round(occ.memory_bytes() / 1e6, 1),
         )
         (tmp / "map_summary.json").write_text(json.dumps(summary, indent=2))
         _replace_dir(tmp, out)
@@ -97,9 +118,11 @@ def run(args: argparse.Namespace) -> int:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     if not args.quiet:
-        info(f"map of {summary.get('frames', 1)} input(s): {n_occ} occupied, {counts.get('free', 0)} free voxels "
-             f"at {args.voxel_size} m in {seconds:.1f} s" +
-             (f" ({summary['frames_per_s']:.1f} frames/s)" if "frames_per_s" in summary else ""))
+        info(
+            f"map of {summary.get('frames', 1)} input(s): {n_occ} occupied, {counts.get('free', 0)} free voxels "
+            f"at {args.voxel_size} m in {seconds:.1f} s"
+            + (f" ({summary['frames_per_s']:.1f} frames/s)" if "frames_per_s" in summary else "")
+        )
         info(f"wrote {out}/map.json, blocks.npz, occupied.ply, preview.png")
     return 0
 
@@ -114,18 +137,29 @@ def _integrate_sequence(root: Path, args) -> tuple:
 
     seq = read_sequence(root)
     if seq.world_from_left is None:
-        raise InputError("the sequence has no poses.txt; a map needs one world_from_left_camera pose per frame", root)
+        raise InputError(
+            "the sequence has no poses.txt; a map needs one world_from_left_camera pose per frame", root
+        )
     n = min(len(seq), args.frames or len(seq))
     rig = seq.rig
     if args.depth is None:
-        mapper = StereoMapper(rig, StereoMapSettings(
-            voxel_size_m=args.voxel_size, max_range_m=args.max_range, method=args.method,
-            max_disparity=args.max_disparity, max_depth_error_m=args.max_depth_error,
-        ))
+        mapper = StereoMapper(
+            rig,
+            StereoMapSettings(
+                voxel_size_m=args.voxel_size,
+                max_range_m=args.max_range,
+                method=args.method,
+                max_disparity=args.max_disparity,
+                max_depth_error_m=args.max_depth_error,
+            ),
+        )
         _ = mapper.matcher  # build (and warm up) the matcher before the first frame
         occ, timings = mapper.map, mapper.timings
     else:
-        occ, timings = OccupancyMap(voxel_size_m=args.voxel_size, max_range_m=args.max_range), StereoMapTimings()
+        occ, timings = (
+            OccupancyMap(voxel_size_m=args.voxel_size, max_range_m=args.max_range),
+            StereoMapTimings(),
+        )
     for i in progress(range(n), desc="map frames"):
         try:
             if args.depth is None:
@@ -136,7 +170,10 @@ def _integrate_sequence(root: Path, args) -> tuple:
                 t0 = time.perf_counter()
                 depth = read_pfm(path)
                 if depth.shape != rig.left.shape:
-                    raise InputError(f"depth map is {depth.shape[1]}x{depth.shape[0]}, images are {rig.left.width}x{rig.left.height}", path)
+                    raise InputError(
+                        f"depth map is {depth.shape[1]}x{depth.shape[0]}, images are {rig.left.width}x{rig.left.height}",
+                        path,
+                    )
                 t1 = time.perf_counter()
                 occ.integrate_depth(depth, rig.left, seq.world_from_left[i])
                 timings.depth_s.append(t1 - t0)
@@ -146,8 +183,11 @@ def _integrate_sequence(root: Path, args) -> tuple:
     summary = timings.summary()
     summary.pop("frames", None)
     return occ, {
-        "source": str(root), "frames": n, "depth_from": args.depth or f"stereo ({args.method})",
-        **summary, "track": np.array([p.t for p in seq.world_from_left[:n]]),
+        "source": str(root),
+        "frames": n,
+        "depth_from": args.depth or f"stereo ({args.method})",
+        **summary,
+        "track": np.array([p.t for p in seq.world_from_left[:n]]),
     }
 
 
@@ -155,7 +195,10 @@ def _integrate_cloud(occ, path: Path, args) -> dict:
     from skyrecon.io.ply import read_ply
 
     if args.origin is None:
-        raise InputError("a point cloud needs the sensor position it was seen from: add --origin X Y Z (world, metres)", path)
+        raise InputError(
+            "a point cloud needs the sensor position it was seen from: add --origin X Y Z (world, metres)",
+            path,
+        )
     cloud = read_ply(path)
     if len(cloud) == 0:
         raise InputError("the point cloud is empty", path)

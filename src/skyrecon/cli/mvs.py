@@ -35,26 +35,59 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         examples=EXAMPLES,
     )
     p.add_argument("images_dir", help="directory of the images")
-    p.add_argument("--cameras", required=True,
-                   help="COLMAP text model directory, Middlebury *_par.txt, directory of Strecha *.camera "
-                        "files or of HALCON camera files")
+    p.add_argument(
+        "--cameras",
+        required=True,
+        help="COLMAP text model directory, Middlebury *_par.txt, directory of Strecha *.camera "
+        "files or of HALCON camera files",
+    )
     p.add_argument("--out", required=True, help="output directory (created if missing)")
-    p.add_argument("--topology", choices=list(TOPOLOGIES), default=None,
-                   help="which views are matched: auto (default: best neighbours per view) or a ring topology")
-    p.add_argument("--fusion", choices=list(FUSION_METHODS), default="consistency",
-                   help="consistency: keep depths that agree across views (default); "
-                        "concat: the write-up's method (pairwise SGBM, clouds concatenated)")
-    p.add_argument("--depth-method", choices=list(DEPTH_METHODS), default=None,
-                   help="patchmatch: multi-view PatchMatch (default); pairwise: rectified stereo per pair")
-    p.add_argument("--max-image-size", type=positive_int, default=640,
-                   help="longer side of the working images, pixels (default 640)")
-    p.add_argument("--num-sources", type=positive_int, default=None, help="source views per reference view (auto)")
-    p.add_argument("--depth-range", type=positive_float, nargs=2, metavar=("NEAR", "FAR"),
-                   help="depth range of every view, metres (default: estimated from sparse matches)")
-    p.add_argument("--voxel-size", type=positive_float, help="average the fused points in voxels of this size, metres")
-    p.add_argument("--mesh", action="store_true", help="also write mesh.ply (TSDF fusion + surface extraction)")
-    p.add_argument("--allow-extra-images", action="store_true",
-                   help="ignore image files that no camera refers to (default: an error)")
+    p.add_argument(
+        "--topology",
+        choices=list(TOPOLOGIES),
+        default=None,
+        help="which views are matched: auto (default: best neighbours per view) or a ring topology",
+    )
+    p.add_argument(
+        "--fusion",
+        choices=list(FUSION_METHODS),
+        default="consistency",
+        help="consistency: keep depths that agree across views (default); "
+        "concat: the write-up's method (pairwise SGBM, clouds concatenated)",
+    )
+    p.add_argument(
+        "--depth-method",
+        choices=list(DEPTH_METHODS),
+        default=None,
+        help="patchmatch: multi-view PatchMatch (default); pairwise: rectified stereo per pair",
+    )
+    p.add_argument(
+        "--max-image-size",
+        type=positive_int,
+        default=640,
+        help="longer side of the working images, pixels (default 640)",
+    )
+    p.add_argument(
+        "--num-sources", type=positive_int, default=None, help="source views per reference view (auto)"
+    )
+    p.add_argument(
+        "--depth-range",
+        type=positive_float,
+        nargs=2,
+        metavar=("NEAR", "FAR"),
+        help="depth range of every view, metres (default: estimated from sparse matches)",
+    )
+    p.add_argument(
+        "--voxel-size", type=positive_float, help="average the fused points in voxels of this size, metres"
+    )
+    p.add_argument(
+        "--mesh", action="store_true", help="also write mesh.ply (TSDF fusion + surface extraction)"
+    )
+    p.add_argument(
+        "--allow-extra-images",
+        action="store_true",
+        help="ignore image files that no camera refers to (default: an error)",
+    )
     p.add_argument("--workers", type=positive_int, help="processes for per-view depth (default: all cores)")
     p.add_argument("--seed", type=int, default=0, help="seed of every random choice (same seed, same result)")
     return p
@@ -64,7 +97,9 @@ def run(args: argparse.Namespace) -> int:
     from skyrecon.executor import get_executor
     from skyrecon.mvs import MVSSettings, load_views_and_images, run_mvs, save_mvs_result
 
-    views, _ = load_views_and_images(args.images_dir, args.cameras, allow_extra_images=args.allow_extra_images)
+    views, _ = load_views_and_images(
+        args.images_dir, args.cameras, allow_extra_images=args.allow_extra_images
+    )
     changes: dict = dict(max_image_size=args.max_image_size, seed=args.seed)
     if args.depth_method is not None:
         changes["depth_method"] = args.depth_method
@@ -77,8 +112,10 @@ def run(args: argparse.Namespace) -> int:
     settings = MVSSettings.from_names(args.topology, args.fusion, args.mesh, **changes)
     out = output_dir(args.out)
     if not args.quiet:
-        info(f"{len(views)} views; depth by {settings.depth_method}, topology {settings.topology}, "
-             f"fusion {settings.fusion}, longer side at most {settings.max_image_size or 'full'} px")
+        info(
+            f"{len(views)} views; depth by {settings.depth_method}, topology {settings.topology}, "
+            f"fusion {settings.fusion}, longer side at most {settings.max_image_size or 'full'} px"
+        )
     executor = get_executor("serial") if args.workers == 1 else get_executor(None, args.workers)
     result = run_mvs(views, None, settings, executor=executor)
     if len(result.cloud) == 0:
@@ -92,8 +129,10 @@ def run(args: argparse.Namespace) -> int:
             info(f"warning: {warning}")
         t = result.timings_s
         steps = ", ".join(f"{k} {v:.1f} s" for k, v in t.items() if k != "total")
-        info(f"{len(result.cloud)} fused points from {len(result.depth_maps)} depth maps in {t.get('total', 0):.1f} s "
-             f"({steps})")
+        info(
+            f"{len(result.cloud)} fused points from {len(result.depth_maps)} depth maps in {t.get('total', 0):.1f} s "
+            f"({steps})"
+        )
         written = ["fused.ply", "depth/*.pfm", "mvs.json", "depth.png", "preview.png"]
         if "mesh" in paths:
             written.insert(1, "mesh.ply")
@@ -110,10 +149,14 @@ def _pictures(result, views, out: Path) -> None:
 
     stems = list(result.depth_maps)
     if stems:
-        finite = np.concatenate([dm.depth_m[np.isfinite(dm.depth_m)].ravel()[::7] for dm in result.depth_maps.values()])
-        lo, hi = (np.percentile(finite, [1, 99]) if finite.size else (None, None))
+        finite = np.concatenate(
+            [dm.depth_m[np.isfinite(dm.depth_m)].ravel()[::7] for dm in result.depth_maps.values()]
+        )
+        lo, hi = np.percentile(finite, [1, 99]) if finite.size else (None, None)
         tiles = [colorize_depth(result.depth_maps[s].depth_m, lo, hi) for s in stems[:24]]
-        write_image(out / "depth.png", contact_sheet(tiles, stems[:24], columns=min(4, len(tiles)), tile_width=320))
+        write_image(
+            out / "depth.png", contact_sheet(tiles, stems[:24], columns=min(4, len(tiles)), tile_width=320)
+        )
     picks = sorted({0, len(views) // 3, (2 * len(views)) // 3})
     tiles, labels = [], []
     for k in picks:

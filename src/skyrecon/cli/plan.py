@@ -24,19 +24,31 @@ EXAMPLES = """  skyrecon plan flight_map/ --start 0 0 15 --goal 120 80 20 --out 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
     p = add_command(
-        subparsers, "plan", help="collision-free 3D path through a map",
-        description=__doc__.split("\n\n")[0].split(": ", 1)[1], examples=EXAMPLES,
+        subparsers,
+        "plan",
+        help="collision-free 3D path through a map",
+        description=__doc__.split("\n\n")[0].split(": ", 1)[1],
+        examples=EXAMPLES,
     )
     p.add_argument("map_dir", help="map directory written by 'skyrecon map'")
-    p.add_argument("--start", type=float, nargs=3, required=True, metavar=("X", "Y", "Z"), help="world metres")
+    p.add_argument(
+        "--start", type=float, nargs=3, required=True, metavar=("X", "Y", "Z"), help="world metres"
+    )
     p.add_argument("--goal", type=float, nargs=3, required=True, metavar=("X", "Y", "Z"), help="world metres")
     p.add_argument("--out", required=True, help="output directory (created if missing)")
-    p.add_argument("--clearance", type=float, default=2.0, help="distance to keep from obstacles, metres (default 2)")
+    p.add_argument(
+        "--clearance", type=float, default=2.0, help="distance to keep from obstacles, metres (default 2)"
+    )
     p.add_argument("--allow-unknown", action="store_true", help="let the path cross unexplored space")
     p.add_argument("--min-z", type=float, default=-np.inf, help="lowest altitude allowed, world z metres")
     p.add_argument("--max-z", type=float, default=np.inf, help="highest altitude allowed, world z metres")
-    p.add_argument("--origin", type=float, nargs=3, metavar=("LAT", "LON", "ALT"),
-                   help="geographic position of the world origin (degrees, degrees, metres AMSL) for mission.plan")
+    p.add_argument(
+        "--origin",
+        type=float,
+        nargs=3,
+        metavar=("LAT", "LON", "ALT"),
+        help="geographic position of the world origin (degrees, degrees, metres AMSL) for mission.plan",
+    )
     return p
 
 
@@ -50,18 +62,23 @@ def run(args: argparse.Namespace) -> int:
         if not np.all(np.isfinite(p)):
             raise InputError(f"{name} must be three finite numbers, got {p.tolist()}")
     occ = load_map(args.map_dir)
-    result = plan_path(occ, start, goal, args.clearance, allow_unknown=args.allow_unknown,
-                       min_z=args.min_z, max_z=args.max_z)
+    result = plan_path(
+        occ, start, goal, args.clearance, allow_unknown=args.allow_unknown, min_z=args.min_z, max_z=args.max_z
+    )
     out = output_dir(args.out)
     write_path_json(out / "path.json", result, start=start, goal=goal)
     if not result.success:
-        raise EstimationError(f"no path from {start.tolist()} to {goal.tolist()}: {result.message or result.reason}")
+        raise EstimationError(
+            f"no path from {start.tolist()} to {goal.tolist()}: {result.message or result.reason}"
+        )
     write_map_preview(occ, out / "preview.png", [result.waypoints])
     if args.origin is not None:
         write_qgc_plan(out / "mission.plan", result.waypoints, args.origin)
     if not args.quiet:
         straight = float(np.linalg.norm(goal - start))
-        info(f"path of {len(result.waypoints)} waypoints, {result.length_m:.1f} m ({result.length_m / max(straight, 1e-9):.3f} x straight line), "
-             f"clearance {args.clearance} m, planned in {1000 * result.timings.get('total', float('nan')):.0f} ms")
+        info(
+            f"path of {len(result.waypoints)} waypoints, {result.length_m:.1f} m ({result.length_m / max(straight, 1e-9):.3f} x straight line), "
+            f"clearance {args.clearance} m, planned in {1000 * result.timings.get('total', float('nan')):.0f} ms"
+        )
         info(f"wrote {out}/path.json, preview.png" + (", mission.plan" if args.origin is not None else ""))
     return 0

@@ -50,11 +50,17 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="city seed; same seed, same scene (default 0)")
     p.add_argument("--width", type=positive_int, default=640, help="image width in pixels (default 640)")
     p.add_argument("--height", type=positive_int, default=480, help="image height in pixels (default 480)")
-    p.add_argument("--hfov", type=positive_float, default=90.0, help="horizontal field of view, degrees (default 90)")
-    p.add_argument("--baseline", type=positive_float, default=0.3, help="stereo baseline, metres (default 0.3)")
+    p.add_argument(
+        "--hfov", type=positive_float, default=90.0, help="horizontal field of view, degrees (default 90)"
+    )
+    p.add_argument(
+        "--baseline", type=positive_float, default=0.3, help="stereo baseline, metres (default 0.3)"
+    )
     p.add_argument("--frames", type=positive_int, default=30, help="sequence: number of frames (default 30)")
     p.add_argument("--views", type=positive_int, default=12, help="ring/images: number of views (default 12)")
-    p.add_argument("--city-size", type=positive_float, default=200.0, help="city side length, metres (default 200)")
+    p.add_argument(
+        "--city-size", type=positive_float, default=200.0, help="city side length, metres (default 200)"
+    )
     return p
 
 
@@ -65,11 +71,16 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--hfov must be below 170 degrees for a pinhole camera, got {args.hfov}")
     out = output_dir(args.out)
     t0 = time.perf_counter()
-    summary = {"stereo": _render_stereo, "sequence": _render_sequence, "ring": _render_ring, "images": _render_images}[
-        args.kind
-    ](args, out)
+    summary = {
+        "stereo": _render_stereo,
+        "sequence": _render_sequence,
+        "ring": _render_ring,
+        "images": _render_images,
+    }[args.kind](args, out)
     settings = {k: v for k, v in vars(args).items() if k not in ("command", "debug", "quiet", "out")}
-    write_text_atomic(out / "scene.json", json.dumps({"generator": "skyrecon render", **settings, **summary}, indent=2))
+    write_text_atomic(
+        out / "scene.json", json.dumps({"generator": "skyrecon render", **settings, **summary}, indent=2)
+    )
     if not args.quiet:
         info(f"rendered {args.kind} (seed {args.seed}) to {out} in {time.perf_counter() - t0:.1f} s")
         for key, value in summary.items():
@@ -79,12 +90,12 @@ def run(args: argparse.Namespace) -> int:
 
 # ----- stereo ------------------------------------------------------------------
 def _render_stereo(args, out: Path) -> dict:
+    from skyrecon.core import DepthMap
     from skyrecon.io.calib import write_K_txt, write_kitti_calib
     from skyrecon.io.disparity import colorize_disparity
     from skyrecon.io.pfm import write_pfm
     from skyrecon.io.ply import write_ply
     from skyrecon.report.figures import contact_sheet
-    from skyrecon.core import DepthMap
     from skyrecon.sim import default_rig, generate_city, render_stereo, street_view_pose
 
     city = generate_city(args.seed, size_m=args.city_size)
@@ -101,7 +112,10 @@ def _render_stereo(args, out: Path) -> dict:
     write_image(out / "gt_disparity.png", disp_png)
     cloud = DepthMap(frame.depth_left_m, rig.left).to_points_cam(frame.left)
     write_ply(out / "gt_points.ply", cloud)
-    write_image(out / "preview.png", contact_sheet([frame.left, frame.right, disp_png], ["left", "right", "gt disparity"]))
+    write_image(
+        out / "preview.png",
+        contact_sheet([frame.left, frame.right, disp_png], ["left", "right", "gt disparity"]),
+    )
     d = frame.disparity_left_px[np.isfinite(frame.disparity_left_px)]
     return {
         "size": f"{args.width}x{args.height}",
@@ -138,7 +152,12 @@ def _render_sequence(args, out: Path) -> dict:
     seconds = time.perf_counter() - t0
     track = np.array([p.t for p in world_from_left])
     plan = top_down_map(city.boxes, tuple(city.extent), [track], getattr(city, "cylinders", None))
-    write_image(out / "preview.png", contact_sheet([plan, *samples], ["flight (top view)", *[f"frame {i}" for i in sorted(sample_at)]], columns=3))
+    write_image(
+        out / "preview.png",
+        contact_sheet(
+            [plan, *samples], ["flight (top view)", *[f"frame {i}" for i in sorted(sample_at)]], columns=3
+        ),
+    )
     length = float(np.linalg.norm(np.diff(track, axis=0), axis=1).sum()) if len(track) > 1 else 0.0
     return {
         "frames": args.frames,
@@ -184,7 +203,14 @@ def _render_ring(args, out: Path) -> dict:
     _, cam, views, results = _object_scene_views(args, "ring")
     _write_views(out, views, results, "images", "sparse", "depth")
     write_K_txt(out / "K.txt", cam)
-    write_image(out / "preview.png", contact_sheet([r.image for r in results[:: max(1, len(results) // 6)]], [v.name for v in views[:: max(1, len(views) // 6)]], columns=3))
+    write_image(
+        out / "preview.png",
+        contact_sheet(
+            [r.image for r in results[:: max(1, len(results) // 6)]],
+            [v.name for v in views[:: max(1, len(views) // 6)]],
+            columns=3,
+        ),
+    )
     return {"views": len(views), "size": f"{args.width}x{args.height}", "cameras": str(out / "sparse")}
 
 
@@ -195,5 +221,12 @@ def _render_images(args, out: Path) -> dict:
     _, cam, views, results = _object_scene_views(args, "images")
     _write_views(out, views, results, "images", "gt_sparse", None)
     write_K_txt(out / "K.txt", cam)
-    write_image(out / "preview.png", contact_sheet([r.image for r in results[:6]], [v.name for v in views[:6]], columns=3))
-    return {"views": len(views), "size": f"{args.width}x{args.height}", "ground_truth_cameras": str(out / "gt_sparse")}
+    write_image(
+        out / "preview.png",
+        contact_sheet([r.image for r in results[:6]], [v.name for v in views[:6]], columns=3),
+    )
+    return {
+        "views": len(views),
+        "size": f"{args.width}x{args.height}",
+        "ground_truth_cameras": str(out / "gt_sparse"),
+    }

@@ -50,7 +50,9 @@ def _image_size_arg(text: str) -> int:
     try:
         value = int(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number of pixels (0: the input size), got {text!r}") from None
+        raise argparse.ArgumentTypeError(
+            f"expected a number of pixels (0: the input size), got {text!r}"
+        ) from None
     if value < 0 or 0 < value < 64:
         raise argparse.ArgumentTypeError(f"expected 0 (the input size) or at least 64 pixels, got {value}")
     return value
@@ -65,24 +67,49 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         examples=EXAMPLES,
     )
     p.add_argument("images_dir", metavar="IMAGES_DIR", help="folder of the images (not searched recursively)")
-    p.add_argument("--camera", required=True, metavar="K.txt",
-                   help="3x3 camera matrix for the input image size (3 lines of 3 numbers, pixels)")
+    p.add_argument(
+        "--camera",
+        required=True,
+        metavar="K.txt",
+        help="3x3 camera matrix for the input image size (3 lines of 3 numbers, pixels)",
+    )
     p.add_argument("--out", required=True, help="output directory (created if missing)")
-    p.add_argument("--max-image-size", type=_image_size_arg, default=1600, metavar="PX",
-                   help="longer side of the images used for features, pixels; outputs stay at the input size "
-                        "(default 1600; 0: the input size)")
-    p.add_argument("--pairing", choices=["auto", "exhaustive", "sequential", "retrieval"], default="auto",
-                   help="which image pairs to match: exhaustive (every pair), sequential (flight frames in name "
-                        "order: a window of following frames, frames further ahead and loop candidates by image "
-                        "retrieval), retrieval (each image with its most similar ones); auto (default): exhaustive "
-                        "up to 50 images, else sequential when the names are numbered frames, else retrieval")
-    p.add_argument("--window", type=positive_int, default=None,
-                   help="sequential pairing: match each frame with the next N frames (default 6)")
-    p.add_argument("--seed", type=int, default=0, help="seed of every random choice (same seed, same model; default 0)")
-    p.add_argument("--workers", type=positive_int, default=None,
-                   help="worker processes for features and matching (default: all cores, or $SKYRECON_WORKERS)")
+    p.add_argument(
+        "--max-image-size",
+        type=_image_size_arg,
+        default=1600,
+        metavar="PX",
+        help="longer side of the images used for features, pixels; outputs stay at the input size "
+        "(default 1600; 0: the input size)",
+    )
+    p.add_argument(
+        "--pairing",
+        choices=["auto", "exhaustive", "sequential", "retrieval"],
+        default="auto",
+        help="which image pairs to match: exhaustive (every pair), sequential (flight frames in name "
+        "order: a window of following frames, frames further ahead and loop candidates by image "
+        "retrieval), retrieval (each image with its most similar ones); auto (default): exhaustive "
+        "up to 50 images, else sequential when the names are numbered frames, else retrieval",
+    )
+    p.add_argument(
+        "--window",
+        type=positive_int,
+        default=None,
+        help="sequential pairing: match each frame with the next N frames (default 6)",
+    )
+    p.add_argument(
+        "--seed", type=int, default=0, help="seed of every random choice (same seed, same model; default 0)"
+    )
+    p.add_argument(
+        "--workers",
+        type=positive_int,
+        default=None,
+        help="worker processes for features and matching (default: all cores, or $SKYRECON_WORKERS)",
+    )
     p.add_argument("--frusta", action="store_true", help="add the camera frusta to sparse.ply")
-    p.add_argument("--workspace", help="feature cache directory, reused by later runs (default OUT/workspace)")
+    p.add_argument(
+        "--workspace", help="feature cache directory, reused by later runs (default OUT/workspace)"
+    )
     return p
 
 
@@ -90,7 +117,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 # inputs
 # ----------------------------------------------------------------------------------------------
 def _natural_key(name: str) -> list:
-    return [(0, int(part), part) if part.isdigit() else (1, 0, part.lower()) for part in re.split(r"(\d+)", name)]
+    return [
+        (0, int(part), part) if part.isdigit() else (1, 0, part.lower()) for part in re.split(r"(\d+)", name)
+    ]
 
 
 def list_images(images_dir: str | Path) -> list[Path]:
@@ -101,8 +130,11 @@ def list_images(images_dir: str | Path) -> list[Path]:
         raise InputError("images directory not found; check the path", d)
     if not d.is_dir():
         raise InputError("is not a directory; give the folder that holds the images", d)
-    paths = [p for p in d.iterdir()
-             if p.is_file() and not p.name.startswith(".") and p.suffix.lower() in IMAGE_EXTENSIONS]
+    paths = [
+        p
+        for p in d.iterdir()
+        if p.is_file() and not p.name.startswith(".") and p.suffix.lower() in IMAGE_EXTENSIONS
+    ]
     paths.sort(key=lambda p: _natural_key(p.name))
     if len(paths) < 2:
         found = "no image" if not paths else f"only one image ({paths[0].name})"
@@ -143,7 +175,8 @@ def _camera_for(k_path: str, paths: list[Path]) -> tuple:
     if not counts:
         raise InputError(
             f"none of the {len(paths)} images can be read ({', '.join(p.name for p in paths[:5])}"
-            + (" ..." if len(paths) > 5 else "") + ")"
+            + (" ..." if len(paths) > 5 else "")
+            + ")"
         )
     top = max(counts.values())
     size = next(s for s in sizes if s is not None and counts[s] == top)  # ties: the first image's size
@@ -218,14 +251,22 @@ def run(args: argparse.Namespace) -> int:
         },
     }
     if not args.quiet:
-        info(f"{n} images ({size[0]}x{size[1]}) in {args.images_dir}; features at "
-             f"{args.max_image_size or 'input'} px, {pairing} pairing, {workers} worker{'s' if workers != 1 else ''}")
+        info(
+            f"{n} images ({size[0]}x{size[1]}) in {args.images_dir}; features at "
+            f"{args.max_image_size or 'input'} px, {pairing} pairing, {workers} worker{'s' if workers != 1 else ''}"
+        )
     try:
         result = run_sfm(paths, cam, settings, executor=executor, seed=args.seed, workspace=workspace)
     except SkyreconError as exc:
-        failed = {**cli, "status": "failed", "error": " ".join(str(exc).split()), "num_images": n,
-                  "num_registered": 0, "warnings": pre_warnings,
-                  "timings_s": {"total_wall": time.perf_counter() - t_start}}
+        failed = {
+            **cli,
+            "status": "failed",
+            "error": " ".join(str(exc).split()),
+            "num_images": n,
+            "num_registered": 0,
+            "warnings": pre_warnings,
+            "timings_s": {"total_wall": time.perf_counter() - t_start},
+        }
         write_text_atomic(out / "sfm.json", json.dumps(failed, indent=2) + "\n")
         raise
     finally:
@@ -233,11 +274,19 @@ def run(args: argparse.Namespace) -> int:
 
     t0 = time.perf_counter()
     try:  # transforms.json: image paths relative to the output directory
-        prefix = os.path.relpath(Path(args.images_dir).resolve(), out.resolve()).replace(os.sep, "/").rstrip("/") + "/"
+        prefix = (
+            os.path.relpath(Path(args.images_dir).resolve(), out.resolve()).replace(os.sep, "/").rstrip("/")
+            + "/"
+        )
     except ValueError:  # another drive
         prefix = Path(args.images_dir).resolve().as_posix().rstrip("/") + "/"
-    files = write_sfm_outputs(out, result, frusta=args.frusta, image_prefix=prefix,
-                              title=f"Structure from motion: {Path(args.images_dir).name}")
+    files = write_sfm_outputs(
+        out,
+        result,
+        frusta=args.frusta,
+        image_prefix=prefix,
+        title=f"Structure from motion: {Path(args.images_dir).name}",
+    )
     write_s = time.perf_counter() - t0
     warnings = pre_warnings + [w for w in result.warnings if w not in pre_warnings]
     left = result.unregistered
@@ -249,8 +298,11 @@ def run(args: argparse.Namespace) -> int:
         "note": result.note,
     }
     summary["warnings"] = warnings
-    summary["timings_s"] = {**summary.get("timings_s", {}), "write": write_s,
-                            "total_wall": time.perf_counter() - t_start}
+    summary["timings_s"] = {
+        **summary.get("timings_s", {}),
+        "write": write_s,
+        "total_wall": time.perf_counter() - t_start,
+    }
     summary["files"] = sorted([*files, "sfm.json"])
     write_text_atomic(out / "sfm.json", json.dumps(summary, indent=2, allow_nan=False) + "\n")
 
@@ -258,7 +310,9 @@ def run(args: argparse.Namespace) -> int:
     if left:
         listed = "; ".join(f"{name}: {why}" for name, why in list(left.items())[:8])
         more = f"; and {len(left) - 8} more" if len(left) > 8 else ""
-        info(f"warning: {len(left)} of {n} images left out of the model: {listed}{more}; details in {out / 'sfm.json'}")
+        info(
+            f"warning: {len(left)} of {n} images left out of the model: {listed}{more}; details in {out / 'sfm.json'}"
+        )
     if not args.quiet:
         for w in warnings:
             if "were left out of the model" not in w:
@@ -269,6 +323,10 @@ def run(args: argparse.Namespace) -> int:
             f"registered {k} of {n} images, {len(result.reconstruction.points3d)} points, mean reprojection error "
             f"{err:.2f} px, mean track length {np.mean(tl) if tl else 0:.1f}, in {time.perf_counter() - t_start:.1f} s"
         )
-        info(f"wrote {out}/sparse/ (COLMAP text), sparse.ply" + (" (with frusta)" if args.frusta else "")
-             + (", transforms.json" if "transforms.json" in files else "") + ", report.html, sfm.json")
+        info(
+            f"wrote {out}/sparse/ (COLMAP text), sparse.ply"
+            + (" (with frusta)" if args.frusta else "")
+            + (", transforms.json" if "transforms.json" in files else "")
+            + ", report.html, sfm.json"
+        )
     return 0

@@ -39,15 +39,33 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         description=__doc__.split("\n\n")[0].split(": ", 1)[1],
         examples=EXAMPLES,
     )
-    p.add_argument("inputs", nargs="+", metavar="LEFT RIGHT | SEQUENCE_DIR", help="a rectified pair or a sequence dir")
+    p.add_argument(
+        "inputs", nargs="+", metavar="LEFT RIGHT | SEQUENCE_DIR", help="a rectified pair or a sequence dir"
+    )
     p.add_argument("--out", required=True, help="output directory (created if missing)")
-    p.add_argument("--calib", help="Middlebury calib.txt, KITTI calib (P2:/P3:) or OpenCV YAML (K1 D1 K2 D2 R T)")
-    p.add_argument("--method", default="skyrecon", help="matcher: skyrecon (default), skyrecon-fast, opencv-sgbm, opencv-bm")
-    p.add_argument("--max-disparity", type=positive_int, help="largest disparity searched, pixels (default: calib ndisp or 128)")
-    p.add_argument("--min-disparity", type=int, default=0, help="smallest disparity searched, pixels (default 0)")
+    p.add_argument(
+        "--calib", help="Middlebury calib.txt, KITTI calib (P2:/P3:) or OpenCV YAML (K1 D1 K2 D2 R T)"
+    )
+    p.add_argument(
+        "--method",
+        default="skyrecon",
+        help="matcher: skyrecon (default), skyrecon-fast, opencv-sgbm, opencv-bm",
+    )
+    p.add_argument(
+        "--max-disparity",
+        type=positive_int,
+        help="largest disparity searched, pixels (default: calib ndisp or 128)",
+    )
+    p.add_argument(
+        "--min-disparity", type=int, default=0, help="smallest disparity searched, pixels (default 0)"
+    )
     p.add_argument("--min-depth", type=float, default=0.0, help="points closer than this are dropped, metres")
-    p.add_argument("--max-depth", type=positive_float, default=float("inf"), help="points farther are dropped, metres")
-    p.add_argument("--gt", help="ground-truth disparity (PFM, KITTI 16-bit PNG or Middlebury PGM) to score against")
+    p.add_argument(
+        "--max-depth", type=positive_float, default=float("inf"), help="points farther are dropped, metres"
+    )
+    p.add_argument(
+        "--gt", help="ground-truth disparity (PFM, KITTI 16-bit PNG or Middlebury PGM) to score against"
+    )
     p.add_argument("--frames", type=positive_int, help="sequence: process only the first N frames")
     return p
 
@@ -138,7 +156,10 @@ def _run_pair(args, left_path: Path, right_path: Path) -> int:
     if args.gt:
         gt = read_disparity(args.gt)
         if gt.shape != disparity.shape:
-            raise InputError(f"the ground truth is {gt.shape[1]}x{gt.shape[0]} but the images are {width}x{height}", args.gt)
+            raise InputError(
+                f"the ground truth is {gt.shape[1]}x{gt.shape[0]} but the images are {width}x{height}",
+                args.gt,
+            )
         summary["metrics"] = {k: round(float(v), 5) for k, v in evaluate_disparity(disparity, gt).items()}
     write_text_atomic(out / "stereo.json", json.dumps(summary, indent=2))
     if not args.quiet:
@@ -148,7 +169,10 @@ def _run_pair(args, left_path: Path, right_path: Path) -> int:
             m = summary["metrics"]
             line += f"; bad-1px {100 * m['bad1']:.1f} %, bad-2px {100 * m['bad2']:.1f} %, D1 {100 * m['d1']:.1f} %, EPE {m['epe']:.2f} px"
         info(line)
-        info(f"wrote {out}/disparity.pfm, disparity.png" + (", depth.pfm, points.ply" if rig is not None else ""))
+        info(
+            f"wrote {out}/disparity.pfm, disparity.png"
+            + (", depth.pfm, points.ply" if rig is not None else "")
+        )
     return 0
 
 
@@ -168,7 +192,9 @@ def _run_sequence(args, root: Path) -> int:
         raise InputError("the sequence has no frames", root)
     out = output_dir(args.out)
     rig = seq.rig
-    matcher = create_matcher(args.method, _max_disparity(args, None, rig.left.width), min_disparity=args.min_disparity)
+    matcher = create_matcher(
+        args.method, _max_disparity(args, None, rig.left.width), min_disparity=args.min_disparity
+    )
     compute_s, samples, labels = [], [], []
     sample_at = set(np.linspace(0, n - 1, min(3, n)).round().astype(int).tolist())
     for i in progress(range(n), desc="stereo frames"):

@@ -36,31 +36,55 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     )
     p.add_argument("image1")
     p.add_argument("image2")
-    p.add_argument("--camera", required=True, help="K.txt of the first camera (and of the second unless --camera2)")
+    p.add_argument(
+        "--camera", required=True, help="K.txt of the first camera (and of the second unless --camera2)"
+    )
     p.add_argument("--camera2", help="K.txt of the second camera when it differs")
     p.add_argument("--out", required=True, help="output directory (created if missing)")
     p.add_argument("--features", choices=["rootsift", "sift", "orb", "akaze"], default="rootsift")
-    p.add_argument("--max-image-size", type=positive_int, default=1536, help="longer side for features, pixels")
-    p.add_argument("--pose-method", choices=["essential", "fundamental"], default="essential",
-                   help="essential: 5-point LO-RANSAC with K (default); fundamental: F first, then E = K2^T F K1")
-    p.add_argument("--fundamental", choices=["ransac", "lmeds", "magsac", "8point", "7point"], default="ransac",
-                   help="estimator for F (FM_RANSAC, FM_LMEDS, MAGSAC++, FM_8POINT, FM_7POINT)")
-    p.add_argument("--threshold", type=positive_float, default=1.0, help="inlier threshold, pixels (default 1)")
-    p.add_argument("--dense-method", choices=["stereo", "epipolar"], default="stereo",
-                   help="stereo: rectify + disparity (default); epipolar: window search along epipolar lines")
-    p.add_argument("--rectification", choices=["calibrated", "opencv", "uncalibrated"], default="calibrated",
-                   help="calibrated: from R, t (default); opencv: cv2.stereoRectify; uncalibrated: Hartley from F")
+    p.add_argument(
+        "--max-image-size", type=positive_int, default=1536, help="longer side for features, pixels"
+    )
+    p.add_argument(
+        "--pose-method",
+        choices=["essential", "fundamental"],
+        default="essential",
+        help="essential: 5-point LO-RANSAC with K (default); fundamental: F first, then E = K2^T F K1",
+    )
+    p.add_argument(
+        "--fundamental",
+        choices=["ransac", "lmeds", "magsac", "8point", "7point"],
+        default="ransac",
+        help="estimator for F (FM_RANSAC, FM_LMEDS, MAGSAC++, FM_8POINT, FM_7POINT)",
+    )
+    p.add_argument(
+        "--threshold", type=positive_float, default=1.0, help="inlier threshold, pixels (default 1)"
+    )
+    p.add_argument(
+        "--dense-method",
+        choices=["stereo", "epipolar"],
+        default="stereo",
+        help="stereo: rectify + disparity (default); epipolar: window search along epipolar lines",
+    )
+    p.add_argument(
+        "--rectification",
+        choices=["calibrated", "opencv", "uncalibrated"],
+        default="calibrated",
+        help="calibrated: from R, t (default); opencv: cv2.stereoRectify; uncalibrated: Hartley from F",
+    )
     p.add_argument("--no-dense", action="store_true", help="skip the dense model")
-    p.add_argument("--baseline", type=positive_float, help="metric distance between the camera centres, metres")
+    p.add_argument(
+        "--baseline", type=positive_float, help="metric distance between the camera centres, metres"
+    )
     p.add_argument("--seed", type=int, default=0, help="seed for RANSAC (same seed, same result)")
     return p
 
 
 def run(args: argparse.Namespace) -> int:
     from skyrecon.io.calib import read_K_txt
+    from skyrecon.io.disparity import colorize_disparity
     from skyrecon.io.images import read_image
     from skyrecon.io.ply import write_ply
-    from skyrecon.io.disparity import colorize_disparity
     from skyrecon.twoview import (
         TwoViewSettings,
         draw_epipolar_lines,
@@ -97,10 +121,16 @@ def run(args: argparse.Namespace) -> int:
     summary = result.to_json_dict()
     write_text_atomic(out / "two_view.json", json.dumps(summary, indent=2, allow_nan=False))
     if len(result.matches):
-        write_image(out / "matches.png", draw_matches(image1, image2, result.x1, result.x2, result.inliers, seed=args.seed))
+        write_image(
+            out / "matches.png",
+            draw_matches(image1, image2, result.x1, result.x2, result.inliers, seed=args.seed),
+        )
     if result.F is not None:
         inl = result.inliers
-        write_image(out / "epipolar.png", draw_epipolar_lines(image1, image2, result.F, result.x1[inl], result.x2[inl], seed=args.seed))
+        write_image(
+            out / "epipolar.png",
+            draw_epipolar_lines(image1, image2, result.F, result.x1[inl], result.x2[inl], seed=args.seed),
+        )
     if len(result.sparse):
         write_ply(out / "sparse.ply", result.sparse)
     if result.dense is not None:

@@ -17,7 +17,20 @@ from skyrecon.core.stereo_rig import StereoRig
 from skyrecon.core.view import PosedView
 
 __all__ = [
-    "DepthMap", "PointCloud", "Intrinsics", "Image", "Point3D", "Reconstruction", "Rigid3",
-    "FrameMismatchError", "StereoRig", "PosedView", "matrix_to_quaternion", "matrix_to_rotvec", "orthonormalize",
-    "quaternion_to_matrix", "rotation_angle_deg", "rotvec_to_matrix",
+    "DepthMap",
+    "PointCloud",
+    "Intrinsics",
+    "Image",
+    "Point3D",
+    "Reconstruction",
+    "Rigid3",
+    "FrameMismatchError",
+    "StereoRig",
+    "PosedView",
+    "matrix_to_quaternion",
+    "matrix_to_rotvec",
+    "orthonormalize",
+    "quaternion_to_matrix",
+    "rotation_angle_deg",
+    "rotvec_to_matrix",
 ]

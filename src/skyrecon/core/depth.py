@@ -43,7 +43,7 @@ class PointCloud:
     def __len__(self) -> int:
         return len(self.points)
 
-    def select(self, mask_or_index: np.ndarray) -> "PointCloud":
+    def select(self, mask_or_index: np.ndarray) -> PointCloud:
         """Subset by boolean mask (N,) or index array."""
         return PointCloud(
             self.points[mask_or_index],
@@ -51,7 +51,7 @@ class PointCloud:
             None if self.normals is None else self.normals[mask_or_index],
         )
 
-    def transformed(self, b_from_a: Rigid3) -> "PointCloud":
+    def transformed(self, b_from_a: Rigid3) -> PointCloud:
         """The cloud mapped from frame a to frame b (normals rotated)."""
         return PointCloud(
             b_from_a.apply(self.points).astype(np.float32),
@@ -60,13 +60,19 @@ class PointCloud:
         )
 
     @staticmethod
-    def concatenate(clouds: list["PointCloud"]) -> "PointCloud":
+    def concatenate(clouds: list[PointCloud]) -> PointCloud:
         """Join clouds; colours/normals are kept only if every cloud has them."""
         if not clouds:
             return PointCloud(np.zeros((0, 3), np.float32))
         pts = np.concatenate([c.points for c in clouds])
-        cols = np.concatenate([c.colors for c in clouds]) if all(c.colors is not None for c in clouds) else None
-        nrm = np.concatenate([c.normals for c in clouds]) if all(c.normals is not None for c in clouds) else None
+        cols = (
+            np.concatenate([c.colors for c in clouds]) if all(c.colors is not None for c in clouds) else None
+        )
+        nrm = (
+            np.concatenate([c.normals for c in clouds])
+            if all(c.normals is not None for c in clouds)
+            else None
+        )
         return PointCloud(pts, cols, nrm)
 
 

@@ -57,9 +57,7 @@ class Intrinsics:
 
     # ----- construction -------------------------------------------------
     @classmethod
-    def from_K(
-        cls, K: np.ndarray, width: int, height: int, dist: np.ndarray | None = None
-    ) -> "Intrinsics":
+    def from_K(cls, K: np.ndarray, width: int, height: int, dist: np.ndarray | None = None) -> Intrinsics:
         """From a (3, 3) calibration matrix and the image size in pixels."""
         K = np.asarray(K, dtype=np.float64)
         if K.shape != (3, 3):
@@ -72,12 +70,18 @@ class Intrinsics:
         if abs(K[1, 0]) > 1e-9 or abs(K[2, 0]) > 1e-9 or abs(K[2, 1]) > 1e-9:
             raise InputError("K must be upper triangular [[fx, s, cx], [0, fy, cy], [0, 0, 1]]")
         return cls(
-            K[0, 0], K[1, 1], K[0, 2], K[1, 2], width, height,
-            np.zeros(5) if dist is None else dist, K[0, 1],
+            K[0, 0],
+            K[1, 1],
+            K[0, 2],
+            K[1, 2],
+            width,
+            height,
+            np.zeros(5) if dist is None else dist,
+            K[0, 1],
         )
 
     @classmethod
-    def from_fov(cls, width: int, height: int, hfov_deg: float) -> "Intrinsics":
+    def from_fov(cls, width: int, height: int, hfov_deg: float) -> Intrinsics:
         """Square pixels, principal point at the image centre, horizontal field of view in degrees."""
         f = (width / 2) / np.tan(np.radians(hfov_deg) / 2)
         return cls(f, f, (width - 1) / 2, (height - 1) / 2, width, height)
@@ -102,17 +106,23 @@ class Intrinsics:
     def has_distortion(self) -> bool:
         return bool(np.any(self.dist != 0))
 
-    def without_distortion(self) -> "Intrinsics":
+    def without_distortion(self) -> Intrinsics:
         return Intrinsics(self.fx, self.fy, self.cx, self.cy, self.width, self.height, np.zeros(5), self.skew)
 
-    def scaled(self, factor: float) -> "Intrinsics":
+    def scaled(self, factor: float) -> Intrinsics:
         """Intrinsics for the image resized by ``factor`` (keeps the pixel-centre convention)."""
         w = max(1, int(round(self.width * factor)))
         h = max(1, int(round(self.height * factor)))
         sx, sy = w / self.width, h / self.height
         return Intrinsics(
-            self.fx * sx, self.fy * sy, (self.cx + 0.5) * sx - 0.5, (self.cy + 0.5) * sy - 0.5,
-            w, h, self.dist, self.skew * sx,
+            self.fx * sx,
+            self.fy * sy,
+            (self.cx + 0.5) * sx - 0.5,
+            (self.cy + 0.5) * sy - 0.5,
+            w,
+            h,
+            self.dist,
+            self.skew * sx,
         )
 
     def check_image(self, image: np.ndarray, what: str = "image") -> None:

@@ -122,4 +122,6 @@ class Reconstruction:
                 if im is None:
                     raise InputError(f"point {p.point3d_id} refers to missing image {image_id}")
                 if not 0 <= kp < len(im.keypoints):
-                    raise InputError(f"point {p.point3d_id} refers to keypoint {kp} of {im.name}, out of range")
+                    raise InputError(
+                        f"point {p.point3d_id} refers to keypoint {kp} of {im.name}, out of range"
+                    )

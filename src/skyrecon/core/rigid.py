@@ -27,9 +27,7 @@ def _as_rotation(R: np.ndarray, tol: float = 1e-5) -> np.ndarray:
         raise InputError("the rotation contains NaN or infinite values")
     err = np.abs(R @ R.T - np.eye(3)).max()
     if err > tol or abs(np.linalg.det(R) - 1.0) > tol * 10:
-        raise InputError(
-            f"not a rotation matrix (orthogonality error {err:.2e}, det {np.linalg.det(R):.6f})"
-        )
+        raise InputError(f"not a rotation matrix (orthogonality error {err:.2e}, det {np.linalg.det(R):.6f})")
     return R
 
 
@@ -139,11 +137,11 @@ class Rigid3:
 
     # ----- construction -------------------------------------------------
     @classmethod
-    def identity(cls, dst: str | None = None, src: str | None = None) -> "Rigid3":
+    def identity(cls, dst: str | None = None, src: str | None = None) -> Rigid3:
         return cls(np.eye(3), np.zeros(3), dst, src)
 
     @classmethod
-    def from_matrix(cls, M: np.ndarray, dst: str | None = None, src: str | None = None) -> "Rigid3":
+    def from_matrix(cls, M: np.ndarray, dst: str | None = None, src: str | None = None) -> Rigid3:
         """From a (4, 4) or (3, 4) matrix ``[R | t]``."""
         M = np.asarray(M, dtype=np.float64)
         if M.shape not in ((4, 4), (3, 4)):
@@ -153,7 +151,7 @@ class Rigid3:
     @classmethod
     def from_rotvec(
         cls, rotvec: np.ndarray, t: np.ndarray, dst: str | None = None, src: str | None = None
-    ) -> "Rigid3":
+    ) -> Rigid3:
         return cls(rotvec_to_matrix(rotvec), t, dst, src)
 
     @classmethod
@@ -162,7 +160,7 @@ class Rigid3:
         eye_world: np.ndarray,
         target_world: np.ndarray,
         up_world: np.ndarray = (0.0, 0.0, 1.0),
-    ) -> "Rigid3":
+    ) -> Rigid3:
         """``cam_from_world`` for an OpenCV camera at ``eye`` looking at ``target``.
 
         The camera's z axis points at the target, its y axis (image down) is
@@ -184,7 +182,7 @@ class Rigid3:
         return cls(R_world_from_cam.T, -R_world_from_cam.T @ eye, "cam", "world")
 
     # ----- algebra -------------------------------------------------------
-    def __matmul__(self, other: "Rigid3") -> "Rigid3":
+    def __matmul__(self, other: Rigid3) -> Rigid3:
         """``c_from_b @ b_from_a -> c_from_a``; checks that the frames chain."""
         if not isinstance(other, Rigid3):
             return NotImplemented
@@ -194,7 +192,7 @@ class Rigid3:
             )
         return Rigid3(self.R @ other.R, self.R @ other.t + self.t, self.dst, other.src)
 
-    def inverse(self) -> "Rigid3":
+    def inverse(self) -> Rigid3:
         """``a_from_b`` from ``b_from_a``."""
         Rt = self.R.T
         return Rigid3(Rt, -Rt @ self.t, self.src, self.dst)
@@ -251,10 +249,10 @@ class Rigid3:
     def name(self) -> str:
         return f"{self.dst or '?'}_from_{self.src or '?'}"
 
-    def with_frames(self, dst: str | None, src: str | None) -> "Rigid3":
+    def with_frames(self, dst: str | None, src: str | None) -> Rigid3:
         return Rigid3(self.R, self.t, dst, src)
 
-    def allclose(self, other: "Rigid3", atol: float = 1e-9) -> bool:
+    def allclose(self, other: Rigid3, atol: float = 1e-9) -> bool:
         return bool(np.allclose(self.R, other.R, atol=atol) and np.allclose(self.t, other.t, atol=atol))
 
     def __repr__(self) -> str:

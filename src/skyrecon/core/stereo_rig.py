@@ -35,9 +35,7 @@ class StereoRig:
 
     # ----- construction -------------------------------------------------
     @classmethod
-    def rectified(
-        cls, left: Intrinsics, baseline_m: float, doffs_px: float = 0.0
-    ) -> "StereoRig":
+    def rectified(cls, left: Intrinsics, baseline_m: float, doffs_px: float = 0.0) -> StereoRig:
         """A rectified rig: the right camera sits ``baseline_m`` to the right of the left one.
 
         Args:
@@ -47,11 +45,13 @@ class StereoRig:
         """
         if not np.isfinite(baseline_m) or baseline_m <= 0:
             raise InputError(f"the stereo baseline must be positive, got {baseline_m}")
-        right = Intrinsics(left.fx, left.fy, left.cx + doffs_px, left.cy, left.width, left.height, skew=left.skew)
+        right = Intrinsics(
+            left.fx, left.fy, left.cx + doffs_px, left.cy, left.width, left.height, skew=left.skew
+        )
         return cls(left, right, Rigid3(np.eye(3), [-baseline_m, 0.0, 0.0]))
 
     @classmethod
-    def from_projections(cls, P_left: np.ndarray, P_right: np.ndarray, width: int, height: int) -> "StereoRig":
+    def from_projections(cls, P_left: np.ndarray, P_right: np.ndarray, width: int, height: int) -> StereoRig:
         """From two 3x4 projection matrices ``K [I | t]`` of a rectified pair (KITTI P2/P3).
 
         Both matrices map a common reference frame (KITTI's cam0) into each image;

@@ -27,7 +27,11 @@ from skyrecon.core import DepthMap
 from skyrecon.errors import InputError
 
 __all__ = [
-    "CloudMetrics", "evaluate_cloud", "reference_from_depth_maps", "fraction_outside_box", "crop_mask",
+    "CloudMetrics",
+    "evaluate_cloud",
+    "reference_from_depth_maps",
+    "fraction_outside_box",
+    "crop_mask",
     "voxel_subsample",
 ]
 
@@ -82,7 +86,9 @@ def crop_mask(points: np.ndarray, box: tuple[Sequence[float], Sequence[float]] |
     return np.all((p >= lo) & (p <= hi), axis=1)
 
 
-def fraction_outside_box(points: np.ndarray, lo: Sequence[float], hi: Sequence[float], margin: float = 0.0) -> float:
+def fraction_outside_box(
+    points: np.ndarray, lo: Sequence[float], hi: Sequence[float], margin: float = 0.0
+) -> float:
     """Fraction of points (N, 3) outside the box [lo - margin, hi + margin] (0 for no points)."""
     p = _points(points, "points")
     if len(p) == 0:
@@ -102,11 +108,15 @@ def voxel_subsample(points: np.ndarray, voxel_m: float) -> np.ndarray:
     return p[np.sort(first)]
 
 
-def evaluate_cloud(reconstruction: np.ndarray, reference: np.ndarray,
-                   thresholds: Sequence[float],
-                   reference_distance: Callable[[np.ndarray], np.ndarray] | None = None,
-                   crop: tuple[Sequence[float], Sequence[float]] | None = None,
-                   max_points: int | None = 1_000_000, seed: int = 0) -> CloudMetrics:
+def evaluate_cloud(
+    reconstruction: np.ndarray,
+    reference: np.ndarray,
+    thresholds: Sequence[float],
+    reference_distance: Callable[[np.ndarray], np.ndarray] | None = None,
+    crop: tuple[Sequence[float], Sequence[float]] | None = None,
+    max_points: int | None = 1_000_000,
+    seed: int = 0,
+) -> CloudMetrics:
     """Accuracy, completeness and F-scores of ``reconstruction`` against ``reference``.
 
     Args:
@@ -141,8 +151,20 @@ def evaluate_cloud(reconstruction: np.ndarray, reference: np.ndarray,
         rec = rec[rng.choice(len(rec), max_points, replace=False)]
     if len(rec) == 0:
         inf = float("inf")
-        return CloudMetrics(taus, [0.0] * len(taus), [0.0] * len(taus), [0.0] * len(taus), inf, inf, inf, inf,
-                            inf, 0, len(ref), cropped_out)
+        return CloudMetrics(
+            taus,
+            [0.0] * len(taus),
+            [0.0] * len(taus),
+            [0.0] * len(taus),
+            inf,
+            inf,
+            inf,
+            inf,
+            inf,
+            0,
+            len(ref),
+            cropped_out,
+        )
     if reference_distance is not None:
         acc = np.abs(np.asarray(reference_distance(rec), np.float64).reshape(-1))
     else:
@@ -152,14 +174,28 @@ def evaluate_cloud(reconstruction: np.ndarray, reference: np.ndarray,
     rec_ = [float(np.mean(comp <= t)) for t in taus]
     f = [0.0 if p + r == 0 else 2 * p * r / (p + r) for p, r in zip(prec, rec_)]
     return CloudMetrics(
-        taus, prec, rec_, f, float(acc.mean()), float(np.median(acc)), float(np.quantile(acc, 0.9)),
-        float(comp.mean()), float(np.median(comp)), int(len(rec)), int(len(ref)), cropped_out,
+        taus,
+        prec,
+        rec_,
+        f,
+        float(acc.mean()),
+        float(np.median(acc)),
+        float(np.quantile(acc, 0.9)),
+        float(comp.mean()),
+        float(np.median(comp)),
+        int(len(rec)),
+        int(len(ref)),
+        cropped_out,
     )
 
 
-def reference_from_depth_maps(depth_maps: Sequence[DepthMap], min_views: int = 2, rel_tol: float = 0.01,
-                              voxel_m: float | None = None,
-                              crop: tuple[Sequence[float], Sequence[float]] | None = None) -> np.ndarray:
+def reference_from_depth_maps(
+    depth_maps: Sequence[DepthMap],
+    min_views: int = 2,
+    rel_tol: float = 0.01,
+    voxel_m: float | None = None,
+    crop: tuple[Sequence[float], Sequence[float]] | None = None,
+) -> np.ndarray:
     """Sample a surface from exact (ground-truth) depth maps.
 
     Every valid pixel is back-projected; with ``min_views >= 2`` a point is kept only when at

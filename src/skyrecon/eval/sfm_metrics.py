@@ -56,7 +56,9 @@ def _rotation_angle_deg(R: np.ndarray) -> float:
 def rotation_alignment(R_est: np.ndarray, R_gt: np.ndarray) -> np.ndarray:
     """(3, 3) rotation ``Q`` (estimated world -> true world) minimising ``sum |R_est_i Q^T - R_gt_i|_F``
     for (N, 3, 3) ``cam_from_world`` rotations."""
-    M = np.einsum("nji,njk->ik", np.asarray(R_gt, np.float64), np.asarray(R_est, np.float64))  # sum R_gt^T R_est
+    M = np.einsum(
+        "nji,njk->ik", np.asarray(R_gt, np.float64), np.asarray(R_est, np.float64)
+    )  # sum R_gt^T R_est
     U, _, Vt = np.linalg.svd(M)
     D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
     return U @ D @ Vt
@@ -87,7 +89,11 @@ class SfMEvaluation:
     @property
     def center_errors_pct(self) -> np.ndarray:
         """(N,) centre errors as a percentage of the scene extent."""
-        return 100.0 * self.center_errors_m / self.extent_m if self.extent_m > 0 else np.full(len(self.names), np.nan)
+        return (
+            100.0 * self.center_errors_m / self.extent_m
+            if self.extent_m > 0
+            else np.full(len(self.names), np.nan)
+        )
 
     def summary(self) -> dict[str, float]:
         """Median and maximum of each error (NaN when nothing was evaluated)."""
@@ -125,8 +131,9 @@ def evaluate_sfm_poses(
     gt_names = list(ground_truth)
     names = [n for n in gt_names if n in estimated]
     missing = [n for n in gt_names if n not in estimated]
-    extent = scene_extent(np.stack([ground_truth[n].center for n in gt_names]) if gt_names else np.zeros((0, 3)),
-                          extent_kind)
+    extent = scene_extent(
+        np.stack([ground_truth[n].center for n in gt_names]) if gt_names else np.zeros((0, 3)), extent_kind
+    )
     if len(names) < 3:
         return SfMEvaluation(names, np.zeros(0), np.zeros(0), extent, extent_kind, len(gt_names), missing)
     from skyrecon.sfm.align import umeyama  # local import: eval must not need sfm at import time

@@ -16,7 +16,9 @@ __all__ = ["evaluate_disparity", "METRIC_NAMES"]
 METRIC_NAMES = ("bad1", "bad2", "d1", "epe", "density", "n_gt")
 
 
-def evaluate_disparity(pred: np.ndarray, gt: np.ndarray, valid_gt: np.ndarray | None = None) -> dict[str, float]:
+def evaluate_disparity(
+    pred: np.ndarray, gt: np.ndarray, valid_gt: np.ndarray | None = None
+) -> dict[str, float]:
     """Score a disparity map against ground truth.
 
     Only pixels with ground truth count (``valid_gt``, by default where ``gt`` is finite).

@@ -15,7 +15,14 @@ import numpy as np
 
 from skyrecon.errors import InputError
 
-__all__ = ["FeatureMethod", "FeatureSettings", "Features", "to_gray_uint8", "resize_longer_side", "detect_features"]
+__all__ = [
+    "FeatureMethod",
+    "FeatureSettings",
+    "Features",
+    "to_gray_uint8",
+    "resize_longer_side",
+    "detect_features",
+]
 
 FeatureMethod = Literal["sift", "rootsift", "orb", "akaze"]
 FEATURE_METHODS: tuple[str, ...] = ("sift", "rootsift", "orb", "akaze")
@@ -51,9 +58,13 @@ class FeatureSettings:
 
     def __post_init__(self) -> None:
         if self.method not in FEATURE_METHODS:
-            raise InputError(f"unknown feature method {self.method!r}; use one of {', '.join(FEATURE_METHODS)}")
+            raise InputError(
+                f"unknown feature method {self.method!r}; use one of {', '.join(FEATURE_METHODS)}"
+            )
         if self.max_image_size is not None and self.max_image_size < 0:
-            raise InputError(f"max_image_size must be positive (or 0/None for full size), got {self.max_image_size}")
+            raise InputError(
+                f"max_image_size must be positive (or 0/None for full size), got {self.max_image_size}"
+            )
         if self.max_features < 0:
             raise InputError(f"max_features must be >= 0, got {self.max_features}")
 
@@ -149,7 +160,9 @@ def _detector(settings: FeatureSettings):
             enable_precise_upscale=settings.sift_precise_upscale,
         )
     if settings.method == "orb":
-        return cv2.ORB_create(nfeatures=settings.max_features or 8000, scaleFactor=1.2, nlevels=8, fastThreshold=10)
+        return cv2.ORB_create(
+            nfeatures=settings.max_features or 8000, scaleFactor=1.2, nlevels=8, fastThreshold=10
+        )
     create = getattr(cv2, "AKAZE_create", None)
     if create is None:
         raise InputError(
@@ -177,10 +190,18 @@ def detect_features(image: np.ndarray, settings: FeatureSettings = FeatureSettin
     kps, desc = det.detectAndCompute(small, None)
     n = len(kps)
     if n == 0 or desc is None:
-        dim, dt = (128, np.float32) if not settings.binary else (61 if settings.method == "akaze" else 32, np.uint8)
+        dim, dt = (
+            (128, np.float32) if not settings.binary else (61 if settings.method == "akaze" else 32, np.uint8)
+        )
         return Features(
-            np.zeros((0, 2)), np.zeros(0, np.float32), np.zeros(0, np.float32), np.zeros(0, np.float32),
-            np.zeros((0, dim), dt), (W, H), float(sx), settings.method,
+            np.zeros((0, 2)),
+            np.zeros(0, np.float32),
+            np.zeros(0, np.float32),
+            np.zeros(0, np.float32),
+            np.zeros((0, dim), dt),
+            (W, H),
+            float(sx),
+            settings.method,
         )
     pts = np.array([k.pt for k in kps], dtype=np.float64)
     size = np.array([k.size for k in kps], dtype=np.float32)

@@ -72,12 +72,21 @@ class Matches:
         """(M, 2) int64 ``[idx1, idx2]``."""
         return np.stack([self.idx1, self.idx2], axis=1)
 
-    def select(self, mask: np.ndarray) -> "Matches":
+    def select(self, mask: np.ndarray) -> Matches:
         return Matches(self.idx1[mask], self.idx2[mask], self.distances[mask], self.ratios[mask])
 
 
 @numba.njit(cache=True)
-def _top2(S: np.ndarray, r0: int, rb: np.ndarray, rs: np.ndarray, ra: np.ndarray, cb: np.ndarray, cs: np.ndarray, ca: np.ndarray) -> None:
+def _top2(
+    S: np.ndarray,
+    r0: int,
+    rb: np.ndarray,
+    rs: np.ndarray,
+    ra: np.ndarray,
+    cb: np.ndarray,
+    cs: np.ndarray,
+    ca: np.ndarray,
+) -> None:
     """Update best/second similarities of rows r0.. and of every column with the block S."""
     b, n2 = S.shape
     for i in range(b):
@@ -206,7 +215,9 @@ def match_descriptors(d1: np.ndarray, d2: np.ndarray, settings: MatchSettings = 
     d2 = np.asarray(d2)
     if d1.ndim != 2 or d2.ndim != 2 or d1.shape[1] != d2.shape[1] or d1.dtype != d2.dtype:
         raise InputError(f"descriptors do not match: {d1.shape} {d1.dtype} vs {d2.shape} {d2.dtype}")
-    empty = Matches(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.float32), np.zeros(0, np.float32))
+    empty = Matches(
+        np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.float32), np.zeros(0, np.float32)
+    )
     if len(d1) == 0 or len(d2) == 0:
         return empty
     binary = d1.dtype == np.uint8
@@ -221,7 +232,9 @@ def match_descriptors(d1: np.ndarray, d2: np.ndarray, settings: MatchSettings = 
         b1, s1, a1 = _knn_cv(fl, f1, f2)
         b2, s2, a2 = _knn_cv(fl, f2, f1)
     elif settings.mutual and not settings.ratio_both_ways:
-        b1, s1, a1, is_mutual = _float_mutual_fast(np.ascontiguousarray(d1, np.float32), np.ascontiguousarray(d2, np.float32))
+        b1, s1, a1, is_mutual = _float_mutual_fast(
+            np.ascontiguousarray(d1, np.float32), np.ascontiguousarray(d2, np.float32)
+        )
         a2 = None
     else:
         b1, s1, a1, b2, s2, a2 = _float_bruteforce(
@@ -250,7 +263,9 @@ def match_descriptors(d1: np.ndarray, d2: np.ndarray, settings: MatchSettings = 
         first[1:] = j[order][1:] != j[order][:-1]
         sel = np.sort(order[first])
         i1, j, ratio = i1[sel], j[sel], ratio[sel]
-    return Matches(i1.astype(np.int64), j.astype(np.int64), b1[i1].astype(np.float32), ratio.astype(np.float32))
+    return Matches(
+        i1.astype(np.int64), j.astype(np.int64), b1[i1].astype(np.float32), ratio.astype(np.float32)
+    )
 
 
 def match_features(f1: Features, f2: Features, settings: MatchSettings = MatchSettings()) -> Matches:

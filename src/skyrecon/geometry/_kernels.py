@@ -66,7 +66,9 @@ def sampson_sq_many(Fs: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> np.ndarra
 
 
 @numba.njit(cache=True)
-def msac_costs_pose(Rs: np.ndarray, ts: np.ndarray, x1: np.ndarray, x2: np.ndarray, thr2: float) -> tuple[np.ndarray, np.ndarray]:
+def msac_costs_pose(
+    Rs: np.ndarray, ts: np.ndarray, x1: np.ndarray, x2: np.ndarray, thr2: float
+) -> tuple[np.ndarray, np.ndarray]:
     """MSAC cost and inlier count of K poses on N normalised matches, with cheirality.
 
     A match is an inlier when its squared Sampson error under ``E = [t]x R`` is below thr2 and

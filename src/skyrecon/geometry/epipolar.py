@@ -196,8 +196,10 @@ def essential_from_fundamental(F: np.ndarray, K1: np.ndarray, K2: np.ndarray) ->
 
 def fundamental_from_essential(E: np.ndarray, K1: np.ndarray, K2: np.ndarray) -> np.ndarray:
     """``F = K2^-T E K1^-1``, unit Frobenius norm (pixels of image 1 and image 2)."""
-    F = np.linalg.inv(np.asarray(K2, np.float64)).T @ np.asarray(E, np.float64) @ np.linalg.inv(
-        np.asarray(K1, np.float64)
+    F = (
+        np.linalg.inv(np.asarray(K2, np.float64)).T
+        @ np.asarray(E, np.float64)
+        @ np.linalg.inv(np.asarray(K1, np.float64))
     )
     return _unit_frobenius(F)
 

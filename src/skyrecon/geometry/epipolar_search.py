@@ -18,7 +18,12 @@ from skyrecon.core.intrinsics import Intrinsics
 from skyrecon.errors import InputError
 from skyrecon.geometry.epipolar import homogeneous
 
-__all__ = ["EpipolarSearchResult", "search_segments_from_depth", "clip_segments", "match_along_epipolar_lines"]
+__all__ = [
+    "EpipolarSearchResult",
+    "search_segments_from_depth",
+    "clip_segments",
+    "match_along_epipolar_lines",
+]
 
 
 @dataclass
@@ -55,7 +60,7 @@ def _bilinear(img: np.ndarray, x: float, y: float) -> float:
 
 
 @numba.njit(cache=True, parallel=True)
-def _search(
+def _search(  # noqa: C901  (Numba kernel: one flat loop nest)
     img1: np.ndarray,
     img2: np.ndarray,
     p1: np.ndarray,

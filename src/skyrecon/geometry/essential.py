@@ -16,6 +16,7 @@ import numpy as np
 
 from skyrecon.core.intrinsics import Intrinsics
 from skyrecon.errors import EstimationError, InputError
+from skyrecon.geometry._kernels import msac_costs_pose
 from skyrecon.geometry.epipolar import (
     as_points2,
     cheirality_depths,
@@ -23,7 +24,6 @@ from skyrecon.geometry.epipolar import (
     sampson_sq,
     select_pose,
 )
-from skyrecon.geometry._kernels import msac_costs_pose
 from skyrecon.geometry.five_point import essential_5point_batch
 from skyrecon.geometry.refine import Loss, refine_relative_pose
 from skyrecon.geometry.sampling import RansacOptions, as_generator, draw_samples, required_iterations
@@ -130,7 +130,9 @@ def _poses_from_essentials(
     return R_out, t_out, ok
 
 
-def _msac(R: np.ndarray, t: np.ndarray, x1n: np.ndarray, x2n: np.ndarray, thr2: float) -> tuple[float, np.ndarray]:
+def _msac(
+    R: np.ndarray, t: np.ndarray, x1n: np.ndarray, x2n: np.ndarray, thr2: float
+) -> tuple[float, np.ndarray]:
     """MSAC cost of a pose: truncated squared Sampson error, and matches triangulating behind
     either camera count as outliers (this separates the planar twin solutions, which fit the
     epipolar constraint equally well but put part of the scene behind the cameras)."""
@@ -148,7 +150,9 @@ def _local_optimize(
     for _ in range(4):
         if np.count_nonzero(inl) < 6:
             break
-        res = refine_relative_pose(R, t, x1n[inl], x2n[inl], loss="cauchy", loss_scale=np.sqrt(thr2), max_iterations=8)
+        res = refine_relative_pose(
+            R, t, x1n[inl], x2n[inl], loss="cauchy", loss_scale=np.sqrt(thr2), max_iterations=8
+        )
         new_cost, new_inl = _msac(res.R, res.t, x1n, x2n, thr2)
         if new_cost >= cost * (1.0 - 1e-6):
             break
@@ -235,7 +239,16 @@ def estimate_essential(
         raise EstimationError(f"no valid relative pose found in {iterations} samples of {n} matches")
     R, t = best
     out = finalize_pose(
-        R, t, x1n, x2n, threshold, best_inl if refine else None, final_loss, final_loss_scale, sigmas, pixel_scale
+        R,
+        t,
+        x1n,
+        x2n,
+        threshold,
+        best_inl if refine else None,
+        final_loss,
+        final_loss_scale,
+        sigmas,
+        pixel_scale,
     )
     out.iterations, out.local_optimizations = iterations, n_lo
     return out
@@ -290,7 +303,9 @@ def finalize_pose(
         scale = 0.5 * float(threshold) if loss_scale is None else float(loss_scale)
         for _ in range(2):
             sig = None if sigmas is None else sigmas[inl]
-            res = refine_relative_pose(R, t, x1n[inl], x2n[inl], loss=loss, loss_scale=scale, max_iterations=50, sigmas=sig)
+            res = refine_relative_pose(
+                R, t, x1n[inl], x2n[inl], loss=loss, loss_scale=scale, max_iterations=50, sigmas=sig
+            )
             R, t = res.R, res.t
             _, new_inl = _msac(R, t, x1n, x2n, thr2)
             if np.array_equal(new_inl, inl):
@@ -304,8 +319,15 @@ def finalize_pose(
         front = (z1 > 0) & (z2 > 0)
     e = np.sqrt(sampson_sq(E, x1n, x2n))
     return RelativePose(
-        R=R, t=t, E=E, inliers=(e * e < thr2) & front, errors_px=e * pixel_scale,
-        threshold_px=float(threshold) * pixel_scale, iterations=0, local_optimizations=0, refined=refined,
+        R=R,
+        t=t,
+        E=E,
+        inliers=(e * e < thr2) & front,
+        errors_px=e * pixel_scale,
+        threshold_px=float(threshold) * pixel_scale,
+        iterations=0,
+        local_optimizations=0,
+        refined=refined,
     )
 
 
@@ -339,12 +361,19 @@ def estimate_relative_pose(
     x2 = as_points2(x2, "x2")
     f = focal_scale(intr1, intr2)
     return estimate_essential(
-        normalize_points(x1, intr1), normalize_points(x2, intr2), options.threshold / f, options, seed,
-        refine, final_loss, None if final_loss_scale_px is None else final_loss_scale_px / f, f, sigmas,
+        normalize_points(x1, intr1),
+        normalize_points(x2, intr2),
+        options.threshold / f,
+        options,
+        seed,
+        refine,
+        final_loss,
+        None if final_loss_scale_px is None else final_loss_scale_px / f,
+        f,
+        sigmas,
     )
 
 
 def pose_from_essential(E: np.ndarray, x1n: np.ndarray, x2n: np.ndarray, mask: np.ndarray | None = None):
     """(R, t, in_front) from an essential matrix by the cheirality vote (see ``select_pose``)."""
     return select_pose(E, x1n, x2n, mask)
-

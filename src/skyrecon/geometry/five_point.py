@@ -21,9 +21,29 @@ __all__ = ["essential_5point", "essential_5point_batch"]
 
 # Monomials as exponents of (x, y, z).
 _LIN = [(1, 0, 0), (0, 1, 0), (0, 0, 1), (0, 0, 0)]
-_QUAD = [(2, 0, 0), (1, 1, 0), (0, 2, 0), (1, 0, 1), (0, 1, 1), (0, 0, 2), (1, 0, 0), (0, 1, 0), (0, 0, 1), (0, 0, 0)]
+_QUAD = [
+    (2, 0, 0),
+    (1, 1, 0),
+    (0, 2, 0),
+    (1, 0, 1),
+    (0, 1, 1),
+    (0, 0, 2),
+    (1, 0, 0),
+    (0, 1, 0),
+    (0, 0, 1),
+    (0, 0, 0),
+]
 _CUBIC = [
-    (3, 0, 0), (2, 1, 0), (1, 2, 0), (0, 3, 0), (2, 0, 1), (1, 1, 1), (0, 2, 1), (1, 0, 2), (0, 1, 2), (0, 0, 3),
+    (3, 0, 0),
+    (2, 1, 0),
+    (1, 2, 0),
+    (0, 3, 0),
+    (2, 0, 1),
+    (1, 1, 1),
+    (0, 2, 1),
+    (1, 0, 2),
+    (0, 1, 2),
+    (0, 0, 3),
 ] + _QUAD  # the 10 cubic monomials first, then the 10 of degree <= 2 (the action-matrix basis)
 
 
@@ -67,9 +87,12 @@ def _constraint_matrix(N: np.ndarray) -> np.ndarray:
     E0, E1, E2 = E[:, 0], E[:, 1], E[:, 2]
     cross = np.stack(
         [
-            np.einsum("bp,bq,pqr->br", E1[:, 1], E2[:, 2], _T_LL) - np.einsum("bp,bq,pqr->br", E1[:, 2], E2[:, 1], _T_LL),
-            np.einsum("bp,bq,pqr->br", E1[:, 2], E2[:, 0], _T_LL) - np.einsum("bp,bq,pqr->br", E1[:, 0], E2[:, 2], _T_LL),
-            np.einsum("bp,bq,pqr->br", E1[:, 0], E2[:, 1], _T_LL) - np.einsum("bp,bq,pqr->br", E1[:, 1], E2[:, 0], _T_LL),
+            np.einsum("bp,bq,pqr->br", E1[:, 1], E2[:, 2], _T_LL)
+            - np.einsum("bp,bq,pqr->br", E1[:, 2], E2[:, 1], _T_LL),
+            np.einsum("bp,bq,pqr->br", E1[:, 2], E2[:, 0], _T_LL)
+            - np.einsum("bp,bq,pqr->br", E1[:, 0], E2[:, 2], _T_LL),
+            np.einsum("bp,bq,pqr->br", E1[:, 0], E2[:, 1], _T_LL)
+            - np.einsum("bp,bq,pqr->br", E1[:, 1], E2[:, 0], _T_LL),
         ],
         axis=1,
     )  # (B, 3, 10)

@@ -152,7 +152,9 @@ def refine_fundamental_irls(F: np.ndarray, x1: np.ndarray, x2: np.ndarray, itera
     return F
 
 
-def _ransac(x1: np.ndarray, x2: np.ndarray, options: RansacOptions, rng: np.random.Generator) -> tuple[np.ndarray, int]:
+def _ransac(
+    x1: np.ndarray, x2: np.ndarray, options: RansacOptions, rng: np.random.Generator
+) -> tuple[np.ndarray, int]:
     n = len(x1)
     thr2 = options.threshold**2
     best_cost, best_F, iterations = np.inf, None, 0
@@ -187,7 +189,9 @@ def _ransac(x1: np.ndarray, x2: np.ndarray, options: RansacOptions, rng: np.rand
     return best_F, iterations
 
 
-def _lmeds(x1: np.ndarray, x2: np.ndarray, options: RansacOptions, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, int]:
+def _lmeds(
+    x1: np.ndarray, x2: np.ndarray, options: RansacOptions, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray, int]:
     n = len(x1)
     iters = required_iterations(0.5, 7, options.confidence, options.max_iterations)
     iters = max(iters, options.min_iterations)
@@ -262,11 +266,15 @@ def estimate_fundamental(
     if len(x1) != len(x2):
         raise InputError(f"{len(x1)} points in image 1 but {len(x2)} in image 2")
     if method not in FUNDAMENTAL_METHODS:
-        raise InputError(f"unknown fundamental-matrix method {method!r}; use one of {', '.join(FUNDAMENTAL_METHODS)}")
+        raise InputError(
+            f"unknown fundamental-matrix method {method!r}; use one of {', '.join(FUNDAMENTAL_METHODS)}"
+        )
     n = len(x1)
     need = 7 if method == "7point" else 8
     if n < need:
-        raise EstimationError(f"the {method} fundamental-matrix method needs at least {need} matches, got {n}")
+        raise EstimationError(
+            f"the {method} fundamental-matrix method needs at least {need} matches, got {n}"
+        )
     rng = as_generator(seed)
     thr2 = options.threshold**2
     iterations = 0

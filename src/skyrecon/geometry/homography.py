@@ -15,7 +15,13 @@ from skyrecon.errors import EstimationError, InputError
 from skyrecon.geometry.epipolar import as_points2, hartley_normalization, homogeneous
 from skyrecon.geometry.sampling import RansacOptions, as_generator, draw_samples, required_iterations
 
-__all__ = ["homography_dlt", "homography_transfer_sq", "HomographyEstimate", "estimate_homography", "decompose_homography"]
+__all__ = [
+    "homography_dlt",
+    "homography_transfer_sq",
+    "HomographyEstimate",
+    "estimate_homography",
+    "decompose_homography",
+]
 
 
 def _dlt_rows(n1: np.ndarray, n2: np.ndarray) -> np.ndarray:
@@ -164,7 +170,11 @@ def estimate_homography(
 
 
 def decompose_homography(
-    H: np.ndarray, K1: np.ndarray, K2: np.ndarray, x1n: np.ndarray | None = None, x2n: np.ndarray | None = None
+    H: np.ndarray,
+    K1: np.ndarray,
+    K2: np.ndarray,
+    x1n: np.ndarray | None = None,
+    x2n: np.ndarray | None = None,
 ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """Motions compatible with a plane-induced homography (Ma, Soatto, Kosecka, Sastry, sec. 5.3).
 

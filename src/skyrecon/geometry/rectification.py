@@ -86,12 +86,19 @@ def _border(intr: Intrinsics, n: int = 16) -> np.ndarray:
     w, h = intr.width - 1.0, intr.height - 1.0
     s = np.linspace(0.0, 1.0, n)
     px = np.concatenate(
-        [np.stack([s * w, 0 * s], 1), np.stack([s * w, 0 * s + h], 1), np.stack([0 * s, s * h], 1), np.stack([0 * s + w, s * h], 1)]
+        [
+            np.stack([s * w, 0 * s], 1),
+            np.stack([s * w, 0 * s + h], 1),
+            np.stack([0 * s, s * h], 1),
+            np.stack([0 * s + w, s * h], 1),
+        ]
     )
     return intr.normalized(px)
 
 
-def epipole_in_image(R: np.ndarray, t: np.ndarray, intr1: Intrinsics, intr2: Intrinsics, margin: float = 0.0) -> bool:
+def epipole_in_image(
+    R: np.ndarray, t: np.ndarray, intr1: Intrinsics, intr2: Intrinsics, margin: float = 0.0
+) -> bool:
     """True when the epipole of either camera lies inside its image (grown by ``margin`` x size):
     the motion is mostly along the optical axis and planar rectification is ill-posed."""
     c2_in_1 = -np.asarray(R).T @ np.asarray(t)
@@ -254,11 +261,21 @@ def rectify_opencv(
     R = np.asarray(R, np.float64)
     t = np.asarray(t, np.float64).reshape(3, 1)
     R1, R2, P1, P2, _, _, _ = cv2.stereoRectify(
-        intr1.K, intr1.dist, intr2.K, intr2.dist, (intr1.width, intr1.height), R, t,
-        flags=cv2.CALIB_ZERO_DISPARITY, alpha=alpha, newImageSize=(W, H),
+        intr1.K,
+        intr1.dist,
+        intr2.K,
+        intr2.dist,
+        (intr1.width, intr1.height),
+        R,
+        t,
+        flags=cv2.CALIB_ZERO_DISPARITY,
+        alpha=alpha,
+        newImageSize=(W, H),
     )
     if abs(P2[1, 3]) > abs(P2[0, 3]):
-        raise EstimationError("OpenCV rectified vertically (the cameras moved mostly up/down); use the calibrated method")
+        raise EstimationError(
+            "OpenCV rectified vertically (the cameras moved mostly up/down); use the calibrated method"
+        )
     K1r, K2r = P1[:, :3], P2[:, :3]
     Tx = P2[0, 3] / P2[0, 0]
     swapped = bool(Tx > 0)
@@ -266,7 +283,9 @@ def rectify_opencv(
     Ml, Mr = (M2, M1) if swapped else (M1, M2)
     Kl = K2r if swapped else K1r
     Kr = K1r if swapped else K2r
-    return _finish("opencv", (W, H), Ml, Mr, swapped, Kl.copy(), float(Kr[0, 2] - Kl[0, 2]), float(abs(Tx)), x1n, x2n)
+    return _finish(
+        "opencv", (W, H), Ml, Mr, swapped, Kl.copy(), float(Kr[0, 2] - Kl[0, 2]), float(abs(Tx)), x1n, x2n
+    )
 
 
 def rectify_uncalibrated(
@@ -326,7 +345,9 @@ def rectify_uncalibrated(
     S2 = np.array([[s, 0, tx2], [0, s, ty], [0, 0, 1.0]])
     M1 = S1 @ H1 @ intr1.K
     M2 = S2 @ H2 @ intr2.K
-    return _finish("uncalibrated", (W, H), M1, M2, False, None, 0.0, None, intr1.normalized(x1), intr2.normalized(x2))
+    return _finish(
+        "uncalibrated", (W, H), M1, M2, False, None, 0.0, None, intr1.normalized(x1), intr2.normalized(x2)
+    )
 
 
 def rectify(

@@ -18,7 +18,14 @@ from skyrecon.core.rigid import rotvec_to_matrix
 from skyrecon.errors import InputError
 from skyrecon.geometry.epipolar import skew
 
-__all__ = ["Loss", "robust_loss", "RefineResult", "refine_relative_pose", "sampson_residuals", "tangent_basis"]
+__all__ = [
+    "Loss",
+    "robust_loss",
+    "RefineResult",
+    "refine_relative_pose",
+    "sampson_residuals",
+    "tangent_basis",
+]
 
 Loss = Literal["trivial", "huber", "cauchy", "truncated"]
 
@@ -76,11 +83,18 @@ def _residuals_and_jacobian(
     sD = np.sqrt(D)
     r = C / sD
     tx = skew(t)
-    dE = np.stack([tx @ _GEN[0] @ R, tx @ _GEN[1] @ R, tx @ _GEN[2] @ R, skew(B[:, 0]) @ R, skew(B[:, 1]) @ R])
+    dE = np.stack(
+        [tx @ _GEN[0] @ R, tx @ _GEN[1] @ R, tx @ _GEN[2] @ R, skew(B[:, 0]) @ R, skew(B[:, 1]) @ R]
+    )
     dEx1 = np.matmul(h1, dE.transpose(0, 2, 1))  # (5, N, 3)
     dEtx2 = np.matmul(h2, dE)  # (5, N, 3)
     dC = np.sum(h2 * dEx1, axis=2)  # (5, N)
-    dD = 2.0 * (Ex1[:, 0] * dEx1[:, :, 0] + Ex1[:, 1] * dEx1[:, :, 1] + Etx2[:, 0] * dEtx2[:, :, 0] + Etx2[:, 1] * dEtx2[:, :, 1])
+    dD = 2.0 * (
+        Ex1[:, 0] * dEx1[:, :, 0]
+        + Ex1[:, 1] * dEx1[:, :, 1]
+        + Etx2[:, 0] * dEtx2[:, :, 0]
+        + Etx2[:, 1] * dEtx2[:, :, 1]
+    )
     J = (dC / sD - 0.5 * C * dD / (D * sD)).T
     return r, J
 
@@ -161,7 +175,7 @@ def refine_relative_pose(
     lam = 1e-4
     converged = False
     it = 0
-    for it in range(1, max_iterations + 1):
+    for it in range(1, max_iterations + 1):  # noqa: B007  (the count is returned)
         _, w = robust_loss(r * r / s2, loss)
         Jw = J * w[:, None]
         H = Jw.T @ J

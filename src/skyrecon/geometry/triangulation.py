@@ -171,7 +171,13 @@ def triangulate(
 
 
 def reprojection_errors(
-    X: np.ndarray, R: np.ndarray, t: np.ndarray, K1: np.ndarray, K2: np.ndarray, x1: np.ndarray, x2: np.ndarray
+    X: np.ndarray,
+    R: np.ndarray,
+    t: np.ndarray,
+    K1: np.ndarray,
+    K2: np.ndarray,
+    x1: np.ndarray,
+    x2: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Pixel reprojection errors in both images (no lens distortion).
 

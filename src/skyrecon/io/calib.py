@@ -195,10 +195,17 @@ def read_middlebury_calib(path: str | Path) -> MiddleburyCalib:
         raise InputError(f"the baseline must be positive (millimetres), got {baseline_mm}", path)
     rig = StereoRig.rectified(left, baseline_mm / 1000.0, right.cx - left.cx)
     return MiddleburyCalib(
-        rig, K0, K1, width, height,
-        ndisp=_integer(entries, "ndisp", path, False), isint=_integer(entries, "isint", path, False),
-        vmin=_scalar(entries, "vmin", path, False), vmax=_scalar(entries, "vmax", path, False),
-        dyavg=_scalar(entries, "dyavg", path, False), dymax=_scalar(entries, "dymax", path, False),
+        rig,
+        K0,
+        K1,
+        width,
+        height,
+        ndisp=_integer(entries, "ndisp", path, False),
+        isint=_integer(entries, "isint", path, False),
+        vmin=_scalar(entries, "vmin", path, False),
+        vmax=_scalar(entries, "vmax", path, False),
+        dyavg=_scalar(entries, "dyavg", path, False),
+        dymax=_scalar(entries, "dymax", path, False),
     )
 
 
@@ -249,9 +256,7 @@ def _projection(entries: dict, key: str, path: Path) -> np.ndarray:
     return values.reshape(3, 4)
 
 
-def _image_size(
-    entries: dict, width: int | None, height: int | None, path: Path
-) -> tuple[int, int]:
+def _image_size(entries: dict, width: int | None, height: int | None, path: Path) -> tuple[int, int]:
     if "S_rect_02" in entries:
         values, lineno = entries["S_rect_02"]
         if values.size != 2 or np.any(values != np.round(values)) or np.any(values <= 0):
@@ -269,7 +274,9 @@ def _image_size(
     return int(width), int(height)
 
 
-def rectified_rig_from_projections(P_left: np.ndarray, P_right: np.ndarray, width: int, height: int) -> StereoRig:
+def rectified_rig_from_projections(
+    P_left: np.ndarray, P_right: np.ndarray, width: int, height: int
+) -> StereoRig:
     """A rectified rig from two rectified 3x4 projections ``K [I | t]`` (KITTI P2/P3).
 
     The baseline is the x offset between the optical centres, ``(K_r^-1 P_r - K_l^-1 P_l)[0]``,
@@ -286,15 +293,15 @@ def rectified_rig_from_projections(P_left: np.ndarray, P_right: np.ndarray, widt
         raise InputError("the two projections are not a rectified pair: fx, fy and cy must be equal")
     offset = np.linalg.solve(right.K, P_right[:, 3]) - np.linalg.solve(left.K, P_left[:, 3])
     if offset[0] >= 0:
-        raise InputError("the right camera is not to the right of the left one (P_right[0,3] must be smaller)")
+        raise InputError(
+            "the right camera is not to the right of the left one (P_right[0,3] must be smaller)"
+        )
     if np.hypot(offset[1], offset[2]) > 0.05 * abs(offset[0]):
         raise InputError(f"the cameras are offset off the x axis by {offset[1:]} m: not a rectified pair")
     return StereoRig.rectified(left, float(-offset[0]), right.cx - left.cx)
 
 
-def read_kitti_calib(
-    path: str | Path, width: int | None = None, height: int | None = None
-) -> KittiCalib:
+def read_kitti_calib(path: str | Path, width: int | None = None, height: int | None = None) -> KittiCalib:
     """Read a KITTI calibration: odometry/object ``P0:``..``P3:`` files or raw ``calib_cam_to_cam.txt``.
 
     Args:
@@ -417,7 +424,9 @@ def read_opencv_stereo_calib(path: str | Path, width: int, height: int) -> Stere
     try:
         fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
     except cv2.error as exc:
-        raise InputError(f"cannot parse the OpenCV calibration ({' '.join(str(exc).split())[:120]})", path) from None
+        raise InputError(
+            f"cannot parse the OpenCV calibration ({' '.join(str(exc).split())[:120]})", path
+        ) from None
     try:
         values: dict[str, np.ndarray] = {}
         for name, keys in _OPENCV_KEYS.items():
@@ -438,17 +447,24 @@ def read_opencv_stereo_calib(path: str | Path, width: int, height: int) -> Stere
         fs.release()
     missing = [n for n in ("K1", "K2", "R", "T") if n not in values]
     if missing:
-        raise InputError(f"missing {', '.join(missing)} in the OpenCV stereo calibration (need K1 D1 K2 D2 R T)", path)
+        raise InputError(
+            f"missing {', '.join(missing)} in the OpenCV stereo calibration (need K1 D1 K2 D2 R T)", path
+        )
     if file_size and tuple(file_size[:2]) != (width, height):
         raise InputError(
-            f"the calibration is for {file_size[0]}x{file_size[1]} images but the images are {width}x{height}", path
+            f"the calibration is for {file_size[0]}x{file_size[1]} images but the images are {width}x{height}",
+            path,
         )
     for name, arr in values.items():
         if not np.all(np.isfinite(arr)):
             raise InputError(f"{name} contains NaN or infinite values", path)
     try:
-        left = Intrinsics.from_K(values["K1"].reshape(3, 3), width, height, values.get("D1", np.zeros(5)).ravel())
-        right = Intrinsics.from_K(values["K2"].reshape(3, 3), width, height, values.get("D2", np.zeros(5)).ravel())
+        left = Intrinsics.from_K(
+            values["K1"].reshape(3, 3), width, height, values.get("D1", np.zeros(5)).ravel()
+        )
+        right = Intrinsics.from_K(
+            values["K2"].reshape(3, 3), width, height, values.get("D2", np.zeros(5)).ravel()
+        )
         right_from_left = Rigid3(values["R"].reshape(3, 3), values["T"].ravel())
     except (InputError, ValueError) as exc:
         raise InputError(getattr(exc, "reason", str(exc)), path) from None
@@ -470,7 +486,9 @@ def read_stereo_calib(path: str | Path, width: int, height: int) -> StereoCalibr
     """
     path = Path(path)
     text = _read_text(path, "stereo calibration")
-    if path.suffix.lower() in (".yml", ".yaml", ".xml", ".json") or text.lstrip().startswith(("%YAML", "<?xml")):
+    if path.suffix.lower() in (".yml", ".yaml", ".xml", ".json") or text.lstrip().startswith(
+        ("%YAML", "<?xml")
+    ):
         return StereoCalibration(read_opencv_stereo_calib(path, width, height), None, "opencv")
     if re.search(r"^\s*cam0\s*=", text, re.M):
         calib = read_middlebury_calib(path)

@@ -51,8 +51,14 @@ COLMAP_MODELS: dict[str, int] = {
 
 #: Models COLMAP knows that have no exact OpenCV k1 k2 p1 p2 k3 equivalent.
 _UNSUPPORTED_MODELS = {
-    "OPENCV_FISHEYE", "SIMPLE_RADIAL_FISHEYE", "RADIAL_FISHEYE", "THIN_PRISM_FISHEYE",
-    "RAD_TAN_THIN_PRISM_FISHEYE", "FOV", "SIMPLE_FISHEYE", "FISHEYE",
+    "OPENCV_FISHEYE",
+    "SIMPLE_RADIAL_FISHEYE",
+    "RADIAL_FISHEYE",
+    "THIN_PRISM_FISHEYE",
+    "RAD_TAN_THIN_PRISM_FISHEYE",
+    "FOV",
+    "SIMPLE_FISHEYE",
+    "FISHEYE",
 }
 
 _PIXEL_OFFSET = 0.5  # COLMAP pixel coordinate = skyrecon pixel coordinate + 0.5
@@ -97,7 +103,9 @@ def _nums(tokens: list[str], path: Path, line_no: int, what: str, kind: type = f
         try:
             v = kind(tok)
         except ValueError:
-            raise InputError(f"line {line_no}: {what}: {tok!r} is not a valid {kind.__name__}", path) from None
+            raise InputError(
+                f"line {line_no}: {what}: {tok!r} is not a valid {kind.__name__}", path
+            ) from None
         if kind is float and not np.isfinite(v):
             raise InputError(f"line {line_no}: {what} contains NaN or infinite values", path)
         out.append(v)
@@ -239,7 +247,8 @@ def _read_images(path: Path) -> dict[int, Image]:
         tok = s.split(maxsplit=9)
         if len(tok) < 10:
             raise InputError(
-                f"line {line_no}: expected 'IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME', got {s[:80]!r}", path
+                f"line {line_no}: expected 'IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME', got {s[:80]!r}",
+                path,
             )
         image_id = _nums([tok[0]], path, line_no, "IMAGE_ID", int)[0]
         q = np.array(_nums(tok[1:5], path, line_no, "quaternion"))
@@ -321,8 +330,9 @@ def read_colmap_text(directory: str | Path) -> Reconstruction:
                 if (directory / req.replace(".txt", ".bin")).is_file()
                 else ""
             )
-            raise InputError(f"no {req} here; a COLMAP text model needs cameras.txt and images.txt{bin_hint}",
-                             directory)
+            raise InputError(
+                f"no {req} here; a COLMAP text model needs cameras.txt and images.txt{bin_hint}", directory
+            )
     cameras = read_colmap_cameras_text(directory / "cameras.txt")
     images = _read_images(directory / "images.txt")
     points_path = directory / "points3D.txt"
@@ -401,8 +411,13 @@ def write_colmap_text(directory: str | Path, reconstruction: Reconstruction) -> 
             raise InputError(f"point {pid} has a NaN or infinite position; remove it before writing")
         out.append(
             " ".join(
-                [str(pid), *map(_fmt, p.xyz), *(str(int(c)) for c in p.color), _fmt(p.error),
-                 *(str(int(v)) for v in p.track.ravel())]
+                [
+                    str(pid),
+                    *map(_fmt, p.xyz),
+                    *(str(int(c)) for c in p.color),
+                    _fmt(p.error),
+                    *(str(int(v)) for v in p.track.ravel()),
+                ]
             )
         )
     points_text = "\n".join(out) + "\n"
@@ -424,10 +439,16 @@ def _nerfstudio_intrinsics(cam: Intrinsics) -> dict[str, float | int]:
         raise InputError(f"camera has skew {cam.skew:g}; nerfstudio cameras have no skew parameter")
     k1, k2, p1, p2, k3 = (float(x) for x in cam.dist)
     d: dict[str, float | int] = {
-        "fl_x": cam.fx, "fl_y": cam.fy,
-        "cx": cam.cx + _PIXEL_OFFSET, "cy": cam.cy + _PIXEL_OFFSET,
-        "w": cam.width, "h": cam.height,
-        "k1": k1, "k2": k2, "p1": p1, "p2": p2,
+        "fl_x": cam.fx,
+        "fl_y": cam.fy,
+        "cx": cam.cx + _PIXEL_OFFSET,
+        "cy": cam.cy + _PIXEL_OFFSET,
+        "w": cam.width,
+        "h": cam.height,
+        "k1": k1,
+        "k2": k2,
+        "p1": p1,
+        "p2": p2,
     }
     if k3 != 0:
         d["k3"] = k3

@@ -99,7 +99,7 @@ def _read_with_pil(path: Path) -> tuple[np.ndarray, np.ndarray | None, str]:
                 arr = np.array(im).astype(np.uint16) if pil_mode != "I" else np.array(im)
                 if pil_mode == "I":
                     if arr.min() < 0 or arr.max() > 65535:
-                        raise InputError(f"32-bit integer image with values outside 0..65535", path)
+                        raise InputError("32-bit integer image with values outside 0..65535", path)
                     arr = arr.astype(np.uint16)
             elif pil_mode == "1":
                 arr = np.array(im.convert("L"))

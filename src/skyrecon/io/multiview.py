@@ -229,8 +229,12 @@ def read_middlebury_par(
         t = vals[18:21]
         w, h = sizes.get(name) or default_size
         views.append(
-            PosedView(name, _intrinsics(K, w, h, path, line_no), Rigid3(R, t, "cam", "world"),
-                      _image_path(image_dir, name))
+            PosedView(
+                name,
+                _intrinsics(K, w, h, path, line_no),
+                Rigid3(R, t, "cam", "world"),
+                _image_path(image_dir, name),
+            )
         )
     _check_unique_names(views, path)
     return views
@@ -287,7 +291,9 @@ def _read_one_strecha(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, i
     center = rows[7]
     wh = rows[8]
     if np.any(wh != np.round(wh)) or np.any(wh <= 0):
-        raise InputError(f"line {lines[8][0]}: image size must be two positive integers, got {wh.tolist()}", path)
+        raise InputError(
+            f"line {lines[8][0]}: image size must be two positive integers, got {wh.tolist()}", path
+        )
     return K, R_world_from_cam, center, int(wh[0]), int(wh[1])
 
 
@@ -329,7 +335,9 @@ def read_strecha_cameras(
         name = f.name[: -len(".camera")] if f.name.endswith(".camera") else f.name
         R_cw = R_wc.T
         cam_from_world = Rigid3(R_cw, -R_cw @ center, "cam", "world")
-        views.append(PosedView(name, _intrinsics(K, w, h, f, None), cam_from_world, _image_path(image_dir, name)))
+        views.append(
+            PosedView(name, _intrinsics(K, w, h, f, None), cam_from_world, _image_path(image_dir, name))
+        )
     views.sort(key=lambda v: v.name)
     _check_unique_names(views, cam_dir)
     return views
@@ -373,7 +381,8 @@ def _read_halcon_intrinsics(path: Path) -> Intrinsics:
         )
     if values["Focus"] <= 0:
         raise InputError(
-            f"Focus = {values['Focus']:g}: telecentric or invalid cameras are not supported (need Focus > 0)", path
+            f"Focus = {values['Focus']:g}: telecentric or invalid cameras are not supported (need Focus > 0)",
+            path,
         )
     if values["Sx"] <= 0 or values["Sy"] <= 0:
         raise InputError(f"pixel pitch Sx, Sy must be positive, got {values['Sx']:g}, {values['Sy']:g}", path)
@@ -424,8 +433,12 @@ def read_halcon_cameras(directory: str | Path, image_dir: str | Path | None = No
     directory = Path(directory)
     if not directory.is_dir():
         raise InputError("HALCON camera directory not found; check the path", directory)
-    intr = {m.group(1): p for p in directory.glob("intrinsics_camera*.txt") if (m := _HALCON_NUM.search(p.name))}
-    extr = {m.group(1): p for p in directory.glob("extrinsics_camera*.txt") if (m := _HALCON_NUM.search(p.name))}
+    intr = {
+        m.group(1): p for p in directory.glob("intrinsics_camera*.txt") if (m := _HALCON_NUM.search(p.name))
+    }
+    extr = {
+        m.group(1): p for p in directory.glob("extrinsics_camera*.txt") if (m := _HALCON_NUM.search(p.name))
+    }
     if not intr and not extr:
         raise InputError("no HALCON intrinsics_cameraNN.txt / extrinsics_cameraNN.txt files here", directory)
     for nn in sorted(set(intr) ^ set(extr)):
@@ -436,8 +449,12 @@ def read_halcon_cameras(directory: str | Path, image_dir: str | Path | None = No
     for nn in sorted(intr, key=lambda s: (int(s), s)):
         name = f"image_camera{nn}.png"
         views.append(
-            PosedView(name, _read_halcon_intrinsics(intr[nn]), _read_halcon_extrinsics(extr[nn]),
-                      _image_path(image_dir, name))
+            PosedView(
+                name,
+                _read_halcon_intrinsics(intr[nn]),
+                _read_halcon_extrinsics(extr[nn]),
+                _image_path(image_dir, name),
+            )
         )
     return views
 
@@ -454,7 +471,9 @@ def views_from_reconstruction(
     """
     image_dir = None if image_dir is None else Path(image_dir)
     return [
-        PosedView(im.name, reconstruction.cameras[im.camera_id], im.cam_from_world, _image_path(image_dir, im.name))
+        PosedView(
+            im.name, reconstruction.cameras[im.camera_id], im.cam_from_world, _image_path(image_dir, im.name)
+        )
         for _, im in sorted(reconstruction.images.items())
     ]
 
@@ -464,7 +483,12 @@ def _colmap_image_dir(model_dir: Path, reconstruction: Reconstruction) -> Path |
     names = [im.name for im in reconstruction.images.values()]
     if not names:
         return None
-    for cand in (model_dir, model_dir / "images", model_dir.parent / "images", model_dir.parent.parent / "images"):
+    for cand in (
+        model_dir,
+        model_dir / "images",
+        model_dir.parent / "images",
+        model_dir.parent.parent / "images",
+    ):
         if (cand / names[0]).is_file():
             return cand
     return None
@@ -518,7 +542,9 @@ def read_cameras(spec: str | Path, image_dir: str | Path | None = None) -> list[
     # p is a directory
     if (p / "cameras.txt").is_file() and (p / "images.txt").is_file():
         rec = read_colmap_text(p)
-        return views_from_reconstruction(rec, image_dir if image_dir is not None else _colmap_image_dir(p, rec))
+        return views_from_reconstruction(
+            rec, image_dir if image_dir is not None else _colmap_image_dir(p, rec)
+        )
     if any(p.glob("*.camera")) or (p / "gt_dense_cameras").is_dir():
         return read_strecha_cameras(p, image_dir)
     if any(p.glob("intrinsics_camera*.txt")) or any(p.glob("extrinsics_camera*.txt")):
@@ -539,4 +565,3 @@ def _check_unique_names(views: list[PosedView], path: Path) -> None:
         if v.name in seen:
             raise InputError(f"image {v.name!r} is listed twice", path)
         seen.add(v.name)
-

@@ -59,7 +59,9 @@ def _parse_header(data: bytes, path: Path) -> tuple[int, int, int, str, int]:
     if width <= 0 or height <= 0:
         raise InputError(f"bad PFM header: image size {width}x{height} must be positive", path)
     if scale == 0 or not np.isfinite(scale):
-        raise InputError(f"bad PFM header: scale {scale} must be a non-zero number (its sign is the byte order)", path)
+        raise InputError(
+            f"bad PFM header: scale {scale} must be a non-zero number (its sign is the byte order)", path
+        )
     if pos >= len(data) or data[pos] not in _WHITESPACE:
         raise InputError("truncated PFM file: no pixel data after the header", path)
     return width, height, channels, "<" if scale < 0 else ">", pos + 1

@@ -20,10 +20,22 @@ from skyrecon.errors import InputError
 from skyrecon.io.atomic import write_bytes_atomic
 
 _TYPES = {
-    "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
-    "short": "i2", "int16": "i2", "ushort": "u2", "uint16": "u2",
-    "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
-    "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
+    "char": "i1",
+    "int8": "i1",
+    "uchar": "u1",
+    "uint8": "u1",
+    "short": "i2",
+    "int16": "i2",
+    "ushort": "u2",
+    "uint16": "u2",
+    "int": "i4",
+    "int32": "i4",
+    "uint": "u4",
+    "uint32": "u4",
+    "float": "f4",
+    "float32": "f4",
+    "double": "f8",
+    "float64": "f8",
 }
 _FORMATS = {"ascii": "", "binary_little_endian": "<", "binary_big_endian": ">"}
 _MAX_HEADER_BYTES = 1 << 20
@@ -197,9 +209,7 @@ def _read_binary_vertices(data: bytes, header: _Header, vi: int, path: Path) -> 
     dtype = vertex.dtype(order)
     available = max(0, len(data) - offset) // dtype.itemsize
     if available < vertex.count:
-        raise InputError(
-            f"truncated PLY file: {vertex.count} vertices declared, data for {available}", path
-        )
+        raise InputError(f"truncated PLY file: {vertex.count} vertices declared, data for {available}", path)
     return np.frombuffer(data, dtype, vertex.count, offset)
 
 
@@ -213,7 +223,9 @@ def _bad_ascii_line(lines: list[bytes], numbers: list[int], nprops: int, path: P
         try:
             [float(w) for w in words]
         except ValueError:
-            return InputError(f"line {lineno}: vertex values must be numbers, got {line.decode('latin-1')!r}", path)
+            return InputError(
+                f"line {lineno}: vertex values must be numbers, got {line.decode('latin-1')!r}", path
+            )
     return InputError("malformed vertex data", path)
 
 

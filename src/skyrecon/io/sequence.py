@@ -83,10 +83,10 @@ def is_sequence_dir(path: str | Path) -> bool:
 
 def _image_files(directory: Path) -> dict[str, Path]:
     if not directory.is_dir():
-        raise InputError("missing image directory: a sequence needs image_2/ (left) and image_3/ (right)", directory)
-    return {
-        p.stem: p for p in directory.iterdir() if p.is_file() and p.suffix.lower() in _IMAGE_SUFFIXES
-    }
+        raise InputError(
+            "missing image directory: a sequence needs image_2/ (left) and image_3/ (right)", directory
+        )
+    return {p.stem: p for p in directory.iterdir() if p.is_file() and p.suffix.lower() in _IMAGE_SUFFIXES}
 
 
 def _frame_paths(root: Path) -> tuple[list[Path], list[Path]]:
@@ -95,7 +95,9 @@ def _frame_paths(root: Path) -> tuple[list[Path], list[Path]]:
         raise InputError("no images (.png/.jpg) in the left image directory", root / LEFT_DIR)
     only_left, only_right = sorted(left.keys() - right.keys()), sorted(right.keys() - left.keys())
     if only_left or only_right:
-        names = [f"{n} only in image_2" for n in only_left[:3]] + [f"{n} only in image_3" for n in only_right[:3]]
+        names = [f"{n} only in image_2" for n in only_left[:3]] + [
+            f"{n} only in image_3" for n in only_right[:3]
+        ]
         raise InputError(
             f"left and right frames differ ({', '.join(names)}); every frame needs both images", root
         )
@@ -120,11 +122,15 @@ def parse_poses(text: str, path: Path) -> list[Rigid3]:
         if not words:
             continue
         if len(words) != 12:
-            raise InputError(f"line {lineno}: a pose needs 12 numbers (row-major 3x4), found {len(words)}", path)
+            raise InputError(
+                f"line {lineno}: a pose needs 12 numbers (row-major 3x4), found {len(words)}", path
+            )
         try:
             values = np.array([float(w) for w in words])
         except ValueError:
-            raise InputError(f"line {lineno}: pose values must be numbers, got {line.strip()!r}", path) from None
+            raise InputError(
+                f"line {lineno}: pose values must be numbers, got {line.strip()!r}", path
+            ) from None
         if not np.all(np.isfinite(values)):
             raise InputError(f"line {lineno}: the pose contains NaN or infinite values", path)
         try:

@@ -13,13 +13,38 @@ Main entry points:
 
 from skyrecon.mapping.config import MapConfig
 from skyrecon.mapping.distance import DistanceField
-from skyrecon.mapping.occupancy import FREE, OCCUPIED, UNKNOWN, IntegrationStats, OccupancyMap, build_map_from_depth_frames
+from skyrecon.mapping.occupancy import (
+    FREE,
+    OCCUPIED,
+    UNKNOWN,
+    IntegrationStats,
+    OccupancyMap,
+    build_map_from_depth_frames,
+)
 from skyrecon.mapping.octomap_bt import write_octomap_bt
+from skyrecon.mapping.stereo_sequence import (
+    StereoMapper,
+    StereoMapSettings,
+    map_stereo_sequence,
+    stereo_hit_range_m,
+)
 from skyrecon.mapping.storage import export_occupied_ply, load_map, save_map
-from skyrecon.mapping.stereo_sequence import StereoMapper, StereoMapSettings, map_stereo_sequence, stereo_hit_range_m
 
 __all__ = [
-    "MapConfig", "OccupancyMap", "IntegrationStats", "build_map_from_depth_frames", "DistanceField",
-    "export_occupied_ply", "write_octomap_bt", "save_map", "load_map", "FREE", "OCCUPIED", "UNKNOWN",
-    "StereoMapper", "StereoMapSettings", "map_stereo_sequence", "stereo_hit_range_m",
+    "MapConfig",
+    "OccupancyMap",
+    "IntegrationStats",
+    "build_map_from_depth_frames",
+    "DistanceField",
+    "export_occupied_ply",
+    "write_octomap_bt",
+    "save_map",
+    "load_map",
+    "FREE",
+    "OCCUPIED",
+    "UNKNOWN",
+    "StereoMapper",
+    "StereoMapSettings",
+    "map_stereo_sequence",
+    "stereo_hit_range_m",
 ]

@@ -63,7 +63,9 @@ def _range_plane(plane, lo, hi, r, c, zmax):
 
 
 @njit(cache=True)
-def _prepare_row(r, depth, dirs, ray_norm, R_wc, fx, fy, min_range, max_range, half, worst, eps, cap, plane, lo, hi):
+def _prepare_row(
+    r, depth, dirs, ray_norm, R_wc, fx, fy, min_range, max_range, half, worst, eps, cap, plane, lo, hi
+):
     """One image row of :func:`prepare_depth`."""
     H, W = depth.shape
     for c in range(W):
@@ -124,7 +126,6 @@ def _prepare_row(r, depth, dirs, ray_norm, R_wc, fx, fy, min_range, max_range, h
             hi[r, c] = (o + Hh) / (d - g) if d > g else np.inf
 
 
-
 @njit(cache=True, parallel=True)
 def prepare_depth(depth, dirs, ray_norm, R_wc, fx, fy, min_range, max_range, voxel, eps, cap):
     """Per-pixel surface planes that decide the fate of the voxels projecting onto each pixel.
@@ -165,13 +166,31 @@ def prepare_depth(depth, dirs, ray_norm, R_wc, fx, fy, min_range, max_range, vox
     half = 0.5 * voxel
     worst = half * np.sqrt(3.0)
     for r in prange(H):
-        _prepare_row(r, depth, dirs, ray_norm, R_wc, fx, fy, min_range, max_range, half, worst, eps, cap, plane, lo, hi)
+        _prepare_row(
+            r, depth, dirs, ray_norm, R_wc, fx, fy, min_range, max_range, half, worst, eps, cap, plane, lo, hi
+        )
     return plane, lo, hi
 
 
 @njit(cache=True)
-def _endpoints_row(r, depth, dirs, ray_norm, R_wc, t_wc, voxel, B, min_range, max_range, eps,
-                   tkeys, tvals, local_of_pool, hitmask, octflag):
+def _endpoints_row(
+    r,
+    depth,
+    dirs,
+    ray_norm,
+    R_wc,
+    t_wc,
+    voxel,
+    B,
+    min_range,
+    max_range,
+    eps,
+    tkeys,
+    tvals,
+    local_of_pool,
+    hitmask,
+    octflag,
+):
     """One image row of :func:`mark_endpoints`."""
     H, W = depth.shape
     h = B // 2
@@ -214,8 +233,23 @@ def _endpoints_row(r, depth, dirs, ray_norm, R_wc, t_wc, voxel, B, min_range, ma
 
 
 @njit(cache=True, parallel=True)
-def mark_endpoints(depth, dirs, ray_norm, R_wc, t_wc, voxel, B, min_range, max_range, eps,
-                   tkeys, tvals, local_of_pool, hitmask, octflag):
+def mark_endpoints(
+    depth,
+    dirs,
+    ray_norm,
+    R_wc,
+    t_wc,
+    voxel,
+    B,
+    min_range,
+    max_range,
+    eps,
+    tkeys,
+    tvals,
+    local_of_pool,
+    hitmask,
+    octflag,
+):
     """Flag the voxels that hold a measured surface point (within range) for this frame.
 
     Every valid pixel's point ``d * r``, pushed ``eps`` metres further along its ray, is mapped
@@ -227,8 +261,24 @@ def mark_endpoints(depth, dirs, ray_norm, R_wc, t_wc, voxel, B, min_range, max_r
     left neighbour skips the block lookup.
     """
     for r in prange(depth.shape[0]):
-        _endpoints_row(r, depth, dirs, ray_norm, R_wc, t_wc, voxel, B, min_range, max_range, eps,
-                       tkeys, tvals, local_of_pool, hitmask, octflag)
+        _endpoints_row(
+            r,
+            depth,
+            dirs,
+            ray_norm,
+            R_wc,
+            t_wc,
+            voxel,
+            B,
+            min_range,
+            max_range,
+            eps,
+            tkeys,
+            tvals,
+            local_of_pool,
+            hitmask,
+            octflag,
+        )
 
 
 @njit(cache=True)
@@ -403,7 +453,9 @@ def _classify_super(s, out, s_lo, s_n, bedge, R, t, cam, planes, pyr_mn, pyr_mx,
                 qx = R[0, 0] * bx + R[0, 1] * by + R[0, 2] * bz + t[0]
                 qy = R[1, 0] * bx + R[1, 1] * by + R[1, 2] * bz + t[1]
                 qz = R[2, 0] * bx + R[2, 1] * by + R[2, 2] * bz + t[2]
-                out[s, (i * SUPER + j) * SUPER + k] = _classify(qx, qy, qz, cb, cam, planes, pyr_mn, pyr_mx, offs, ws, simple)
+                out[s, (i * SUPER + j) * SUPER + k] = _classify(
+                    qx, qy, qz, cb, cam, planes, pyr_mn, pyr_mx, offs, ws, simple
+                )
 
 
 @njit(cache=True, parallel=True)
@@ -501,7 +553,9 @@ def _carve_range(blk, B, x0, x1, y0, y1, z0, z1, l_miss, c_lo, c_hi, thr):
 
 
 @njit(cache=True)
-def _voxels(blk, hm, B, x0, x1, y0, y1, z0, z1, px, py, pz, R, voxel, cam, dist, plane, lodds, counts, j, order):
+def _voxels(
+    blk, hm, B, x0, x1, y0, y1, z0, z1, px, py, pz, R, voxel, cam, dist, plane, lodds, counts, j, order
+):
     """Test every voxel of a local box against the depth image; ``(px, py, pz)`` is voxel (0, 0, 0)'s centre (camera frame).
 
     ``hm`` (B^3,) uint8 flags the voxels holding a measured point (hit regardless), or is empty.
@@ -597,8 +651,34 @@ def _all_at(blk, B, x0, y0, z0, h, value):
 
 
 @njit(cache=True)
-def _update_block(j, data, sat, coords, ids, kinds, B, voxel, R, t, cam, dist, plane, lodds,
-                  planes, pyr_mn, pyr_mx, offs, ws, simple, loc, hitmask, octflag, co, counts, order):
+def _update_block(
+    j,
+    data,
+    sat,
+    coords,
+    ids,
+    kinds,
+    B,
+    voxel,
+    R,
+    t,
+    cam,
+    dist,
+    plane,
+    lodds,
+    planes,
+    pyr_mn,
+    pyr_mx,
+    offs,
+    ws,
+    simple,
+    loc,
+    hitmask,
+    octflag,
+    co,
+    counts,
+    order,
+):
     """Update block ``ids[j]``; returns its change code (see :func:`update_blocks`)."""
     l_miss, c_lo, c_hi, thr = lodds[1], lodds[2], lodds[3], lodds[4]
     h = B // 2
@@ -654,8 +734,29 @@ def _update_block(j, data, sat, coords, ids, kinds, B, voxel, R, t, cam, dist, p
                 sat[k] |= bit
             continue
         hm = hitmask[lj] if lj >= 0 else hitmask[0, :0]
-        c1, hit = _voxels(blk, hm, B, x0, x0 + h, y0, y0 + h, z0, z0 + h, px, py, pz, R, voxel, cam, dist,
-                          plane, lodds, counts, j, order)
+        c1, hit = _voxels(
+            blk,
+            hm,
+            B,
+            x0,
+            x0 + h,
+            y0,
+            y0 + h,
+            z0,
+            z0 + h,
+            px,
+            py,
+            pz,
+            R,
+            voxel,
+            cam,
+            dist,
+            plane,
+            lodds,
+            counts,
+            j,
+            order,
+        )
         ch |= c1
         if hit:
             sat[k] &= ~bit
@@ -686,8 +787,28 @@ def _loop_order(R):
 
 @njit(cache=True, parallel=True)
 def update_blocks(
-    data, sat, coords, ids, kinds, B, voxel, R, t, cam, dist, plane, lodds,
-    planes, pyr_mn, pyr_mx, offs, ws, simple, loc, hitmask, octflag,
+    data,
+    sat,
+    coords,
+    ids,
+    kinds,
+    B,
+    voxel,
+    R,
+    t,
+    cam,
+    dist,
+    plane,
+    lodds,
+    planes,
+    pyr_mn,
+    pyr_mx,
+    offs,
+    ws,
+    simple,
+    loc,
+    hitmask,
+    octflag,
 ):
     """Apply one frame's hits and misses to blocks ``ids`` (pool indices) of classes ``kinds``.
 
@@ -719,6 +840,32 @@ def update_blocks(
     co = cube_corners(R, 0.5 * (B // 2) * voxel)
     order = _loop_order(R)
     for j in prange(M):
-        changed[j] = _update_block(j, data, sat, coords, ids, kinds, B, voxel, R, t, cam, dist, plane, lodds,
-                                   planes, pyr_mn, pyr_mx, offs, ws, simple, loc, hitmask, octflag, co, counts, order)
+        changed[j] = _update_block(
+            j,
+            data,
+            sat,
+            coords,
+            ids,
+            kinds,
+            B,
+            voxel,
+            R,
+            t,
+            cam,
+            dist,
+            plane,
+            lodds,
+            planes,
+            pyr_mn,
+            pyr_mx,
+            offs,
+            ws,
+            simple,
+            loc,
+            hitmask,
+            octflag,
+            co,
+            counts,
+            order,
+        )
     return changed, counts

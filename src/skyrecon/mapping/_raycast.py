@@ -11,8 +11,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from skyrecon.mapping.blocks import EMPTY, table_find
 from skyrecon.mapping._projective import _add, _change
+from skyrecon.mapping.blocks import EMPTY, table_find
 
 
 @njit(cache=True)

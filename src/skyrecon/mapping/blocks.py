@@ -22,7 +22,11 @@ _MAX_LOAD = 0.5  # hash table load factor limit
 
 @njit(cache=True)
 def _slot(x, y, z, mask):
-    h = (np.int64(x) * np.int64(73856093)) ^ (np.int64(y) * np.int64(19349663)) ^ (np.int64(z) * np.int64(83492791))
+    h = (
+        (np.int64(x) * np.int64(73856093))
+        ^ (np.int64(y) * np.int64(19349663))
+        ^ (np.int64(z) * np.int64(83492791))
+    )
     return h & mask
 
 
@@ -254,7 +258,9 @@ class BlockGrid:
                 self.reserve(max(self.count + 1, int(self.count * 1.6) + 64))
         return out
 
-    def gather(self, lo_voxel: np.ndarray, shape: tuple[int, int, int], fill: float | None = None) -> np.ndarray:
+    def gather(
+        self, lo_voxel: np.ndarray, shape: tuple[int, int, int], fill: float | None = None
+    ) -> np.ndarray:
         """Dense (X, Y, Z) float32 copy of the voxel box ``[lo, lo + shape)``; absent blocks read ``fill``."""
         lo = np.asarray(lo_voxel, dtype=np.int64).reshape(3)
         shp = np.asarray(shape, dtype=np.int64).reshape(3)
@@ -264,8 +270,12 @@ class BlockGrid:
     def scatter(self, ids: np.ndarray, lo_voxel: np.ndarray, dense: np.ndarray) -> None:
         """Write the dense box starting at voxel ``lo_voxel`` into existing blocks ``ids``."""
         scatter_dense(
-            np.ascontiguousarray(ids, dtype=np.int32), self.coords, self.data, self.block_size,
-            np.asarray(lo_voxel, dtype=np.int64).reshape(3), np.ascontiguousarray(dense, dtype=np.float32),
+            np.ascontiguousarray(ids, dtype=np.int32),
+            self.coords,
+            self.data,
+            self.block_size,
+            np.asarray(lo_voxel, dtype=np.int64).reshape(3),
+            np.ascontiguousarray(dense, dtype=np.float32),
         )
 
     def lookup(self, voxels: np.ndarray, fill: float | None = None) -> np.ndarray:
@@ -288,7 +298,7 @@ class BlockGrid:
         """Bytes held by this grid (pool and hash table, including spare capacity)."""
         return int(self.tkeys.nbytes + self.tvals.nbytes + self.coords.nbytes + self.data.nbytes)
 
-    def copy(self) -> "BlockGrid":
+    def copy(self) -> BlockGrid:
         g = BlockGrid.__new__(BlockGrid)
         g.block_size, g.fill, g.count = self.block_size, self.fill, self.count
         g.tkeys, g.tvals = self.tkeys.copy(), self.tvals.copy()
@@ -296,7 +306,7 @@ class BlockGrid:
         return g
 
     @classmethod
-    def from_blocks(cls, block_size: int, fill: float, coords: np.ndarray, data: np.ndarray) -> "BlockGrid":
+    def from_blocks(cls, block_size: int, fill: float, coords: np.ndarray, data: np.ndarray) -> BlockGrid:
         """Rebuild a grid from (M, 3) int32 block coordinates and (M, B^3) float32 block values."""
         coords = np.ascontiguousarray(coords, dtype=np.int32).reshape(-1, 3)
         g = cls(block_size, fill, capacity=max(len(coords), 16))

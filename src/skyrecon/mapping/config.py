@@ -78,8 +78,13 @@ class MapConfig:
     def log_odds(self) -> np.ndarray:
         """(5,) float32: ``l_hit, l_miss, clamp_min, clamp_max, occupied threshold`` in log-odds."""
         return np.array(
-            [logit(self.prob_hit), logit(self.prob_miss), logit(self.clamp_min), logit(self.clamp_max),
-             logit(self.occupancy_threshold)],
+            [
+                logit(self.prob_hit),
+                logit(self.prob_miss),
+                logit(self.clamp_min),
+                logit(self.clamp_max),
+                logit(self.occupancy_threshold),
+            ],
             dtype=np.float32,
         )
 
@@ -91,6 +96,6 @@ class MapConfig:
         return asdict(self)
 
     @classmethod
-    def from_dict(cls, d: dict) -> "MapConfig":
+    def from_dict(cls, d: dict) -> MapConfig:
         known = {f.name for f in fields(cls)}
         return cls(**{k: v for k, v in d.items() if k in known})

@@ -126,7 +126,9 @@ class DistanceField:
         inner = dist[m : m + w_shape[0], m : m + w_shape[1], m : m + w_shape[2]]
         nb = b1 - b0 + 1
         mins = inner.reshape(nb[0], B, nb[1], B, nb[2], B).min(axis=(1, 3, 5))
-        coords = np.stack(np.meshgrid(*[np.arange(b0[i], b1[i] + 1) for i in range(3)], indexing="ij"), -1).reshape(-1, 3)
+        coords = np.stack(
+            np.meshgrid(*[np.arange(b0[i], b1[i] + 1) for i in range(3)], indexing="ij"), -1
+        ).reshape(-1, 3)
         in_map = self.map.grid.find(coords) >= 0
         in_field = self.grid.find(coords) >= 0
         differs = (mins != self.missing_value).reshape(-1)
@@ -163,7 +165,9 @@ class DistanceField:
         base = np.floor(g).astype(np.int64)
         f = g - base
         offs = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)], np.int64)
-        vals = self.grid.lookup((base[:, None, :] + offs[None]).reshape(-1, 3)).reshape(-1, 8).astype(np.float64)
+        vals = (
+            self.grid.lookup((base[:, None, :] + offs[None]).reshape(-1, 3)).reshape(-1, 8).astype(np.float64)
+        )
         w = np.ones((len(p), 8))
         for a in range(3):
             w *= np.where(offs[None, :, a] == 1, f[:, a : a + 1], 1.0 - f[:, a : a + 1])

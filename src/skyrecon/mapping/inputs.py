@@ -34,7 +34,9 @@ def as_world_from_cam(pose: Rigid3 | np.ndarray, what: str = "pose") -> Rigid3:
         raise InputError(f"{what}: {e}") from None
 
 
-def check_depth(depth_m: np.ndarray, intrinsics: Intrinsics, max_plausible_m: float, what: str = "depth") -> np.ndarray:
+def check_depth(
+    depth_m: np.ndarray, intrinsics: Intrinsics, max_plausible_m: float, what: str = "depth"
+) -> np.ndarray:
     """The depth image as contiguous (H, W) float32 metres, after sanity checks.
 
     Raises InputError when the shape does not match the camera or when the depth is not

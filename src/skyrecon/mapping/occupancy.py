@@ -98,7 +98,9 @@ class OccupancyMap:
 
     def voxel_index(self, points: np.ndarray) -> np.ndarray:
         """(N, 3) int64 voxel indices of world points (N, 3) metres."""
-        return np.floor(np.asarray(points, dtype=np.float64).reshape(-1, 3) / self.voxel_size).astype(np.int64)
+        return np.floor(np.asarray(points, dtype=np.float64).reshape(-1, 3) / self.voxel_size).astype(
+            np.int64
+        )
 
     def voxel_center(self, index: np.ndarray) -> np.ndarray:
         """(N, 3) float64 world centres, metres, of voxel indices (N, 3)."""
@@ -198,10 +200,14 @@ class OccupancyMap:
         W, H = intr.width, intr.height
         e = np.linspace(-0.5, W - 0.5, 33)
         f = np.linspace(-0.5, H - 0.5, 25)
-        border = np.concatenate([
-            np.stack([e, np.full_like(e, -0.5)], 1), np.stack([e, np.full_like(e, H - 0.5)], 1),
-            np.stack([np.full_like(f, -0.5), f], 1), np.stack([np.full_like(f, W - 0.5), f], 1),
-        ])
+        border = np.concatenate(
+            [
+                np.stack([e, np.full_like(e, -0.5)], 1),
+                np.stack([e, np.full_like(e, H - 0.5)], 1),
+                np.stack([np.full_like(f, -0.5), f], 1),
+                np.stack([np.full_like(f, W - 0.5), f], 1),
+            ]
+        )
         xy = intr.normalized(border)
         xl, xr = xy[:, 0].min(), xy[:, 0].max()
         yt, yb = xy[:, 1].min(), xy[:, 1].max()
@@ -237,8 +243,17 @@ class OccupancyMap:
         v = self.voxel_size
         dirs, ray_norm, planes, fan = self._camera_tables(intrinsics)
         plane, lo, hi = proj.prepare_depth(
-            depth, dirs, ray_norm, pose.R, intrinsics.fx, intrinsics.fy, cfg.min_range_m, cfg.max_range_m,
-            v, 0.005 * v, cfg.grazing_cap_voxels * v,
+            depth,
+            dirs,
+            ray_norm,
+            pose.R,
+            intrinsics.fx,
+            intrinsics.fy,
+            cfg.min_range_m,
+            cfg.max_range_m,
+            v,
+            0.005 * v,
+            cfg.grazing_cap_voxels * v,
         )
         mn, mx, offs, _hs, ws = proj.build_pyramid(lo, hi)
         t1 = time.perf_counter()
@@ -251,18 +266,31 @@ class OccupancyMap:
         s_hi = np.floor((pts.max(axis=0) + pad) / sedge).astype(np.int64)
         s_n = s_hi - s_lo + 1
         simple = intrinsics.has_distortion or intrinsics.skew != 0.0
-        cam = np.array([
-            intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy, intrinsics.width, intrinsics.height,
-            1e-3, rmax, intrinsics.skew,
-        ])
+        cam = np.array(
+            [
+                intrinsics.fx,
+                intrinsics.fy,
+                intrinsics.cx,
+                intrinsics.cy,
+                intrinsics.width,
+                intrinsics.height,
+                1e-3,
+                rmax,
+                intrinsics.skew,
+            ]
+        )
         R = np.ascontiguousarray(cam_from_world.R)
         t = np.ascontiguousarray(cam_from_world.t)
-        cls = proj.classify_blocks(s_lo, s_n, self.block_size, self.voxel_size, R, t, cam, planes, mn, mx, offs, ws, simple)
+        cls = proj.classify_blocks(
+            s_lo, s_n, self.block_size, self.voxel_size, R, t, cam, planes, mn, mx, offs, ws, simple
+        )
         coords, kinds = proj.collect_blocks(cls, s_lo, s_n)
         t2 = time.perf_counter()
         ids = self.grid.ensure(coords)
         t3 = time.perf_counter()
-        dist = np.concatenate([[1.0 if intrinsics.has_distortion else 0.0], intrinsics.dist]).astype(np.float64)
+        dist = np.concatenate([[1.0 if intrinsics.has_distortion else 0.0], intrinsics.dist]).astype(
+            np.float64
+        )
         self._grow_flags()
         # rows of the per-frame endpoint scratch for the PARTIAL blocks
         part = np.flatnonzero(kinds == proj.PARTIAL)
@@ -274,13 +302,46 @@ class OccupancyMap:
             self._octflag = np.zeros((self._hitmask.shape[0], 8), np.uint8)
         self._local_of_pool[ids[part]] = loc[part]
         proj.mark_endpoints(
-            depth, dirs, ray_norm, pose.R, pose.t, v, self.block_size, cfg.min_range_m, cfg.max_range_m, 0.005 * v,
-            self.grid.tkeys, self.grid.tvals, self._local_of_pool, self._hitmask, self._octflag,
+            depth,
+            dirs,
+            ray_norm,
+            pose.R,
+            pose.t,
+            v,
+            self.block_size,
+            cfg.min_range_m,
+            cfg.max_range_m,
+            0.005 * v,
+            self.grid.tkeys,
+            self.grid.tvals,
+            self._local_of_pool,
+            self._hitmask,
+            self._octflag,
         )
         self._local_of_pool[ids[part]] = -1
         changed, counts = proj.update_blocks(
-            self.grid.data, self._sat, self.grid.coords, ids, kinds, self.block_size, self.voxel_size, R, t, cam, dist,
-            plane, self._lodds, planes, mn, mx, offs, ws, simple, loc, self._hitmask, self._octflag,
+            self.grid.data,
+            self._sat,
+            self.grid.coords,
+            ids,
+            kinds,
+            self.block_size,
+            self.voxel_size,
+            R,
+            t,
+            cam,
+            dist,
+            plane,
+            self._lodds,
+            planes,
+            mn,
+            mx,
+            offs,
+            ws,
+            simple,
+            loc,
+            self._hitmask,
+            self._octflag,
         )
         self._hitmask[: len(part)] = 0
         self._octflag[: len(part)] = 0
@@ -295,7 +356,9 @@ class OccupancyMap:
         """Integrate a :class:`DepthMap` that carries its ``cam_from_world`` pose."""
         if depth.cam_from_world is None:
             raise InputError("this depth map has no camera pose; cannot place it in the world")
-        return self.integrate_depth(depth.depth_m, depth.intrinsics, depth.cam_from_world.inverse().with_frames("world", "cam"))
+        return self.integrate_depth(
+            depth.depth_m, depth.intrinsics, depth.cam_from_world.inverse().with_frames("world", "cam")
+        )
 
     def integrate_points(self, points_world: np.ndarray, sensor_origin: np.ndarray) -> IntegrationStats:
         """Integrate a point cloud by casting a ray from the sensor to every point.
@@ -332,10 +395,20 @@ class OccupancyMap:
         local = np.full(self.grid.count, -1, np.int32)
         local[uniq] = np.arange(len(uniq), dtype=np.int32)
         free, hits = rc.mark_rays(
-            self.grid.tkeys, self.grid.tvals, local, len(uniq), o_v, ends_v, is_hit, self.block_size, max_steps
+            self.grid.tkeys,
+            self.grid.tvals,
+            local,
+            len(uniq),
+            o_v,
+            ends_v,
+            is_hit,
+            self.block_size,
+            max_steps,
         )
         self._grow_flags()
-        changed, counts = rc.apply_flags(self.grid.data, self._sat, uniq.astype(np.int32), free, hits, self._lodds)
+        changed, counts = rc.apply_flags(
+            self.grid.data, self._sat, uniq.astype(np.int32), free, hits, self._lodds
+        )
         n_changed = self._mark(uniq, changed)
         return IntegrationStats(
             len(uniq), int(counts[:, 0].sum()), int(counts[:, 1].sum()), n_changed, time.perf_counter() - t0
@@ -387,13 +460,18 @@ class OccupancyMap:
         with np.errstate(invalid="ignore"):
             occ = int(np.count_nonzero(blocks >= self._lodds[4]))
             free = int(np.count_nonzero(blocks < self._lodds[4]))
-        return {"blocks": self.grid.count, "occupied": occ, "free": free, "unknown": int(blocks.size) - occ - free}
+        return {
+            "blocks": self.grid.count,
+            "occupied": occ,
+            "free": free,
+            "unknown": int(blocks.size) - occ - free,
+        }
 
     def memory_bytes(self) -> int:
         """Bytes held by the map's arrays (including spare capacity)."""
         return self.grid.nbytes() + int(self._dirty.nbytes)
 
-    def copy(self) -> "OccupancyMap":
+    def copy(self) -> OccupancyMap:
         m = OccupancyMap(self.config)
         m.grid = self.grid.copy()
         m._dirty = self._dirty.copy()
@@ -410,7 +488,7 @@ class OccupancyMap:
         config: MapConfig | None = None,
         known: np.ndarray | None = None,
         **overrides,
-    ) -> "OccupancyMap":
+    ) -> OccupancyMap:
         """A fully observed map from a dense boolean grid (e.g. ground truth).
 
         Args:
@@ -454,7 +532,7 @@ class OccupancyMap:
         save_map(self, directory)
 
     @classmethod
-    def load(cls, directory) -> "OccupancyMap":
+    def load(cls, directory) -> OccupancyMap:
         """Read a map written by :meth:`save`; raises InputError for missing or corrupt files."""
         from skyrecon.mapping.storage import load_map
 
@@ -499,9 +577,15 @@ def build_map_from_depth_frames(
     else:
         if world_from_cam is None:
             raise InputError("camera poses are required (world_from_cam, one per depth frame)")
-        poses = list(world_from_cam) if not isinstance(world_from_cam, np.ndarray) or world_from_cam.ndim == 3 else None
+        poses = (
+            list(world_from_cam)
+            if not isinstance(world_from_cam, np.ndarray) or world_from_cam.ndim == 3
+            else None
+        )
         if poses is None:
-            raise InputError(f"poses array must have shape (N, 4, 4) or (N, 3, 4), got {np.shape(world_from_cam)}")
+            raise InputError(
+                f"poses array must have shape (N, 4, 4) or (N, 3, 4), got {np.shape(world_from_cam)}"
+            )
         images = [d.depth_m if isinstance(d, DepthMap) else d for d in depths]
         if intrinsics is None:
             intr = [d.intrinsics if isinstance(d, DepthMap) else None for d in depths]
@@ -512,9 +596,13 @@ def build_map_from_depth_frames(
         else:
             intr = list(intrinsics)
             if len(intr) != n:
-                raise InputError(f"{len(intr)} intrinsics for {n} depth frames; give one camera or one per frame")
+                raise InputError(
+                    f"{len(intr)} intrinsics for {n} depth frames; give one camera or one per frame"
+                )
     if len(poses) != n:
-        raise InputError(f"{len(poses)} poses for {n} depth frames; give exactly one world_from_cam pose per frame")
+        raise InputError(
+            f"{len(poses)} poses for {n} depth frames; give exactly one world_from_cam pose per frame"
+        )
     checked = [as_world_from_cam(p, f"pose {i}") for i, p in enumerate(poses)]
     m = OccupancyMap(config, **overrides)
     stats = []

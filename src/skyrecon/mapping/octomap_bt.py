@@ -59,7 +59,9 @@ def octree_bytes(voxels: np.ndarray, occupied: np.ndarray, resolution: float) ->
     v = np.asarray(voxels, dtype=np.int64).reshape(-1, 3)
     keys = v + KEY_OFFSET
     if len(keys) and (keys.min() < 0 or keys.max() >= 2 * KEY_OFFSET):
-        raise InputError(f"the map reaches beyond OctoMap's key range (+-{KEY_OFFSET} voxels from the origin)")
+        raise InputError(
+            f"the map reaches beyond OctoMap's key range (+-{KEY_OFFSET} voxels from the origin)"
+        )
     code = np.where(np.asarray(occupied, dtype=bool), 2, 1).astype(np.uint8)  # 1 free, 2 occupied, 3 inner
     inner_keys, inner_depth, inner_bytes = [], [], []
     n_nodes = 1 if len(keys) else 0

@@ -94,12 +94,18 @@ class StereoMapSettings:
 
     def hit_range_m(self, rig: StereoRig) -> float:
         """The map's maximum range for this rig, metres (see :func:`stereo_hit_range_m`)."""
-        return stereo_hit_range_m(rig, self.voxel_size_m, self.max_range_m, self.max_depth_error_m,
-                                  self.disparity_error_px)
+        return stereo_hit_range_m(
+            rig, self.voxel_size_m, self.max_range_m, self.max_depth_error_m, self.disparity_error_px
+        )
 
 
-def stereo_hit_range_m(rig: StereoRig, voxel_size_m: float, max_range_m: float,
-                       max_depth_error_m: float | None = None, disparity_error_px: float = 0.25) -> float:
+def stereo_hit_range_m(
+    rig: StereoRig,
+    voxel_size_m: float,
+    max_range_m: float,
+    max_depth_error_m: float | None = None,
+    disparity_error_px: float = 0.25,
+) -> float:
     """Range up to which stereo measurements may mark obstacles, metres.
 
     ``min(max_range_m, trusted_range_m(rig, max_depth_error_m or 2 * voxel_size_m, disparity_error_px))``.
@@ -155,8 +161,10 @@ class StereoMapTimings:
         return {
             "frames": len(total),
             "frames_per_s": round(float(1.0 / max(np.median(total), 1e-9)), 2),
-            "median_ms": {"depth": round(1000 * float(np.median(self.depth_s)), 1),
-                          "integration": round(1000 * float(np.median(self.integrate_s)), 1)},
+            "median_ms": {
+                "depth": round(1000 * float(np.median(self.depth_s)), 1),
+                "integration": round(1000 * float(np.median(self.integrate_s)), 1),
+            },
         }
 
 
@@ -175,8 +183,14 @@ class StereoMapper:
         timings: per-frame wall times.
     """
 
-    def __init__(self, rig: StereoRig, settings: StereoMapSettings | None = None,
-                 config: MapConfig | None = None, matcher=None, **overrides):
+    def __init__(
+        self,
+        rig: StereoRig,
+        settings: StereoMapSettings | None = None,
+        config: MapConfig | None = None,
+        matcher=None,
+        **overrides,
+    ):
         s = settings or StereoMapSettings()
         if overrides:
             s = StereoMapSettings(**{**asdict(s), **overrides})
@@ -186,8 +200,12 @@ class StereoMapper:
         self.settings = s
         self.hit_range_m = s.hit_range_m(rig)
         base = (config or MapConfig()).to_dict()
-        base.update(voxel_size_m=s.voxel_size_m, max_range_m=self.hit_range_m, prob_hit=s.prob_hit,
-                    prob_miss=s.prob_miss)
+        base.update(
+            voxel_size_m=s.voxel_size_m,
+            max_range_m=self.hit_range_m,
+            prob_hit=s.prob_hit,
+            prob_miss=s.prob_miss,
+        )
         self.map = OccupancyMap(MapConfig.from_dict(base))
         self.timings = StereoMapTimings()
         self._matcher = matcher
@@ -198,8 +216,9 @@ class StereoMapper:
         if self._matcher is None:
             from skyrecon.stereo import create_matcher
 
-            self._matcher = create_matcher(self.settings.method, self.settings.max_disparity,
-                                           **self.settings.matcher_kwargs())
+            self._matcher = create_matcher(
+                self.settings.method, self.settings.max_disparity, **self.settings.matcher_kwargs()
+            )
             if hasattr(self._matcher, "warmup"):
                 self._matcher.warmup()
         return self._matcher
@@ -219,7 +238,9 @@ class StereoMapper:
             keep &= ~disparity_discontinuities(result.disparity, step)
         return disparity_to_depth(np.where(keep, result.disparity, np.float32(np.nan)), self.rig)
 
-    def add_frame(self, left: np.ndarray, right: np.ndarray, world_from_left: Rigid3 | np.ndarray) -> StereoFrameResult:
+    def add_frame(
+        self, left: np.ndarray, right: np.ndarray, world_from_left: Rigid3 | np.ndarray
+    ) -> StereoFrameResult:
         """Stereo depth of one rectified pair, integrated at pose ``world_from_left`` (world metres)."""
         t0 = time.perf_counter()
         depth = self.depth(left, right)

@@ -82,7 +82,9 @@ def load_map(directory: str | Path):
     if not isinstance(header, dict) or header.get("format") != FORMAT:
         raise InputError(f"not a skyrecon occupancy map header (format != {FORMAT!r})", hp)
     if header.get("version") != VERSION:
-        raise InputError(f"unsupported map version {header.get('version')!r} (this skyrecon reads {VERSION})", hp)
+        raise InputError(
+            f"unsupported map version {header.get('version')!r} (this skyrecon reads {VERSION})", hp
+        )
     try:
         config = MapConfig.from_dict(header["config"])
     except (KeyError, TypeError) as e:

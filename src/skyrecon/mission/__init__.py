@@ -24,7 +24,20 @@ from skyrecon.mission.outputs import write_mission_outputs, write_refused_output
 from skyrecon.mission.scenario import ImpossibleMission, Scenario, make_scenario
 
 __all__ = [
-    "MissionConfig", "small_test_config", "run_mission", "MissionResult", "CycleRecord", "PlanEvent",
-    "LOOP_STAGES", "STAGES", "Scenario", "make_scenario", "ImpossibleMission", "mission_metrics",
-    "write_mission_outputs", "write_refused_outputs", "fly_and_write", "run_missions",
+    "MissionConfig",
+    "small_test_config",
+    "run_mission",
+    "MissionResult",
+    "CycleRecord",
+    "PlanEvent",
+    "LOOP_STAGES",
+    "STAGES",
+    "Scenario",
+    "make_scenario",
+    "ImpossibleMission",
+    "mission_metrics",
+    "write_mission_outputs",
+    "write_refused_outputs",
+    "fly_and_write",
+    "run_missions",
 ]

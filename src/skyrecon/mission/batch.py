@@ -26,9 +26,22 @@ from skyrecon.mission.loop import run_mission
 from skyrecon.mission.outputs import write_mission_outputs, write_refused_outputs
 from skyrecon.mission.scenario import ImpossibleMission, make_scenario
 
-SUMMARY_KEYS = ("seed", "success", "reason", "collisions", "min_clearance_m", "clearance_ok", "path_length_m",
-                "straight_line_m", "shortest_feasible_m", "length_ratio", "replans", "loop_hz", "flight_time_s",
-                "wall_s")
+SUMMARY_KEYS = (
+    "seed",
+    "success",
+    "reason",
+    "collisions",
+    "min_clearance_m",
+    "clearance_ok",
+    "path_length_m",
+    "straight_line_m",
+    "shortest_feasible_m",
+    "length_ratio",
+    "replans",
+    "loop_hz",
+    "flight_time_s",
+    "wall_s",
+)
 
 
 @dataclass
@@ -41,8 +54,15 @@ class Outcome:
     out: Path
 
 
-def fly_and_write(seed: int, out: str | Path, cfg: MissionConfig, start=None, goal=None,
-                  on_cycle: Callable | None = None, on_scenario: Callable | None = None) -> Outcome:
+def fly_and_write(
+    seed: int,
+    out: str | Path,
+    cfg: MissionConfig,
+    start=None,
+    goal=None,
+    on_cycle: Callable | None = None,
+    on_scenario: Callable | None = None,
+) -> Outcome:
     """Generate the scenario, fly it and write every output to ``out``.
 
     An impossible mission (:class:`ImpossibleMission`) is not raised: its ``mission.json`` and
@@ -78,9 +98,11 @@ def mission_line(doc: dict) -> str:
     """One line describing a mission outcome (for stderr)."""
     seed = doc.get("seed")
     if doc.get("success"):
-        return (f"seed {seed}: delivered, {doc['path_length_m']:.1f} m flown (x{doc['length_ratio']:.3f} of the "
-                f"shortest {doc['shortest_feasible_m']:.1f} m), min clearance {doc['min_clearance_m']:.2f} m, "
-                f"{doc['collisions']} collisions, {doc['replans']} replans, loop {doc['loop_hz']:.1f} Hz")
+        return (
+            f"seed {seed}: delivered, {doc['path_length_m']:.1f} m flown (x{doc['length_ratio']:.3f} of the "
+            f"shortest {doc['shortest_feasible_m']:.1f} m), min clearance {doc['min_clearance_m']:.2f} m, "
+            f"{doc['collisions']} collisions, {doc['replans']} replans, loop {doc['loop_hz']:.1f} Hz"
+        )
     what = "not flown" if doc.get("loop_hz") is None and not doc.get("path_length_m") else "FAILED"
     return f"seed {seed}: {what} ({doc.get('reason')}): {doc.get('message', '')}"
 
@@ -103,8 +125,13 @@ def fly_job(job: MissionJob) -> dict:
         outcome = fly_and_write(job.seed, job.out, cfg)
         doc = outcome.doc
     except Exception as e:  # noqa: BLE001 - one broken mission must not lose the batch
-        doc = {"seed": job.seed, "success": False, "reason": "error", "message": f"{type(e).__name__}: {e}",
-               "collisions": 0}
+        doc = {
+            "seed": job.seed,
+            "success": False,
+            "reason": "error",
+            "message": f"{type(e).__name__}: {e}",
+            "collisions": 0,
+        }
         write_text_atomic(Path(job.out) / "mission.json", json.dumps(doc, indent=2) + "\n")
     row = {k: doc.get(k) for k in SUMMARY_KEYS}
     row["message"] = doc.get("message", "")
@@ -123,35 +150,55 @@ def summarize(rows: Sequence[dict]) -> dict:
     hz = [r["loop_hz"] for r in rows if r.get("loop_hz")]
     clr = [r["min_clearance_m"] for r in rows if r.get("min_clearance_m") is not None]
     return {
-        "missions": n, "succeeded": len(ok), "collisions": int(sum(int(r.get("collisions") or 0) for r in rows)),
+        "missions": n,
+        "succeeded": len(ok),
+        "collisions": int(sum(int(r.get("collisions") or 0) for r in rows)),
         "min_clearance_m": min(clr) if clr else None,
         "length_ratio_median": float(np.median(ratios)) if ratios else None,
         "length_ratio_max": max(ratios) if ratios else None,
-        "loop_hz_median": float(np.median(hz)) if hz else None, "loop_hz_min": min(hz) if hz else None,
+        "loop_hz_median": float(np.median(hz)) if hz else None,
+        "loop_hz_min": min(hz) if hz else None,
     }
 
 
 def summary_markdown(rows: Sequence[dict], totals: dict) -> str:
     """A Markdown table of the missions and a line of totals."""
-    def f(v, fmt="{:.2f}"):
-        return "–" if v is None else (("yes" if v else "no") if isinstance(v, bool) else (fmt.format(v) if isinstance(v, float) else str(v)))
 
-    lines = ["| seed | success | collisions | min clearance m | flown m | shortest m | ratio | replans | loop Hz | reason |",
-             "|---:|:---:|---:|---:|---:|---:|---:|---:|---:|:---|"]
+    def f(v, fmt="{:.2f}"):
+        return (
+            "–"
+            if v is None
+            else (
+                ("yes" if v else "no")
+                if isinstance(v, bool)
+                else (fmt.format(v) if isinstance(v, float) else str(v))
+            )
+        )
+
+    lines = [
+        "| seed | success | collisions | min clearance m | flown m | shortest m | ratio | replans | loop Hz | reason |",
+        "|---:|:---:|---:|---:|---:|---:|---:|---:|---:|:---|",
+    ]
     for r in rows:
-        lines.append(f"| {r.get('seed')} | {f(r.get('success'))} | {f(r.get('collisions'))} | {f(r.get('min_clearance_m'))} | "
-                     f"{f(r.get('path_length_m'), '{:.1f}')} | {f(r.get('shortest_feasible_m'), '{:.1f}')} | "
-                     f"{f(r.get('length_ratio'), '{:.3f}')} | {f(r.get('replans'))} | {f(r.get('loop_hz'), '{:.1f}')} | "
-                     f"{r.get('reason') or ''} |")
+        lines.append(
+            f"| {r.get('seed')} | {f(r.get('success'))} | {f(r.get('collisions'))} | {f(r.get('min_clearance_m'))} | "
+            f"{f(r.get('path_length_m'), '{:.1f}')} | {f(r.get('shortest_feasible_m'), '{:.1f}')} | "
+            f"{f(r.get('length_ratio'), '{:.3f}')} | {f(r.get('replans'))} | {f(r.get('loop_hz'), '{:.1f}')} | "
+            f"{r.get('reason') or ''} |"
+        )
     lines.append("")
-    lines.append(f"{totals['succeeded']} of {totals['missions']} delivered, {totals['collisions']} collisions, "
-                 f"min clearance {f(totals['min_clearance_m'])} m, length ratio median {f(totals['length_ratio_median'], '{:.3f}')} "
-                 f"(worst {f(totals['length_ratio_max'], '{:.3f}')}), loop median {f(totals['loop_hz_median'], '{:.1f}')} Hz "
-                 f"(slowest {f(totals['loop_hz_min'], '{:.1f}')} Hz)")
+    lines.append(
+        f"{totals['succeeded']} of {totals['missions']} delivered, {totals['collisions']} collisions, "
+        f"min clearance {f(totals['min_clearance_m'])} m, length ratio median {f(totals['length_ratio_median'], '{:.3f}')} "
+        f"(worst {f(totals['length_ratio_max'], '{:.3f}')}), loop median {f(totals['loop_hz_median'], '{:.1f}')} Hz "
+        f"(slowest {f(totals['loop_hz_min'], '{:.1f}')} Hz)"
+    )
     return "\n".join(lines) + "\n"
 
 
-def run_missions(seeds: Sequence[int], out: str | Path, cfg: MissionConfig, executor=None, quiet: bool = False) -> tuple[list[dict], dict]:
+def run_missions(
+    seeds: Sequence[int], out: str | Path, cfg: MissionConfig, executor=None, quiet: bool = False
+) -> tuple[list[dict], dict]:
     """Fly one mission per seed (in parallel through ``executor``) and write the summary.
 
     Args:
@@ -171,8 +218,13 @@ def run_missions(seeds: Sequence[int], out: str | Path, cfg: MissionConfig, exec
     ex = executor or get_executor()
     rows = ex.map(fly_job, jobs, desc="missions")
     totals = summarize(rows)
-    write_text_atomic(out / "summary.json", json.dumps({"format": "skyrecon.mission.summary", "version": 1,
-                                                        "totals": totals, "missions": rows}, indent=2) + "\n")
+    write_text_atomic(
+        out / "summary.json",
+        json.dumps(
+            {"format": "skyrecon.mission.summary", "version": 1, "totals": totals, "missions": rows}, indent=2
+        )
+        + "\n",
+    )
     write_text_atomic(out / "summary.md", summary_markdown(rows, totals))
     write_text_atomic(out / "summary.html", render_summary_report(rows))
     return rows, totals

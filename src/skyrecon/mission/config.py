@@ -105,9 +105,24 @@ class MissionConfig:
             v = getattr(self, f.name)
             if isinstance(v, float) and not math.isfinite(v):
                 raise InputError(f"mission setting {f.name} must be finite, got {v}")
-        positive = ("width", "height", "hfov_deg", "baseline_m", "max_disparity", "depth_stride", "voxel_size_m",
-                    "max_range_m", "cruise_speed_mps", "max_accel_mps2", "max_yaw_rate_deg_s", "drone_radius_m",
-                    "cycle_hz", "arrival_tolerance_m", "city_size_m", "max_heading_error_deg")
+        positive = (
+            "width",
+            "height",
+            "hfov_deg",
+            "baseline_m",
+            "max_disparity",
+            "depth_stride",
+            "voxel_size_m",
+            "max_range_m",
+            "cruise_speed_mps",
+            "max_accel_mps2",
+            "max_yaw_rate_deg_s",
+            "drone_radius_m",
+            "cycle_hz",
+            "arrival_tolerance_m",
+            "city_size_m",
+            "max_heading_error_deg",
+        )
         for name in positive:
             if not getattr(self, name) > 0:
                 raise InputError(f"mission setting {name} must be positive, got {getattr(self, name)}")
@@ -116,11 +131,17 @@ class MissionConfig:
         if self.width < 64 or self.height < 48:
             raise InputError(f"images must be at least 64x48 pixels, got {self.width}x{self.height}")
         if self.clearance_m < self.drone_radius_m:
-            raise InputError(f"clearance_m ({self.clearance_m}) must be at least the drone radius ({self.drone_radius_m})")
+            raise InputError(
+                f"clearance_m ({self.clearance_m}) must be at least the drone radius ({self.drone_radius_m})"
+            )
         if not 0 <= self.replan_tolerance_m < self.clearance_m:
-            raise InputError(f"replan_tolerance_m must lie in [0, clearance_m), got {self.replan_tolerance_m}")
+            raise InputError(
+                f"replan_tolerance_m must lie in [0, clearance_m), got {self.replan_tolerance_m}"
+            )
         if not self.min_altitude_m < self.max_altitude_m:
-            raise InputError(f"need min_altitude_m < max_altitude_m, got {self.min_altitude_m}, {self.max_altitude_m}")
+            raise InputError(
+                f"need min_altitude_m < max_altitude_m, got {self.min_altitude_m}, {self.max_altitude_m}"
+            )
         if not 0 < self.min_goal_distance_m <= self.max_goal_distance_m:
             raise InputError("need 0 < min_goal_distance_m <= max_goal_distance_m")
         if self.time_limit_s is not None and not self.time_limit_s > 0:
@@ -163,7 +184,7 @@ class MissionConfig:
             return float(self.time_limit_s)
         return 60.0 + 4.0 * straight_m / self.cruise_speed_mps
 
-    def with_overrides(self, **changes) -> "MissionConfig":
+    def with_overrides(self, **changes) -> MissionConfig:
         """A copy with some fields changed (None values are ignored)."""
         return replace(self, **{k: v for k, v in changes.items() if v is not None})
 
@@ -171,13 +192,20 @@ class MissionConfig:
         return asdict(self)
 
     @classmethod
-    def from_dict(cls, d: dict) -> "MissionConfig":
+    def from_dict(cls, d: dict) -> MissionConfig:
         known = {f.name for f in fields(cls)}
         return cls(**{k: v for k, v in d.items() if k in known})
 
 
 def small_test_config(**changes) -> MissionConfig:
     """A quick mission for tests and smoke runs: 320x240 images, an 80 m city, 30..50 m deliveries."""
-    base = MissionConfig(width=320, height=240, max_disparity=32, city_size_m=80.0, min_goal_distance_m=30.0,
-                         max_goal_distance_m=50.0, map_padding_m=20.0)
+    base = MissionConfig(
+        width=320,
+        height=240,
+        max_disparity=32,
+        city_size_m=80.0,
+        min_goal_distance_m=30.0,
+        max_goal_distance_m=50.0,
+        map_padding_m=20.0,
+    )
     return base.with_overrides(**changes)

@@ -52,8 +52,12 @@ def guide(rest: np.ndarray, state: DroneState, verified_m: float, cfg: MissionCo
     to_go = float(np.linalg.norm(np.diff(rest, axis=0), axis=1).sum())
     room = max(0.0, verified_m - cfg.verify_buffer_m) if verified_m < horizon else math.inf
     a = cfg.max_accel_mps2
-    speed_limit = min(cfg.cruise_speed_mps, math.sqrt(2 * a * room), math.sqrt(2 * a * to_go) + 0.2,
-                      corner_speed_limit(rest, cfg, horizon))
+    speed_limit = min(
+        cfg.cruise_speed_mps,
+        math.sqrt(2 * a * room),
+        math.sqrt(2 * a * to_go) + 0.2,
+        corner_speed_limit(rest, cfg, horizon),
+    )
     carrot = point_along(rest, max(1.0, min(2.5, 0.4 * state.speed + 1.0)))
     if verified_m < horizon:
         look, within = point_along(rest, verified_m), None

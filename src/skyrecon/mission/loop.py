@@ -32,10 +32,10 @@ import numpy as np
 
 from skyrecon.mapping import OccupancyMap
 from skyrecon.mission.config import MissionConfig
+from skyrecon.mission.guidance import guide, hover
 from skyrecon.mission.navigator import Navigator, timed
 from skyrecon.mission.perception import StereoDepth, mission_rig
 from skyrecon.mission.scenario import Scenario
-from skyrecon.mission.guidance import guide, hover
 from skyrecon.mission.vehicle import DroneState, step
 from skyrecon.sim import render_stereo
 
@@ -85,12 +85,21 @@ class CycleRecord:
 
     def to_dict(self) -> dict:
         return {
-            "cycle": self.cycle, "time_s": round(self.time_s, 3), "position": [round(float(v), 4) for v in self.position],
-            "yaw_deg": round(math.degrees(self.yaw), 2), "pitch_down_deg": round(math.degrees(self.pitch_down), 2),
-            "speed_mps": round(self.speed_mps, 3), "timings_ms": {k: round(v, 2) for k, v in self.timings_ms.items()},
-            "loop_ms": round(self.loop_ms, 2), "clearance_m": round(self.clearance_m, 3), "replanned": self.replanned,
-            "replan_ok": self.replan_ok, "path_clear": self.path_clear, "verified_m": round(self.verified_m, 2),
-            "to_go_m": round(self.to_go_m, 2), "measured_fraction": round(self.measured_fraction, 4),
+            "cycle": self.cycle,
+            "time_s": round(self.time_s, 3),
+            "position": [round(float(v), 4) for v in self.position],
+            "yaw_deg": round(math.degrees(self.yaw), 2),
+            "pitch_down_deg": round(math.degrees(self.pitch_down), 2),
+            "speed_mps": round(self.speed_mps, 3),
+            "timings_ms": {k: round(v, 2) for k, v in self.timings_ms.items()},
+            "loop_ms": round(self.loop_ms, 2),
+            "clearance_m": round(self.clearance_m, 3),
+            "replanned": self.replanned,
+            "replan_ok": self.replan_ok,
+            "path_clear": self.path_clear,
+            "verified_m": round(self.verified_m, 2),
+            "to_go_m": round(self.to_go_m, 2),
+            "measured_fraction": round(self.measured_fraction, 4),
         }
 
 
@@ -171,13 +180,23 @@ class _FrameKeeper:
             if len(self.frames) > 2 * self.keep:
                 self.frames = self.frames[::2]
                 self.period *= 2
-        if (replanned and cycle > 0 and len(self.replan_frames) < 2
-                and (not self.replan_frames or cycle - self.replan_frames[-1].cycle >= 30)):
+        if (
+            replanned
+            and cycle > 0
+            and len(self.replan_frames) < 2
+            and (not self.replan_frames or cycle - self.replan_frames[-1].cycle >= 30)
+        ):
             self.replan_frames.append(FrameSample(cycle, left, disparity, "replanned"))
 
     def result(self, last: FrameSample | None) -> list[FrameSample]:
-        fr = self.frames + ([last] if last is not None and (not self.frames or self.frames[-1].cycle != last.cycle) else [])
-        idx = np.unique(np.round(np.linspace(0, len(fr) - 1, min(self.keep, len(fr)))).astype(int)) if fr else []
+        fr = self.frames + (
+            [last] if last is not None and (not self.frames or self.frames[-1].cycle != last.cycle) else []
+        )
+        idx = (
+            np.unique(np.round(np.linspace(0, len(fr) - 1, min(self.keep, len(fr)))).astype(int))
+            if fr
+            else []
+        )
         chosen = [fr[i] for i in idx] + self.replan_frames
         return sorted(chosen, key=lambda f: f.cycle)
 
@@ -210,8 +229,9 @@ def run_mission(
     stereo = StereoDepth(cfg, rig)
     nav = Navigator(cfg, scenario.box, scenario.goal)
     setup_s = time.perf_counter() - t_start
-    dt = cfg.dt
-    state = DroneState(scenario.start.copy(), np.zeros(3), scenario.start_yaw, math.radians(cfg.camera_pitch_deg))
+    state = DroneState(
+        scenario.start.copy(), np.zeros(3), scenario.start_yaw, math.radians(cfg.camera_pitch_deg)
+    )
     limit_s = cfg.time_limit_for(scenario.straight_line_m)
     records: list[CycleRecord] = []
     plans: list[PlanEvent] = []
@@ -224,7 +244,9 @@ def run_mission(
         p = state.position.copy()
         ms: dict[str, float] = {}
         cam_from_world = state.cam_from_world()
-        frame, ms["render"] = timed(render_stereo, scenario.city, rig, cam_from_world.with_frames("left", "world"))
+        frame, ms["render"] = timed(
+            render_stereo, scenario.city, rig, cam_from_world.with_frames("left", "world")
+        )
         depth, ms["stereo"] = timed(stereo.compute, frame.left, frame.right)
         _, ms["integrate"] = timed(nav.integrate, depth.depth_m, depth.intrinsics, cam_from_world)
         rewritten, ms["distance"] = timed(nav.update_distance)
@@ -249,11 +271,27 @@ def run_mission(
             g = guide(rest, state, verified, cfg)
         else:
             verified, g = 0.0, hover(p, scenario.goal)
-        new_state = step(state, g.carrot, g.speed_limit, cfg, look_at=g.look_at, look_within_rad=g.look_within_rad)
+        new_state = step(
+            state, g.carrot, g.speed_limit, cfg, look_at=g.look_at, look_within_rad=g.look_within_rad
+        )
         ms["control"] = 1e3 * (time.perf_counter() - t0)
         clearance = _truth_clearance(scenario, p, new_state.position)
-        rec = CycleRecord(cycle, state.time_s, p, state.yaw, state.pitch_down, new_state.speed, ms, clearance,
-                          replanned, replan_ok, outcome.clear, verified, g.to_go_m, depth.measured_fraction)
+        rec = CycleRecord(
+            cycle,
+            state.time_s,
+            p,
+            state.yaw,
+            state.pitch_down,
+            new_state.speed,
+            ms,
+            clearance,
+            replanned,
+            replan_ok,
+            outcome.clear,
+            verified,
+            g.to_go_m,
+            depth.measured_fraction,
+        )
         records.append(rec)
         keeper.offer(cycle, frame.left, depth.disparity, replanned)
         last_frame = FrameSample(cycle, frame.left, depth.disparity)
@@ -263,16 +301,33 @@ def run_mission(
         cycle += 1
         if clearance < cfg.drone_radius_m:
             collisions, reason = 1, "collision"
-            message = (f"collision at t = {state.time_s:.1f} s near {np.round(state.position, 1).tolist()}: "
-                       f"{clearance:.2f} m from an obstacle (drone radius {cfg.drone_radius_m:g} m)")
+            message = (
+                f"collision at t = {state.time_s:.1f} s near {np.round(state.position, 1).tolist()}: "
+                f"{clearance:.2f} m from an obstacle (drone radius {cfg.drone_radius_m:g} m)"
+            )
             break
         if np.linalg.norm(state.position - scenario.goal) <= cfg.arrival_tolerance_m:
             success, message = True, f"arrived in {state.time_s:.1f} s"
             break
         if state.time_s >= limit_s:
             reason = "timeout"
-            message = (f"time limit of {limit_s:.0f} s reached {np.linalg.norm(state.position - scenario.goal):.1f} m "
-                       f"from the goal" + (f" (last planning problem: {message})" if message else ""))
+            message = (
+                f"time limit of {limit_s:.0f} s reached {np.linalg.norm(state.position - scenario.goal):.1f} m "
+                f"from the goal" + (f" (last planning problem: {message})" if message else "")
+            )
             break
-    return MissionResult(scenario, cfg, success, reason, collisions, records, plans, keeper.result(last_frame),
-                         state.position.copy(), nav.map, time.perf_counter() - t_start, setup_s, message)
+    return MissionResult(
+        scenario,
+        cfg,
+        success,
+        reason,
+        collisions,
+        records,
+        plans,
+        keeper.result(last_frame),
+        state.position.copy(),
+        nav.map,
+        time.perf_counter() - t_start,
+        setup_s,
+        message,
+    )

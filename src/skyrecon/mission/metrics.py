@@ -24,8 +24,12 @@ def _stats(values: np.ndarray) -> dict:
     v = np.asarray(values, dtype=np.float64)
     if v.size == 0:
         return {"median": None, "p95": None, "mean": None, "max": None}
-    return {"median": round(float(np.median(v)), 3), "p95": round(float(np.percentile(v, 95)), 3),
-            "mean": round(float(v.mean()), 3), "max": round(float(v.max()), 3)}
+    return {
+        "median": round(float(np.median(v)), 3),
+        "p95": round(float(np.percentile(v, 95)), 3),
+        "mean": round(float(v.mean()), 3),
+        "max": round(float(v.max()), 3),
+    }
 
 
 def path_length(points: np.ndarray) -> float:
@@ -68,7 +72,9 @@ def mission_metrics(result: MissionResult) -> dict:
         "cycles": len(recs),
         "flight_time_s": round(len(recs) * cfg.dt, 2),
         "distance_to_goal_m": round(float(np.linalg.norm(result.final_position - sc.goal)), 3),
-        "mean_measured_fraction": round(float(np.mean([r.measured_fraction for r in recs])), 4) if recs else None,
+        "mean_measured_fraction": round(float(np.mean([r.measured_fraction for r in recs])), 4)
+        if recs
+        else None,
         "wall_s": round(result.wall_s, 2),
         "setup_s": round(result.setup_s, 2),
         "seed": int(sc.seed),

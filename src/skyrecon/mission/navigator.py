@@ -156,7 +156,9 @@ class Navigator:
             return None
         d0 = float(grid.distance(p[None])[0])
         # nearest first; among equals, the one closer to the goal
-        order = good[np.lexsort((np.linalg.norm(cand[good] - self.goal, axis=1), np.linalg.norm(offs[good], axis=1)))]
+        order = good[
+            np.lexsort((np.linalg.norm(cand[good] - self.goal, axis=1), np.linalg.norm(offs[good], axis=1)))
+        ]
         for i in order[:64]:
             pts, _ = sample_path(np.stack([p, cand[i]]), 0.25 * v, np.inf)
             if np.all(grid.distance(pts) >= min(d0, self.planner.threshold) - 0.02):

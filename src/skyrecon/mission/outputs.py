@@ -63,32 +63,81 @@ def write_mission_outputs(result: MissionResult, out_dir: str | Path, save_the_m
     m = mission_metrics(result)
     sc = result.scenario
     flown = result.flown_path()
-    files = {"report": "report.html", "path": "path.json", "cycles": "cycles.json", "overview": "overview.png"}
+    files = {
+        "report": "report.html",
+        "path": "path.json",
+        "cycles": "cycles.json",
+        "overview": "overview.png",
+    }
     last_plan = result.plans[-1].waypoints if result.plans else np.zeros((0, 3))
-    write_path_json(out / "path.json", flown, kind="flown", seed=sc.seed, start=sc.start, goal=sc.goal,
-                    success=result.success, last_planned_path=last_plan)
-    write_text_atomic(out / "cycles.json", _json({"format": "skyrecon.mission.cycles", "version": 1,
-                                                  "cycles": [r.to_dict() for r in result.records]}))
+    write_path_json(
+        out / "path.json",
+        flown,
+        kind="flown",
+        seed=sc.seed,
+        start=sc.start,
+        goal=sc.goal,
+        success=result.success,
+        last_planned_path=last_plan,
+    )
+    write_text_atomic(
+        out / "cycles.json",
+        _json(
+            {
+                "format": "skyrecon.mission.cycles",
+                "version": 1,
+                "cycles": [r.to_dict() for r in result.records],
+            }
+        ),
+    )
     if save_the_map:
         save_map(result.occ_map, out / "map", compress=True)
         export_occupied_ply(result.occ_map, out / "map" / "occupied.ply")
         files.update(map="map/", occupied="map/occupied.ply")
     box = sc.box
-    over = overview_image(sc.city, (box.origin[0], box.origin[1], box.upper[0], box.upper[1]),
-                          result.occ_map.occupied_centers(), [p.waypoints for p in result.plans],
-                          sc.shortest.waypoints if sc.shortest.success else None, flown, sc.start, sc.goal)
+    over = overview_image(
+        sc.city,
+        (box.origin[0], box.origin[1], box.upper[0], box.upper[1]),
+        result.occ_map.occupied_centers(),
+        [p.waypoints for p in result.plans],
+        sc.shortest.waypoints if sc.shortest.success else None,
+        flown,
+        sc.start,
+        sc.goal,
+    )
     write_image(out / "overview.png", over)
     m["files"] = files
-    doc = {"format": FORMAT, "version": VERSION, **m, "scenario": sc.to_dict(), "config": result.config.to_dict(),
-           "plans": [{"cycle": p.cycle, "kind": p.kind, "length_m": float(np.linalg.norm(np.diff(p.waypoints, axis=0), axis=1).sum()),
-                      "waypoints": np.round(p.waypoints, 3).tolist()} for p in result.plans]}
+    doc = {
+        "format": FORMAT,
+        "version": VERSION,
+        **m,
+        "scenario": sc.to_dict(),
+        "config": result.config.to_dict(),
+        "plans": [
+            {
+                "cycle": p.cycle,
+                "kind": p.kind,
+                "length_m": float(np.linalg.norm(np.diff(p.waypoints, axis=0), axis=1).sum()),
+                "waypoints": np.round(p.waypoints, 3).tolist(),
+            }
+            for p in result.plans
+        ],
+    }
     write_text_atomic(out / "mission.json", _json(doc))
     write_text_atomic(out / "report.html", render_mission_report(result, m))
     return m
 
 
-def write_refused_outputs(out_dir: str | Path, message: str, code: str, seed: int, cfg: MissionConfig,
-                          start=None, goal=None, city=None) -> dict:
+def write_refused_outputs(
+    out_dir: str | Path,
+    message: str,
+    code: str,
+    seed: int,
+    cfg: MissionConfig,
+    start=None,
+    goal=None,
+    city=None,
+) -> dict:
     """Write ``mission.json`` and ``report.html`` for a mission refused before take-off.
 
     Returns:
@@ -102,11 +151,26 @@ def write_refused_outputs(out_dir: str | Path, message: str, code: str, seed: in
     def as_list(p):
         return None if p is None else [float(v) for v in np.asarray(p, dtype=float).reshape(-1)]
 
-    doc = {"format": FORMAT, "version": VERSION, "success": False, "reason": code, "message": message,
-           "collisions": 0, "min_clearance_m": None, "path_length_m": 0.0, "straight_line_m": None,
-           "shortest_feasible_m": None, "length_ratio": None, "replans": 0, "loop_hz": None, "stage_ms": {},
-           "seed": int(seed), "scenario": {"seed": int(seed), "start": as_list(start), "goal": as_list(goal)},
-           "config": cfg.to_dict(), "files": {"report": "report.html"}}
+    doc = {
+        "format": FORMAT,
+        "version": VERSION,
+        "success": False,
+        "reason": code,
+        "message": message,
+        "collisions": 0,
+        "min_clearance_m": None,
+        "path_length_m": 0.0,
+        "straight_line_m": None,
+        "shortest_feasible_m": None,
+        "length_ratio": None,
+        "replans": 0,
+        "loop_hz": None,
+        "stage_ms": {},
+        "seed": int(seed),
+        "scenario": {"seed": int(seed), "start": as_list(start), "goal": as_list(goal)},
+        "config": cfg.to_dict(),
+        "files": {"report": "report.html"},
+    }
     if start is not None and goal is not None:
         s, g = np.asarray(start, dtype=float).reshape(-1), np.asarray(goal, dtype=float).reshape(-1)
         if s.shape == g.shape == (3,) and np.all(np.isfinite(s)) and np.all(np.isfinite(g)):

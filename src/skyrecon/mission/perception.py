@@ -34,7 +34,9 @@ def strided_intrinsics(cam: Intrinsics, stride: int) -> Intrinsics:
         return cam
     w = -(-cam.width // stride)
     h = -(-cam.height // stride)
-    return Intrinsics(cam.fx / stride, cam.fy / stride, cam.cx / stride, cam.cy / stride, w, h, skew=cam.skew / stride)
+    return Intrinsics(
+        cam.fx / stride, cam.fy / stride, cam.cx / stride, cam.cy / stride, w, h, skew=cam.skew / stride
+    )
 
 
 @dataclass(eq=False)

@@ -119,9 +119,14 @@ class Scenario:
 
     def to_dict(self) -> dict:
         return {
-            "seed": self.seed, "start": self.start.tolist(), "goal": self.goal.tolist(), "picked": self.picked,
-            "straight_line_m": self.straight_line_m, "city_extent": self.city.extent.tolist(),
-            "num_buildings": self.city.num_buildings, "map_box_origin": self.box.origin.tolist(),
+            "seed": self.seed,
+            "start": self.start.tolist(),
+            "goal": self.goal.tolist(),
+            "picked": self.picked,
+            "straight_line_m": self.straight_line_m,
+            "city_extent": self.city.extent.tolist(),
+            "num_buildings": self.city.num_buildings,
+            "map_box_origin": self.box.origin.tolist(),
             "map_box_shape": list(self.box.shape),
             "shortest_feasible_m": self.shortest.length_m if self.shortest.success else None,
         }
@@ -141,14 +146,19 @@ def _street_candidates(city: City, cfg: MissionConfig, rng: np.random.Generator,
     out = []
     for _ in range(n):
         if rng.random() < 0.5 and len(ys):
-            out.append([rng.uniform(x0 + inset, x1 - inset), ys[int(rng.integers(len(ys)))], cfg.cruise_altitude_m])
+            out.append(
+                [rng.uniform(x0 + inset, x1 - inset), ys[int(rng.integers(len(ys)))], cfg.cruise_altitude_m]
+            )
         elif len(xs):
-            out.append([xs[int(rng.integers(len(xs)))], rng.uniform(y0 + inset, y1 - inset), cfg.cruise_altitude_m])
+            out.append(
+                [xs[int(rng.integers(len(xs)))], rng.uniform(y0 + inset, y1 - inset), cfg.cruise_altitude_m]
+            )
     return np.array(out, dtype=np.float64).reshape(-1, 3)
 
 
-def pick_endpoints(city: City, cfg: MissionConfig, seed: int, planner: Planner,
-                   attempts: int = 60) -> tuple[np.ndarray, np.ndarray, PlanResult]:
+def pick_endpoints(
+    city: City, cfg: MissionConfig, seed: int, planner: Planner, attempts: int = 60
+) -> tuple[np.ndarray, np.ndarray, PlanResult]:
     """Start and goal for a seed: over streets at the cruise altitude, at least
     ``endpoint_clearance_m`` from every obstacle, ``min..max_goal_distance_m`` apart, the straight
     line between them blocked by buildings, and a feasible path in the true city.
@@ -186,7 +196,9 @@ def pick_endpoints(city: City, cfg: MissionConfig, seed: int, planner: Planner,
 
 def _check_endpoint(city: City, cfg: MissionConfig, box: MapBox, p: np.ndarray, what: str) -> None:
     if p.shape != (3,) or not np.all(np.isfinite(p)):
-        raise ImpossibleMission(f"the {what} must be three finite numbers X Y Z (metres), got {p.tolist()}", f"{what}_invalid")
+        raise ImpossibleMission(
+            f"the {what} must be three finite numbers X Y Z (metres), got {p.tolist()}", f"{what}_invalid"
+        )
     x0, y0, x1, y1 = city.extent
     if not (x0 <= p[0] <= x1 and y0 <= p[1] <= y1):
         raise ImpossibleMission(
@@ -196,7 +208,8 @@ def _check_endpoint(city: City, cfg: MissionConfig, box: MapBox, p: np.ndarray, 
     if not (cfg.min_altitude_m <= p[2] <= cfg.max_altitude_m):
         raise ImpossibleMission(
             f"the {what} {_fmt(p)} is outside the flight band: z must lie in "
-            f"{cfg.min_altitude_m:g}..{cfg.max_altitude_m:g} m", f"{what}_altitude",
+            f"{cfg.min_altitude_m:g}..{cfg.max_altitude_m:g} m",
+            f"{what}_altitude",
         )
     d = float(city.distance(p[None], include_ground=True)[0])
     if d <= 0:
@@ -205,7 +218,8 @@ def _check_endpoint(city: City, cfg: MissionConfig, box: MapBox, p: np.ndarray, 
     if d < need:
         raise ImpossibleMission(
             f"the {what} {_fmt(p)} is {d:.2f} m from a building; the drone keeps {cfg.clearance_m:g} m "
-            f"(+ {cfg.planning_margin_m:.2f} m for its voxels), so it needs {need:.2f} m", f"{what}_too_close",
+            f"(+ {cfg.planning_margin_m:.2f} m for its voxels), so it needs {need:.2f} m",
+            f"{what}_too_close",
         )
 
 
@@ -213,8 +227,13 @@ def _fmt(p: np.ndarray) -> str:
     return "(" + ", ".join(f"{v:.1f}" for v in np.asarray(p, dtype=float)) + ")"
 
 
-def make_scenario(seed: int, cfg: MissionConfig, start: np.ndarray | None = None,
-                  goal: np.ndarray | None = None, city: City | None = None) -> Scenario:
+def make_scenario(
+    seed: int,
+    cfg: MissionConfig,
+    start: np.ndarray | None = None,
+    goal: np.ndarray | None = None,
+    city: City | None = None,
+) -> Scenario:
     """Generate the city of ``seed`` and fix the mission's endpoints.
 
     Args:
@@ -229,7 +248,9 @@ def make_scenario(seed: int, cfg: MissionConfig, start: np.ndarray | None = None
             altitude band, or no path at the clearance.
     """
     if (start is None) != (goal is None):
-        raise ImpossibleMission("give both --start and --goal, or neither (then the seed picks them)", "endpoints")
+        raise ImpossibleMission(
+            "give both --start and --goal, or neither (then the seed picks them)", "endpoints"
+        )
     city = city if city is not None else generate_city(int(seed), cfg.city_size_m)
     box = drone_map_box(city, cfg)
     planner = truth_planner(city, cfg)
@@ -241,16 +262,27 @@ def make_scenario(seed: int, cfg: MissionConfig, start: np.ndarray | None = None
     _check_endpoint(city, cfg, box, s, "start")
     _check_endpoint(city, cfg, box, g, "goal")
     if np.linalg.norm(g - s) < cfg.arrival_tolerance_m:
-        raise ImpossibleMission(f"start and goal are less than {cfg.arrival_tolerance_m:g} m apart", "too_short")
+        raise ImpossibleMission(
+            f"start and goal are less than {cfg.arrival_tolerance_m:g} m apart", "too_short"
+        )
     shortest = planner.plan(s, g)
     if not shortest.success:
-        raise ImpossibleMission(f"no way through from {_fmt(s)} to {_fmt(g)} in the true city: {shortest.message}",
-                                shortest.reason or "no_path")
+        raise ImpossibleMission(
+            f"no way through from {_fmt(s)} to {_fmt(g)} in the true city: {shortest.message}",
+            shortest.reason or "no_path",
+        )
     return Scenario(int(seed), city, s, g, box, shortest, "user")
 
 
 def impossible_scenario_stub(seed: int, cfg: MissionConfig, start, goal) -> dict:
     """What is known about a mission refused before flight (for its report)."""
+
     def as_list(p):
         return None if p is None else [float(v) for v in np.asarray(p, dtype=float).reshape(-1)]
-    return {"seed": int(seed), "start": as_list(start), "goal": as_list(goal), "picked": "user" if start is not None else "seed"}
+
+    return {
+        "seed": int(seed),
+        "start": as_list(start),
+        "goal": as_list(goal),
+        "picked": "user" if start is not None else "seed",
+    }

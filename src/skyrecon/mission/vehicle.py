@@ -106,8 +106,14 @@ def corner_speed_limit(path: np.ndarray, cfg: MissionConfig, horizon_m: float) -
     return limit
 
 
-def step(state: DroneState, carrot: np.ndarray, speed_limit: float, cfg: MissionConfig,
-         look_at: np.ndarray | None = None, look_within_rad: float | None = None) -> DroneState:
+def step(
+    state: DroneState,
+    carrot: np.ndarray,
+    speed_limit: float,
+    cfg: MissionConfig,
+    look_at: np.ndarray | None = None,
+    look_within_rad: float | None = None,
+) -> DroneState:
     """Advance the drone by one cycle towards ``carrot`` (3,) world metres.
 
     The heading turns towards ``look_at`` (3,) (default: the carrot; with ``look_within_rad``
@@ -122,7 +128,9 @@ def step(state: DroneState, carrot: np.ndarray, speed_limit: float, cfg: Mission
     d = np.asarray(carrot, dtype=np.float64) - p
     dist = float(np.linalg.norm(d))
     horiz = float(math.hypot(d[0], d[1]))
-    q = (np.asarray(look_at, dtype=np.float64) if look_at is not None else np.asarray(carrot, dtype=np.float64)) - p
+    q = (
+        np.asarray(look_at, dtype=np.float64) if look_at is not None else np.asarray(carrot, dtype=np.float64)
+    ) - p
     q_h = float(math.hypot(q[0], q[1]))
     yaw = state.yaw
     if q_h > 0.3:

@@ -36,8 +36,13 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-_JIT = dict(cache=True, nogil=True, boundscheck=False, error_model="numpy",
-            fastmath={"contract", "arcp", "nsz", "afn", "reassoc"})  # no nnan/ninf: NaN tests stay
+_JIT = dict(
+    cache=True,
+    nogil=True,
+    boundscheck=False,
+    error_model="numpy",
+    fastmath={"contract", "arcp", "nsz", "afn", "reassoc"},
+)  # no nnan/ninf: NaN tests stay
 
 # indices into ``params``
 P_DMIN = 0  # smallest depth, metres
@@ -63,8 +68,12 @@ OUTSIDE = 1e9  # per-source cost of a window that falls outside that source imag
 @njit(**_JIT)
 def _uniform(seed: np.uint64, a: np.int64, b: np.int64, c: np.int64) -> float:
     """Counter-based uniform in [0, 1): splitmix64 of (seed, a, b, c)."""
-    z = seed + np.uint64(a) * np.uint64(0x9E3779B97F4A7C15) + np.uint64(b) * np.uint64(0xD1B54A32D192ED03) \
+    z = (
+        seed
+        + np.uint64(a) * np.uint64(0x9E3779B97F4A7C15)
+        + np.uint64(b) * np.uint64(0xD1B54A32D192ED03)
         + np.uint64(c) * np.uint64(0x8CB92BA72F3D8DD7)
+    )
     z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
     z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
     z = z ^ (z >> np.uint64(31))
@@ -100,8 +109,32 @@ def _window_stats(ref, u, v, du, dv, sigma_c, sigma_s, w_out, r_out):
 
 
 @njit(**_JIT)
-def _hypothesis_cost(u, v, d, nx, ny, nz, w, rv, sw, mr, sr, du, dv, srcs, src_wh, A, b, intr,
-                     topk, min_var, missing_penalty, costs, xs, ys):
+def _hypothesis_cost(
+    u,
+    v,
+    d,
+    nx,
+    ny,
+    nz,
+    w,
+    rv,
+    sw,
+    mr,
+    sr,
+    du,
+    dv,
+    srcs,
+    src_wh,
+    A,
+    b,
+    intr,
+    topk,
+    min_var,
+    missing_penalty,
+    costs,
+    xs,
+    ys,
+):
     """Aggregated cost of plane (d, n) at pixel (u, v).
 
     The mean of the ``topk`` best ``1 - NCC`` among the sources whose image contains the
@@ -311,8 +344,32 @@ def pm_init(row0, row1, seed, ref, mask, depth, normal, cost, srcs, src_wh, A, b
                 mask[v, u] = 0
                 cost[v, u] = BAD_COST
                 continue
-            c = _hypothesis_cost(u, v, d, nx, ny, nz, w, rv, sw, mr, sr, du, dv, srcs, src_wh, A, b, intr,
-                                 topk, params[P_MIN_VAR], params[P_MISSING], costs, xs, ys)
+            c = _hypothesis_cost(
+                u,
+                v,
+                d,
+                nx,
+                ny,
+                nz,
+                w,
+                rv,
+                sw,
+                mr,
+                sr,
+                du,
+                dv,
+                srcs,
+                src_wh,
+                A,
+                b,
+                intr,
+                topk,
+                params[P_MIN_VAR],
+                params[P_MISSING],
+                costs,
+                xs,
+                ys,
+            )
             depth[v, u] = d
             normal[v, u, 0] = nx
             normal[v, u, 1] = ny
@@ -339,8 +396,9 @@ def _propagated_depth(uq, vq, u, v, depth, normal, intr):
 
 
 @njit(**_JIT)
-def pm_sweep(row0, row1, color, it, seed, ref, mask, depth, normal, cost, srcs, src_wh, A, b, intr, du, dv,
-             params):
+def pm_sweep(
+    row0, row1, color, it, seed, ref, mask, depth, normal, cost, srcs, src_wh, A, b, intr, du, dv, params
+):
     """One red-black half sweep over rows [row0, row1): propagation from the other colour + refinement.
 
     Candidates: the 4 direct neighbours (distance 1) and, in each of the 4 directions, the
@@ -363,7 +421,7 @@ def pm_sweep(row0, row1, color, it, seed, ref, mask, depth, normal, cost, srcs, 
     missing = params[P_MISSING]
     far = int(params[P_FAR])
     cos_max = params[P_MAX_INCIDENCE]
-    scale = 0.5 ** it
+    scale = 0.5**it
     pert = params[P_PERTURB] * scale
     npert = params[P_NORMAL_PERTURB] * scale
     fx = intr[0]
@@ -448,8 +506,32 @@ def pm_sweep(row0, row1, color, it, seed, ref, mask, depth, normal, cost, srcs, 
                 nz = normal[vq, uq, 2]
                 if nx == bnx and ny == bny and nz == bnz and abs(d - bd) < 1e-9 * bd:
                     continue
-                c = _hypothesis_cost(u, v, d, nx, ny, nz, w, rv, sw, mr, sr, du, dv, srcs, src_wh, A, b,
-                                     intr, topk, min_var, missing, costs, xs, ys)
+                c = _hypothesis_cost(
+                    u,
+                    v,
+                    d,
+                    nx,
+                    ny,
+                    nz,
+                    w,
+                    rv,
+                    sw,
+                    mr,
+                    sr,
+                    du,
+                    dv,
+                    srcs,
+                    src_wh,
+                    A,
+                    b,
+                    intr,
+                    topk,
+                    min_var,
+                    missing,
+                    costs,
+                    xs,
+                    ys,
+                )
                 if c < bc:
                     bc = c
                     bd = d
@@ -473,12 +555,37 @@ def pm_sweep(row0, row1, color, it, seed, ref, mask, depth, normal, cost, srcs, 
                     if not (inv > 0.0):
                         continue
                     d = 1.0 / inv
-                    nx, ny, nz = _perturb_normal(seed, idx, it + 1, draw + 1, bnx, bny, bnz, npert, rx, ry,
-                                                 cos_max)
+                    nx, ny, nz = _perturb_normal(
+                        seed, idx, it + 1, draw + 1, bnx, bny, bnz, npert, rx, ry, cos_max
+                    )
                 if not (d >= dmin and d <= dmax):
                     continue
-                c = _hypothesis_cost(u, v, d, nx, ny, nz, w, rv, sw, mr, sr, du, dv, srcs, src_wh, A, b,
-                                     intr, topk, min_var, missing, costs, xs, ys)
+                c = _hypothesis_cost(
+                    u,
+                    v,
+                    d,
+                    nx,
+                    ny,
+                    nz,
+                    w,
+                    rv,
+                    sw,
+                    mr,
+                    sr,
+                    du,
+                    dv,
+                    srcs,
+                    src_wh,
+                    A,
+                    b,
+                    intr,
+                    topk,
+                    min_var,
+                    missing,
+                    costs,
+                    xs,
+                    ys,
+                )
                 if c < bc:
                     bc = c
                     bd = d

@@ -9,14 +9,19 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-__all__ = ["knn_mean_distance_and_normals", "statistical_outlier_mask", "voxel_downsample_indices",
-           "orient_normals"]
+__all__ = [
+    "knn_mean_distance_and_normals",
+    "statistical_outlier_mask",
+    "voxel_downsample_indices",
+    "orient_normals",
+]
 
 _CHUNK = 100_000
 
 
-def knn_mean_distance_and_normals(points: np.ndarray, k: int = 16, workers: int = -1
-                                  ) -> tuple[np.ndarray, np.ndarray]:
+def knn_mean_distance_and_normals(
+    points: np.ndarray, k: int = 16, workers: int = -1
+) -> tuple[np.ndarray, np.ndarray]:
     """Mean distance to the ``k`` nearest neighbours and the PCA normal of every point.
 
     Args:
@@ -79,8 +84,9 @@ def voxel_downsample_indices(points: np.ndarray, voxel_m: float) -> tuple[np.nda
     return inverse.reshape(-1), counts
 
 
-def small_component_mask(points: np.ndarray, radius_m: float, min_fraction: float = 0.01, k: int = 8,
-                         workers: int = -1) -> np.ndarray:
+def small_component_mask(
+    points: np.ndarray, radius_m: float, min_fraction: float = 0.01, k: int = 8, workers: int = -1
+) -> np.ndarray:
     """(N,) bool: points in connected components holding at least ``min_fraction`` of all points.
 
     Two points are linked when one is among the other's ``k`` nearest neighbours and they are

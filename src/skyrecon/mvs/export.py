@@ -44,16 +44,24 @@ def encode_mesh_ply(vertices: np.ndarray, faces: np.ndarray, colors: np.ndarray 
     ft = np.empty(len(F), np.dtype([("n", "u1"), ("i", "<i4", (3,))]))
     ft["n"] = 3
     ft["i"] = F
-    lines = ["ply", "format binary_little_endian 1.0", "comment written by skyrecon mvs",
-             f"element vertex {len(V)}", "property float x", "property float y", "property float z"]
+    lines = [
+        "ply",
+        "format binary_little_endian 1.0",
+        "comment written by skyrecon mvs",
+        f"element vertex {len(V)}",
+        "property float x",
+        "property float y",
+        "property float z",
+    ]
     if colors is not None:
         lines += ["property uchar red", "property uchar green", "property uchar blue"]
     lines += [f"element face {len(F)}", "property list uchar int vertex_indices", "end_header"]
     return ("\n".join(lines) + "\n").encode("ascii") + vt.tobytes() + ft.tobytes()
 
 
-def write_mesh_ply(path: str | Path, vertices: np.ndarray, faces: np.ndarray, colors: np.ndarray | None = None
-                   ) -> None:
+def write_mesh_ply(
+    path: str | Path, vertices: np.ndarray, faces: np.ndarray, colors: np.ndarray | None = None
+) -> None:
     """Write a triangle mesh as a binary PLY file, atomically (see :func:`encode_mesh_ply`)."""
     write_bytes_atomic(Path(path), encode_mesh_ply(vertices, faces, colors))
 
@@ -82,7 +90,11 @@ def save_mvs_result(result: Any, out_dir: str | Path, settings: Any = None) -> d
     """
     out = Path(out_dir)
     (out / "depth").mkdir(parents=True, exist_ok=True)
-    paths: dict[str, Path] = {"fused": out / "fused.ply", "depth_dir": out / "depth", "summary": out / "mvs.json"}
+    paths: dict[str, Path] = {
+        "fused": out / "fused.ply",
+        "depth_dir": out / "depth",
+        "summary": out / "mvs.json",
+    }
     write_ply(paths["fused"], result.cloud)
     for stem, dm in result.depth_maps.items():
         write_pfm(out / "depth" / f"{stem}.pfm", dm.depth_m)
@@ -98,8 +110,10 @@ def save_mvs_result(result: Any, out_dir: str | Path, settings: Any = None) -> d
         "neighbors": result.neighbors,
         "depth_ranges_m": result.depth_ranges,
         "diagnostics": result.diagnostics,
-        "depth_maps": {stem: {"width": dm.intrinsics.width, "height": dm.intrinsics.height,
-                              "K": dm.intrinsics.K} for stem, dm in result.depth_maps.items()},
+        "depth_maps": {
+            stem: {"width": dm.intrinsics.width, "height": dm.intrinsics.height, "K": dm.intrinsics.K}
+            for stem, dm in result.depth_maps.items()
+        },
     }
     if settings is not None:
         summary["settings"] = settings

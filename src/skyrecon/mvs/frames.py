@@ -67,8 +67,9 @@ def working_scale(width: int, height: int, max_image_size: int | None) -> float:
     return float(max_image_size) / max(width, height)
 
 
-def make_working_view(view: PosedView, image: np.ndarray, alpha: np.ndarray | None,
-                      max_image_size: int | None) -> WorkingView:
+def make_working_view(
+    view: PosedView, image: np.ndarray, alpha: np.ndarray | None, max_image_size: int | None
+) -> WorkingView:
     """Resize one input image (and its alpha) to the working resolution.
 
     Args:
@@ -100,7 +101,9 @@ def make_working_view(view: PosedView, image: np.ndarray, alpha: np.ndarray | No
             f"{intr.width}x{intr.height}; use the images the cameras were calibrated for"
         )
     if intr.has_distortion:
-        raise InputError(f"view {view.name}: lens distortion is not supported by MVS; undistort the images first")
+        raise InputError(
+            f"view {view.name}: lens distortion is not supported by MVS; undistort the images first"
+        )
     s = working_scale(w, h, max_image_size)
     rgb = image if image.ndim == 3 else np.repeat(image[..., None], 3, axis=2)
     valid = np.ones((h, w), bool) if alpha is None else np.asarray(alpha) > 0

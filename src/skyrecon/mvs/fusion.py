@@ -75,8 +75,9 @@ class FusedCloud:
     support: np.ndarray
 
 
-def depth_to_world(view: WorkingView, depth: np.ndarray, mask: np.ndarray | None = None
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def depth_to_world(
+    view: WorkingView, depth: np.ndarray, mask: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """World points of the valid pixels of a depth map.
 
     Args:
@@ -118,15 +119,28 @@ def _drop_edges(depth: np.ndarray, radius: int, rel_jump: float) -> np.ndarray:
     mn = cv2.erode(np.where(ok, d, np.float32(np.inf)).astype(np.float32), k)
     with np.errstate(invalid="ignore"):
         smooth = ok & (mx - mn <= rel_jump * np.where(ok, d, 1.0))
-    keep = cv2.erode(smooth.astype(np.uint8), np.ones((2 * radius - 1, 2 * radius - 1), np.uint8),
-                     borderType=cv2.BORDER_CONSTANT, borderValue=1) > 0 if radius > 1 else smooth
+    keep = (
+        cv2.erode(
+            smooth.astype(np.uint8),
+            np.ones((2 * radius - 1, 2 * radius - 1), np.uint8),
+            borderType=cv2.BORDER_CONSTANT,
+            borderValue=1,
+        )
+        > 0
+        if radius > 1
+        else smooth
+    )
     out = d.copy()
     out[~keep] = np.nan
     return out
 
 
-def fuse_consistent(views: list[WorkingView], depths: list[np.ndarray | None], neighbors: list[list[int]],
-                    settings: FusionSettings = FusionSettings()) -> FusedCloud:
+def fuse_consistent(
+    views: list[WorkingView],
+    depths: list[np.ndarray | None],
+    neighbors: list[list[int]],
+    settings: FusionSettings = FusionSettings(),
+) -> FusedCloud:
     """Geometric-consistency fusion (see the module docstring).
 
     Args:
@@ -139,7 +153,9 @@ def fuse_consistent(views: list[WorkingView], depths: list[np.ndarray | None], n
     """
     n = len(views)
     if settings.edge_px > 0:
-        depths = [None if d is None else _drop_edges(d, settings.edge_px, settings.edge_rel_jump) for d in depths]
+        depths = [
+            None if d is None else _drop_edges(d, settings.edge_px, settings.edge_rel_jump) for d in depths
+        ]
     used = [None if d is None else np.zeros(d.shape, bool) for d in depths]
     pts_out, col_out, vid_out, sup_out = [], [], [], []
     s = settings
@@ -201,10 +217,16 @@ def fuse_consistent(views: list[WorkingView], depths: list[np.ndarray | None], n
         vid_out.append(np.full(int(keep.sum()), r, np.int32))
         sup_out.append(count[keep] + 1)
     if not pts_out:
-        return FusedCloud(PointCloud(np.zeros((0, 3), np.float32), np.zeros((0, 3), np.uint8)),
-                          np.zeros(0, np.int32), np.zeros(0, np.int32))
-    return FusedCloud(PointCloud(np.concatenate(pts_out), np.concatenate(col_out)), np.concatenate(vid_out),
-                      np.concatenate(sup_out).astype(np.int32))
+        return FusedCloud(
+            PointCloud(np.zeros((0, 3), np.float32), np.zeros((0, 3), np.uint8)),
+            np.zeros(0, np.int32),
+            np.zeros(0, np.int32),
+        )
+    return FusedCloud(
+        PointCloud(np.concatenate(pts_out), np.concatenate(col_out)),
+        np.concatenate(vid_out),
+        np.concatenate(sup_out).astype(np.int32),
+    )
 
 
 def fuse_concat(views: list[WorkingView], depths: list[tuple[int, np.ndarray]]) -> FusedCloud:
@@ -221,7 +243,10 @@ def fuse_concat(views: list[WorkingView], depths: list[tuple[int, np.ndarray]]) 
         cols.append(views[r].rgb[v, u])
         vids.append(np.full(len(X), r, np.int32))
     if not pts:
-        return FusedCloud(PointCloud(np.zeros((0, 3), np.float32), np.zeros((0, 3), np.uint8)),
-                          np.zeros(0, np.int32), np.zeros(0, np.int32))
+        return FusedCloud(
+            PointCloud(np.zeros((0, 3), np.float32), np.zeros((0, 3), np.uint8)),
+            np.zeros(0, np.int32),
+            np.zeros(0, np.int32),
+        )
     vid = np.concatenate(vids)
     return FusedCloud(PointCloud(np.concatenate(pts), np.concatenate(cols)), vid, np.ones(len(vid), np.int32))

@@ -5,7 +5,6 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import replace
 from pathlib import Path
-from typing import Union
 
 import numpy as np
 
@@ -22,7 +21,7 @@ IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".pgm", ".ppm", ".tif", ".tiff", ".
 #: What :func:`skyrecon.mvs.run_mvs` accepts as images: None (each view's ``image_path``), a
 #: sequence with one entry per view (an (H, W[, 3]) uint8 array, an ``(image, alpha)`` tuple or a
 #: path), or a callable ``f(index) -> array | (image, alpha) | path``.
-ImagesArg = Union[None, Sequence, Callable[[int], object]]
+ImagesArg = Sequence | Callable[[int], object] | None
 
 
 def _listing(names: list[str], limit: int = 6) -> str:
@@ -30,8 +29,9 @@ def _listing(names: list[str], limit: int = 6) -> str:
     return shown + (f" and {len(names) - limit} more" if len(names) > limit else "")
 
 
-def load_views_and_images(images_dir: str | Path, cameras_spec: str | Path,
-                          allow_extra_images: bool = False) -> tuple[list[PosedView], list[Path]]:
+def load_views_and_images(
+    images_dir: str | Path, cameras_spec: str | Path, allow_extra_images: bool = False
+) -> tuple[list[PosedView], list[Path]]:
     """Read the cameras and match each to its image file in ``images_dir`` by name.
 
     A camera named ``a.png`` matches ``images_dir/a.png``, or failing that the only image file
@@ -59,7 +59,9 @@ def load_views_and_images(images_dir: str | Path, cameras_spec: str | Path,
         raise InputError(f"no images ({', '.join(IMAGE_EXTENSIONS)}) in this directory", images_dir)
     views = read_cameras(cameras_spec, image_dir=images_dir)
     if len(views) < 2:
-        raise InputError(f"MVS needs at least 2 cameras, the camera specification has {len(views)}", cameras_spec)
+        raise InputError(
+            f"MVS needs at least 2 cameras, the camera specification has {len(views)}", cameras_spec
+        )
     by_name = {p.name: p for p in files}
     by_stem: dict[str, list[Path]] = {}
     for p in files:
@@ -93,8 +95,10 @@ def load_views_and_images(images_dir: str | Path, cameras_spec: str | Path,
         if size is None:
             raise InputError("cannot read this image's header; the file is corrupt or not an image", p)
         if size != (v.intrinsics.width, v.intrinsics.height):
-            wrong.append(f"{p.name} is {size[0]}x{size[1]} but its camera is "
-                         f"{v.intrinsics.width}x{v.intrinsics.height}")
+            wrong.append(
+                f"{p.name} is {size[0]}x{size[1]} but its camera is "
+                f"{v.intrinsics.width}x{v.intrinsics.height}"
+            )
     if wrong:
         raise InputError(
             f"image sizes do not match the cameras: {_listing(wrong, 4)}; use the images the cameras were "
@@ -120,12 +124,15 @@ def _get_image(views: Sequence[PosedView], images: ImagesArg, i: int) -> tuple[n
         return np.asarray(item[0]), None if item[1] is None else np.asarray(item[1])
     if isinstance(item, np.ndarray):
         return item, None
-    raise InputError(f"view {view.name}: expected an image array, an (image, alpha) tuple or a path, "
-                     f"got {type(item).__name__}")
+    raise InputError(
+        f"view {view.name}: expected an image array, an (image, alpha) tuple or a path, "
+        f"got {type(item).__name__}"
+    )
 
 
-def load_working_views(views: Sequence[PosedView], images: ImagesArg, max_image_size: int | None
-                       ) -> list[WorkingView]:
+def load_working_views(
+    views: Sequence[PosedView], images: ImagesArg, max_image_size: int | None
+) -> list[WorkingView]:
     """Load every view's image and resize it to the working resolution (one full image at a time).
 
     Raises:

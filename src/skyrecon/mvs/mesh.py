@@ -58,8 +58,14 @@ def _integrate(tsdf, weight, origin, voxel, depth, R, t, fx, fy, cx, cy, trunc):
                 weight[i, j, k] = w + 1.0
 
 
-def tsdf_volume(views: list[WorkingView], depths: list[np.ndarray | None], lo: np.ndarray, hi: np.ndarray,
-                voxel_m: float, trunc_voxels: float = 3.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def tsdf_volume(
+    views: list[WorkingView],
+    depths: list[np.ndarray | None],
+    lo: np.ndarray,
+    hi: np.ndarray,
+    voxel_m: float,
+    trunc_voxels: float = 3.0,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Integrate depth maps into a TSDF grid covering the box [lo, hi] (world, metres).
 
     Returns:
@@ -75,13 +81,26 @@ def tsdf_volume(views: list[WorkingView], depths: list[np.ndarray | None], lo: n
         if d is None:
             continue
         K = v.intrinsics
-        _integrate(tsdf, weight, lo, float(voxel_m), np.ascontiguousarray(d, np.float32), v.cam_from_world.R,
-                   v.cam_from_world.t, K.fx, K.fy, K.cx, K.cy, float(trunc_voxels * voxel_m))
+        _integrate(
+            tsdf,
+            weight,
+            lo,
+            float(voxel_m),
+            np.ascontiguousarray(d, np.float32),
+            v.cam_from_world.R,
+            v.cam_from_world.t,
+            K.fx,
+            K.fy,
+            K.cx,
+            K.cy,
+            float(trunc_voxels * voxel_m),
+        )
     return tsdf, weight, lo
 
 
-def surface_nets(tsdf: np.ndarray, valid: np.ndarray, origin: np.ndarray, voxel_m: float
-                 ) -> tuple[np.ndarray, np.ndarray]:
+def surface_nets(
+    tsdf: np.ndarray, valid: np.ndarray, origin: np.ndarray, voxel_m: float
+) -> tuple[np.ndarray, np.ndarray]:
     """Zero level set of a sampled field by naive surface nets.
 
     Args:
@@ -99,7 +118,7 @@ def surface_nets(tsdf: np.ndarray, valid: np.ndarray, origin: np.ndarray, voxel_
     cshape = (nx - 1, ny - 1, nz - 1)
 
     def corner(a: int, b: int, c: int, arr: np.ndarray) -> np.ndarray:
-        return arr[a:a + nx - 1, b:b + ny - 1, c:c + nz - 1]
+        return arr[a : a + nx - 1, b : b + ny - 1, c : c + nz - 1]
 
     all_valid = np.ones(cshape, bool)
     tmin = np.full(cshape, np.inf, np.float32)
@@ -119,9 +138,12 @@ def surface_nets(tsdf: np.ndarray, valid: np.ndarray, origin: np.ndarray, voxel_
     acc = np.zeros((len(cells), 3))
     cnt = np.zeros(len(cells))
     ci, cj, ck = cells.T
-    for (a0, b0, c0), (a1, b1, c1) in [((a, b, c), (a + da, b + db, c + dc)) for a, b, c in corners
-                                       for da, db, dc in ((1, 0, 0), (0, 1, 0), (0, 0, 1))
-                                       if a + da <= 1 and b + db <= 1 and c + dc <= 1]:
+    for (a0, b0, c0), (a1, b1, c1) in [
+        ((a, b, c), (a + da, b + db, c + dc))
+        for a, b, c in corners
+        for da, db, dc in ((1, 0, 0), (0, 1, 0), (0, 0, 1))
+        if a + da <= 1 and b + db <= 1 and c + dc <= 1
+    ]:
         t0 = T[ci + a0, cj + b0, ck + c0]
         t1 = T[ci + a1, cj + b1, ck + c1]
         cross = (t0 < 0) != (t1 < 0)
@@ -165,9 +187,14 @@ def surface_nets(tsdf: np.ndarray, valid: np.ndarray, origin: np.ndarray, voxel_
     return verts.astype(np.float32), F
 
 
-def mesh_from_depth_maps(views: list[WorkingView], depths: list[np.ndarray | None], cloud: PointCloud,
-                         voxel_m: float | None = None, min_weight: int = 2, max_voxels: int = 24_000_000
-                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def mesh_from_depth_maps(
+    views: list[WorkingView],
+    depths: list[np.ndarray | None],
+    cloud: PointCloud,
+    voxel_m: float | None = None,
+    min_weight: int = 2,
+    max_voxels: int = 24_000_000,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Mesh the scene inside the fused cloud's bounding box.
 
     Args:

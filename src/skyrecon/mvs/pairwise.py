@@ -64,18 +64,30 @@ def _rotated_clockwise(view: WorkingView) -> WorkingView:
     intr = Intrinsics(k.fy, k.fx, k.height - 1 - k.cy, k.cx, k.height, k.width)
     pose = Rigid3(_ROT_CW @ view.cam_from_world.R, _ROT_CW @ view.cam_from_world.t, "cam", "world")
     rot = lambda a: np.ascontiguousarray(np.rot90(a, -1))  # noqa: E731
-    return replace(view, intrinsics=intr, cam_from_world=pose, rgb=rot(view.rgb) if view.rgb.size else view.rgb,
-                   grey=rot(view.grey), valid=rot(view.valid))
+    return replace(
+        view,
+        intrinsics=intr,
+        cam_from_world=pose,
+        rgb=rot(view.rgb) if view.rgb.size else view.rgb,
+        grey=rot(view.grey),
+        valid=rot(view.valid),
+    )
 
 
 def _grey8(view: WorkingView) -> np.ndarray:
     return np.clip(view.grey + 0.5, 0, 255).astype(np.uint8)
 
 
-def pairwise_depth(ref: WorkingView, src: WorkingView, depth_range: tuple[float, float],
-                   matcher: str = "opencv-sgbm", matcher_settings: dict[str, Any] | None = None,
-                   alpha: float = 1.0, use_colour: bool = False,
-                   points_world: np.ndarray | None = None) -> PairwiseResult:
+def pairwise_depth(
+    ref: WorkingView,
+    src: WorkingView,
+    depth_range: tuple[float, float],
+    matcher: str = "opencv-sgbm",
+    matcher_settings: dict[str, Any] | None = None,
+    alpha: float = 1.0,
+    use_colour: bool = False,
+    points_world: np.ndarray | None = None,
+) -> PairwiseResult:
     """Depth of ``ref`` from the rectified pair (``ref``, ``src``).
 
     Args:
@@ -105,8 +117,16 @@ def pairwise_depth(ref: WorkingView, src: WorkingView, depth_range: tuple[float,
         )
     src_in_ref = ref.cam_from_world.apply(src.center_world[None])[0]
     if abs(src_in_ref[1]) > abs(src_in_ref[0]):  # mostly vertical baseline: work on turned images
-        res = pairwise_depth(_rotated_clockwise(ref), _rotated_clockwise(src), depth_range, matcher,
-                             matcher_settings, alpha, use_colour, points_world)
+        res = pairwise_depth(
+            _rotated_clockwise(ref),
+            _rotated_clockwise(src),
+            depth_range,
+            matcher,
+            matcher_settings,
+            alpha,
+            use_colour,
+            points_world,
+        )
         res.depth = np.ascontiguousarray(np.rot90(res.depth, 1))
         res.rotated = True
         return res
@@ -180,7 +200,14 @@ def pairwise_depth(ref: WorkingView, src: WorkingView, depth_range: tuple[float,
         depth = (z / rz.reshape(H, Wr)).astype(np.float32)
     depth[~(rz.reshape(H, Wr) > 0) | ~(depth > 0) | ~ref.valid] = np.nan
     t3 = time.perf_counter()
-    return PairwiseResult(depth, swapped, (dmin, dmax), {
-        "rectify": (t1 - t0) * 1e3, "match": (t2 - t1) * 1e3, "to_reference": (t3 - t2) * 1e3,
-        "total": (t3 - t0) * 1e3,
-    })
+    return PairwiseResult(
+        depth,
+        swapped,
+        (dmin, dmax),
+        {
+            "rectify": (t1 - t0) * 1e3,
+            "match": (t2 - t1) * 1e3,
+            "to_reference": (t3 - t2) * 1e3,
+            "total": (t3 - t0) * 1e3,
+        },
+    )

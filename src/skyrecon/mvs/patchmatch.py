@@ -93,7 +93,9 @@ class PatchMatchSettings:
 
     def __post_init__(self) -> None:
         if self.levels < 1 or self.coarse_iterations < 1:
-            raise InputError(f"levels and coarse_iterations must be >= 1, got {self.levels}, {self.coarse_iterations}")
+            raise InputError(
+                f"levels and coarse_iterations must be >= 1, got {self.levels}, {self.coarse_iterations}"
+            )
         if self.iterations < 1:
             raise InputError(f"patchmatch iterations must be >= 1, got {self.iterations}")
         if self.window_radius < 1 or self.window_step < 1 or self.window_step > self.window_radius:
@@ -158,13 +160,17 @@ def texture_mask(grey: np.ndarray, valid: np.ndarray, radius: int, min_std: floa
     m2 = cv2.boxFilter(g * g, cv2.CV_32F, (k, k), borderType=cv2.BORDER_REFLECT)
     std = np.sqrt(np.maximum(m2 - m * m, 0.0))
     ok = std >= min_std
-    v = cv2.erode(valid.astype(np.uint8), np.ones((k, k), np.uint8), borderType=cv2.BORDER_CONSTANT,
-                  borderValue=0) > 0
+    v = (
+        cv2.erode(
+            valid.astype(np.uint8), np.ones((k, k), np.uint8), borderType=cv2.BORDER_CONSTANT, borderValue=0
+        )
+        > 0
+    )
     ok &= v
     ok[:radius] = False
-    ok[H - radius:] = False
+    ok[H - radius :] = False
     ok[:, :radius] = False
-    ok[:, W - radius:] = False
+    ok[:, W - radius :] = False
     return ok
 
 
@@ -237,8 +243,14 @@ def _downsampled(view: WorkingView) -> WorkingView:
     size = (intr.width, intr.height)
     grey = cv2.resize(view.grey, size, interpolation=cv2.INTER_AREA)
     valid = cv2.resize(view.valid.astype(np.uint8) * 255, size, interpolation=cv2.INTER_AREA) >= 255
-    return replace(view, intrinsics=intr, grey=grey, valid=valid, rgb=np.zeros((0, 0, 3), np.uint8),
-                   scale=view.scale * 0.5)
+    return replace(
+        view,
+        intrinsics=intr,
+        grey=grey,
+        valid=valid,
+        rgb=np.zeros((0, 0, 3), np.uint8),
+        scale=view.scale * 0.5,
+    )
 
 
 def _planes_to(fine: WorkingView, coarse: WorkingView, lvl: _Level) -> tuple[np.ndarray, ...]:
@@ -255,10 +267,16 @@ def _planes_to(fine: WorkingView, coarse: WorkingView, lvl: _Level) -> tuple[np.
     d = lvl.depth[vc[:, None], uc[None, :]].astype(np.float64)
     n = lvl.normal[vc[:, None], uc[None, :]].astype(np.float64)
     kc, kf = coarse.intrinsics, fine.intrinsics
-    xc = np.stack(np.broadcast_arrays(((uc - kc.cx) / kc.fx)[None, :], ((vc - kc.cy) / kc.fy)[:, None],
-                                      np.ones((1, 1))), axis=-1)
-    rf = np.stack(np.broadcast_arrays(((u - kf.cx) / kf.fx)[None, :], ((v - kf.cy) / kf.fy)[:, None],
-                                      np.ones((1, 1))), axis=-1)
+    xc = np.stack(
+        np.broadcast_arrays(
+            ((uc - kc.cx) / kc.fx)[None, :], ((vc - kc.cy) / kc.fy)[:, None], np.ones((1, 1))
+        ),
+        axis=-1,
+    )
+    rf = np.stack(
+        np.broadcast_arrays(((u - kf.cx) / kf.fx)[None, :], ((v - kf.cy) / kf.fy)[:, None], np.ones((1, 1))),
+        axis=-1,
+    )
     h = d * np.sum(n * xc, axis=-1)
     den = np.sum(n * rf, axis=-1)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -266,8 +284,16 @@ def _planes_to(fine: WorkingView, coarse: WorkingView, lvl: _Level) -> tuple[np.
     return df.astype(np.float32), n.astype(np.float32), lvl.cost[vc[:, None], uc[None, :]]
 
 
-def _solve_level(ref: WorkingView, sources: list[WorkingView], near: float, far: float, s: "PatchMatchSettings",
-                 iterations: int, seed: int, init: tuple[np.ndarray, np.ndarray] | None) -> _Level:
+def _solve_level(
+    ref: WorkingView,
+    sources: list[WorkingView],
+    near: float,
+    far: float,
+    s: PatchMatchSettings,
+    iterations: int,
+    seed: int,
+    init: tuple[np.ndarray, np.ndarray] | None,
+) -> _Level:
     H, W = ref.shape
     du, dv = _offsets(s.window_radius, s.window_step)
     gain = brightness_gain(ref)
@@ -303,14 +329,34 @@ def _solve_level(ref: WorkingView, sources: list[WorkingView], near: float, far:
     cost = np.full((H, W), K.BAD_COST, np.float32)
     grey = np.ascontiguousarray(ref.grey, dtype=np.float32)
     seed64 = np.uint64(int(seed) & 0xFFFFFFFFFFFFFFFF)
-    _run_rows(K.pm_init, H, s.threads, seed64, grey, mask, depth, normal, cost, srcs, wh, A, b, intr, du, dv,
-              params)
+    _run_rows(
+        K.pm_init, H, s.threads, seed64, grey, mask, depth, normal, cost, srcs, wh, A, b, intr, du, dv, params
+    )
     for it in range(iterations):
         for color in (0, 1):
             # a warm start (from a coarser level) skips the large early perturbations
             step = it + (s.coarse_iterations if init is not None else 0)
-            _run_rows(K.pm_sweep, H, s.threads, color, step, seed64, grey, mask, depth, normal, cost, srcs, wh,
-                      A, b, intr, du, dv, params)
+            _run_rows(
+                K.pm_sweep,
+                H,
+                s.threads,
+                color,
+                step,
+                seed64,
+                grey,
+                mask,
+                depth,
+                normal,
+                cost,
+                srcs,
+                wh,
+                A,
+                b,
+                intr,
+                du,
+                dv,
+                params,
+            )
     return _Level(depth, normal, cost, textured, mask.astype(bool))
 
 
@@ -325,15 +371,24 @@ def _enclosed_holes(holes: np.ndarray, max_fraction: float) -> np.ndarray:
     return ok[labels]
 
 
-def _solve(ref: WorkingView, sources: list[WorkingView], near: float, far: float, s: "PatchMatchSettings",
-           seed: int, levels: int, iterations: int) -> _Level:
+def _solve(
+    ref: WorkingView,
+    sources: list[WorkingView],
+    near: float,
+    far: float,
+    s: PatchMatchSettings,
+    seed: int,
+    levels: int,
+    iterations: int,
+) -> _Level:
     """Coarse to fine: the half-size solution initialises this level and fills its small flat holes."""
     H, W = ref.shape
     if levels <= 1 or min(H, W) < 2 * s.min_level_size:
         return _solve_level(ref, sources, near, far, s, iterations, seed, None)
     cref = _downsampled(ref)
-    coarse = _solve(cref, [_downsampled(v) for v in sources], near, far, s, seed + 7919, levels - 1,
-                    s.coarse_iterations)
+    coarse = _solve(
+        cref, [_downsampled(v) for v in sources], near, far, s, seed + 7919, levels - 1, s.coarse_iterations
+    )
     d0, n0, c0 = _planes_to(ref, cref, coarse)
     lvl = _solve_level(ref, sources, near, far, s, iterations, seed, (d0, n0))
     # flat here but matched at the coarser level (e.g. the inside of uniform tiles): keep the
@@ -350,8 +405,13 @@ def _solve(ref: WorkingView, sources: list[WorkingView], near: float, far: float
     return lvl
 
 
-def patchmatch_depth(ref: WorkingView, sources: list[WorkingView], depth_range: tuple[float, float],
-                     settings: PatchMatchSettings = PatchMatchSettings(), seed: int = 0) -> PatchMatchResult:
+def patchmatch_depth(
+    ref: WorkingView,
+    sources: list[WorkingView],
+    depth_range: tuple[float, float],
+    settings: PatchMatchSettings = PatchMatchSettings(),
+    seed: int = 0,
+) -> PatchMatchResult:
     """Estimate the depth map of ``ref`` from ``sources`` with PatchMatch.
 
     With ``settings.levels > 1`` the images are solved at half size first (``coarse_iterations``

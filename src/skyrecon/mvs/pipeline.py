@@ -20,8 +20,9 @@ from __future__ import annotations
 
 import os
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -106,8 +107,11 @@ def _pairwise_task(task: tuple) -> tuple[np.ndarray, dict[str, float]]:
     try:
         res = pairwise_depth(ref, src, depth_range, matcher, matcher_settings, points_world=points)
     except InputError as exc:  # one unusable pair must not stop the others
-        return np.full(ref.shape, np.nan, np.float32), {"cpu": (time.process_time() - c0) * 1e3,
-                                                        "error": str(exc), "pid": os.getpid()}
+        return np.full(ref.shape, np.nan, np.float32), {
+            "cpu": (time.process_time() - c0) * 1e3,
+            "error": str(exc),
+            "pid": os.getpid(),
+        }
     return res.depth, {**res.timings_ms, "cpu": (time.process_time() - c0) * 1e3, "pid": os.getpid()}
 
 
@@ -128,8 +132,9 @@ def _blank_views(views: list[WorkingView]) -> list[int]:
     return out
 
 
-def _depth_ranges(views: list[WorkingView], settings: MVSSettings, points: np.ndarray,
-                  warnings: list[str]) -> list[tuple[float, float] | None]:
+def _depth_ranges(
+    views: list[WorkingView], settings: MVSSettings, points: np.ndarray, warnings: list[str]
+) -> list[tuple[float, float] | None]:
     if settings.depth_range is not None:
         return [tuple(settings.depth_range)] * len(views)  # type: ignore[list-item]
     ranges = [depth_range_from_points(v, points) for v in views]
@@ -147,13 +152,18 @@ def _depth_ranges(views: list[WorkingView], settings: MVSSettings, points: np.nd
     return ranges
 
 
-def _choose_pairs(views: list[WorkingView], settings: MVSSettings, points: np.ndarray,
-                  ranges: list[tuple[float, float] | None]) -> tuple[list[list[int]], list[tuple[int, int]]]:
+def _choose_pairs(
+    views: list[WorkingView],
+    settings: MVSSettings,
+    points: np.ndarray,
+    ranges: list[tuple[float, float] | None],
+) -> tuple[list[list[int]], list[tuple[int, int]]]:
     """Per-view source lists and the (ref, src) pairs of the depth step."""
     n = len(views)
     if settings.topology == "auto":
-        neighbors, _ = select_neighbors(views, settings.num_sources, points, ranges,
-                                        settings.min_angle_deg, settings.max_angle_deg)
+        neighbors, _ = select_neighbors(
+            views, settings.num_sources, points, ranges, settings.min_angle_deg, settings.max_angle_deg
+        )
         if settings.depth_method == "pairwise":
             pairs = [(r, nb[0]) for r, nb in enumerate(neighbors) if nb]
         else:
@@ -171,8 +181,9 @@ def _executor_threads(executor: Executor) -> int:
     return max(1, (os.cpu_count() or 1) // workers)
 
 
-def _cleanup(fused: FusedCloud, views: list[WorkingView], settings: MVSSettings,
-             diag: dict[str, Any]) -> tuple[PointCloud, np.ndarray]:
+def _cleanup(
+    fused: FusedCloud, views: list[WorkingView], settings: MVSSettings, diag: dict[str, Any]
+) -> tuple[PointCloud, np.ndarray]:
     cloud, vid, support = fused.cloud, fused.view_index, fused.support
     diag["points_fused"] = len(cloud)
     if len(cloud) == 0:
@@ -203,8 +214,9 @@ def _cleanup(fused: FusedCloud, views: list[WorkingView], settings: MVSSettings,
         nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
         sup = np.zeros(m, np.int64)
         np.maximum.at(sup, inv, support)
-        cloud = PointCloud(avg(cloud.points).astype(np.float32), avg(cloud.colors.astype(np.float64)),
-                           nrm.astype(np.float32))
+        cloud = PointCloud(
+            avg(cloud.points).astype(np.float32), avg(cloud.colors.astype(np.float64)), nrm.astype(np.float32)
+        )
         support = sup.astype(np.int32)
         diag["points_after_voxel"] = len(cloud)
         return cloud, support
@@ -214,8 +226,13 @@ def _cleanup(fused: FusedCloud, views: list[WorkingView], settings: MVSSettings,
 # ------------------------------------------------------------------------------------------------
 # the stage
 # ------------------------------------------------------------------------------------------------
-def run_mvs(views: Sequence[PosedView], images: ImagesArg = None, settings: MVSSettings = MVSSettings(),
-            executor: Executor | None = None, progress: bool = True) -> MVSResult:
+def run_mvs(
+    views: Sequence[PosedView],
+    images: ImagesArg = None,
+    settings: MVSSettings = MVSSettings(),
+    executor: Executor | None = None,
+    progress: bool = True,
+) -> MVSResult:
     """Dense multi-view stereo: per-view depth maps and one fused coloured cloud.
 
     Args:
@@ -277,18 +294,25 @@ def run_mvs(views: Sequence[PosedView], images: ImagesArg = None, settings: MVSS
         t = time.perf_counter()
         neighbors, pairs = _choose_pairs(wviews, settings, sparse.points, ranges)
         if blank:  # blank views are neither references nor sources
-            neighbors = [[] if r in blank else [s for s in nb if s not in blank] for r, nb in enumerate(neighbors)]
+            neighbors = [
+                [] if r in blank else [s for s in nb if s not in blank] for r, nb in enumerate(neighbors)
+            ]
             pairs = [(r, s) for r, s in pairs if r not in blank and s not in blank]
         isolated = [i for i, nb in enumerate(neighbors) if not nb and i not in blank]
         if len(isolated) + len(blank) >= len(wviews) or not pairs:
-            raise InputError(f"no two views see enough in common to match: {_names(wviews, range(len(wviews)))}")
+            raise InputError(
+                f"no two views see enough in common to match: {_names(wviews, range(len(wviews)))}"
+            )
         if isolated:
-            warnings.append(f"views sharing too little with any other view (no depth): {_names(wviews, isolated)}")
+            warnings.append(
+                f"views sharing too little with any other view (no depth): {_names(wviews, isolated)}"
+            )
         timings["select"] = time.perf_counter() - t
 
         t = time.perf_counter()
-        depths, pair_depths, dtimes = _depth_step(wviews, settings, neighbors, pairs, ranges, blank, executor,
-                                                  progress, sparse.points)
+        depths, pair_depths, dtimes = _depth_step(
+            wviews, settings, neighbors, pairs, ranges, blank, executor, progress, sparse.points
+        )
         timings["depth"] = time.perf_counter() - t
         diag["depth_task_ms"] = dtimes
         warnings.extend(tm["error"] for tm in dtimes if "error" in tm)
@@ -300,7 +324,9 @@ def run_mvs(views: Sequence[PosedView], images: ImagesArg = None, settings: MVSS
         if settings.fusion == "concat":
             fused = fuse_concat(wviews, pair_depths)
         else:
-            fusion_nb = neighbors_from_pairs([(r, s) for r, nb in enumerate(neighbors) for s in nb], len(wviews))
+            fusion_nb = neighbors_from_pairs(
+                [(r, s) for r, nb in enumerate(neighbors) for s in nb], len(wviews)
+            )
             fused = fuse_consistent(wviews, depths, fusion_nb, settings.fusion_settings)
         timings["fusion"] = time.perf_counter() - t
 
@@ -326,7 +352,9 @@ def run_mvs(views: Sequence[PosedView], images: ImagesArg = None, settings: MVSS
     depth_maps = {
         v.stem: DepthMap(d, v.intrinsics, v.cam_from_world) for v, d in zip(wviews, depths) if d is not None
     }
-    diag["valid_fraction"] = {v.stem: float(np.isfinite(d).mean()) for v, d in zip(wviews, depths) if d is not None}
+    diag["valid_fraction"] = {
+        v.stem: float(np.isfinite(d).mean()) for v, d in zip(wviews, depths) if d is not None
+    }
     diag["working_size"] = {v.stem: (v.shape[1], v.shape[0]) for v in wviews}
     timings["total"] = time.perf_counter() - t_start
     # CPU seconds: this process (all its threads) plus the tasks that ran in worker processes
@@ -347,10 +375,17 @@ def run_mvs(views: Sequence[PosedView], images: ImagesArg = None, settings: MVSS
     )
 
 
-def _depth_step(wviews: list[WorkingView], settings: MVSSettings, neighbors: list[list[int]],
-                pairs: list[tuple[int, int]], ranges: list, blank: list[int], executor: Executor, progress: bool,
-                points: np.ndarray | None = None
-                ) -> tuple[list[np.ndarray | None], list[tuple[int, np.ndarray]], list[dict[str, float]]]:
+def _depth_step(
+    wviews: list[WorkingView],
+    settings: MVSSettings,
+    neighbors: list[list[int]],
+    pairs: list[tuple[int, int]],
+    ranges: list,
+    blank: list[int],
+    executor: Executor,
+    progress: bool,
+    points: np.ndarray | None = None,
+) -> tuple[list[np.ndarray | None], list[tuple[int, np.ndarray]], list[dict[str, float]]]:
     """Run the per-view (or per-pair) depth tasks; returns per-view depths and per-pair depths."""
     n = len(wviews)
     depths: list[np.ndarray | None] = [None] * n
@@ -358,17 +393,23 @@ def _depth_step(wviews: list[WorkingView], settings: MVSSettings, neighbors: lis
     slim = [_slim(v) for v in wviews]
     desc = "MVS depth" if progress else None
     if settings.depth_method == "patchmatch":
-        pm = replace(settings.patchmatch, threads=_executor_threads(executor)) if settings.patchmatch.threads == 1 \
+        pm = (
+            replace(settings.patchmatch, threads=_executor_threads(executor))
+            if settings.patchmatch.threads == 1
             else settings.patchmatch
+        )
         refs = [r for r in range(n) if neighbors[r] and r not in blank and ranges[r] is not None]
-        tasks = [(slim[r], [slim[s] for s in neighbors[r]], ranges[r], pm, settings.seed * 1_000_003 + r)
-                 for r in refs]
+        tasks = [
+            (slim[r], [slim[s] for s in neighbors[r]], ranges[r], pm, settings.seed * 1_000_003 + r)
+            for r in refs
+        ]
         results = executor.map(_patchmatch_task, tasks, desc=desc)
         for r, (d, _) in zip(refs, results):
             depths[r] = d
             pair_depths.append((r, d))
         return depths, pair_depths, [tm for _, tm in results]
     todo = [(r, s) for r, s in pairs if r not in blank and s not in blank and ranges[r] is not None]
+
     def shared(r: int, s: int) -> np.ndarray | None:
         if points is None or len(points) == 0:
             return None
@@ -378,8 +419,10 @@ def _depth_step(wviews: list[WorkingView], settings: MVSSettings, neighbors: lis
             ok &= v.intrinsics.in_image(uv) & (z > 0)
         return points[ok]
 
-    tasks = [(slim[r], slim[s], ranges[r], settings.matcher, dict(settings.matcher_settings), shared(r, s))
-             for r, s in todo]
+    tasks = [
+        (slim[r], slim[s], ranges[r], settings.matcher, dict(settings.matcher_settings), shared(r, s))
+        for r, s in todo
+    ]
     results = executor.map(_pairwise_task, tasks, desc=desc)
     for (r, _), (d, _) in zip(todo, results):
         pair_depths.append((r, d))

@@ -13,8 +13,14 @@ from skyrecon.core import Intrinsics, PointCloud, Rigid3
 __all__ = ["render_cloud"]
 
 
-def render_cloud(cloud: PointCloud, intrinsics: Intrinsics, cam_from_world: Rigid3, point_px: int = 2,
-                 background: tuple[int, int, int] = (255, 255, 255), shade: bool = True) -> np.ndarray:
+def render_cloud(
+    cloud: PointCloud,
+    intrinsics: Intrinsics,
+    cam_from_world: Rigid3,
+    point_px: int = 2,
+    background: tuple[int, int, int] = (255, 255, 255),
+    shade: bool = True,
+) -> np.ndarray:
     """Render ``cloud`` (world frame) from a camera.
 
     Args:
@@ -37,8 +43,9 @@ def render_cloud(cloud: PointCloud, intrinsics: Intrinsics, cam_from_world: Rigi
     front = z > 1e-9
     uv = intrinsics.project(pc[front])
     z = z[front]
-    cols = (np.full((len(cloud), 3), 128, np.float64) if cloud.colors is None else
-            cloud.colors.astype(np.float64))[front]
+    cols = (
+        np.full((len(cloud), 3), 128, np.float64) if cloud.colors is None else cloud.colors.astype(np.float64)
+    )[front]
     if shade and cloud.normals is not None:
         n = cam_from_world.rotate(cloud.normals[front].astype(np.float64))
         ray = pc[front] / np.linalg.norm(pc[front], axis=1, keepdims=True)

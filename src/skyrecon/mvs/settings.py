@@ -76,7 +76,9 @@ class MVSSettings:
         if self.topology not in TOPOLOGIES:
             raise InputError(f"unknown topology {self.topology!r}; choose one of {', '.join(TOPOLOGIES)}")
         if self.depth_method not in DEPTH_METHODS:
-            raise InputError(f"unknown depth method {self.depth_method!r}; choose one of {', '.join(DEPTH_METHODS)}")
+            raise InputError(
+                f"unknown depth method {self.depth_method!r}; choose one of {', '.join(DEPTH_METHODS)}"
+            )
         if self.fusion not in FUSION_METHODS:
             raise InputError(f"unknown fusion {self.fusion!r}; choose one of {', '.join(FUSION_METHODS)}")
         if self.max_image_size is not None and self.max_image_size < 32:
@@ -92,13 +94,14 @@ class MVSSettings:
         if self.voxel_size_m is not None and not self.voxel_size_m > 0:
             raise InputError(f"voxel_size_m must be positive, got {self.voxel_size_m}")
 
-    def with_(self, **changes: Any) -> "MVSSettings":
+    def with_(self, **changes: Any) -> MVSSettings:
         """A copy with some fields changed (validated)."""
         return replace(self, **changes)
 
     @classmethod
-    def from_names(cls, topology: str | None = None, fusion: str | None = None, mesh: bool = False,
-                   **changes: Any) -> "MVSSettings":
+    def from_names(
+        cls, topology: str | None = None, fusion: str | None = None, mesh: bool = False, **changes: Any
+    ) -> MVSSettings:
         """Settings for the command line's ``--topology NAME --fusion NAME [--mesh]``.
 
         ``fusion="concat"`` selects the write-up's whole method (:meth:`writeup_baseline`:
@@ -116,7 +119,7 @@ class MVSSettings:
         return cls(**kw)
 
     @classmethod
-    def writeup_baseline(cls, **changes: Any) -> "MVSSettings":
+    def writeup_baseline(cls, **changes: Any) -> MVSSettings:
         """The write-up's method: rectified SGBM per ``360`` pair, clouds concatenated, no filtering.
 
         The SGBM parameters are the write-up's (``BlockSize`` 21, ``P1 = P2 = 16 * 21 * 21``
@@ -125,13 +128,20 @@ class MVSSettings:
         resolution) is replaced by the range of the sparse points both views see, so that every
         pair searches where its scene actually is.
         """
-        base = dict(topology="360", depth_method="pairwise", fusion="concat", matcher="opencv-sgbm",
-                    matcher_settings=dict(WRITEUP_SGBM), outlier_std=0.0, component_min_fraction=0.0)
+        base = dict(
+            topology="360",
+            depth_method="pairwise",
+            fusion="concat",
+            matcher="opencv-sgbm",
+            matcher_settings=dict(WRITEUP_SGBM),
+            outlier_std=0.0,
+            component_min_fraction=0.0,
+        )
         base.update(changes)
         return cls(**base)
 
     @classmethod
-    def tuned_concat_baseline(cls, **changes: Any) -> "MVSSettings":
+    def tuned_concat_baseline(cls, **changes: Any) -> MVSSettings:
         """The write-up's pipeline with the stereo engine's default SGBM (5x5 blocks, uniqueness
         and left-right checks, speckle filter) instead of the write-up's parameters: a stronger
         concatenation baseline."""
@@ -140,6 +150,14 @@ class MVSSettings:
 
 #: The write-up's ``cv2.StereoSGBM`` options, as settings of the ``opencv-sgbm`` matcher.
 WRITEUP_SGBM: dict[str, Any] = dict(
-    block_size=21, P1=16 * 21 * 21, P2=16 * 21 * 21 + 1, disp12_max_diff=-1, pre_filter_cap=0,
-    uniqueness_ratio=0, speckle_window_size=0, speckle_range=0, mode="hh", use_colour=False,
+    block_size=21,
+    P1=16 * 21 * 21,
+    P2=16 * 21 * 21 + 1,
+    disp12_max_diff=-1,
+    pre_filter_cap=0,
+    uniqueness_ratio=0,
+    speckle_window_size=0,
+    speckle_range=0,
+    mode="hh",
+    use_colour=False,
 )

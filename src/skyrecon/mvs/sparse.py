@@ -50,8 +50,9 @@ def _features(view: WorkingView, max_features: int) -> tuple[np.ndarray, np.ndar
     return xy, desc.astype(np.float32)
 
 
-def candidate_pairs(views: list[WorkingView], max_axis_angle_deg: float = 100.0,
-                    max_per_view: int = 6) -> list[tuple[int, int]]:
+def candidate_pairs(
+    views: list[WorkingView], max_axis_angle_deg: float = 100.0, max_per_view: int = 6
+) -> list[tuple[int, int]]:
     """Pairs (i < j) worth matching: optical axes within ``max_axis_angle_deg`` and among each
     view's ``max_per_view`` nearest camera centres."""
     n = len(views)
@@ -63,7 +64,7 @@ def candidate_pairs(views: list[WorkingView], max_axis_angle_deg: float = 100.0,
     np.fill_diagonal(D, np.inf)
     cos = np.clip(Z @ Z.T, -1, 1)
     keep = np.zeros((n, n), bool)
-    order = np.argsort(D, axis=1)[:, : max_per_view]
+    order = np.argsort(D, axis=1)[:, :max_per_view]
     for i in range(n):
         keep[i, order[i]] = True
     keep = (keep | keep.T) & (cos >= np.cos(np.radians(max_axis_angle_deg)))
@@ -94,19 +95,30 @@ def _fundamental(a: WorkingView, b: WorkingView) -> np.ndarray:
 
 def _triangulate(Pa: np.ndarray, Pb: np.ndarray, xa: np.ndarray, xb: np.ndarray) -> np.ndarray:
     """Linear triangulation (DLT) of (M, 2) pixel pairs -> (M, 3)."""
-    A = np.stack([
-        xa[:, 0:1] * Pa[2] - Pa[0], xa[:, 1:2] * Pa[2] - Pa[1],
-        xb[:, 0:1] * Pb[2] - Pb[0], xb[:, 1:2] * Pb[2] - Pb[1],
-    ], axis=1)
+    A = np.stack(
+        [
+            xa[:, 0:1] * Pa[2] - Pa[0],
+            xa[:, 1:2] * Pa[2] - Pa[1],
+            xb[:, 0:1] * Pb[2] - Pb[0],
+            xb[:, 1:2] * Pb[2] - Pb[1],
+        ],
+        axis=1,
+    )
     _, _, Vt = np.linalg.svd(A)
     X = Vt[:, -1]
     with np.errstate(divide="ignore", invalid="ignore"):
         return X[:, :3] / X[:, 3:4]
 
 
-def sparse_scene(views: list[WorkingView], pairs: list[tuple[int, int]] | None = None,
-                 max_features: int = 1500, ratio: float = 0.85, max_epipolar_px: float = 2.0,
-                 max_reproj_px: float = 2.0, min_angle_deg: float = 1.0) -> SparseScene:
+def sparse_scene(
+    views: list[WorkingView],
+    pairs: list[tuple[int, int]] | None = None,
+    max_features: int = 1500,
+    ratio: float = 0.85,
+    max_epipolar_px: float = 2.0,
+    max_reproj_px: float = 2.0,
+    min_angle_deg: float = 1.0,
+) -> SparseScene:
     """Match SIFT features between view pairs and triangulate them with the known cameras.
 
     Args:
@@ -154,7 +166,9 @@ def sparse_scene(views: list[WorkingView], pairs: list[tuple[int, int]] | None =
             good &= np.linalg.norm(pb - b, axis=1) < max_reproj_px
         ra = X - va.center_world
         rb = X - vb.center_world
-        cosang = np.sum(ra * rb, axis=1) / np.maximum(np.linalg.norm(ra, axis=1) * np.linalg.norm(rb, axis=1), 1e-300)
+        cosang = np.sum(ra * rb, axis=1) / np.maximum(
+            np.linalg.norm(ra, axis=1) * np.linalg.norm(rb, axis=1), 1e-300
+        )
         with np.errstate(invalid="ignore"):
             good &= cosang < np.cos(np.radians(min_angle_deg))
         X = X[good]
@@ -170,9 +184,13 @@ def sparse_scene(views: list[WorkingView], pairs: list[tuple[int, int]] | None =
     return SparseScene(P, I, counts)
 
 
-def depth_range_from_points(view: WorkingView, points_world: np.ndarray, margin: float = 0.25,
-                            quantiles: tuple[float, float] = (0.01, 0.99), min_points: int = 20
-                            ) -> tuple[float, float] | None:
+def depth_range_from_points(
+    view: WorkingView,
+    points_world: np.ndarray,
+    margin: float = 0.25,
+    quantiles: tuple[float, float] = (0.01, 0.99),
+    min_points: int = 20,
+) -> tuple[float, float] | None:
     """(near, far) depth range of ``view`` from the sparse points that project into it.
 
     The quantiles of the visible points' depths are widened by ``margin`` (near / (1 + margin),

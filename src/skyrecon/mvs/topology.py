@@ -45,11 +45,15 @@ def topology_pairs(name: str, n_views: int) -> list[tuple[int, int]]:
         return [(i, i + 1) for i in range(0, n_views - 1, _STEP[name])]
     choices = ", ".join(TOPOLOGIES)
     if name == "auto":
-        raise InputError("topology 'auto' has no fixed pair list; it is chosen from the cameras (select_neighbors)")
+        raise InputError(
+            "topology 'auto' has no fixed pair list; it is chosen from the cameras (select_neighbors)"
+        )
     raise InputError(f"unknown topology {name!r}; choose one of {choices}")
 
 
-def neighbors_from_pairs(pairs: list[tuple[int, int]], n_views: int, symmetric: bool = True) -> list[list[int]]:
+def neighbors_from_pairs(
+    pairs: list[tuple[int, int]], n_views: int, symmetric: bool = True
+) -> list[list[int]]:
     """Per-view source lists from (ref, src) pairs; ``symmetric`` also uses each pair backwards."""
     out: list[list[int]] = [[] for _ in range(n_views)]
     for a, b in pairs:
@@ -60,8 +64,9 @@ def neighbors_from_pairs(pairs: list[tuple[int, int]], n_views: int, symmetric: 
     return out
 
 
-def angle_weight(theta_deg: np.ndarray, lo: float = 5.0, hi: float = 45.0, best: tuple[float, float] = (10.0, 30.0)
-                 ) -> np.ndarray:
+def angle_weight(
+    theta_deg: np.ndarray, lo: float = 5.0, hi: float = 45.0, best: tuple[float, float] = (10.0, 30.0)
+) -> np.ndarray:
     """Score of a triangulation angle: 1 in ``best``, falling off linearly to 0 at ``lo`` and ``hi``."""
     t = np.asarray(theta_deg, dtype=np.float64)
     w = np.ones_like(t)
@@ -83,10 +88,15 @@ def _frustum_samples(view: WorkingView, depth_range: tuple[float, float], n: int
     return view.cam_from_world.inverse().apply(np.concatenate(pts))
 
 
-def select_neighbors(views: list[WorkingView], num_sources: int = 4, points_world: np.ndarray | None = None,
-                     depth_ranges: list[tuple[float, float] | None] | None = None,
-                     min_angle_deg: float = 5.0, max_angle_deg: float = 45.0, min_shared: int = 10
-                     ) -> tuple[list[list[int]], list[list[float]]]:
+def select_neighbors(
+    views: list[WorkingView],
+    num_sources: int = 4,
+    points_world: np.ndarray | None = None,
+    depth_ranges: list[tuple[float, float] | None] | None = None,
+    min_angle_deg: float = 5.0,
+    max_angle_deg: float = 45.0,
+    min_shared: int = 10,
+) -> tuple[list[list[int]], list[list[float]]]:
     """Choose up to ``num_sources`` source views for every reference view.
 
     For reference r and candidate s, every sparse point that projects inside both images (in

@@ -11,6 +11,15 @@ from skyrecon.planning.replan import ReplanDecision, Replanner, remaining_path
 from skyrecon.planning.result import REASONS, PlanResult
 
 __all__ = [
-    "Planner", "plan_path", "PlanResult", "REASONS", "Replanner", "ReplanDecision", "remaining_path",
-    "write_path_json", "write_qgc_plan", "qgc_plan", "enu_to_geodetic",
+    "Planner",
+    "plan_path",
+    "PlanResult",
+    "REASONS",
+    "Replanner",
+    "ReplanDecision",
+    "remaining_path",
+    "write_path_json",
+    "write_qgc_plan",
+    "qgc_plan",
+    "enu_to_geodetic",
 ]

@@ -78,8 +78,15 @@ def sampled_clear(dist, origin, inv_v, zmin, zmax, thr, step, a, b):
 def clear(safe, dist, origin, inv_v, zmin, zmax, thr, step, a, b, sampled_ok):
     """Segment a -> b (world (3,) each) is clear: exact dual-cell test, else (if ``sampled_ok``)
     the sampled test."""
-    if los(safe, (a[0] - origin[0]) * inv_v - 0.5, (a[1] - origin[1]) * inv_v - 0.5, (a[2] - origin[2]) * inv_v - 0.5,
-           (b[0] - origin[0]) * inv_v - 0.5, (b[1] - origin[1]) * inv_v - 0.5, (b[2] - origin[2]) * inv_v - 0.5):
+    if los(
+        safe,
+        (a[0] - origin[0]) * inv_v - 0.5,
+        (a[1] - origin[1]) * inv_v - 0.5,
+        (a[2] - origin[2]) * inv_v - 0.5,
+        (b[0] - origin[0]) * inv_v - 0.5,
+        (b[1] - origin[1]) * inv_v - 0.5,
+        (b[2] - origin[2]) * inv_v - 0.5,
+    ):
         return True
     if sampled_ok:
         return sampled_clear(dist, origin, inv_v, zmin, zmax, thr, step, a, b)
@@ -97,8 +104,16 @@ def path_min_distance(dist, origin, inv_v, zmin, zmax, step, pts):
         n = max(1, int(np.ceil(L / step)))
         for i in range(n + 1):
             t = i / n
-            d = trilinear(dist, origin, inv_v, zmin, zmax, a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1]),
-                          a[2] + t * (b[2] - a[2]))
+            d = trilinear(
+                dist,
+                origin,
+                inv_v,
+                zmin,
+                zmax,
+                a[0] + t * (b[0] - a[0]),
+                a[1] + t * (b[1] - a[1]),
+                a[2] + t * (b[2] - a[2]),
+            )
             best = min(best, d)
     if pts.shape[0] == 1:
         best = trilinear(dist, origin, inv_v, zmin, zmax, pts[0, 0], pts[0, 1], pts[0, 2])
@@ -124,8 +139,9 @@ def shortcut(safe, dist, origin, inv_v, zmin, zmax, thr, step, pts):
     i = 0
     while i < K - 1:
         j = i + 1
-        while j + 1 < K and clear(safe, dist, origin, inv_v, zmin, zmax, thr, step, pts[i], pts[j + 1],
-                                  i == 0 or j + 1 == K - 1):
+        while j + 1 < K and clear(
+            safe, dist, origin, inv_v, zmin, zmax, thr, step, pts[i], pts[j + 1], i == 0 or j + 1 == K - 1
+        ):
             j += 1
         keep[j] = True
         i = j
@@ -292,7 +308,9 @@ def drop_collinear(safe, dist, origin, inv_v, zmin, zmax, thr, step, pts, tol):
         L2 = (ac * ac).sum()
         t = 0.0 if L2 == 0 else min(1.0, max(0.0, ((b - a) * ac).sum() / L2))
         d = np.sqrt(((a + t * ac - b) ** 2).sum())
-        if d < tol and clear(safe, dist, origin, inv_v, zmin, zmax, thr, step, a, c, last == 0 or i + 1 == K - 1):
+        if d < tol and clear(
+            safe, dist, origin, inv_v, zmin, zmax, thr, step, a, c, last == 0 or i + 1 == K - 1
+        ):
             keep[i] = False
         else:
             last = i

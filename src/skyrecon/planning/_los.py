@@ -34,7 +34,15 @@ def los(safe, ax, ay, az, bx, by, bz):
     jx = int(np.floor(bx))
     jy = int(np.floor(by))
     jz = int(np.floor(bz))
-    if min(ix, iy, iz, jx, jy, jz) < 0 or ix >= NX or jx >= NX or iy >= NY or jy >= NY or iz >= NZ or jz >= NZ:
+    if (
+        min(ix, iy, iz, jx, jy, jz) < 0
+        or ix >= NX
+        or jx >= NX
+        or iy >= NY
+        or jy >= NY
+        or iz >= NZ
+        or jz >= NZ
+    ):
         return False
     dx = bx - ax
     dy = by - ay

@@ -93,7 +93,9 @@ def _h(x, y, z, gx, gy, gz, any_angle):
 
 
 @njit(cache=True)
-def search(cells, f, fine_safe, starts, start_costs, goal, weight, any_angle, max_expansions, g, parent, stamp, gen):
+def search(
+    cells, f, fine_safe, starts, start_costs, goal, weight, any_angle, max_expansions, g, parent, stamp, gen
+):
     """Search from several start cells (with initial costs, fine voxels) to the goal cell.
 
     Args:

@@ -28,7 +28,9 @@ class PlanningGrid:
     level f sits at world ``origin + (f I + 1) * voxel``.
     """
 
-    def __init__(self, df, lo: np.ndarray, shape: np.ndarray, threshold: float, zmin: float, zmax: float, step: float):
+    def __init__(
+        self, df, lo: np.ndarray, shape: np.ndarray, threshold: float, zmin: float, zmax: float, step: float
+    ):
         self.voxel = float(df.voxel_size)
         self.inv_v = 1.0 / self.voxel
         self.lo = np.asarray(lo, dtype=np.int64)
@@ -42,7 +44,9 @@ class PlanningGrid:
         self.dist = df.dense(self.lo, self.shape)
         zc = self.origin[2] + (np.arange(self.shape[2]) + 0.5) * self.voxel
         zok = (zc >= zmin) & (zc <= zmax)
-        self.flyable = np.ascontiguousarray(((self.dist >= self.threshold) & zok[None, None, :]).view(np.uint8))
+        self.flyable = np.ascontiguousarray(
+            ((self.dist >= self.threshold) & zok[None, None, :]).view(np.uint8)
+        )
         self.safe = safe_cells(self.flyable)
         self._levels: dict[int, np.ndarray] = {1: self.safe}
         self._state: dict[int, list] = {}
@@ -79,7 +83,16 @@ class PlanningGrid:
 
     def ctx(self) -> tuple:
         """Leading arguments of the :mod:`_geom` path functions."""
-        return (self.safe, self.dist, self.origin, self.inv_v, self.zmin, self.zmax, self.threshold, self.step)
+        return (
+            self.safe,
+            self.dist,
+            self.origin,
+            self.inv_v,
+            self.zmin,
+            self.zmax,
+            self.threshold,
+            self.step,
+        )
 
     def sampled_ctx(self) -> tuple:
         """Leading arguments of :func:`_geom.sampled_clear` / :func:`_geom.first_blocked`."""
@@ -117,7 +130,9 @@ class PlanningGrid:
                 s_hi = np.minimum(hi, np.array(self.safe.shape))
                 if np.all(s_hi > s_lo):
                     fly = self.flyable[s_lo[0] : s_hi[0] + 1, s_lo[1] : s_hi[1] + 1, s_lo[2] : s_hi[2] + 1]
-                    self.safe[s_lo[0] : s_hi[0], s_lo[1] : s_hi[1], s_lo[2] : s_hi[2]] = safe_cells(np.ascontiguousarray(fly))
+                    self.safe[s_lo[0] : s_hi[0], s_lo[1] : s_hi[1], s_lo[2] : s_hi[2]] = safe_cells(
+                        np.ascontiguousarray(fly)
+                    )
                 for f in list(self._levels):
                     if f > 1:
                         self._levels[f][...] = lattice(self.safe, f)

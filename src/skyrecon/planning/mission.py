@@ -61,11 +61,13 @@ def geodetic_to_ecef(lat_deg: float, lon_deg: float, h_m: float) -> np.ndarray:
     """(3,) ECEF metres of a WGS-84 point (latitude, longitude in degrees, ellipsoidal height)."""
     la, lo = math.radians(lat_deg), math.radians(lon_deg)
     n = WGS84_A / math.sqrt(1.0 - WGS84_E2 * math.sin(la) ** 2)
-    return np.array([
-        (n + h_m) * math.cos(la) * math.cos(lo),
-        (n + h_m) * math.cos(la) * math.sin(lo),
-        (n * (1.0 - WGS84_E2) + h_m) * math.sin(la),
-    ])
+    return np.array(
+        [
+            (n + h_m) * math.cos(la) * math.cos(lo),
+            (n + h_m) * math.cos(la) * math.sin(lo),
+            (n * (1.0 - WGS84_E2) + h_m) * math.sin(la),
+        ]
+    )
 
 
 def ecef_to_geodetic(xyz: np.ndarray) -> np.ndarray:
@@ -98,11 +100,13 @@ def enu_to_geodetic(enu_m: np.ndarray, origin_lat_lon_alt) -> np.ndarray:
     e = np.asarray(enu_m, dtype=np.float64).reshape(-1, 3)
     la, lo = math.radians(lat0), math.radians(lon0)
     # columns: east, north, up unit vectors in ECEF
-    R = np.array([
-        [-math.sin(lo), -math.sin(la) * math.cos(lo), math.cos(la) * math.cos(lo)],
-        [math.cos(lo), -math.sin(la) * math.sin(lo), math.cos(la) * math.sin(lo)],
-        [0.0, math.cos(la), math.sin(la)],
-    ])
+    R = np.array(
+        [
+            [-math.sin(lo), -math.sin(la) * math.cos(lo), math.cos(la) * math.cos(lo)],
+            [math.cos(lo), -math.sin(la) * math.sin(lo), math.cos(la) * math.sin(lo)],
+            [0.0, math.cos(la), math.sin(la)],
+        ]
+    )
     ecef = geodetic_to_ecef(lat0, lon0, alt0) + e @ R.T
     return ecef_to_geodetic(ecef)
 
@@ -110,7 +114,11 @@ def enu_to_geodetic(enu_m: np.ndarray, origin_lat_lon_alt) -> np.ndarray:
 def write_path_json(path: str | Path, result: PlanResult | np.ndarray, **extra) -> None:
     """Write ``path.json``: waypoints (K, 3) world metres plus length and, for a PlanResult, its
     success, reason and clearance; ``extra`` keys are added (e.g. ``start``, ``goal``)."""
-    w = _waypoints(result) if not (isinstance(result, PlanResult) and not result.success) else np.zeros((0, 3))
+    w = (
+        _waypoints(result)
+        if not (isinstance(result, PlanResult) and not result.success)
+        else np.zeros((0, 3))
+    )
     doc = {"format": "skyrecon.path", "version": 1, "frame": "world", "units": "m"}
     if isinstance(result, PlanResult):
         d = result.to_dict()
@@ -166,7 +174,13 @@ def qgc_plan(
         elif i == len(w) - 1 and land:
             items.append(item(MAV_CMD_NAV_LAND, [0, 0, 0, None, float(lat), float(lon), float(alt)], alt))
         else:
-            items.append(item(MAV_CMD_NAV_WAYPOINT, [0, float(acceptance_radius_m), 0, None, float(lat), float(lon), float(alt)], alt))
+            items.append(
+                item(
+                    MAV_CMD_NAV_WAYPOINT,
+                    [0, float(acceptance_radius_m), 0, None, float(lat), float(lon), float(alt)],
+                    alt,
+                )
+            )
     return {
         "fileType": "Plan",
         "geoFence": {"circles": [], "polygons": [], "version": 2},

@@ -176,7 +176,12 @@ class Planner:
         """The dense grid for a query (cached while the distance field and box do not change)."""
         lo, hi = self._box_for(start, goal)
         g = self._grid
-        if g is not None and g.version == self.df.version and np.all(g.lo <= lo) and np.all(g.lo + np.array(g.shape) >= hi):
+        if (
+            g is not None
+            and g.version == self.df.version
+            and np.all(g.lo <= lo)
+            and np.all(g.lo + np.array(g.shape) >= hi)
+        ):
             return g
         self._grid = None  # free the old grid before building the new one
         self._grid = PlanningGrid(self.df, lo, hi - lo, self.threshold, self.min_z, self.max_z, self.step)
@@ -215,7 +220,9 @@ class Planner:
             )
         return None
 
-    def _connect(self, grid: PlanningGrid, f: int, p: np.ndarray, limit: int) -> tuple[np.ndarray, np.ndarray]:
+    def _connect(
+        self, grid: PlanningGrid, f: int, p: np.ndarray, limit: int
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Level-f nodes near p reachable from p in a clear straight line: flat indices and costs (fine voxels)."""
         cells_arr = grid.level(f)
         shape = np.array(cells_arr.shape)
@@ -278,10 +285,25 @@ class Planner:
         path = self._refine(grid, raw)
         t_ref = time.perf_counter()
         length = float(_geom.polyline_length(path))
-        dmin = float(_geom.path_min_distance(grid.dist, grid.origin, grid.inv_v, grid.zmin, grid.zmax, self.step, path))
+        dmin = float(
+            _geom.path_min_distance(grid.dist, grid.origin, grid.inv_v, grid.zmin, grid.zmax, self.step, path)
+        )
         return PlanResult(
-            True, path, length, "", "", self.clearance, self.margin, dmin, int(expansions),
-            {"grid": t_grid - t0, "search": t_search2 - t_search, "refine": t_ref - t_search2, "total": t_ref - t0},
+            True,
+            path,
+            length,
+            "",
+            "",
+            self.clearance,
+            self.margin,
+            dmin,
+            int(expansions),
+            {
+                "grid": t_grid - t0,
+                "search": t_search2 - t_search,
+                "refine": t_ref - t_search2,
+                "total": t_ref - t0,
+            },
         )
 
     def _search_level(self, grid: PlanningGrid, f: int, s: np.ndarray, g: np.ndarray):
@@ -289,9 +311,21 @@ class Planner:
         starts, costs = self._connect(grid, f, s, 8)
         goals, _ = self._connect(grid, f, g, 1)
         if len(starts) == 0:
-            return None, PlanResult.failure("start_enclosed", "no free node nearby is reachable in a straight line", **self._kw()), 0
+            return (
+                None,
+                PlanResult.failure(
+                    "start_enclosed", "no free node nearby is reachable in a straight line", **self._kw()
+                ),
+                0,
+            )
         if len(goals) == 0:
-            return None, PlanResult.failure("goal_enclosed", "no free node nearby is reachable in a straight line", **self._kw()), 0
+            return (
+                None,
+                PlanResult.failure(
+                    "goal_enclosed", "no free node nearby is reachable in a straight line", **self._kw()
+                ),
+                0,
+            )
         cells = grid.level(f)
         gs, parent, stamp, gen = grid.search_state(f)
         # a small enclosed goal region would otherwise make the search flood the whole start region
@@ -300,22 +334,49 @@ class Planner:
         reached = reached or bool(np.any(stamp[starts] == 2 * gen + 1))
         if not reached and not capped:
             vol = n_goal * (f * grid.voxel) ** 3
-            return None, PlanResult.failure(
-                "goal_enclosed", f"the goal's free region holds {vol:.1f} m^3 of flyable space", **self._kw()
-            ), 0
+            return (
+                None,
+                PlanResult.failure(
+                    "goal_enclosed",
+                    f"the goal's free region holds {vol:.1f} m^3 of flyable space",
+                    **self._kw(),
+                ),
+                0,
+            )
         gs, parent, stamp, gen = grid.search_state(f)
         path, _cost, n_exp, status = search(
-            cells, f, grid.safe, starts, costs, goals[0], self.weight, self.any_angle, self.max_expansions,
-            gs, parent, stamp, gen,
+            cells,
+            f,
+            grid.safe,
+            starts,
+            costs,
+            goals[0],
+            self.weight,
+            self.any_angle,
+            self.max_expansions,
+            gs,
+            parent,
+            stamp,
+            gen,
         )
         if status == 0:
             return np.concatenate([s[None], grid.node_positions(f, path), g[None]]), None, n_exp
         if status == 2:
-            return None, PlanResult.failure("search_limit", f"{n_exp} expansions on level {f}", **self._kw()), n_exp
+            return (
+                None,
+                PlanResult.failure("search_limit", f"{n_exp} expansions on level {f}", **self._kw()),
+                n_exp,
+            )
         vol = n_exp * (f * grid.voxel) ** 3
-        return None, PlanResult.failure(
-            "start_enclosed", f"the start's free region holds {vol:.1f} m^3 of flyable space", **self._kw()
-        ), n_exp
+        return (
+            None,
+            PlanResult.failure(
+                "start_enclosed",
+                f"the start's free region holds {vol:.1f} m^3 of flyable space",
+                **self._kw(),
+            ),
+            n_exp,
+        )
 
     def _refine(self, grid: PlanningGrid, raw: np.ndarray) -> np.ndarray:
         """Shorten and smooth a clear polyline, keeping every segment clear."""
@@ -359,7 +420,7 @@ def _turning_points(raw: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(raw[keep])
 
 
-_CACHE: "weakref.WeakKeyDictionary[OccupancyMap, dict]" = weakref.WeakKeyDictionary()
+_CACHE: weakref.WeakKeyDictionary[OccupancyMap, dict] = weakref.WeakKeyDictionary()
 
 
 def plan_path(

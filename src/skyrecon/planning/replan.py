@@ -85,7 +85,9 @@ class Replanner:
     def __init__(self, planner: Planner, goal: np.ndarray, waypoints: np.ndarray | None = None):
         self.planner = planner
         self.goal = check_point3(goal, "goal")
-        self.waypoints = np.zeros((0, 3)) if waypoints is None else np.asarray(waypoints, dtype=np.float64).reshape(-1, 3)
+        self.waypoints = (
+            np.zeros((0, 3)) if waypoints is None else np.asarray(waypoints, dtype=np.float64).reshape(-1, 3)
+        )
         # the distance field must know every change made to the map before we started
         planner.update(planner.map.pop_changed_blocks())
 
@@ -96,7 +98,9 @@ class Replanner:
             self.waypoints = r.waypoints
         return r
 
-    def check(self, position: np.ndarray, changed_distance_blocks: np.ndarray | None = None) -> tuple[bool, int, bool]:
+    def check(
+        self, position: np.ndarray, changed_distance_blocks: np.ndarray | None = None
+    ) -> tuple[bool, int, bool]:
         """Whether the remaining path is clear: (clear, first blocked segment or -1, checked).
 
         With ``changed_distance_blocks`` (K, 3) (from the distance-field update) the path is
@@ -129,7 +133,9 @@ class Replanner:
         if len(self.waypoints) == 0:
             r = self.replan(p)
             return ReplanDecision(False, True, self.waypoints if r.success else np.zeros((0, 3)), -1, True, r)
-        rewritten = self.planner.update(np.zeros((0, 3), np.int64) if changed_blocks is None else changed_blocks)
+        rewritten = self.planner.update(
+            np.zeros((0, 3), np.int64) if changed_blocks is None else changed_blocks
+        )
         ok, k, checked = self.check(p, None if changed_blocks is None else rewritten)
         if ok:
             return ReplanDecision(True, False, remaining_path(self.waypoints, p), -1, checked, None)
@@ -137,4 +143,3 @@ class Replanner:
         if not r.success:
             return ReplanDecision(False, True, np.zeros((0, 3)), k, True, r)
         return ReplanDecision(False, True, self.waypoints, k, True, r)
-

@@ -53,9 +53,11 @@ class PlanResult:
     timings: dict = field(default_factory=dict)
 
     @classmethod
-    def failure(cls, reason: str, message: str = "", **kw) -> "PlanResult":
+    def failure(cls, reason: str, message: str = "", **kw) -> PlanResult:
         text = REASONS.get(reason, reason)
-        return cls(False, np.zeros((0, 3)), float("inf"), reason, f"{text}{': ' + message if message else ''}", **kw)
+        return cls(
+            False, np.zeros((0, 3)), float("inf"), reason, f"{text}{': ' + message if message else ''}", **kw
+        )
 
     def to_dict(self) -> dict:
         """JSON-ready summary (waypoints as lists)."""

@@ -30,10 +30,14 @@ def contact_sheet(
     for k, im in enumerate(images):
         im = _as_rgb(im)
         scale = tile_width / im.shape[1]
-        tile = cv2.resize(im, (tile_width, max(1, int(round(im.shape[0] * scale)))), interpolation=cv2.INTER_AREA)
+        tile = cv2.resize(
+            im, (tile_width, max(1, int(round(im.shape[0] * scale)))), interpolation=cv2.INTER_AREA
+        )
         if labels is not None and k < len(labels):
             cv2.putText(tile, labels[k], (8, 22), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 0), 3, cv2.LINE_AA)
-            cv2.putText(tile, labels[k], (8, 22), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (255, 255, 255), 1, cv2.LINE_AA)
+            cv2.putText(
+                tile, labels[k], (8, 22), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (255, 255, 255), 1, cv2.LINE_AA
+            )
         tiles.append(tile)
     tile_h = max(t.shape[0] for t in tiles)
     rows = []
@@ -122,7 +126,9 @@ def height_map_image(
         zmax = max(float(top[seen].max()) if seen.any() else 1.0, 1.0)
         shade = (200 - 170 * np.clip(top[seen] / zmax, 0, 1)).astype(np.uint8)
         flat = img.reshape(-1, 3)
-        flat[seen] = np.stack([shade, shade, np.minimum(shade.astype(np.int32) + 25, 255).astype(np.uint8)], axis=1)
+        flat[seen] = np.stack(
+            [shade, shade, np.minimum(shade.astype(np.int32) + 25, 255).astype(np.uint8)], axis=1
+        )
     for k, path in enumerate(paths):
         path = np.asarray(path, dtype=np.float64)
         if len(path) == 0:

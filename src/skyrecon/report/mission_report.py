@@ -49,7 +49,9 @@ img { max-width: 100%; border: 1px solid #ddd; } .legend span { display: inline-
 
 def png_data_uri(image: np.ndarray) -> str:
     """``data:image/png;base64,...`` of an (H, W) or (H, W, 3) uint8 RGB image."""
-    return "data:image/png;base64," + base64.b64encode(encode_png(np.ascontiguousarray(image))).decode("ascii")
+    return "data:image/png;base64," + base64.b64encode(encode_png(np.ascontiguousarray(image))).decode(
+        "ascii"
+    )
 
 
 def _img(image: np.ndarray, alt: str) -> str:
@@ -154,7 +156,11 @@ def series_plot(
     left, right, top, bottom = 56, 12, 40, 28
     x = np.asarray(x, dtype=np.float64)
     vals = [np.asarray(s[1], dtype=np.float64) for s in series]
-    finite = np.concatenate([v[np.isfinite(v)] for v in vals] + [np.array([h[1] for h in hlines])]) if vals else np.zeros(1)
+    finite = (
+        np.concatenate([v[np.isfinite(v)] for v in vals] + [np.array([h[1] for h in hlines])])
+        if vals
+        else np.zeros(1)
+    )
     hi = float(y_max if y_max is not None else (np.percentile(finite, 99.5) * 1.1 if finite.size else 1.0))
     hi = max(hi, 1e-6)
     x_lo, x_hi = (float(x.min()), float(x.max())) if len(x) else (0.0, 1.0)
@@ -169,15 +175,34 @@ def series_plot(
     cv2.rectangle(img, (left, top), (W - right, H - bottom), (200, 200, 200), 1)
     for frac in (0.0, 0.5, 1.0):
         yv = hi * frac
-        cv2.putText(img, f"{yv:.3g}", (4, int(v(yv)) + 4), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (90, 90, 90), 1, cv2.LINE_AA)
+        cv2.putText(
+            img, f"{yv:.3g}", (4, int(v(yv)) + 4), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (90, 90, 90), 1, cv2.LINE_AA
+        )
     cv2.putText(img, y_label, (left, 15), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (40, 40, 40), 1, cv2.LINE_AA)
     for frac in (0.0, 0.25, 0.5, 0.75, 1.0):
         xv = x_lo + frac * (x_hi - x_lo)
-        cv2.putText(img, f"{xv:.0f}", (int(u(xv)) - 8, H - 10), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (90, 90, 90), 1, cv2.LINE_AA)
+        cv2.putText(
+            img,
+            f"{xv:.0f}",
+            (int(u(xv)) - 8, H - 10),
+            cv2.FONT_HERSHEY_SIMPLEX,
+            0.4,
+            (90, 90, 90),
+            1,
+            cv2.LINE_AA,
+        )
     for label, yv, color in hlines:
         cv2.line(img, (left, int(v(yv))), (W - right, int(v(yv))), color, 1, cv2.LINE_AA)
-        cv2.putText(img, label, (W - right - 8 * len(label) - 4, int(v(yv)) - 4), cv2.FONT_HERSHEY_SIMPLEX, 0.4,
-                    color, 1, cv2.LINE_AA)
+        cv2.putText(
+            img,
+            label,
+            (W - right - 8 * len(label) - 4, int(v(yv)) - 4),
+            cv2.FONT_HERSHEY_SIMPLEX,
+            0.4,
+            color,
+            1,
+            cv2.LINE_AA,
+        )
     lx = left
     for (label, _, color), val in zip(series, vals):
         ok = np.isfinite(val)
@@ -204,20 +229,28 @@ def _fmt(v) -> str:
 
 
 def _table(rows: Sequence[tuple[str, object, str]]) -> str:
-    body = "".join(f"<tr><th>{html.escape(k)}</th><td class='num'>{_fmt(v)}</td><td><small>{html.escape(note)}</small></td></tr>"
-                   for k, v, note in rows)
+    body = "".join(
+        f"<tr><th>{html.escape(k)}</th><td class='num'>{_fmt(v)}</td><td><small>{html.escape(note)}</small></td></tr>"
+        for k, v, note in rows
+    )
     return f"<table>{body}</table>"
 
 
 def _page(title: str, body: str) -> str:
-    return (f"<!DOCTYPE html>\n<html lang='en'><head><meta charset='utf-8'><title>{html.escape(title)}</title>"
-            f"<meta name='viewport' content='width=device-width, initial-scale=1'><style>{_CSS}</style></head>"
-            f"<body>{body}</body></html>\n")
+    return (
+        f"<!DOCTYPE html>\n<html lang='en'><head><meta charset='utf-8'><title>{html.escape(title)}</title>"
+        f"<meta name='viewport' content='width=device-width, initial-scale=1'><style>{_CSS}</style></head>"
+        f"<body>{body}</body></html>\n"
+    )
 
 
 def _legend() -> str:
-    items = [(RED, "flown track"), (BLUE, "planned paths (each replan)"), (GREEN, "shortest feasible path (true city)"),
-             (ORANGE, "drone's map: occupied voxels")]
+    items = [
+        (RED, "flown track"),
+        (BLUE, "planned paths (each replan)"),
+        (GREEN, "shortest feasible path (true city)"),
+        (ORANGE, "drone's map: occupied voxels"),
+    ]
     spans = "".join(f"<span><i class='sw' style='background: rgb{c}'></i>{t}</span>" for c, t in items)
     return f"<p class='legend'>{spans}<span>○ start</span><span>✕ goal</span></p>"
 
@@ -232,12 +265,21 @@ def _timing_table(stage_ms: dict, loop_stages: Sequence[str]) -> str:
         med = st["median"] or 0.0
         width = int(240 * med / worst)
         cls = "bar render" if name == "render" else "bar"
-        note = "simulator (not part of the loop)" if name == "render" else ("stereo + map + planning + control" if name == "loop" else "")
-        rows.append(f"<tr><th>{name}</th><td class='num'>{_fmt(st['median'])}</td><td class='num'>{_fmt(st['p95'])}</td>"
-                    f"<td class='num'>{_fmt(st['mean'])}</td><td><span class='{cls}' style='width:{width}px'></span> "
-                    f"<small>{note}</small></td></tr>")
-    return ("<table><tr><th>stage</th><th>median ms</th><th>p95 ms</th><th>mean ms</th><th></th></tr>"
-            + "".join(rows) + "</table>")
+        note = (
+            "simulator (not part of the loop)"
+            if name == "render"
+            else ("stereo + map + planning + control" if name == "loop" else "")
+        )
+        rows.append(
+            f"<tr><th>{name}</th><td class='num'>{_fmt(st['median'])}</td><td class='num'>{_fmt(st['p95'])}</td>"
+            f"<td class='num'>{_fmt(st['mean'])}</td><td><span class='{cls}' style='width:{width}px'></span> "
+            f"<small>{note}</small></td></tr>"
+        )
+    return (
+        "<table><tr><th>stage</th><th>median ms</th><th>p95 ms</th><th>mean ms</th><th></th></tr>"
+        + "".join(rows)
+        + "</table>"
+    )
 
 
 def render_mission_report(result, metrics: dict, extra_notes: Sequence[str] = ()) -> str:
@@ -252,27 +294,48 @@ def render_mission_report(result, metrics: dict, extra_notes: Sequence[str] = ()
     m = metrics
     ok = m["success"]
     if ok:
-        verdict = (f"Delivered: {m['path_length_m']:.1f} m flown in {m['flight_time_s']:.1f} s, no collision, closest "
-                   f"approach {m['min_clearance_m']:.2f} m, loop {m['loop_hz']:.1f} Hz.")
+        verdict = (
+            f"Delivered: {m['path_length_m']:.1f} m flown in {m['flight_time_s']:.1f} s, no collision, closest "
+            f"approach {m['min_clearance_m']:.2f} m, loop {m['loop_hz']:.1f} Hz."
+        )
     else:
         verdict = f"Mission failed ({html.escape(m['reason'])}): {html.escape(m['message'])}"
     box = sc.box
     extent = (box.origin[0], box.origin[1], box.upper[0], box.upper[1])
     flown = result.flown_path()
-    over = overview_image(sc.city, extent, result.occ_map.occupied_centers(), [p.waypoints for p in result.plans],
-                          sc.shortest.waypoints if sc.shortest.success else None, flown, sc.start, sc.goal)
+    over = overview_image(
+        sc.city,
+        extent,
+        result.occ_map.occupied_centers(),
+        [p.waypoints for p in result.plans],
+        sc.shortest.waypoints if sc.shortest.success else None,
+        flown,
+        sc.start,
+        sc.goal,
+    )
     recs = result.records
     t = np.array([r.time_s for r in recs])
-    loop_img = series_plot(t, [("loop (no render)", np.array([r.loop_ms for r in recs]), (70, 120, 230)),
-                               ("distance field", np.array([r.timings_ms["distance"] for r in recs]), (245, 140, 20)),
-                               ("stereo", np.array([r.timings_ms["stereo"] for r in recs]), (20, 150, 60))],
-                           "milliseconds per cycle vs. simulated time (s)", [("100 ms = 10 Hz", 100.0, (200, 40, 40))])
+    loop_img = series_plot(
+        t,
+        [
+            ("loop (no render)", np.array([r.loop_ms for r in recs]), (70, 120, 230)),
+            ("distance field", np.array([r.timings_ms["distance"] for r in recs]), (245, 140, 20)),
+            ("stereo", np.array([r.timings_ms["stereo"] for r in recs]), (20, 150, 60)),
+        ],
+        "milliseconds per cycle vs. simulated time (s)",
+        [("100 ms = 10 Hz", 100.0, (200, 40, 40))],
+    )
     clr = np.array([r.clearance_m for r in recs])
-    clr_img = series_plot(t, [("true clearance (m)", np.minimum(clr, 15.0), (70, 120, 230)),
-                              ("speed (m/s)", np.array([r.speed_mps for r in recs]), (20, 150, 60))],
-                          "clearance to the true geometry and speed vs. simulated time (s)",
-                          [(f"safety margin {cfg.safety_margin_m:g} m", cfg.safety_margin_m, (200, 40, 40))],
-                          y_max=max(10.0, cfg.cruise_speed_mps * 1.2))
+    clr_img = series_plot(
+        t,
+        [
+            ("true clearance (m)", np.minimum(clr, 15.0), (70, 120, 230)),
+            ("speed (m/s)", np.array([r.speed_mps for r in recs]), (20, 150, 60)),
+        ],
+        "clearance to the true geometry and speed vs. simulated time (s)",
+        [(f"safety margin {cfg.safety_margin_m:g} m", cfg.safety_margin_m, (200, 40, 40))],
+        y_max=max(10.0, cfg.cruise_speed_mps * 1.2),
+    )
     frames, labels = [], []
     for f in result.frames:
         finite = f.disparity[np.isfinite(f.disparity)]
@@ -300,24 +363,33 @@ def render_mission_report(result, metrics: dict, extra_notes: Sequence[str] = ()
     ]
     if not ok:
         rows.insert(1, ("reason", m["reason"], m["message"]))
-    settings = (f"{cfg.width}x{cfg.height} stereo, {cfg.hfov_deg:g}° hfov, baseline {cfg.baseline_m:g} m, "
-                f"{cfg.matcher} (max disparity {cfg.max_disparity}); voxels {cfg.voxel_size_m:g} m, depth range "
-                f"{cfg.max_range_m:g} m; clearance {cfg.clearance_m:g} m; altitude {cfg.min_altitude_m:g}–"
-                f"{cfg.max_altitude_m:g} m; cruise {cfg.cruise_speed_mps:g} m/s, {cfg.max_accel_mps2:g} m/s², "
-                f"{cfg.max_yaw_rate_deg_s:g}°/s; drone radius {cfg.drone_radius_m:g} m")
+    settings = (
+        f"{cfg.width}x{cfg.height} stereo, {cfg.hfov_deg:g}° hfov, baseline {cfg.baseline_m:g} m, "
+        f"{cfg.matcher} (max disparity {cfg.max_disparity}); voxels {cfg.voxel_size_m:g} m, depth range "
+        f"{cfg.max_range_m:g} m; clearance {cfg.clearance_m:g} m; altitude {cfg.min_altitude_m:g}–"
+        f"{cfg.max_altitude_m:g} m; cruise {cfg.cruise_speed_mps:g} m/s, {cfg.max_accel_mps2:g} m/s², "
+        f"{cfg.max_yaw_rate_deg_s:g}°/s; drone radius {cfg.drone_radius_m:g} m"
+    )
     notes = "".join(f"<p><small>{html.escape(n)}</small></p>" for n in extra_notes)
     body = [
         f"<h1>Delivery mission, seed {sc.seed}</h1>",
         f"<p>From {_xyz(sc.start)} to {_xyz(sc.goal)} ({sc.straight_line_m:.0f} m apart, buildings in between) through "
         f"a city the drone has never seen: it maps with its stereo camera as it flies.</p>",
-        f"<div class='verdict {'ok' if ok else 'bad'}'>{verdict}</div>", notes,
-        "<h2>Where it flew</h2>", _legend(), _img(over, "plan view of the mission"),
-        "<h2>Metrics</h2>", _table(rows),
-        "<h2>Time per stage</h2>", _timing_table(m["stage_ms"], m["loop_stages"]),
-        _img(loop_img, "loop time per cycle"), _img(clr_img, "clearance and speed"),
+        f"<div class='verdict {'ok' if ok else 'bad'}'>{verdict}</div>",
+        notes,
+        "<h2>Where it flew</h2>",
+        _legend(),
+        _img(over, "plan view of the mission"),
+        "<h2>Metrics</h2>",
+        _table(rows),
+        "<h2>Time per stage</h2>",
+        _timing_table(m["stage_ms"], m["loop_stages"]),
+        _img(loop_img, "loop time per cycle"),
+        _img(clr_img, "clearance and speed"),
         "<h2>What the camera saw</h2>",
         _img(sheet, "camera frames and disparity") if sheet is not None else "<p>No frames.</p>",
-        "<h2>Settings</h2>", f"<p><small>{html.escape(settings)}</small></p>",
+        "<h2>Settings</h2>",
+        f"<p><small>{html.escape(settings)}</small></p>",
     ]
     return _page(f"skyrecon mission {sc.seed}", "".join(body))
 
@@ -335,31 +407,49 @@ def render_refused_report(message: str, code: str, seed: int, cfg, city=None, st
         city: the city (to show where the endpoints lie), if it could be generated.
         start, goal: the endpoints asked for ((3,) world metres) or None.
     """
-    body = [f"<h1>Delivery mission, seed {seed}: not flown</h1>",
-            f"<div class='verdict bad'>This mission is impossible: {html.escape(message)}</div>",
-            f"<p><small>reason code: <code>{html.escape(code)}</code></small></p>"]
+    body = [
+        f"<h1>Delivery mission, seed {seed}: not flown</h1>",
+        f"<div class='verdict bad'>This mission is impossible: {html.escape(message)}</div>",
+        f"<p><small>reason code: <code>{html.escape(code)}</code></small></p>",
+    ]
     if city is not None:
         x0, y0, x1, y1 = city.extent
         pad = 10.0
-        img = overview_image(city, (x0 - pad, y0 - pad, x1 + pad, y1 + pad),
-                             start=None if start is None else np.asarray(start, dtype=float),
-                             goal=None if goal is None else np.asarray(goal, dtype=float))
-        body += ["<h2>The city</h2>", "<p class='legend'><span>○ start</span><span>✕ goal</span></p>",
-                 _img(img, "plan view of the city")]
-    body += ["<h2>What to do</h2>",
-             "<p>Pick a start and a goal in open air over the streets, inside the flight band "
-             f"({cfg.min_altitude_m:g}–{cfg.max_altitude_m:g} m) and at least "
-             f"{cfg.clearance_m + cfg.planning_margin_m:.1f} m from every building, e.g. "
-             "<code>skyrecon demo --start X Y Z --goal X Y Z --out DIR</code>, or leave them out and let the seed pick.</p>"]
+        img = overview_image(
+            city,
+            (x0 - pad, y0 - pad, x1 + pad, y1 + pad),
+            start=None if start is None else np.asarray(start, dtype=float),
+            goal=None if goal is None else np.asarray(goal, dtype=float),
+        )
+        body += [
+            "<h2>The city</h2>",
+            "<p class='legend'><span>○ start</span><span>✕ goal</span></p>",
+            _img(img, "plan view of the city"),
+        ]
+    body += [
+        "<h2>What to do</h2>",
+        "<p>Pick a start and a goal in open air over the streets, inside the flight band "
+        f"({cfg.min_altitude_m:g}–{cfg.max_altitude_m:g} m) and at least "
+        f"{cfg.clearance_m + cfg.planning_margin_m:.1f} m from every building, e.g. "
+        "<code>skyrecon demo --start X Y Z --goal X Y Z --out DIR</code>, or leave them out and let the seed pick.</p>",
+    ]
     return _page(f"skyrecon mission {seed} (not flown)", "".join(body))
 
 
 def render_summary_report(rows: Sequence[dict], title: str = "Delivery missions") -> str:
     """An HTML table of many missions: one row per mission (its metrics dict plus ``folder``)."""
-    cols = [("seed", "seed"), ("success", "success"), ("reason", "reason"), ("collisions", "collisions"),
-            ("min_clearance_m", "min clearance m"), ("path_length_m", "flown m"),
-            ("shortest_feasible_m", "shortest m"), ("length_ratio", "ratio"), ("replans", "replans"),
-            ("loop_hz", "loop Hz")]
+    cols = [
+        ("seed", "seed"),
+        ("success", "success"),
+        ("reason", "reason"),
+        ("collisions", "collisions"),
+        ("min_clearance_m", "min clearance m"),
+        ("path_length_m", "flown m"),
+        ("shortest_feasible_m", "shortest m"),
+        ("length_ratio", "ratio"),
+        ("replans", "replans"),
+        ("loop_hz", "loop Hz"),
+    ]
     head = "".join(f"<th>{h}</th>" for _, h in cols) + "<th>report</th>"
     body = []
     for r in rows:
@@ -372,10 +462,17 @@ def render_summary_report(rows: Sequence[dict], title: str = "Delivery missions"
     hz = [r["loop_hz"] for r in rows if r.get("loop_hz")]
     ratios = [r["length_ratio"] for r in rows if r.get("length_ratio")]
     clr = [r["min_clearance_m"] for r in rows if r.get("min_clearance_m") is not None]
-    summary = (f"{ok} of {n} delivered, {coll} collisions; min clearance {min(clr):.2f} m; " if clr else f"{ok} of {n} delivered; ")
+    summary = (
+        f"{ok} of {n} delivered, {coll} collisions; min clearance {min(clr):.2f} m; "
+        if clr
+        else f"{ok} of {n} delivered; "
+    )
     if ratios:
         summary += f"length ratio median {np.median(ratios):.3f}, worst {max(ratios):.3f}; "
     if hz:
         summary += f"loop rate median {np.median(hz):.1f} Hz, slowest {min(hz):.1f} Hz"
-    return _page(title, f"<h1>{html.escape(title)}</h1><div class='verdict {'ok' if ok == n else 'bad'}'>"
-                 f"{html.escape(summary)}</div><table><tr>{head}</tr>{''.join(body)}</table>")
+    return _page(
+        title,
+        f"<h1>{html.escape(title)}</h1><div class='verdict {'ok' if ok == n else 'bad'}'>"
+        f"{html.escape(summary)}</div><table><tr>{head}</tr>{''.join(body)}</table>",
+    )

@@ -324,11 +324,15 @@ def schur_complement(
             if obs_pose[o] >= 0:
                 for a in range(6):
                     for b in range(3):
-                        Tp[ia, a, b] = Wp[o, a, 0] * Vi[0, b] + Wp[o, a, 1] * Vi[1, b] + Wp[o, a, 2] * Vi[2, b]
+                        Tp[ia, a, b] = (
+                            Wp[o, a, 0] * Vi[0, b] + Wp[o, a, 1] * Vi[1, b] + Wp[o, a, 2] * Vi[2, b]
+                        )
             if obs_intr[o] >= 0:
                 for a in range(3):
                     for b in range(3):
-                        Ti[ia, a, b] = Wi[o, a, 0] * Vi[0, b] + Wi[o, a, 1] * Vi[1, b] + Wi[o, a, 2] * Vi[2, b]
+                        Ti[ia, a, b] = (
+                            Wi[o, a, 0] * Vi[0, b] + Wi[o, a, 1] * Vi[1, b] + Wi[o, a, 2] * Vi[2, b]
+                        )
         for ia in range(L):
             oa = pt_obs[start + ia]
             ka = obs_pose[oa]
@@ -342,7 +346,9 @@ def schur_complement(
             if ga >= 0:
                 bia = intr_base + 3 * ga
                 for a in range(3):
-                    rhs[bia + a] -= Ti[ia, a, 0] * gx[q, 0] + Ti[ia, a, 1] * gx[q, 1] + Ti[ia, a, 2] * gx[q, 2]
+                    rhs[bia + a] -= (
+                        Ti[ia, a, 0] * gx[q, 0] + Ti[ia, a, 1] * gx[q, 1] + Ti[ia, a, 2] * gx[q, 2]
+                    )
             for ib in range(L):
                 ob = pt_obs[start + ib]
                 kb = obs_pose[ob]
@@ -364,7 +370,11 @@ def schur_complement(
                     bib = intr_base + 3 * gb
                     for a in range(6):
                         for c in range(3):
-                            v = Tp[ia, a, 0] * Wi[ob, c, 0] + Tp[ia, a, 1] * Wi[ob, c, 1] + Tp[ia, a, 2] * Wi[ob, c, 2]
+                            v = (
+                                Tp[ia, a, 0] * Wi[ob, c, 0]
+                                + Tp[ia, a, 1] * Wi[ob, c, 1]
+                                + Tp[ia, a, 2] * Wi[ob, c, 2]
+                            )
                             S[ba + a, bib + c] -= v
                             S[bib + c, ba + a] -= v
                 if ga >= 0 and gb >= 0:
@@ -372,7 +382,11 @@ def schur_complement(
                     bib = intr_base + 3 * gb
                     for a in range(3):
                         for c in range(3):
-                            S[bia + a, bib + c] -= Ti[ia, a, 0] * Wi[ob, c, 0] + Ti[ia, a, 1] * Wi[ob, c, 1] + Ti[ia, a, 2] * Wi[ob, c, 2]
+                            S[bia + a, bib + c] -= (
+                                Ti[ia, a, 0] * Wi[ob, c, 0]
+                                + Ti[ia, a, 1] * Wi[ob, c, 1]
+                                + Ti[ia, a, 2] * Wi[ob, c, 2]
+                            )
     return ok
 
 

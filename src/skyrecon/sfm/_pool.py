@@ -77,7 +77,7 @@ class PersistentProcessExecutor:
             self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = None
 
-    def __enter__(self) -> "PersistentProcessExecutor":
+    def __enter__(self) -> PersistentProcessExecutor:
         return self
 
     def __exit__(self, *exc: object) -> None:

@@ -69,7 +69,7 @@ def limited_threads(n: int = 1) -> Iterator[None]:
         yield
     finally:
         cv2.setNumThreads(cv_before)
-        for (g, s), b in zip(libs, before):
+        for (_, s), b in zip(libs, before):
             if b is not None:
                 try:
                     s(b)

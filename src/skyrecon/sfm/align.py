@@ -21,7 +21,13 @@ from skyrecon.core.rigid import Rigid3, orthonormalize, rotvec_to_matrix
 from skyrecon.errors import EstimationError, InputError
 
 __all__ = [
-    "Sim3", "AlignmentResult", "umeyama", "robust_umeyama", "align_reconstruction", "ICPResult", "icp",
+    "Sim3",
+    "AlignmentResult",
+    "umeyama",
+    "robust_umeyama",
+    "align_reconstruction",
+    "ICPResult",
+    "icp",
     "estimate_normals",
 ]
 
@@ -46,7 +52,7 @@ class Sim3:
             raise InputError(f"a similarity needs a positive scale, got {self.scale}")
 
     @classmethod
-    def from_rigid(cls, T: Rigid3) -> "Sim3":
+    def from_rigid(cls, T: Rigid3) -> Sim3:
         return cls(T.R, T.t, 1.0)
 
     @property
@@ -67,12 +73,12 @@ class Sim3:
         p = np.asarray(points, np.float64)
         return self.scale * p @ self.R.T + self.t
 
-    def inverse(self) -> "Sim3":
+    def inverse(self) -> Sim3:
         """``src_from_dst``."""
         Ri = self.R.T
         return Sim3(Ri, -(Ri @ self.t) / self.scale, 1.0 / self.scale)
 
-    def __matmul__(self, other: "Sim3") -> "Sim3":
+    def __matmul__(self, other: Sim3) -> Sim3:
         """``c_from_b @ b_from_a -> c_from_a``."""
         return Sim3(self.R @ other.R, self.scale * self.R @ other.t + self.t, self.scale * other.scale)
 
@@ -86,8 +92,14 @@ class Sim3:
         """A copy of ``rec`` with poses and points in the destination frame (intrinsics,
         keypoints and tracks unchanged)."""
         images = {
-            k: Image(im.image_id, im.name, im.camera_id, self.transform_pose(im.cam_from_world), im.keypoints.copy(),
-                     im.point3d_ids.copy())
+            k: Image(
+                im.image_id,
+                im.name,
+                im.camera_id,
+                self.transform_pose(im.cam_from_world),
+                im.keypoints.copy(),
+                im.point3d_ids.copy(),
+            )
             for k, im in rec.images.items()
         }
         points = {
@@ -122,7 +134,9 @@ def _check_pairs(src: np.ndarray, dst: np.ndarray, min_points: int) -> tuple[np.
     src = np.asarray(src, np.float64)
     dst = np.asarray(dst, np.float64)
     if src.ndim != 2 or src.shape[1] != 3 or src.shape != dst.shape:
-        raise InputError(f"alignment needs two (N, 3) arrays of the same shape, got {src.shape} and {dst.shape}")
+        raise InputError(
+            f"alignment needs two (N, 3) arrays of the same shape, got {src.shape} and {dst.shape}"
+        )
     if len(src) < min_points:
         raise InputError(f"alignment needs at least {min_points} point pairs, got {len(src)}")
     if not (np.all(np.isfinite(src)) and np.all(np.isfinite(dst))):
@@ -149,7 +163,9 @@ def _umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool, w: np.ndarray |
     if var_s <= 1e-300:
         raise EstimationError("the source points all coincide: no alignment")
     if S[1] <= 1e-12 * max(S[0], 1e-300):
-        raise EstimationError("the points are (nearly) collinear: the rotation about their line is undetermined")
+        raise EstimationError(
+            "the points are (nearly) collinear: the rotation about their line is undetermined"
+        )
     s = float(np.sum(S * d) / var_s) if with_scale else 1.0
     if not s > 0:
         raise EstimationError("the alignment gives a non-positive scale (the point sets do not correspond)")
@@ -157,7 +173,9 @@ def _umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool, w: np.ndarray |
     return Sim3(R, t, s)
 
 
-def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = True, weights: np.ndarray | None = None) -> AlignmentResult:
+def umeyama(
+    src: np.ndarray, dst: np.ndarray, with_scale: bool = True, weights: np.ndarray | None = None
+) -> AlignmentResult:
     """Least-squares similarity (or rigid) transform mapping ``src`` onto ``dst`` (Umeyama 1991).
 
     Minimises ``sum w_i |dst_i - (s R src_i + t)|^2`` in closed form (SVD of the cross-covariance,
@@ -218,7 +236,9 @@ def robust_umeyama(
         if cost < best_cost:
             best_cost, best = cost, r < threshold
     if best.sum() < 3:
-        raise EstimationError(f"fewer than 3 of {n} correspondences agree on one alignment within {threshold:g}")
+        raise EstimationError(
+            f"fewer than 3 of {n} correspondences agree on one alignment within {threshold:g}"
+        )
     inl = best
     for _ in range(10):
         T = _umeyama(src[inl], dst[inl], with_scale, None)
@@ -250,7 +270,9 @@ def align_reconstruction(
     Raises:
         InputError: fewer than 3 registered images with known positions.
     """
-    names = [im.name for im in sorted(rec.images.values(), key=lambda im: im.image_id) if im.name in positions]
+    names = [
+        im.name for im in sorted(rec.images.values(), key=lambda im: im.image_id) if im.name in positions
+    ]
     if len(names) < 3:
         raise InputError(
             f"only {len(names)} registered images have known positions; at least 3 are needed to align"
@@ -376,7 +398,9 @@ def icp(
     normals = None
     if point_to_plane:
         tn = target.normals if isinstance(target, PointCloud) else None
-        normals = np.asarray(tn, np.float64) if tn is not None else estimate_normals(tgt, normal_neighbors, tree)
+        normals = (
+            np.asarray(tn, np.float64) if tn is not None else estimate_normals(tgt, normal_neighbors, tree)
+        )
     T = Sim3() if init is None else (Sim3.from_rigid(init) if isinstance(init, Rigid3) else init)
     size = float(np.linalg.norm(np.ptp(tgt, axis=0))) or 1.0
     kind = loss if robust else "none"
@@ -386,7 +410,7 @@ def icp(
     n_corr = 0
     fitness = 0.0
     rmse = float("nan")
-    for it in range(1, max_iterations + 1):
+    for it in range(1, max_iterations + 1):  # noqa: B007  (the count is returned)
         p = T.apply(src)
         d, j = tree.query(p, k=1, distance_upper_bound=np.inf if max_distance is None else max_distance)
         ok = np.isfinite(d)
@@ -411,7 +435,9 @@ def icp(
             try:
                 x = -np.linalg.solve(H + 1e-12 * np.eye(6) * np.trace(H), g)
             except np.linalg.LinAlgError:
-                raise EstimationError("ICP: the point-to-plane system is singular (a plane or a line)") from None
+                raise EstimationError(
+                    "ICP: the point-to-plane system is singular (a plane or a line)"
+                ) from None
             dR = rotvec_to_matrix(x[:3])
             step = Sim3(dR, x[3:], 1.0)
         else:

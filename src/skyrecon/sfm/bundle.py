@@ -128,7 +128,9 @@ class BundleProblem:
         self.obs_uv = np.ascontiguousarray(self.obs_uv, dtype=np.float64).reshape(n_obs, 2)
         n_pt, n_cam = len(self.points), len(self.cameras)
         self.obs_sigma = (
-            np.ones(n_obs) if self.obs_sigma is None else np.ascontiguousarray(self.obs_sigma, np.float64).reshape(n_obs)
+            np.ones(n_obs)
+            if self.obs_sigma is None
+            else np.ascontiguousarray(self.obs_sigma, np.float64).reshape(n_obs)
         )
         self.constant_images = _mask(self.constant_images, n_img)
         self.constant_points = _mask(self.constant_points, n_pt)
@@ -246,8 +248,19 @@ def _structure(p: BundleProblem, o: BundleOptions) -> _Structure:
     counts = np.bincount(q[sel], minlength=len(var_points))
     pt_ptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
     return _Structure(
-        pose_images, pose_free, intr_cameras, intr_free, intr_base, n_red, pose_block[p.obs_image],
-        intr_block[p.camera_of_image[p.obs_image]], pt_var, var_points, pt_ptr, order.astype(np.int64), fixed_cols,
+        pose_images,
+        pose_free,
+        intr_cameras,
+        intr_free,
+        intr_base,
+        n_red,
+        pose_block[p.obs_image],
+        intr_block[p.camera_of_image[p.obs_image]],
+        pt_var,
+        var_points,
+        pt_ptr,
+        order.astype(np.int64),
+        fixed_cols,
     )
 
 
@@ -260,9 +273,28 @@ class _Buffers:
         self.w = np.zeros(n_obs)
 
 
-def _evaluate(p: BundleProblem, R, t, X, cams, inv_sigma, loss: int, c2: float, buf: _Buffers, jac: bool) -> float:
-    return K.evaluate(R, t, X, cams, p.camera_of_image, p.obs_image, p.obs_point, p.obs_uv, inv_sigma, loss, c2,
-                      jac, buf.res, buf.Jp, buf.Ji, buf.Jx, buf.w)
+def _evaluate(
+    p: BundleProblem, R, t, X, cams, inv_sigma, loss: int, c2: float, buf: _Buffers, jac: bool
+) -> float:
+    return K.evaluate(
+        R,
+        t,
+        X,
+        cams,
+        p.camera_of_image,
+        p.obs_image,
+        p.obs_point,
+        p.obs_uv,
+        inv_sigma,
+        loss,
+        c2,
+        jac,
+        buf.res,
+        buf.Jp,
+        buf.Ji,
+        buf.Jx,
+        buf.w,
+    )
 
 
 def _errors_px(p: BundleProblem, buf: _Buffers) -> np.ndarray:
@@ -347,8 +379,21 @@ def bundle_adjust(problem: BundleProblem, options: BundleOptions = BundleOptions
     buf = _Buffers(n_obs)
     cost = _evaluate(p, p.R, p.t, p.points, p.cameras, inv_sigma, loss, c2, buf, True)
     e0 = _errors_px(p, buf)
-    report = BundleReport(cost, cost, _rms(e0), _rms(e0), 0, 0, "nothing to adjust", n_obs, len(s.pose_images), nq,
-                          s.n_red, "dense" if s.n_red <= o.max_dense_columns else "pcg", e0)
+    report = BundleReport(
+        cost,
+        cost,
+        _rms(e0),
+        _rms(e0),
+        0,
+        0,
+        "nothing to adjust",
+        n_obs,
+        len(s.pose_images),
+        nq,
+        s.n_red,
+        "dense" if s.n_red <= o.max_dense_columns else "pcg",
+        e0,
+    )
     if n_obs == 0 or (s.n_red == 0 and nq == 0):
         report.seconds = time.perf_counter() - t_start
         return report
@@ -367,8 +412,26 @@ def bundle_adjust(problem: BundleProblem, options: BundleOptions = BundleOptions
         gx = np.zeros((nq, 3))
         Wp = np.zeros((n_obs, 6, 3))
         Wi = np.zeros((n_obs, 3, 3)) if s.has_intrinsics else np.zeros((1, 3, 3))
-        K.build_normal_equations(buf.res, buf.Jp, buf.Ji, buf.Jx, buf.w, p.obs_point, s.obs_pose, s.obs_intr,
-                                 s.intr_base, s.pt_var, pose_free, intr_free, U, gc, V, gx, Wp, Wi)
+        K.build_normal_equations(
+            buf.res,
+            buf.Jp,
+            buf.Ji,
+            buf.Jx,
+            buf.w,
+            p.obs_point,
+            s.obs_pose,
+            s.obs_intr,
+            s.intr_base,
+            s.pt_var,
+            pose_free,
+            intr_free,
+            U,
+            gc,
+            V,
+            gx,
+            Wp,
+            Wi,
+        )
         gmax = max(float(np.abs(gc).max()) if s.n_red else 0.0, float(np.abs(gx).max()) if nq else 0.0)
         if gmax < o.gradient_tolerance:
             termination = "gradient tolerance"
@@ -383,8 +446,9 @@ def bundle_adjust(problem: BundleProblem, options: BundleOptions = BundleOptions
             S[np.diag_indices_from(S)] += lam * diagU + 1e-12
             rhs = gc.copy()
             Vinv = np.zeros((nq, 3, 3))
-            K.schur_complement(V, gx, Wp, Wi, lam, s.pt_ptr, s.pt_obs, s.obs_pose, s.obs_intr, s.intr_base,
-                               S, rhs, Vinv)
+            K.schur_complement(
+                V, gx, Wp, Wi, lam, s.pt_ptr, s.pt_obs, s.obs_pose, s.obs_intr, s.intr_base, S, rhs, Vinv
+            )
             if len(s.fixed_cols):
                 S[s.fixed_cols, :] = 0.0
                 S[:, s.fixed_cols] = 0.0
@@ -399,7 +463,7 @@ def bundle_adjust(problem: BundleProblem, options: BundleOptions = BundleOptions
                         dc = -scipy.linalg.cho_solve(cf, rhs, check_finite=False)
                     else:
                         dinv = 1.0 / np.maximum(np.diag(S), 1e-300)
-                        dc = -_pcg(lambda v: S @ v, rhs, dinv)
+                        dc = -_pcg(S.__matmul__, rhs, dinv)
                     solved = bool(np.all(np.isfinite(dc)))
                 except (np.linalg.LinAlgError, ValueError):
                     solved = False
@@ -412,10 +476,14 @@ def bundle_adjust(problem: BundleProblem, options: BundleOptions = BundleOptions
                 continue
             dx = np.zeros((nq, 3))
             if nq:
-                K.back_substitute(dc, gx, Wp, Wi, Vinv, s.pt_ptr, s.pt_obs, s.obs_pose, s.obs_intr, s.intr_base, dx)
+                K.back_substitute(
+                    dc, gx, Wp, Wi, Vinv, s.pt_ptr, s.pt_obs, s.obs_pose, s.obs_intr, s.intr_base, dx
+                )
             Rn, tn, Xn, cn = _apply_step(p, s, dc, dx)
             new_cost = _evaluate(p, Rn, tn, Xn, cn, inv_sigma, loss, c2, new, True)
-            dDd = float(dc @ (diagU * dc)) + (float(np.einsum("qa,qa,qa->", dx, np.diagonal(V, axis1=1, axis2=2), dx)) if nq else 0.0)
+            dDd = float(dc @ (diagU * dc)) + (
+                float(np.einsum("qa,qa,qa->", dx, np.diagonal(V, axis1=1, axis2=2), dx)) if nq else 0.0
+            )
             g_d = float(gc @ dc) + (float(np.sum(gx * dx)) if nq else 0.0)
             pred = -0.5 * g_d + 0.5 * lam * dDd
             if np.isfinite(new_cost) and new_cost < cost:
@@ -425,7 +493,9 @@ def bundle_adjust(problem: BundleProblem, options: BundleOptions = BundleOptions
                 nu = 2.0
                 old_cost = cost
                 step_norm = math.sqrt(float(dc @ dc) + float(np.sum(dx * dx)))
-                x_norm = math.sqrt(float(np.sum(p.t[s.pose_images] ** 2)) + float(np.sum(p.points[s.var_points] ** 2)))
+                x_norm = math.sqrt(
+                    float(np.sum(p.t[s.pose_images] ** 2)) + float(np.sum(p.points[s.var_points] ** 2))
+                )
                 p.R[:], p.t[:], p.points[:], p.cameras[:] = Rn, tn, Xn, cn
                 cost = new_cost
                 buf, new = new, buf

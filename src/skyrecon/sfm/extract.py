@@ -72,7 +72,9 @@ class ExtractedImage:
 
 def feature_cache_key(file_hash: str, settings: FeatureSettings, target_features: int = 0) -> str:
     """Cache key of an image's features: file content + feature settings + format version."""
-    return hashlib.sha1(f"{_CACHE_VERSION}|{file_hash}|{settings!r}|{target_features}".encode()).hexdigest()[:20]
+    return hashlib.sha1(f"{_CACHE_VERSION}|{file_hash}|{settings!r}|{target_features}".encode()).hexdigest()[
+        :20
+    ]
 
 
 def detect_adaptive(image: np.ndarray, settings: FeatureSettings, target: int):
@@ -113,8 +115,20 @@ def _extract_one(task: ExtractTask) -> ExtractedImage:
     try:
         data = path.read_bytes()
     except OSError as exc:
-        return ExtractedImage(task.index, task.name, task.path, False, f"cannot read the file ({exc.strerror})",
-                              0, 0, 0, "", "", 1.0, False)
+        return ExtractedImage(
+            task.index,
+            task.name,
+            task.path,
+            False,
+            f"cannot read the file ({exc.strerror})",
+            0,
+            0,
+            0,
+            "",
+            "",
+            1.0,
+            False,
+        )
     file_hash = hashlib.sha1(data).hexdigest()
     key = feature_cache_key(file_hash, task.settings, task.target_features)
     cache = Path(task.cache_dir) / f"{_safe_stem(task.name)}-{key}.npz"
@@ -124,35 +138,59 @@ def _extract_one(task: ExtractTask) -> ExtractedImage:
                 w, h = (int(v) for v in z["size"])
                 n = int(len(z["scales"]))
                 scale = float(z["scale"])
-            return ExtractedImage(task.index, task.name, task.path, True, "", w, h, n, file_hash, str(cache), scale, True)
+            return ExtractedImage(
+                task.index, task.name, task.path, True, "", w, h, n, file_hash, str(cache), scale, True
+            )
         except Exception:  # a corrupt cache file: extract again
             pass
     try:
         image = read_image(path)
     except SkyreconError as exc:
-        return ExtractedImage(task.index, task.name, task.path, False, f"cannot decode the image ({exc})",
-                              0, 0, 0, file_hash, "", 1.0, False)
+        return ExtractedImage(
+            task.index,
+            task.name,
+            task.path,
+            False,
+            f"cannot decode the image ({exc})",
+            0,
+            0,
+            0,
+            file_hash,
+            "",
+            1.0,
+            False,
+        )
     h, w = image.shape[:2]
     try:
         f = detect_adaptive(image, task.settings, task.target_features)
     except SkyreconError as exc:
-        return ExtractedImage(task.index, task.name, task.path, False, str(exc), w, h, 0, file_hash, "", 1.0, False)
+        return ExtractedImage(
+            task.index, task.name, task.path, False, str(exc), w, h, 0, file_hash, "", 1.0, False
+        )
     colors = _colors_at(image, f.keypoints)
     with atomic_write(cache, "wb") as fh:
         np.savez(
-            fh, keypoints=f.keypoints.astype(np.float64), scales=f.scales.astype(np.float32),
+            fh,
+            keypoints=f.keypoints.astype(np.float64),
+            scales=f.scales.astype(np.float32),
             responses=f.responses.astype(np.float32),
             descriptors=f.descriptors.astype(np.float16 if f.descriptors.dtype != np.uint8 else np.uint8),
-            colors=colors, size=np.array([w, h]), scale=np.array(f.scale),
+            colors=colors,
+            size=np.array([w, h]),
+            scale=np.array(f.scale),
         )
-    return ExtractedImage(task.index, task.name, task.path, True, "", w, h, len(f), file_hash, str(cache), f.scale, False)
+    return ExtractedImage(
+        task.index, task.name, task.path, True, "", w, h, len(f), file_hash, str(cache), f.scale, False
+    )
 
 
 _LOADED: OrderedDict[tuple[str, tuple[str, ...]], dict[str, np.ndarray]] = OrderedDict()
 _LOADED_MAX = 32
 
 
-def load_features(cache_path: str, keys: tuple[str, ...] = ("keypoints", "scales", "colors")) -> dict[str, np.ndarray]:
+def load_features(
+    cache_path: str, keys: tuple[str, ...] = ("keypoints", "scales", "colors")
+) -> dict[str, np.ndarray]:
     """Arrays of one cached feature file (descriptors come back as float32 or uint8).
 
     A small per-process LRU cache keeps recently used files, so work items that reuse an

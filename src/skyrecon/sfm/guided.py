@@ -203,8 +203,21 @@ def guided_match(
     b12 = np.empty(len(x1n), np.int64)
     a1 = np.empty(len(x1n))
     a2 = np.empty(len(x1n))
-    _best2_in_band(x1n, d1, R, t, float(depth_range1[0]), float(depth_range1[1]), x2n, d2, float(band), float(cell),
-                   b12, a1, a2)
+    _best2_in_band(
+        x1n,
+        d1,
+        R,
+        t,
+        float(depth_range1[0]),
+        float(depth_range1[1]),
+        x2n,
+        d2,
+        float(band),
+        float(cell),
+        b12,
+        a1,
+        a2,
+    )
     i1 = np.nonzero(b12 >= 0)[0]
     with np.errstate(invalid="ignore", divide="ignore"):
         keep = ~(a1[i1] >= ratio * a2[i1])
@@ -217,8 +230,21 @@ def guided_match(
         c1 = np.empty(len(uj))
         c2 = np.empty(len(uj))
         Rt = np.ascontiguousarray(R.T)
-        _best2_in_band(np.ascontiguousarray(x2n[uj]), np.ascontiguousarray(d2[uj]), Rt, -Rt @ t,
-                       float(depth_range2[0]), float(depth_range2[1]), x1n, d1, float(band), float(cell), b21, c1, c2)
+        _best2_in_band(
+            np.ascontiguousarray(x2n[uj]),
+            np.ascontiguousarray(d2[uj]),
+            Rt,
+            -Rt @ t,
+            float(depth_range2[0]),
+            float(depth_range2[1]),
+            x1n,
+            d1,
+            float(band),
+            float(cell),
+            b21,
+            c1,
+            c2,
+        )
         ok = b21[inv] == i1
         i1, j = i1[ok], j[ok]
     else:

@@ -120,7 +120,9 @@ class IncrementalMapper:
         seed: seeds every random choice (RANSAC of the absolute poses).
     """
 
-    def __init__(self, data: MapperInput, settings: MapperSettings, bundle: BundleSettings, seed: int = 0) -> None:
+    def __init__(
+        self, data: MapperInput, settings: MapperSettings, bundle: BundleSettings, seed: int = 0
+    ) -> None:
         self.d = data
         self.s = settings
         self.b = bundle
@@ -161,17 +163,22 @@ class IncrementalMapper:
             w = np.ones(len(sizes))
         self.sigma_flat = w * self.px  # input pixels
         self.colors_flat = np.concatenate(data.colors) if n else np.zeros((0, 3), np.uint8)
-        self.radial = [
-            bool(bundle.refine_distortion and not np.any(c.dist[2:] != 0)) for c in self.cameras
-        ]
+        self.radial = [bool(bundle.refine_distortion and not np.any(c.dist[2:] != 0)) for c in self.cameras]
         if bundle.refine_distortion and not all(self.radial):
             self.warnings.append(
                 "distortion refinement skipped for cameras with tangential or k3 coefficients (only k1, k2 are refined)"
             )
         self._update_normalized()
         self.stats = {
-            "pnp_attempts": 0, "pnp_failures": 0, "local_ba": 0, "global_ba": 0, "local_ba_s": 0.0,
-            "global_ba_s": 0.0, "triangulation_s": 0.0, "pnp_s": 0.0, "filtered_observations": 0,
+            "pnp_attempts": 0,
+            "pnp_failures": 0,
+            "local_ba": 0,
+            "global_ba": 0,
+            "local_ba_s": 0.0,
+            "global_ba_s": 0.0,
+            "triangulation_s": 0.0,
+            "pnp_s": 0.0,
+            "filtered_observations": 0,
             "init_trials": 0,
         }
         self.last_global_images = 0
@@ -246,7 +253,9 @@ class IncrementalMapper:
         obs = _ranges(self.ptr, tracks)
         lens = self.ptr[tracks + 1] - self.ptr[tracks]
         seg = np.repeat(np.arange(len(tracks)), lens)
-        return np.bincount(seg, weights=self.active[obs].astype(np.float64), minlength=len(tracks)).astype(np.int64)
+        return np.bincount(seg, weights=self.active[obs].astype(np.float64), minlength=len(tracks)).astype(
+            np.int64
+        )
 
     # ------------------------------------------------------------------ triangulation
     def _triangulate(self, tracks: np.ndarray) -> int:
@@ -270,8 +279,14 @@ class IncrementalMapper:
         counts = counts[cand]
         ptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
         res = triangulate_tracks(
-            ptr, self.xn_flat[self.obs_flat[obs]], self.obs_img[obs], self.R, self.t, self.focal,
-            self.s.triangulation_max_error_px * self.px, self.s.triangulation_min_angle_deg,
+            ptr,
+            self.xn_flat[self.obs_flat[obs]],
+            self.obs_img[obs],
+            self.R,
+            self.t,
+            self.focal,
+            self.s.triangulation_max_error_px * self.px,
+            self.s.triangulation_min_angle_deg,
         )
         ok = res.ok
         self.tri_failed_at[tracks[~ok]] = counts[~ok]
@@ -302,7 +317,9 @@ class IncrementalMapper:
         return np.unique(t[t >= 0])
 
     # ------------------------------------------------------------------ adjustment
-    def _gauge(self, var_images: np.ndarray, const_images: np.ndarray, prob: BundleProblem, local_index: dict) -> None:
+    def _gauge(
+        self, var_images: np.ndarray, const_images: np.ndarray, prob: BundleProblem, local_index: dict
+    ) -> None:
         """Fix the similarity gauge of a problem (see the module docstring)."""
         assert self.ref is not None
         r0, r1 = self.ref
@@ -331,9 +348,16 @@ class IncrementalMapper:
         k = int(np.argmax(np.abs(d)))
         prob.constant_pose_coords[local_index[second], 3 + k] = True
 
-    def _adjust(self, var_images: np.ndarray, tracks: np.ndarray, max_iterations: int, refine_intrinsics: bool,
-                function_tolerance: float = 1e-6, write_back: bool = True,
-                force_focal: bool = False) -> tuple[BundleReport, BundleProblem]:
+    def _adjust(
+        self,
+        var_images: np.ndarray,
+        tracks: np.ndarray,
+        max_iterations: int,
+        refine_intrinsics: bool,
+        function_tolerance: float = 1e-6,
+        write_back: bool = True,
+        force_focal: bool = False,
+    ) -> tuple[BundleReport, BundleProblem]:
         """Bundle-adjust the poses of ``var_images`` and the points of ``tracks`` (observations in
         other registered images enter as constants). With ``write_back`` off the mapper's state
         is left as it was (a trial, e.g. the focal-length check)."""
@@ -347,13 +371,22 @@ class IncrementalMapper:
         const_images = images[~var_mask]
         cams = self._camera_rows()
         prob = BundleProblem(
-            self.R[images].copy(), self.t[images].copy(), self.X[tracks].copy(), cams, self.cam_of_img[images],
-            img_local, pt_local, self.uv_flat[self.obs_flat[obs]], self.sigma_flat[self.obs_flat[obs]],
+            self.R[images].copy(),
+            self.t[images].copy(),
+            self.X[tracks].copy(),
+            cams,
+            self.cam_of_img[images],
+            img_local,
+            pt_local,
+            self.uv_flat[self.obs_flat[obs]],
+            self.sigma_flat[self.obs_flat[obs]],
             constant_images=~var_mask,
         )
         self._gauge(images[var_mask], const_images, prob, local_index)
         opts = BundleOptions(
-            loss=self.b.loss, loss_scale=self.b.loss_scale_px, max_iterations=max_iterations,
+            loss=self.b.loss,
+            loss_scale=self.b.loss_scale_px,
+            max_iterations=max_iterations,
             function_tolerance=function_tolerance,
             refine_focal_length=force_focal or (refine_intrinsics and self.b.refine_focal_length),
             refine_distortion=refine_intrinsics and self.b.refine_distortion and any(self.radial),
@@ -394,7 +427,9 @@ class IncrementalMapper:
         obs = _ranges(self.ptr, tracks)
         lens = self.ptr[tracks + 1] - self.ptr[tracks]
         ptr = np.concatenate([[0], np.cumsum(lens)]).astype(np.int64)
-        return max_triangulation_angles_deg(ptr, self.X[tracks], self.obs_img[obs], self._centers(), self.active[obs])
+        return max_triangulation_angles_deg(
+            ptr, self.X[tracks], self.obs_img[obs], self._centers(), self.active[obs]
+        )
 
     def _local_ba(self, image: int) -> None:
         t0 = time.perf_counter()
@@ -417,7 +452,9 @@ class IncrementalMapper:
             tracks = tracks[self.has_pt[tracks]]
             if len(tracks) == 0:
                 break
-            _ = self._adjust(var_images, tracks, self.b.local_max_iterations, False, self.b.local_function_tolerance)
+            _ = self._adjust(
+                var_images, tracks, self.b.local_max_iterations, False, self.b.local_function_tolerance
+            )
             n_bad = self._filter(tracks, check_angle=False)
             n_new = self._complete(tracks)
             if n_bad + n_new == 0:
@@ -425,7 +462,9 @@ class IncrementalMapper:
         self.stats["local_ba"] += 1
         self.stats["local_ba_s"] += time.perf_counter() - t0
 
-    def _global_ba(self, rounds: int = 1, max_iterations: int | None = None, final: bool = False) -> BundleReport | None:
+    def _global_ba(
+        self, rounds: int = 1, max_iterations: int | None = None, final: bool = False
+    ) -> BundleReport | None:
         t0 = time.perf_counter()
         rep = None
         for r in range(rounds):
@@ -435,7 +474,9 @@ class IncrementalMapper:
             var_images = np.nonzero(self.reg)[0]
             n_obs_before = int(self.active.sum())
             ftol = self.b.final_function_tolerance if final else self.b.global_function_tolerance
-            rep, _ = self._adjust(var_images, tracks, max_iterations or self.b.global_max_iterations, True, ftol)
+            rep, _ = self._adjust(
+                var_images, tracks, max_iterations or self.b.global_max_iterations, True, ftol
+            )
             self._filter(tracks, check_angle=True)
             all_tracks = np.arange(self.n_tracks)
             self._complete(all_tracks)
@@ -451,8 +492,14 @@ class IncrementalMapper:
 
     # ------------------------------------------------------------------ initialisation
     def _init_candidates(self) -> list[PairGeometry]:
-        ok = [p for p in self.d.pairs if p.status == "ok" and self.d.usable[p.i] and self.d.usable[p.j]
-              and p.num_inliers >= self.s.init_min_inliers]
+        ok = [
+            p
+            for p in self.d.pairs
+            if p.status == "ok"
+            and self.d.usable[p.i]
+            and self.d.usable[p.j]
+            and p.num_inliers >= self.s.init_min_inliers
+        ]
         seen: set[tuple[int, int]] = set()
         out: list[PairGeometry] = []
         stages = [
@@ -480,9 +527,15 @@ class IncrementalMapper:
         x2 = self.d.keypoints[p.j][p.matches[:, 1]]
         try:
             he = estimate_homography(
-                x1, x2,
-                RansacOptions(threshold=3.0 * self.px, confidence=0.99,
-                              max_iterations=300, min_iterations=16, local_optimization=False),
+                x1,
+                x2,
+                RansacOptions(
+                    threshold=3.0 * self.px,
+                    confidence=0.99,
+                    max_iterations=300,
+                    min_iterations=16,
+                    local_optimization=False,
+                ),
                 self.seed + 17 * p.i + p.j,
             )
             p.homography_ratio = he.num_inliers / max(1, p.num_inliers)
@@ -545,7 +598,9 @@ class IncrementalMapper:
         n_rot = sum(1 for p in self.d.pairs if p.status == "no_translation")
         if n_rot:
             msg += f"; {n_rot} pairs show no parallax (camera only rotated, or identical images)"
-        raise EstimationError(msg + ". Check that the images overlap, show a textured 3D scene and that K is right")
+        raise EstimationError(
+            msg + ". Check that the images overlap, show a textured 3D scene and that K is right"
+        )
 
     # ------------------------------------------------------------------ registration
     def _visible_counts(self) -> np.ndarray:
@@ -565,9 +620,14 @@ class IncrementalMapper:
         flat = self.kp_offset[image] + kps
         try:
             pose = estimate_absolute_pose(
-                self.xn_flat[flat], self.X[kt[kps]], float(self.focal[image]), self.s.pnp_threshold_px * self.px,
-                seed=self.seed * 7919 + image * 31 + int(self.trials[image]), min_inliers=self.s.pnp_min_inliers,
-                refine_loss_scale_px=self.b.loss_scale_px * self.px, sigmas_px=self.sigma_flat[flat],
+                self.xn_flat[flat],
+                self.X[kt[kps]],
+                float(self.focal[image]),
+                self.s.pnp_threshold_px * self.px,
+                seed=self.seed * 7919 + image * 31 + int(self.trials[image]),
+                min_inliers=self.s.pnp_min_inliers,
+                refine_loss_scale_px=self.b.loss_scale_px * self.px,
+                sigmas_px=self.sigma_flat[flat],
             )
         except EstimationError as exc:
             self.failures[image] = f"could not be registered: {exc}"
@@ -598,8 +658,11 @@ class IncrementalMapper:
             i = int(i)
             if self.reg[i] or not self.d.usable[i] or cnt[i] < self.s.pnp_min_inliers:
                 continue
-            if self.trials[i] >= self.s.max_registration_trials and self.tried_at[i] >= 0 \
-                    and n_pts <= 1.05 * self.tried_at[i]:
+            if (
+                self.trials[i] >= self.s.max_registration_trials
+                and self.tried_at[i] >= 0
+                and n_pts <= 1.05 * self.tried_at[i]
+            ):
                 continue
             if self.tried_at[i] == n_pts:  # nothing changed since the last attempt
                 continue
@@ -613,8 +676,9 @@ class IncrementalMapper:
         self._local_ba(image)
         n_reg = int(self.reg.sum())
         n_pts = int(self.has_pt.sum())
-        if n_reg >= self.s.global_ba_ratio * self.last_global_images or n_pts >= self.s.global_ba_ratio ** 2 * max(
-            1, self.last_global_points
+        if (
+            n_reg >= self.s.global_ba_ratio * self.last_global_images
+            or n_pts >= self.s.global_ba_ratio** 2 * max(1, self.last_global_points)
         ):
             self._global_ba(rounds=1, max_iterations=min(self.b.global_max_iterations, 30))
 
@@ -656,8 +720,9 @@ class IncrementalMapper:
         tracks = np.nonzero(self.has_pt)[0]
         if len(tracks) < 20:
             return
-        rep, prob = self._adjust(np.nonzero(self.reg)[0], tracks, 20, False, 1e-5, write_back=False,
-                                 force_focal=True)
+        rep, prob = self._adjust(
+            np.nonzero(self.reg)[0], tracks, 20, False, 1e-5, write_back=False, force_focal=True
+        )
         for c, cam in enumerate(self.cameras):
             f_fit = float(prob.cameras[c, 0])
             ratio = f_fit / cam.fx
@@ -701,12 +766,25 @@ class IncrementalMapper:
                 )
         diag = dict(self.stats)
         diag.update(
-            num_registered=int(self.reg.sum()), num_points=int(self.has_pt.sum()),
+            num_registered=int(self.reg.sum()),
+            num_points=int(self.has_pt.sum()),
             num_observations=int(len(obs)),
             mean_track_length=float(len(obs) / max(1, int(self.has_pt.sum()))),
             mean_reprojection_error_px=float(np.mean(err[obs])) if len(obs) else float("nan"),
         )
         return MapperOutput(
-            self.reg.copy(), self.R.copy(), self.t.copy(), list(self.cameras), self.X.copy(), self.has_pt.copy(),
-            self.active.copy(), colors, err, failures, init, diag, list(self.warnings), list(self.order),
+            self.reg.copy(),
+            self.R.copy(),
+            self.t.copy(),
+            list(self.cameras),
+            self.X.copy(),
+            self.has_pt.copy(),
+            self.active.copy(),
+            colors,
+            err,
+            failures,
+            init,
+            diag,
+            list(self.warnings),
+            list(self.order),
         )

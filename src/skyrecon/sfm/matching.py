@@ -30,7 +30,13 @@ from skyrecon.sfm.settings import VerificationSettings
 from skyrecon.twoview.estimate import fit_rotation
 
 __all__ = [
-    "PairGeometry", "MatchTask", "verify_matches", "match_pair", "match_and_verify_chunk", "chunk_pairs", "run_matching",
+    "PairGeometry",
+    "MatchTask",
+    "verify_matches",
+    "match_pair",
+    "match_and_verify_chunk",
+    "chunk_pairs",
+    "run_matching",
 ]
 
 
@@ -124,8 +130,13 @@ def verify_matches(
     thr = settings.threshold_px / max(scale, 1e-9)
     thr_n = thr / f
     x1n, x2n = intr1.normalized(x1), intr2.normalized(x2)
-    opts = RansacOptions(threshold=thr, confidence=settings.confidence, max_iterations=settings.max_iterations,
-                         min_iterations=32, local_optimization=settings.local_optimization)
+    opts = RansacOptions(
+        threshold=thr,
+        confidence=settings.confidence,
+        max_iterations=settings.max_iterations,
+        min_iterations=32,
+        local_optimization=settings.local_optimization,
+    )
     R_rot, res_rot = fit_rotation(x1n, x2n, 2.0 * thr_n)
     rot_inl = res_rot < 2.0 * thr_n
     n_rot = int(np.count_nonzero(rot_inl))
@@ -137,12 +148,32 @@ def verify_matches(
         reason = f"no relative pose ({exc})"
     n_E = int(np.count_nonzero(inl))
     if n_rot >= settings.min_inliers and n_rot >= settings.rotation_support * max(n_E, 1):
-        what = "the images look identical" if flow < 0.5 / max(scale, 1e-9) else "a rotation alone explains the matches"
-        return PairGeometry(i, j, "no_translation", M, idx[rot_inl].astype(np.int32), R_rot, None,
-                            median_flow_px=flow, reason=f"{what} ({n_rot} of {M} matches): no parallax")
+        what = (
+            "the images look identical"
+            if flow < 0.5 / max(scale, 1e-9)
+            else "a rotation alone explains the matches"
+        )
+        return PairGeometry(
+            i,
+            j,
+            "no_translation",
+            M,
+            idx[rot_inl].astype(np.int32),
+            R_rot,
+            None,
+            median_flow_px=flow,
+            reason=f"{what} ({n_rot} of {M} matches): no parallax",
+        )
     if n_E < settings.min_inliers or R is None:
-        return _failed(i, j, M, f"only {n_E} of {M} matches agree on a relative pose "
-                       f"(at least {settings.min_inliers} needed)" if R is not None else reason, flow)
+        return _failed(
+            i,
+            j,
+            M,
+            f"only {n_E} of {M} matches agree on a relative pose (at least {settings.min_inliers} needed)"
+            if R is not None
+            else reason,
+            flow,
+        )
     X = triangulate_midpoint(R, t, x1n[inl], x2n[inl])
     par = parallax_angles_deg(X, R, t)
     par = par[np.isfinite(par)]
@@ -150,16 +181,23 @@ def verify_matches(
     if settings.homography_iterations > 0 and n_E >= 8:
         try:
             he = estimate_homography(
-                x1[inl], x2[inl],
-                RansacOptions(threshold=2.0 * thr, confidence=0.99, max_iterations=settings.homography_iterations,
-                              min_iterations=16, local_optimization=False),
+                x1[inl],
+                x2[inl],
+                RansacOptions(
+                    threshold=2.0 * thr,
+                    confidence=0.99,
+                    max_iterations=settings.homography_iterations,
+                    min_iterations=16,
+                    local_optimization=False,
+                ),
                 seed + 1,
             )
             hr = he.num_inliers / n_E
         except EstimationError:
             hr = 0.0
-    return PairGeometry(i, j, "ok", M, idx[inl].astype(np.int32), R, t, float(np.median(par)) if len(par) else 0.0,
-                        hr, flow)
+    return PairGeometry(
+        i, j, "ok", M, idx[inl].astype(np.int32), R, t, float(np.median(par)) if len(par) else 0.0, hr, flow
+    )
 
 
 def strongest(responses: np.ndarray, n: int) -> np.ndarray:
@@ -169,8 +207,16 @@ def strongest(responses: np.ndarray, n: int) -> np.ndarray:
     return np.sort(np.argpartition(-responses, n - 1)[:n])
 
 
-def _guided(g: PairGeometry, fi: dict, fj: dict, intr1: Intrinsics, intr2: Intrinsics, matching: MatchSettings,
-            settings: VerificationSettings, scale: float) -> PairGeometry:
+def _guided(
+    g: PairGeometry,
+    fi: dict,
+    fj: dict,
+    intr1: Intrinsics,
+    intr2: Intrinsics,
+    matching: MatchSettings,
+    settings: VerificationSettings,
+    scale: float,
+) -> PairGeometry:
     """Re-match all features of a verified pair along its epipolar lines and refine the pose."""
     assert g.R is not None and g.t is not None
     f = float(np.mean([intr1.fx, intr1.fy, intr2.fx, intr2.fy]))
@@ -189,8 +235,19 @@ def _guided(g: PairGeometry, fi: dict, fj: dict, intr1: Intrinsics, intr2: Intri
         r2 = (0.5 * np.percentile(z2[ok], 1), 2.0 * np.percentile(z2[ok], 99))
     else:
         r1 = r2 = (1e-6, np.inf)
-    gm = guided_match(x1n_all, fi["descriptors"], x2n_all, fj["descriptors"], g.R, g.t, band, r1, r2,
-                      matching.ratio, matching.mutual)
+    gm = guided_match(
+        x1n_all,
+        fi["descriptors"],
+        x2n_all,
+        fj["descriptors"],
+        g.R,
+        g.t,
+        band,
+        r1,
+        r2,
+        matching.ratio,
+        matching.mutual,
+    )
     if len(gm) <= g.num_inliers:
         return g
     x1n, x2n = x1n_all[gm[:, 0]], x2n_all[gm[:, 1]]
@@ -201,13 +258,31 @@ def _guided(g: PairGeometry, fi: dict, fj: dict, intr1: Intrinsics, intr2: Intri
     X = triangulate_midpoint(rp.R, rp.t, x1n[inl], x2n[inl])
     par = parallax_angles_deg(X, rp.R, rp.t)
     par = par[np.isfinite(par)]
-    return PairGeometry(g.i, g.j, "ok", len(gm), gm[inl].astype(np.int32), rp.R, rp.t,
-                        float(np.median(par)) if len(par) else 0.0, g.homography_ratio, g.median_flow_px)
+    return PairGeometry(
+        g.i,
+        g.j,
+        "ok",
+        len(gm),
+        gm[inl].astype(np.int32),
+        rp.R,
+        rp.t,
+        float(np.median(par)) if len(par) else 0.0,
+        g.homography_ratio,
+        g.median_flow_px,
+    )
 
 
 def match_pair(
-    i: int, j: int, fi: dict, fj: dict, intr1: Intrinsics, intr2: Intrinsics, matching: MatchSettings,
-    settings: VerificationSettings, scale: float = 1.0, seed: int = 0,
+    i: int,
+    j: int,
+    fi: dict,
+    fj: dict,
+    intr1: Intrinsics,
+    intr2: Intrinsics,
+    matching: MatchSettings,
+    settings: VerificationSettings,
+    scale: float = 1.0,
+    seed: int = 0,
 ) -> PairGeometry:
     """Match and verify one pair: coarse match of the strongest features, verification, then
     (``settings.guided``) guided matching of all features and pose refinement.
@@ -223,7 +298,11 @@ def match_pair(
     a, b = si[m.idx1], sj[m.idx2]
     idx = np.stack([a, b], axis=1)
     g = verify_matches(i, j, fi["keypoints"][a], fj["keypoints"][b], idx, intr1, intr2, settings, scale, seed)
-    if g.status != "ok" or not settings.guided or (len(si) == len(fi["responses"]) and len(sj) == len(fj["responses"])):
+    if (
+        g.status != "ok"
+        or not settings.guided
+        or (len(si) == len(fi["responses"]) and len(sj) == len(fj["responses"]))
+    ):
         return g
     return _guided(g, fi, fj, intr1, intr2, matching, settings, scale)
 
@@ -243,8 +322,20 @@ def _match_chunk(task: MatchTask) -> list[PairGeometry]:
     for (i, j), seed in zip(task.pairs.tolist(), task.seeds.tolist()):
         fi = load_features(task.paths[i], _KEYS)
         fj = load_features(task.paths[j], _KEYS)
-        out.append(match_pair(i, j, fi, fj, task.intrinsics[i], task.intrinsics[j], task.matching, task.verification,
-                              task.scale, int(seed)))
+        out.append(
+            match_pair(
+                i,
+                j,
+                fi,
+                fj,
+                task.intrinsics[i],
+                task.intrinsics[j],
+                task.matching,
+                task.verification,
+                task.scale,
+                int(seed),
+            )
+        )
     return out
 
 
@@ -262,7 +353,9 @@ def pair_seeds(pairs: np.ndarray, seed: int) -> np.ndarray:
     """(P,) deterministic per-pair seeds derived from the run's seed and the pair's images."""
     ss = np.random.SeedSequence([int(seed) & 0xFFFFFFFF, 0x5F3A])
     base = int(ss.generate_state(1)[0])
-    return ((base + pairs[:, 0].astype(np.int64) * 1_000_003 + pairs[:, 1].astype(np.int64) * 7919) % (2**31 - 1)).astype(np.int64)
+    return (
+        (base + pairs[:, 0].astype(np.int64) * 1_000_003 + pairs[:, 1].astype(np.int64) * 7919) % (2**31 - 1)
+    ).astype(np.int64)
 
 
 def run_matching(
@@ -283,8 +376,17 @@ def run_matching(
     k = 0
     for c in chunks:
         imgs = np.unique(c)
-        tasks.append(MatchTask(c, seeds[k : k + len(c)], {int(a): feature_paths[a] for a in imgs},
-                               {int(a): intrinsics[a] for a in imgs}, scale, matching, verification))
+        tasks.append(
+            MatchTask(
+                c,
+                seeds[k : k + len(c)],
+                {int(a): feature_paths[a] for a in imgs},
+                {int(a): intrinsics[a] for a in imgs},
+                scale,
+                matching,
+                verification,
+            )
+        )
         k += len(c)
     results = executor.map(match_and_verify_chunk, tasks, desc="matching")
     return [g for chunk in results for g in chunk]

@@ -11,8 +11,16 @@ import numpy as np
 
 from skyrecon.errors import EstimationError, InputError
 
-__all__ = ["scene_extent", "check_spread", "fit_camera_centres", "point_spacing", "icp_plane_with_scale",
-           "icp_refine", "subsample_cloud", "centroid_init"]
+__all__ = [
+    "scene_extent",
+    "check_spread",
+    "fit_camera_centres",
+    "point_spacing",
+    "icp_plane_with_scale",
+    "icp_refine",
+    "subsample_cloud",
+    "centroid_init",
+]
 
 
 def scene_extent(points: np.ndarray) -> float:
@@ -36,8 +44,15 @@ def check_spread(points: np.ndarray, what: str, names: list[str]) -> None:
         )
 
 
-def fit_camera_centres(src: np.ndarray, dst: np.ndarray, names: list[str], with_scale: bool, threshold: float | None,
-                 seed: int, what: str):
+def fit_camera_centres(
+    src: np.ndarray,
+    dst: np.ndarray,
+    names: list[str],
+    with_scale: bool,
+    threshold: float | None,
+    seed: int,
+    what: str,
+):
     """Robust similarity from matched camera centres; returns (fit, threshold used)."""
     from skyrecon.sfm.align import robust_umeyama, umeyama
 
@@ -49,8 +64,10 @@ def fit_camera_centres(src: np.ndarray, dst: np.ndarray, names: list[str], with_
     try:
         fit = robust_umeyama(src, dst, thr, with_scale, seed)
     except EstimationError as exc:
-        raise EstimationError(f"{exc}: the {what} do not fit one similarity; check the names and units, or give a "
-                              "larger --max-distance") from None
+        raise EstimationError(
+            f"{exc}: the {what} do not fit one similarity; check the names and units, or give a "
+            "larger --max-distance"
+        ) from None
     return fit, thr
 
 
@@ -64,8 +81,17 @@ def point_spacing(points: np.ndarray, tree, seed: int) -> float:
     return float(np.median(v)) if len(v) else 0.0
 
 
-def icp_plane_with_scale(src: np.ndarray, T, points: np.ndarray, normals: np.ndarray, tree, max_distance: float,
-                          max_iterations: int, size: float, tolerance: float = 1e-7) -> tuple:
+def icp_plane_with_scale(
+    src: np.ndarray,
+    T,
+    points: np.ndarray,
+    normals: np.ndarray,
+    tree,
+    max_distance: float,
+    max_iterations: int,
+    size: float,
+    tolerance: float = 1e-7,
+) -> tuple:
     """Point-to-plane ICP for a similarity (7 unknowns), robust (Huber weights, MAD scale).
 
     The library's point-to-plane ICP is rigid, and point-to-point ICP with scale is biased by how
@@ -77,15 +103,17 @@ def icp_plane_with_scale(src: np.ndarray, T, points: np.ndarray, normals: np.nda
     from skyrecon.sfm.align import Sim3
 
     converged, it, rmse, fitness, n_corr = False, 0, float("nan"), 0.0, 0
-    for it in range(1, max_iterations + 1):
+    for it in range(1, max_iterations + 1):  # noqa: B007  (the count is returned)
         p = T.apply(src)
         d, j = tree.query(p, k=1, distance_upper_bound=max_distance)
         ok = np.isfinite(d)
         n_corr = int(ok.sum())
         fitness = n_corr / max(len(src), 1)
         if n_corr < 7:
-            raise EstimationError(f"ICP: only {n_corr} model points lie within {max_distance:.3g} m of the "
-                                  "reference; give a better --init or a larger --max-distance")
+            raise EstimationError(
+                f"ICP: only {n_corr} model points lie within {max_distance:.3g} m of the "
+                "reference; give a better --init or a larger --max-distance"
+            )
         p, q, n = p[ok], points[j[ok]], normals[j[ok]]
         c = p.mean(axis=0)
         pc = p - c
@@ -99,8 +127,10 @@ def icp_plane_with_scale(src: np.ndarray, T, points: np.ndarray, normals: np.nda
         try:
             x = -np.linalg.solve(H + 1e-12 * np.trace(H) * np.eye(7), g)
         except np.linalg.LinAlgError:
-            raise EstimationError("ICP: the point-to-plane system is singular (the points lie on one plane "
-                                  "or line); use --no-scale or another reference") from None
+            raise EstimationError(
+                "ICP: the point-to-plane system is singular (the points lie on one plane "
+                "or line); use --no-scale or another reference"
+            ) from None
         s = 1.0 + float(x[6])
         if not s > 0:
             raise EstimationError("ICP: the scale update became non-positive; give a better --init")
@@ -115,8 +145,9 @@ def icp_plane_with_scale(src: np.ndarray, T, points: np.ndarray, normals: np.nda
     return T, it, converged, rmse, fitness, n_corr
 
 
-def icp_refine(src: np.ndarray, target, T0, with_scale: bool, max_distance: float | None, max_iterations: int,
-                seed: int) -> tuple:
+def icp_refine(
+    src: np.ndarray, target, T0, with_scale: bool, max_distance: float | None, max_iterations: int, seed: int
+) -> tuple:
     """ICP from ``T0`` (target_from_source), in a frame centred on the target.
 
     A coarse stage (point-to-point with scale, or point-to-plane without) at a generous distance,
@@ -131,8 +162,11 @@ def icp_refine(src: np.ndarray, target, T0, with_scale: bool, max_distance: floa
     shift = tgt.mean(axis=0)
     local_pts = tgt - shift
     tree = cKDTree(local_pts)
-    normals = (np.asarray(target.normals, np.float64) if target.normals is not None
-               else estimate_normals(local_pts, 12, tree))
+    normals = (
+        np.asarray(target.normals, np.float64)
+        if target.normals is not None
+        else estimate_normals(local_pts, 12, tree)
+    )
     local = PointCloud(local_pts, None, normals)
     T = Sim3(T0.R, T0.t - shift, T0.scale)
     spacing = point_spacing(local_pts, tree, seed)
@@ -142,25 +176,66 @@ def icp_refine(src: np.ndarray, target, T0, with_scale: bool, max_distance: floa
         src = src[np.sort(np.random.default_rng(seed).choice(len(src), 50_000, replace=False))]
 
     def stage(kind: str, d: float, r, iterations: int, converged: bool) -> dict:
-        return {"kind": kind, "max_distance_m": d, "iterations": iterations, "converged": converged,
-                "rmse_m": r.rmse, "fitness": r.fitness, "num_correspondences": r.num_correspondences}
+        return {
+            "kind": kind,
+            "max_distance_m": d,
+            "iterations": iterations,
+            "converged": converged,
+            "rmse_m": r.rmse,
+            "fitness": r.fitness,
+            "num_correspondences": r.num_correspondences,
+        }
 
-    first = icp(src, local, init=T, point_to_plane=not with_scale, with_scale=with_scale, robust=True,
-                max_distance=d1, max_iterations=max_iterations, seed=seed)
-    stages = [stage("point-to-point with scale" if with_scale else "point-to-plane", d1, first, first.iterations,
-                    bool(first.converged))]
+    first = icp(
+        src,
+        local,
+        init=T,
+        point_to_plane=not with_scale,
+        with_scale=with_scale,
+        robust=True,
+        max_distance=d1,
+        max_iterations=max_iterations,
+        seed=seed,
+    )
+    stages = [
+        stage(
+            "point-to-point with scale" if with_scale else "point-to-plane",
+            d1,
+            first,
+            first.iterations,
+            bool(first.converged),
+        )
+    ]
     d2 = max_distance if max_distance is not None else max(3.0 * first.rmse, 3.0 * spacing, 1e-9 * size)
     T = first.transform
     if not with_scale:
-        last = icp(src, local, init=T, point_to_plane=True, robust=True, max_distance=d2,
-                   max_iterations=max_iterations, seed=seed)
+        last = icp(
+            src,
+            local,
+            init=T,
+            point_to_plane=True,
+            robust=True,
+            max_distance=d2,
+            max_iterations=max_iterations,
+            seed=seed,
+        )
         stages.append(stage("point-to-plane", d2, last, last.iterations, bool(last.converged)))
         T, converged = last.transform, bool(last.converged)
     else:
         T, iterations, converged, rmse, fitness, n_corr = icp_plane_with_scale(
-            src, T, local_pts, normals, tree, d2, max_iterations, size)
-        stages.append({"kind": "point-to-plane with scale", "max_distance_m": d2, "iterations": iterations,
-                       "converged": converged, "rmse_m": rmse, "fitness": fitness, "num_correspondences": n_corr})
+            src, T, local_pts, normals, tree, d2, max_iterations, size
+        )
+        stages.append(
+            {
+                "kind": "point-to-plane with scale",
+                "max_distance_m": d2,
+                "iterations": iterations,
+                "converged": converged,
+                "rmse_m": rmse,
+                "fitness": fitness,
+                "num_correspondences": n_corr,
+            }
+        )
     world = Sim3(T.R, T.t + shift, T.scale)
     p = T.apply(src)
     dist, j = tree.query(p, k=1)

@@ -20,7 +20,9 @@ from skyrecon.sfm.result import SfMResult
 __all__ = ["write_sfm_outputs", "frustum_points", "sparse_cloud"]
 
 
-def frustum_points(rec: Reconstruction, depth: float | None = None, samples_per_edge: int = 24) -> tuple[np.ndarray, np.ndarray]:
+def frustum_points(
+    rec: Reconstruction, depth: float | None = None, samples_per_edge: int = 24
+) -> tuple[np.ndarray, np.ndarray]:
     """Points along the edges of every registered camera's viewing frustum (for PLY viewers).
 
     Args:
@@ -48,8 +50,14 @@ def frustum_points(rec: Reconstruction, depth: float | None = None, samples_per_
     s = np.linspace(0.0, 1.0, samples_per_edge)[:, None]
     for k, im in enumerate(ims):
         cam = rec.cameras[im.camera_id]
-        corners_px = np.array([[-0.5, -0.5], [cam.width - 0.5, -0.5], [cam.width - 0.5, cam.height - 0.5],
-                               [-0.5, cam.height - 0.5]])
+        corners_px = np.array(
+            [
+                [-0.5, -0.5],
+                [cam.width - 0.5, -0.5],
+                [cam.width - 0.5, cam.height - 0.5],
+                [-0.5, cam.height - 0.5],
+            ]
+        )
         corners = cam.unproject(corners_px, depth)
         T = im.cam_from_world.inverse()
         cw = T.apply(corners)

@@ -68,7 +68,9 @@ def sequential_pairs(n: int, window: int, exponential: bool, max_offset: int) ->
     return np.concatenate(out).astype(np.int64) if out else np.zeros((0, 2), np.int64)
 
 
-def retrieval_pairs(similarity: np.ndarray, k: int, exclude_within: int = 0, min_similarity: float = -1.0) -> np.ndarray:
+def retrieval_pairs(
+    similarity: np.ndarray, k: int, exclude_within: int = 0, min_similarity: float = -1.0
+) -> np.ndarray:
     """For each image, pairs with its ``k`` most similar images.
 
     Args:
@@ -95,7 +97,10 @@ def retrieval_pairs(similarity: np.ndarray, k: int, exclude_within: int = 0, min
 
 
 def select_pairs(
-    n: int, mode: PairMode, settings: PairingSettings, global_descriptors: Callable[[], np.ndarray] | None = None
+    n: int,
+    mode: PairMode,
+    settings: PairingSettings,
+    global_descriptors: Callable[[], np.ndarray] | None = None,
 ) -> PairSelection:
     """Pairs to match for ``n`` images.
 
@@ -117,11 +122,17 @@ def select_pairs(
         loops = np.zeros((0, 2), np.int64)
         if settings.loop_candidates > 0 and global_descriptors is not None and n > settings.max_offset + 1:
             S = similarity_matrix(global_descriptors())
-            loops = retrieval_pairs(S, settings.loop_candidates, settings.max_offset, settings.loop_min_similarity)
+            loops = retrieval_pairs(
+                S, settings.loop_candidates, settings.max_offset, settings.loop_min_similarity
+            )
         all_pairs = np.unique(np.concatenate([seq, loops]), axis=0) if len(loops) else seq
         all_pairs = all_pairs[np.lexsort((all_pairs[:, 1], all_pairs[:, 0]))]
-        return PairSelection(all_pairs, "sequential", len(all_pairs) - len(seq),
-                             {"window": settings.window, "max_offset": settings.max_offset})
+        return PairSelection(
+            all_pairs,
+            "sequential",
+            len(all_pairs) - len(seq),
+            {"window": settings.window, "max_offset": settings.max_offset},
+        )
     if mode == "retrieval":
         if global_descriptors is None:
             raise InputError("retrieval pairing needs global descriptors")

@@ -55,7 +55,7 @@ def _check_intrinsics(intrinsics: Intrinsics | Sequence[Intrinsics], n: int) -> 
         cams = list(intrinsics)
         if len(cams) != n:
             raise InputError(f"got {len(cams)} intrinsics for {n} images; give one for all or one per image")
-    for k, c in enumerate(cams):
+    for _k, c in enumerate(cams):
         if not isinstance(c, Intrinsics):
             raise InputError(f"intrinsics must be Intrinsics objects, got {type(c).__name__}")
         if not (-0.5 <= c.cx <= c.width - 0.5 and -0.5 <= c.cy <= c.height - 0.5):
@@ -81,7 +81,9 @@ def _camera_ids(cams: list[Intrinsics]) -> tuple[list[Intrinsics], np.ndarray]:
     return uniq, ids
 
 
-def _diagnose_pairs(pairs: list[PairGeometry], x: dict, cams: list[Intrinsics], settings: SfMSettings) -> list[str]:
+def _diagnose_pairs(
+    pairs: list[PairGeometry], x: dict, cams: list[Intrinsics], settings: SfMSettings
+) -> list[str]:
     """Run the full two-view diagnostics (E vs F vs H vs rotation) on the pairs with the most
     matches, to explain a failed or partial reconstruction (e.g. a wrong K)."""
     from skyrecon.twoview.estimate import estimate_two_view_geometry
@@ -98,8 +100,14 @@ def _diagnose_pairs(pairs: list[PairGeometry], x: dict, cams: list[Intrinsics], 
         if len(m) < 8:
             continue
         try:
-            g = estimate_two_view_geometry(fi["keypoints"][m.idx1], fj["keypoints"][m.idx2], cams[p.i], cams[p.j],
-                                           TwoViewSettings(dense=False), 0)
+            g = estimate_two_view_geometry(
+                fi["keypoints"][m.idx1],
+                fj["keypoints"][m.idx2],
+                cams[p.i],
+                cams[p.j],
+                TwoViewSettings(dense=False),
+                0,
+            )
         except EstimationError:
             continue
         for w in g.warnings:
@@ -145,7 +153,9 @@ def run_sfm(
         raise InputError(f"structure from motion needs at least two images, got {len(paths)}")
     missing = [str(p) for p in paths if not p.is_file()]
     if missing:
-        raise InputError(f"image files not found: {', '.join(missing[:5])}" + (" ..." if len(missing) > 5 else ""))
+        raise InputError(
+            f"image files not found: {', '.join(missing[:5])}" + (" ..." if len(missing) > 5 else "")
+        )
     if len({p.resolve() for p in paths}) != len(paths):
         raise InputError("the same image file is listed twice")
     n = len(paths)
@@ -167,20 +177,48 @@ def run_sfm(
     cache_dir.mkdir(parents=True, exist_ok=True)
     try:
         with limited_threads(1):
-            return _run(paths, names, cams_in, settings, executor, workers, seed, cache_dir, timings, diagnostics,
-                        warnings, t_total)
+            return _run(
+                paths,
+                names,
+                cams_in,
+                settings,
+                executor,
+                workers,
+                seed,
+                cache_dir,
+                timings,
+                diagnostics,
+                warnings,
+                t_total,
+            )
     finally:
         release()
         if tmp is not None:
             tmp.cleanup()
 
 
-def _run(paths, names, cams_in, settings, executor, workers, seed, cache_dir, timings, diagnostics, warnings, t_total):
+def _run(
+    paths,
+    names,
+    cams_in,
+    settings,
+    executor,
+    workers,
+    seed,
+    cache_dir,
+    timings,
+    diagnostics,
+    warnings,
+    t_total,
+):
     n = len(paths)
     # ----- features ---------------------------------------------------------------------------
     t0 = time.perf_counter()
     fs = settings.feature_settings
-    tasks = [ExtractTask(k, str(p), names[k], fs, str(cache_dir), settings.target_features) for k, p in enumerate(paths)]
+    tasks = [
+        ExtractTask(k, str(p), names[k], fs, str(cache_dir), settings.target_features)
+        for k, p in enumerate(paths)
+    ]
     ext: list[ExtractedImage] = executor.map(extract_one, tasks, desc="features")
     timings["features"] = time.perf_counter() - t0
     diagnostics["features_cached"] = sum(1 for e in ext if e.cached)
@@ -230,16 +268,23 @@ def _run(paths, names, cams_in, settings, executor, workers, seed, cache_dir, ti
     # ----- pairs ------------------------------------------------------------------------------
     t0 = time.perf_counter()
     sel = select_pairs(
-        len(usable), settings.pair_mode, settings.pairing,
+        len(usable),
+        settings.pair_mode,
+        settings.pairing,
         lambda: vlad_descriptors(paths_c, settings.pairing.retrieval_clusters, seed),
     )
     timings["pairs"] = time.perf_counter() - t0
-    diagnostics["pairing"] = {"mode": sel.mode, "num_pairs": int(len(sel.pairs)), "num_loop_pairs": sel.num_loop_pairs}
+    diagnostics["pairing"] = {
+        "mode": sel.mode,
+        "num_pairs": int(len(sel.pairs)),
+        "num_loop_pairs": sel.num_loop_pairs,
+    }
 
     # ----- matching and verification ------------------------------------------------------------
     t0 = time.perf_counter()
-    geo_c = run_matching(sel.pairs, paths_c, cams_c, scale, settings.matching, settings.verification, seed, executor,
-                         workers)
+    geo_c = run_matching(
+        sel.pairs, paths_c, cams_c, scale, settings.matching, settings.verification, seed, executor, workers
+    )
     timings["matching"] = time.perf_counter() - t0
     pairs: list[PairGeometry] = []
     for g in geo_c:  # back to input indices
@@ -249,11 +294,15 @@ def _run(paths, names, cams_in, settings, executor, workers, seed, cache_dir, ti
         trusted = None
         if sel.mode == "sequential":  # neighbouring frames: their rotations chain reliably
             trusted = np.array([g.j - g.i <= settings.pairing.window for g in pairs])
-        bad, err = rotation_inconsistent_pairs(pairs, n, settings.verification.max_rotation_inconsistency_deg, trusted)
+        bad, err = rotation_inconsistent_pairs(
+            pairs, n, settings.verification.max_rotation_inconsistency_deg, trusted
+        )
         for k in bad:
             g = pairs[k]
-            g.reason = (f"relative rotation disagrees by {err[k]:.1f} deg with the rotations chained along the "
-                        "strongest pairs (repeated structure?)")
+            g.reason = (
+                f"relative rotation disagrees by {err[k]:.1f} deg with the rotations chained along the "
+                "strongest pairs (repeated structure?)"
+            )
             g.status, g.matches, g.R, g.t = "failed", g.matches[:0], None, None
         diagnostics["pairs_rotation_inconsistent"] = len(bad)
     diagnostics["pairs_verified"] = sum(1 for g in pairs if g.status == "ok")
@@ -262,7 +311,12 @@ def _run(paths, names, cams_in, settings, executor, workers, seed, cache_dir, ti
     # near-duplicates: identical-looking images
     usable_set = set(usable)
     for g in pairs:
-        if g.status == "no_translation" and "identical" in g.reason and g.i in usable_set and g.j in usable_set:
+        if (
+            g.status == "no_translation"
+            and "identical" in g.reason
+            and g.i in usable_set
+            and g.j in usable_set
+        ):
             reasons[g.j] = f"duplicate: looks identical to {names[g.i]} (no parallax between them)"
             usable_set.discard(g.j)
     usable = [k for k in usable if k in usable_set]
@@ -280,11 +334,16 @@ def _run(paths, names, cams_in, settings, executor, workers, seed, cache_dir, ti
             kp.append(np.zeros((0, 2)))
             sizes.append(np.zeros(0, np.float32))
             colors.append(np.zeros((0, 3), np.uint8))
-    track_pairs = [(g.i, g.j, g.matches) for g in pairs if g.status != "failed" and g.i in usable_set and g.j in usable_set]
+    track_pairs = [
+        (g.i, g.j, g.matches)
+        for g in pairs
+        if g.status != "failed" and g.i in usable_set and g.j in usable_set
+    ]
     tracks = build_tracks([len(k) for k in kp], track_pairs, kp)
     timings["tracks"] = time.perf_counter() - t0
     diagnostics["tracks"] = {
-        "num_tracks": tracks.num_tracks, "num_observations": tracks.num_observations,
+        "num_tracks": tracks.num_tracks,
+        "num_observations": tracks.num_observations,
         "inconsistent_dropped": tracks.num_inconsistent,
         "mean_length": float(tracks.lengths.mean()) if tracks.num_tracks else 0.0,
     }
@@ -299,8 +358,12 @@ def _run(paths, names, cams_in, settings, executor, workers, seed, cache_dir, ti
     try:
         out = mapper.run()
     except EstimationError as exc:
-        extra = _diagnose_pairs([g for g in pairs if g.status != "failed"] or pairs,
-                                {k: ext[k].cache_path for k in range(n)}, cams_in, settings)
+        extra = _diagnose_pairs(
+            [g for g in pairs if g.status != "failed"] or pairs,
+            {k: ext[k].cache_path for k in range(n)},
+            cams_in,
+            settings,
+        )
         left = "; ".join(f"{names[k]}: {r}" for k, r in sorted(reasons.items())[:10])
         msg = str(exc)
         if extra:
@@ -317,18 +380,28 @@ def _run(paths, names, cams_in, settings, executor, workers, seed, cache_dir, ti
     for i, why in out.failures.items():
         reasons.setdefault(i, why)
     if out.registered.sum() < 0.8 * len(usable):
-        extra = _diagnose_pairs([g for g in pairs if g.status == "ok"] or pairs, {k: ext[k].cache_path for k in range(n)},
-                                cams_in, settings)
+        extra = _diagnose_pairs(
+            [g for g in pairs if g.status == "ok"] or pairs,
+            {k: ext[k].cache_path for k in range(n)},
+            cams_in,
+            settings,
+        )
         warnings.extend(extra)
     if reasons:
-        warnings.insert(0, f"{len(reasons)} of {n} images were left out of the model: "
-                        + ", ".join(names[k] for k in sorted(reasons)[:10]) + (" ..." if len(reasons) > 10 else ""))
+        warnings.insert(
+            0,
+            f"{len(reasons)} of {n} images were left out of the model: "
+            + ", ".join(names[k] for k in sorted(reasons)[:10])
+            + (" ..." if len(reasons) > 10 else ""),
+        )
     rec, statuses = _assemble(names, paths, ext, kp, out, tracks, cameras, cam_ids, reasons)
     timings["total"] = time.perf_counter() - t_total
     return SfMResult(rec, statuses, diagnostics, timings, warnings, seed)
 
 
-def _assemble(names, paths, ext, kp, out: MapperOutput, tracks, cameras, cam_ids, reasons) -> tuple[Reconstruction, list[ImageStatus]]:
+def _assemble(
+    names, paths, ext, kp, out: MapperOutput, tracks, cameras, cam_ids, reasons
+) -> tuple[Reconstruction, list[ImageStatus]]:
     n = len(names)
     pt_tracks = np.nonzero(out.has_point)[0]
     pid = np.full(tracks.num_tracks, -1, np.int64)
@@ -367,5 +440,7 @@ def _assemble(names, paths, ext, kp, out: MapperOutput, tracks, cameras, cam_ids
         sl = by_trk[tb[k] : te[k]]
         track = np.stack([o_img[sl] + 1, o_kp[sl]], axis=1)
         e = err_obs[sl]
-        rec.points3d[int(pid[t])] = Point3D(int(pid[t]), out.points[t], out.colors[t], float(np.mean(e)), track)
+        rec.points3d[int(pid[t])] = Point3D(
+            int(pid[t]), out.points[t], out.colors[t], float(np.mean(e)), track
+        )
     return rec, statuses

@@ -75,8 +75,16 @@ def refine_absolute_pose(
     n = len(xn)
     sig = np.ones(n) if sigmas_px is None else np.asarray(sigmas_px, np.float64)
     prob = BundleProblem(
-        R[None].copy(), t[None].copy(), X, np.array([[1.0, 1.0, 0.0, 0.0, 0.0, 0.0]]), np.zeros(1, np.int64),
-        np.zeros(n, np.int64), np.arange(n), xn, sig / focal_px, constant_points=np.ones(n, bool),
+        R[None].copy(),
+        t[None].copy(),
+        X,
+        np.array([[1.0, 1.0, 0.0, 0.0, 0.0, 0.0]]),
+        np.zeros(1, np.int64),
+        np.zeros(n, np.int64),
+        np.arange(n),
+        xn,
+        sig / focal_px,
+        constant_points=np.ones(n, bool),
     )
     bundle_adjust(prob, BundleOptions(loss="cauchy", loss_scale=loss_scale_px, max_iterations=max_iterations))
     return prob.R[0], prob.t[0]
@@ -123,8 +131,14 @@ def estimate_absolute_pose(
     thr_n = float(threshold_px) / float(focal_px)
     try:
         ok, rvec, tvec, inl = cv2.solvePnPRansac(
-            X, xn, np.eye(3), None, iterationsCount=int(max_iterations), reprojectionError=thr_n,
-            confidence=float(confidence), flags=cv2.SOLVEPNP_AP3P,
+            X,
+            xn,
+            np.eye(3),
+            None,
+            iterationsCount=int(max_iterations),
+            reprojectionError=thr_n,
+            confidence=float(confidence),
+            flags=cv2.SOLVEPNP_AP3P,
         )
     except cv2.error as exc:  # degenerate configurations
         raise EstimationError(f"PnP RANSAC failed: {exc.err}") from None
@@ -138,7 +152,12 @@ def estimate_absolute_pose(
         if np.count_nonzero(inliers) < 4:
             break
         R, t = refine_absolute_pose(
-            R, t, xn[inliers], X[inliers], focal_px, refine_loss_scale_px,
+            R,
+            t,
+            xn[inliers],
+            X[inliers],
+            focal_px,
+            refine_loss_scale_px,
             None if sigmas_px is None else np.asarray(sigmas_px)[inliers],
         )
         new = _errors_px(R, t, xn, X, focal_px) < threshold_px

@@ -16,8 +16,15 @@ from skyrecon.sfm.result import SfMResult
 __all__ = ["svg_histogram", "top_view_png", "report_html"]
 
 
-def svg_histogram(values: np.ndarray, bins: int | np.ndarray, title: str, xlabel: str, width: int = 460,
-                  height: int = 240, integer: bool = False) -> str:
+def svg_histogram(
+    values: np.ndarray,
+    bins: int | np.ndarray,
+    title: str,
+    xlabel: str,
+    width: int = 460,
+    height: int = 240,
+    integer: bool = False,
+) -> str:
     """An inline SVG bar chart of the histogram of ``values`` (1-D)."""
     v = np.asarray(values, np.float64)
     v = v[np.isfinite(v)]
@@ -27,17 +34,21 @@ def svg_histogram(values: np.ndarray, bins: int | np.ndarray, title: str, xlabel
     ml, mr, mt, mb = 48, 12, 26, 38
     pw, ph = width - ml - mr, height - mt - mb
     cmax = max(int(counts.max()), 1)
-    out = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" '
-           f'viewBox="0 0 {width} {height}" font-family="sans-serif" font-size="11">',
-           f'<text x="{width / 2}" y="16" text-anchor="middle" font-size="13">{html.escape(title)}</text>',
-           f'<line x1="{ml}" y1="{mt + ph}" x2="{ml + pw}" y2="{mt + ph}" stroke="#333"/>',
-           f'<line x1="{ml}" y1="{mt}" x2="{ml}" y2="{mt + ph}" stroke="#333"/>']
+    out = [
+        f'<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" '
+        f'viewBox="0 0 {width} {height}" font-family="sans-serif" font-size="11">',
+        f'<text x="{width / 2}" y="16" text-anchor="middle" font-size="13">{html.escape(title)}</text>',
+        f'<line x1="{ml}" y1="{mt + ph}" x2="{ml + pw}" y2="{mt + ph}" stroke="#333"/>',
+        f'<line x1="{ml}" y1="{mt}" x2="{ml}" y2="{mt + ph}" stroke="#333"/>',
+    ]
     n = len(counts)
     bw = pw / n
     for k, c in enumerate(counts):
         h = ph * c / cmax
-        out.append(f'<rect x="{ml + k * bw + 0.5:.1f}" y="{mt + ph - h:.1f}" width="{max(bw - 1, 0.5):.1f}" '
-                   f'height="{h:.1f}" fill="#4a7ab5"><title>{edges[k]:.3g}-{edges[k + 1]:.3g}: {int(c)}</title></rect>')
+        out.append(
+            f'<rect x="{ml + k * bw + 0.5:.1f}" y="{mt + ph - h:.1f}" width="{max(bw - 1, 0.5):.1f}" '
+            f'height="{h:.1f}" fill="#4a7ab5"><title>{edges[k]:.3g}-{edges[k + 1]:.3g}: {int(c)}</title></rect>'
+        )
     for frac in (0.0, 0.5, 1.0):
         y = mt + ph * (1 - frac)
         out.append(f'<text x="{ml - 4}" y="{y + 4:.1f}" text-anchor="end">{int(round(cmax * frac))}</text>')
@@ -109,19 +120,29 @@ def top_view_png(result: SfMResult, size: int = 900, max_points: int = 60000, se
         arrow = 0.04 * span * s
         for (u, v), (du, dv) in zip(cu, d2):
             n = math.hypot(du, dv)
-            end = (int(round(u + arrow * du / n)), int(round(v - arrow * dv / n))) if n > 1e-9 else (int(u), int(v))
+            end = (
+                (int(round(u + arrow * du / n)), int(round(v - arrow * dv / n)))
+                if n > 1e-9
+                else (int(u), int(v))
+            )
             cv2.line(img, (int(round(u)), int(round(v))), end, (200, 30, 30), 1, cv2.LINE_AA)
             cv2.circle(img, (int(round(u)), int(round(v))), 3, (220, 20, 20), -1, cv2.LINE_AA)
         if len(cu) > 1:
             cv2.polylines(img, [np.round(cu).astype(np.int32)], False, (240, 150, 150), 1, cv2.LINE_AA)
     bar = 10 ** math.floor(math.log10(span / 5)) if span > 0 else 1.0
     cv2.line(img, (margin, size - 15), (margin + int(bar * s), size - 15), (0, 0, 0), 2)
-    cv2.putText(img, f"{bar:g} units", (margin, size - 20), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
+    cv2.putText(
+        img, f"{bar:g} units", (margin, size - 20), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA
+    )
     return encode_png(img)
 
 
 def _table(rows: list[tuple[str, str]]) -> str:
-    return "<table>" + "".join(f"<tr><th>{html.escape(k)}</th><td>{html.escape(v)}</td></tr>" for k, v in rows) + "</table>"
+    return (
+        "<table>"
+        + "".join(f"<tr><th>{html.escape(k)}</th><td>{html.escape(v)}</td></tr>" for k, v in rows)
+        + "</table>"
+    )
 
 
 def report_html(result: SfMResult, title: str = "Structure from motion") -> str:
@@ -137,18 +158,32 @@ def report_html(result: SfMResult, title: str = "Structure from motion") -> str:
         ("3D points", f"{len(rec.points3d)}"),
         ("observations", f"{int(tl.sum()) if len(tl) else 0}"),
         ("mean track length", f"{tl.mean():.2f}" if len(tl) else "-"),
-        ("reprojection error (mean / median)", f"{errs.mean():.3f} / {np.median(errs):.3f} px" if len(errs) else "-"),
-        ("pairs (mode, matched, verified)",
-         f"{d.get('pairing', {}).get('mode', '?')}, {d.get('pairing', {}).get('num_pairs', '?')}, "
-         f"{d.get('pairs_verified', '?')}"),
+        (
+            "reprojection error (mean / median)",
+            f"{errs.mean():.3f} / {np.median(errs):.3f} px" if len(errs) else "-",
+        ),
+        (
+            "pairs (mode, matched, verified)",
+            f"{d.get('pairing', {}).get('mode', '?')}, {d.get('pairing', {}).get('num_pairs', '?')}, "
+            f"{d.get('pairs_verified', '?')}",
+        ),
         ("initial pair", f"{m.get('init_pair', '-')}"),
         ("bundle adjustments (local / global)", f"{m.get('local_ba', 0)} / {m.get('global_ba', 0)}"),
     ]
     timing = [(k_, f"{v:.2f} s") for k_, v in result.timings.items()]
-    hist_err = svg_histogram(errs, np.linspace(0, max(2.0, float(np.percentile(errs, 99.5)) if len(errs) else 2.0), 41),
-                             "Reprojection error", "pixels")
-    hist_tl = svg_histogram(tl, np.arange(1.5, max(int(tl.max()) if len(tl) else 2, 3) + 1.5), "Track length",
-                            "images per point", integer=True)
+    hist_err = svg_histogram(
+        errs,
+        np.linspace(0, max(2.0, float(np.percentile(errs, 99.5)) if len(errs) else 2.0), 41),
+        "Reprojection error",
+        "pixels",
+    )
+    hist_tl = svg_histogram(
+        tl,
+        np.arange(1.5, max(int(tl.max()) if len(tl) else 2, 3) + 1.5),
+        "Track length",
+        "images per point",
+        integer=True,
+    )
     png = base64.b64encode(top_view_png(result)).decode("ascii")
     rows = []
     for im in result.images:

@@ -18,7 +18,9 @@ from skyrecon.sfm.extract import load_features
 __all__ = ["vlad_descriptors", "similarity_matrix"]
 
 
-def _sample(paths: Sequence[str], per_image: int, rng: np.random.Generator, max_images: int = 400) -> np.ndarray:
+def _sample(
+    paths: Sequence[str], per_image: int, rng: np.random.Generator, max_images: int = 400
+) -> np.ndarray:
     chosen = np.arange(len(paths))
     if len(chosen) > max_images:
         chosen = np.sort(rng.choice(len(paths), max_images, replace=False))
@@ -51,8 +53,9 @@ def vlad_descriptors(
         n_clusters = max(1, len(sample))
     if len(sample) == 0:
         return np.zeros((len(feature_paths), 1), np.float32)
-    centres, _ = scipy.cluster.vq.kmeans2(sample.astype(np.float64), n_clusters, iter=15, minit="++",
-                                          seed=np.random.default_rng(seed + 1))
+    centres, _ = scipy.cluster.vq.kmeans2(
+        sample.astype(np.float64), n_clusters, iter=15, minit="++", seed=np.random.default_rng(seed + 1)
+    )
     centres = centres.astype(np.float32)
     c2 = np.sum(centres * centres, axis=1)
     D = centres.shape[1]

@@ -15,7 +15,12 @@ from skyrecon.features.match import MatchSettings
 from skyrecon.sfm.bundle import LossName
 
 __all__ = [
-    "PairMode", "PairingSettings", "VerificationSettings", "MapperSettings", "BundleSettings", "SfMSettings",
+    "PairMode",
+    "PairingSettings",
+    "VerificationSettings",
+    "MapperSettings",
+    "BundleSettings",
+    "SfMSettings",
 ]
 
 PairMode = Literal["auto", "exhaustive", "sequential", "retrieval"]
@@ -55,11 +60,15 @@ class PairingSettings:
 
     def __post_init__(self) -> None:
         if self.mode not in ("auto", "exhaustive", "sequential", "retrieval"):
-            raise InputError(f"unknown pairing mode {self.mode!r}; use auto, exhaustive, sequential or retrieval")
+            raise InputError(
+                f"unknown pairing mode {self.mode!r}; use auto, exhaustive, sequential or retrieval"
+            )
         if self.window < 1 or self.max_offset < 1 or self.retrieval_neighbors < 1:
             raise InputError("pairing window, max_offset and retrieval_neighbors must be >= 1")
         if self.loop_candidates < 0 or self.exhaustive_max_images < 2 or self.retrieval_clusters < 2:
-            raise InputError("loop_candidates must be >= 0, exhaustive_max_images and retrieval_clusters >= 2")
+            raise InputError(
+                "loop_candidates must be >= 0, exhaustive_max_images and retrieval_clusters >= 2"
+            )
 
 
 @dataclass(frozen=True)
@@ -169,7 +178,9 @@ class MapperSettings:
 
     def __post_init__(self) -> None:
         if self.init_min_inliers < 8 or self.pnp_min_inliers < 4 or self.init_min_points < 8:
-            raise InputError("mapper: init_min_inliers >= 8, init_min_points >= 8 and pnp_min_inliers >= 4 are needed")
+            raise InputError(
+                "mapper: init_min_inliers >= 8, init_min_points >= 8 and pnp_min_inliers >= 4 are needed"
+            )
         if not self.global_ba_ratio > 1.0:
             raise InputError(f"mapper: global_ba_ratio must be > 1, got {self.global_ba_ratio}")
         if self.local_ba_images < 1:
@@ -216,7 +227,9 @@ class BundleSettings:
 
 def _default_features() -> FeatureSettings:
     # contrast threshold 0.04 = COLMAP's SIFT peak threshold (0.04 / 3 octave layers / 2)
-    return FeatureSettings(method="rootsift", max_image_size=1600, max_features=8192, sift_contrast_threshold=0.04)
+    return FeatureSettings(
+        method="rootsift", max_image_size=1600, max_features=8192, sift_contrast_threshold=0.04
+    )
 
 
 @dataclass(frozen=True)
@@ -251,7 +264,9 @@ class SfMSettings:
         if self.target_features < 0:
             raise InputError(f"target_features must be >= 0, got {self.target_features}")
         if self.max_image_size is not None and self.max_image_size < 0:
-            raise InputError(f"max_image_size must be positive (or 0/None for the input size), got {self.max_image_size}")
+            raise InputError(
+                f"max_image_size must be positive (or 0/None for the input size), got {self.max_image_size}"
+            )
         if self.max_image_size and self.max_image_size < 64:
             raise InputError(f"max_image_size must be at least 64 pixels, got {self.max_image_size}")
         if self.min_features < 8:

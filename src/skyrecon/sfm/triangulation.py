@@ -42,7 +42,9 @@ class TriangulationResult:
 
 
 @nb.njit(cache=True)
-def _dlt(idx: np.ndarray, m: int, xn: np.ndarray, img: np.ndarray, R: np.ndarray, t: np.ndarray) -> np.ndarray:
+def _dlt(
+    idx: np.ndarray, m: int, xn: np.ndarray, img: np.ndarray, R: np.ndarray, t: np.ndarray
+) -> np.ndarray:
     A = np.zeros((4, 4))
     row = np.empty(4)
     for k in range(m):
@@ -70,8 +72,16 @@ def _dlt(idx: np.ndarray, m: int, xn: np.ndarray, img: np.ndarray, R: np.ndarray
 
 
 @nb.njit(cache=True)
-def _refine(X: np.ndarray, idx: np.ndarray, m: int, xn: np.ndarray, img: np.ndarray, R: np.ndarray, t: np.ndarray,
-            iterations: int) -> np.ndarray:
+def _refine(
+    X: np.ndarray,
+    idx: np.ndarray,
+    m: int,
+    xn: np.ndarray,
+    img: np.ndarray,
+    R: np.ndarray,
+    t: np.ndarray,
+    iterations: int,
+) -> np.ndarray:
     """Gauss-Newton on the normalised reprojection error (damped slightly)."""
     X = X.copy()
     for _ in range(iterations):
@@ -103,8 +113,17 @@ def _refine(X: np.ndarray, idx: np.ndarray, m: int, xn: np.ndarray, img: np.ndar
 
 
 @nb.njit(cache=True)
-def _errors(X: np.ndarray, start: int, stop: int, xn: np.ndarray, img: np.ndarray, R: np.ndarray, t: np.ndarray,
-            focal: np.ndarray, err: np.ndarray) -> None:
+def _errors(
+    X: np.ndarray,
+    start: int,
+    stop: int,
+    xn: np.ndarray,
+    img: np.ndarray,
+    R: np.ndarray,
+    t: np.ndarray,
+    focal: np.ndarray,
+    err: np.ndarray,
+) -> None:
     for o in range(start, stop):
         i = img[o]
         P = R[i] @ X + t[i]
@@ -115,7 +134,9 @@ def _errors(X: np.ndarray, start: int, stop: int, xn: np.ndarray, img: np.ndarra
 
 
 @nb.njit(cache=True)
-def _max_angle(X: np.ndarray, start: int, stop: int, inl: np.ndarray, img: np.ndarray, C: np.ndarray) -> float:
+def _max_angle(
+    X: np.ndarray, start: int, stop: int, inl: np.ndarray, img: np.ndarray, C: np.ndarray
+) -> float:
     best = 1.0  # the smallest cosine seen
     for a in range(start, stop):
         if not inl[a]:
@@ -134,7 +155,9 @@ def _max_angle(X: np.ndarray, start: int, stop: int, inl: np.ndarray, img: np.nd
 
 
 @nb.njit(cache=True)
-def _triangulate_all(ptr, xn, img, R, t, focal, C, max_err, min_angle_deg, max_pairs, X_out, ok, inl, err, ang):
+def _triangulate_all(  # noqa: C901  (Numba kernel: one flat loop nest)
+    ptr, xn, img, R, t, focal, C, max_err, min_angle_deg, max_pairs, X_out, ok, inl, err, ang
+):
     n_tracks = ptr.shape[0] - 1
     for k in range(n_tracks):
         start = ptr[k]
@@ -268,8 +291,23 @@ def triangulate_tracks(
     err = np.full(len(xn), np.inf)
     ang = np.zeros(n_tracks)
     if n_tracks:
-        _triangulate_all(ptr, xn, img, R, t, focal, C, float(max_error_px), float(min_angle_deg),
-                         int(max_pair_hypotheses), X, ok, inl, err, ang)
+        _triangulate_all(
+            ptr,
+            xn,
+            img,
+            R,
+            t,
+            focal,
+            C,
+            float(max_error_px),
+            float(min_angle_deg),
+            int(max_pair_hypotheses),
+            X,
+            ok,
+            inl,
+            err,
+            ang,
+        )
     return TriangulationResult(X, ok, inl, err, ang)
 
 
@@ -292,7 +330,12 @@ def max_triangulation_angles_deg(
     """
     out = np.zeros(len(ptr) - 1)
     if len(out):
-        _angles(np.ascontiguousarray(ptr, np.int64), np.ascontiguousarray(points, np.float64),
-                np.ascontiguousarray(obs_image, np.int64), np.ascontiguousarray(centers, np.float64),
-                np.ascontiguousarray(active, np.bool_), out)
+        _angles(
+            np.ascontiguousarray(ptr, np.int64),
+            np.ascontiguousarray(points, np.float64),
+            np.ascontiguousarray(obs_image, np.int64),
+            np.ascontiguousarray(centers, np.float64),
+            np.ascontiguousarray(active, np.bool_),
+            out,
+        )
     return out

@@ -61,7 +61,9 @@ def chained_rotations(pairs: Sequence[PairGeometry], n_images: int) -> tuple[np.
 
 
 def rotation_inconsistent_pairs(
-    pairs: Sequence[PairGeometry], n_images: int, max_error_deg: float = 5.0,
+    pairs: Sequence[PairGeometry],
+    n_images: int,
+    max_error_deg: float = 5.0,
     trusted: np.ndarray | None = None,
 ) -> tuple[list[int], np.ndarray]:
     """Indices (into ``pairs``) of the pairs whose rotation disagrees with the chained rotations

@@ -14,12 +14,31 @@ from skyrecon.sim.city import City, RayHits
 from skyrecon.sim.generate import generate_city, generate_object_scene
 from skyrecon.sim.render import RenderResult, StereoFrame, render, render_depth, render_stereo, render_views
 from skyrecon.sim.scenes import (
-    default_rig, flight_path, flight_poses, look_from, orbit_views, ring_views, street_view_pose,
+    default_rig,
+    flight_path,
+    flight_poses,
+    look_from,
+    orbit_views,
+    ring_views,
+    street_view_pose,
 )
 
 __all__ = [
-    "City", "RayHits", "generate_city", "generate_object_scene", "RenderResult", "StereoFrame", "render",
+    "City",
+    "RayHits",
+    "generate_city",
+    "generate_object_scene",
+    "RenderResult",
+    "StereoFrame",
+    "render",
     "render_depth",
-    "render_stereo", "render_views", "default_rig", "street_view_pose", "flight_poses", "flight_path", "look_from",
-    "ring_views", "orbit_views",
+    "render_stereo",
+    "render_views",
+    "default_rig",
+    "street_view_pose",
+    "flight_poses",
+    "flight_path",
+    "look_from",
+    "ring_views",
+    "orbit_views",
 ]

@@ -41,8 +41,9 @@ class UniformGrid:
 def item_bounds(boxes: np.ndarray, cylinders: np.ndarray) -> np.ndarray:
     """(N + M, 6) axis-aligned bounds ``[xmin, ymin, zmin, xmax, ymax, zmax]`` of every item."""
     c = cylinders
-    cyl_b = np.stack([c[:, 0] - c[:, 2], c[:, 1] - c[:, 2], c[:, 3], c[:, 0] + c[:, 2], c[:, 1] + c[:, 2], c[:, 4]],
-                     axis=1)
+    cyl_b = np.stack(
+        [c[:, 0] - c[:, 2], c[:, 1] - c[:, 2], c[:, 3], c[:, 0] + c[:, 2], c[:, 1] + c[:, 2], c[:, 4]], axis=1
+    )
     return np.concatenate([boxes.reshape(-1, 6), cyl_b.reshape(-1, 6)], axis=0)
 
 
@@ -57,8 +58,9 @@ def build_grid(boxes: np.ndarray, cylinders: np.ndarray, cell_m: float | None = 
     bounds = item_bounds(boxes, cylinders)
     n = len(bounds)
     if n == 0:
-        return UniformGrid(0.0, 0.0, 1.0, 1, 1, 0.0, 0.0, np.zeros(2, np.int64), np.zeros(0, np.int32),
-                           np.full(1, -np.inf))
+        return UniformGrid(
+            0.0, 0.0, 1.0, 1, 1, 0.0, 0.0, np.zeros(2, np.int64), np.zeros(0, np.int32), np.full(1, -np.inf)
+        )
     lo = bounds[:, :3].min(axis=0)
     hi = bounds[:, 3:].max(axis=0)
     span = np.maximum(hi[:2] - lo[:2], 1e-3)
@@ -87,5 +89,15 @@ def build_grid(boxes: np.ndarray, cylinders: np.ndarray, cell_m: float | None = 
     np.cumsum(counts, out=start[1:])
     zmax = np.full(ncx * ncy, -np.inf)
     np.maximum.at(zmax, cells_a, bounds[items_a, 5])
-    return UniformGrid(x0, y0, float(cell_m), ncx, ncy, float(lo[2]), float(hi[2]), start,
-                       np.ascontiguousarray(items_a), zmax)
+    return UniformGrid(
+        x0,
+        y0,
+        float(cell_m),
+        ncx,
+        ncy,
+        float(lo[2]),
+        float(hi[2]),
+        start,
+        np.ascontiguousarray(items_a),
+        zmax,
+    )

@@ -123,11 +123,18 @@ class City:
         self.box_params, self.cyl_params = f64(self.box_params, 6), f64(self.cyl_params, 6)
         self.blocks_x, self.blocks_y = f64(self.blocks_x, 2), f64(self.blocks_y, 2)
         self.center = np.asarray(self.center, dtype=np.float64).reshape(3)
-        for name, arr, n in (("box_material", self.box_material, nb), ("box_kind", self.box_kind, nb),
-                             ("box_albedo", self.box_albedo, nb), ("box_accent", self.box_accent, nb),
-                             ("box_params", self.box_params, nb), ("cyl_material", self.cyl_material, nc),
-                             ("cyl_kind", self.cyl_kind, nc), ("cyl_albedo", self.cyl_albedo, nc),
-                             ("cyl_accent", self.cyl_accent, nc), ("cyl_params", self.cyl_params, nc)):
+        for name, arr, n in (
+            ("box_material", self.box_material, nb),
+            ("box_kind", self.box_kind, nb),
+            ("box_albedo", self.box_albedo, nb),
+            ("box_accent", self.box_accent, nb),
+            ("box_params", self.box_params, nb),
+            ("cyl_material", self.cyl_material, nc),
+            ("cyl_kind", self.cyl_kind, nc),
+            ("cyl_albedo", self.cyl_albedo, nc),
+            ("cyl_accent", self.cyl_accent, nc),
+            ("cyl_params", self.cyl_params, nc),
+        ):
             if len(arr) != n:
                 raise InputError(f"City.{name} has {len(arr)} rows for {n} objects")
         if np.any(self.boxes[:, 3:] < self.boxes[:, :3]):
@@ -143,7 +150,7 @@ class City:
         cylinders: np.ndarray | None = None,
         seed: int = 0,
         extent: np.ndarray | None = None,
-    ) -> "City":
+    ) -> City:
         """A scene made of given obstacles on a paved ground (for tests with hand-made geometry).
 
         Args:
@@ -165,12 +172,24 @@ class City:
         tops = np.concatenate([b[:, 5], c[:, 4], [0.0]])
         params = np.tile([3.0, 0.0, 0.5, 0.5, 0.0, 1.0], (nb, 1))
         return cls(
-            seed=int(seed), extent=extent, boxes=b, box_material=np.full(nb, MAT_STONE), box_kind=np.zeros(nb),
-            box_albedo=np.tile([0.62, 0.58, 0.52], (nb, 1)), box_accent=np.tile([0.5, 0.5, 0.5], (nb, 1)),
-            box_params=params, cylinders=c, cyl_material=np.full(nc, MAT_METAL), cyl_kind=np.zeros(nc),
-            cyl_albedo=np.tile([0.45, 0.46, 0.48], (nc, 1)), cyl_accent=np.tile([0.5, 0.5, 0.5], (nc, 1)),
-            cyl_params=np.tile([3.0, 0.0, 0.5, 0.5, 0.0, 1.0], (nc, 1)), blocks_x=np.zeros((0, 2)),
-            blocks_y=np.zeros((0, 2)), sidewalk_m=0.0, ground_style=GROUND_PLAZA,
+            seed=int(seed),
+            extent=extent,
+            boxes=b,
+            box_material=np.full(nb, MAT_STONE),
+            box_kind=np.zeros(nb),
+            box_albedo=np.tile([0.62, 0.58, 0.52], (nb, 1)),
+            box_accent=np.tile([0.5, 0.5, 0.5], (nb, 1)),
+            box_params=params,
+            cylinders=c,
+            cyl_material=np.full(nc, MAT_METAL),
+            cyl_kind=np.zeros(nc),
+            cyl_albedo=np.tile([0.45, 0.46, 0.48], (nc, 1)),
+            cyl_accent=np.tile([0.5, 0.5, 0.5], (nc, 1)),
+            cyl_params=np.tile([3.0, 0.0, 0.5, 0.5, 0.0, 1.0], (nc, 1)),
+            blocks_x=np.zeros((0, 2)),
+            blocks_y=np.zeros((0, 2)),
+            sidewalk_m=0.0,
+            ground_style=GROUND_PLAZA,
             center=np.array([(extent[0] + extent[2]) / 2, (extent[1] + extent[3]) / 2, tops.max() / 2]),
             view_radius_m=float(max(extent[2] - extent[0], extent[3] - extent[1]) / 2),
         )
@@ -186,13 +205,15 @@ class City:
         """Centre lines of the streets: (xs, ys), x positions of streets running along y and
         y positions of streets running along x, world metres (border streets included)."""
         return _gap_centers(self.blocks_x, self.extent[0], self.extent[2]), _gap_centers(
-            self.blocks_y, self.extent[1], self.extent[3])
+            self.blocks_y, self.extent[1], self.extent[3]
+        )
 
     @property
     def street_widths(self) -> tuple[np.ndarray, np.ndarray]:
         """Widths (metres) of the streets listed by :attr:`street_centers`."""
         return _gap_widths(self.blocks_x, self.extent[0], self.extent[2]), _gap_widths(
-            self.blocks_y, self.extent[1], self.extent[3])
+            self.blocks_y, self.extent[1], self.extent[3]
+        )
 
     @property
     def max_height_m(self) -> float:
@@ -205,9 +226,24 @@ class City:
         h = hashlib.sha256()
         settings = (int(self.seed), float(self.sidewalk_m), int(self.ground_style), float(self.view_radius_m))
         h.update(repr(settings).encode())
-        for a in (self.extent, self.boxes, self.box_material, self.box_kind, self.box_albedo, self.box_accent,
-                  self.box_params, self.cylinders, self.cyl_material, self.cyl_kind, self.cyl_albedo,
-                  self.cyl_accent, self.cyl_params, self.blocks_x, self.blocks_y, self.center):
+        for a in (
+            self.extent,
+            self.boxes,
+            self.box_material,
+            self.box_kind,
+            self.box_albedo,
+            self.box_accent,
+            self.box_params,
+            self.cylinders,
+            self.cyl_material,
+            self.cyl_kind,
+            self.cyl_albedo,
+            self.cyl_accent,
+            self.cyl_params,
+            self.blocks_x,
+            self.blocks_y,
+            self.center,
+        ):
             h.update(np.ascontiguousarray(a).tobytes())
         return h.hexdigest()
 
@@ -225,8 +261,22 @@ class City:
         p = _points(points_world)
         g = self.grid
         out = np.empty(len(p))
-        run_chunks(_rc.signed_distance, len(p), p, bool(include_ground), self.boxes, self.cylinders, g.x0, g.y0,
-                   g.cell_m, g.ncx, g.ncy, g.cell_start, g.cell_items, out)
+        run_chunks(
+            _rc.signed_distance,
+            len(p),
+            p,
+            bool(include_ground),
+            self.boxes,
+            self.cylinders,
+            g.x0,
+            g.y0,
+            g.cell_m,
+            g.ncx,
+            g.ncy,
+            g.cell_start,
+            g.cell_items,
+            out,
+        )
         return out
 
     def is_occupied(self, points_world: np.ndarray, include_ground: bool = False) -> np.ndarray:
@@ -281,16 +331,18 @@ class City:
             i0 = np.floor((lo - o) / vs).astype(np.int64)
             i1 = np.ceil((hi - o) / vs).astype(np.int64)
             # settle floating-point ties with the exact voxel bounds
-            i0 += (o + (i0 + 1) * vs <= lo)
-            i1 -= (o + (i1 - 1) * vs >= hi)
+            i0 += o + (i0 + 1) * vs <= lo
+            i1 -= o + (i1 - 1) * vs >= hi
             return np.clip(i0, 0, dims), np.clip(i1, 0, dims)
 
         for b in self.boxes:
             a, e = index_range(b[:3], b[3:])
             if np.all(e > a):
-                occ[a[0]:e[0], a[1]:e[1], a[2]:e[2]] = True
+                occ[a[0] : e[0], a[1] : e[1], a[2] : e[2]] = True
         for c in self.cylinders:
-            a, e = index_range(np.array([c[0] - c[2], c[1] - c[2], c[3]]), np.array([c[0] + c[2], c[1] + c[2], c[4]]))
+            a, e = index_range(
+                np.array([c[0] - c[2], c[1] - c[2], c[3]]), np.array([c[0] + c[2], c[1] + c[2], c[4]])
+            )
             if not np.all(e > a):
                 continue
             xs0 = o[0] + np.arange(a[0], e[0]) * vs
@@ -298,15 +350,21 @@ class City:
             qx = np.clip(c[0], xs0, xs0 + vs) - c[0]
             qy = np.clip(c[1], ys0, ys0 + vs) - c[1]
             col = (qx[:, None] ** 2 + qy[None, :] ** 2) < c[2] ** 2
-            occ[a[0]:e[0], a[1]:e[1], a[2]:e[2]] |= col[:, :, None]
+            occ[a[0] : e[0], a[1] : e[1], a[2] : e[2]] |= col[:, :, None]
         if include_ground:
             k = np.arange(nz)
             occ[:, :, o[2] + k * vs < 0.0] = True
         return occ
 
-    def _trace(self, origins: np.ndarray, dirs: np.ndarray, include_ground: bool, t_lo: float = 0.0,
-               t_hi: float = np.inf, rot: np.ndarray | None = None
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def _trace(
+        self,
+        origins: np.ndarray,
+        dirs: np.ndarray,
+        include_ground: bool,
+        t_lo: float = 0.0,
+        t_hi: float = np.inf,
+        rot: np.ndarray | None = None,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """First hits (t, kind, index, face) of rays ``origins + t * rot @ dirs``; see ``raycast.trace_rays``."""
         g = self.grid
         rot = np.eye(3) if rot is None else np.ascontiguousarray(rot, dtype=np.float64)
@@ -315,9 +373,32 @@ class City:
         kind = np.empty(n, np.int32)
         index = np.empty(n, np.int32)
         face = np.empty(n, np.int32)
-        run_chunks(_rc.trace_rays, n, origins, dirs, rot, float(t_lo), float(t_hi), bool(include_ground), self.boxes,
-                   self.cylinders, g.x0, g.y0, g.cell_m, g.ncx, g.ncy, g.z_lo, g.z_hi, g.cell_start, g.cell_items,
-                   g.cell_zmax, t, kind, index, face)
+        run_chunks(
+            _rc.trace_rays,
+            n,
+            origins,
+            dirs,
+            rot,
+            float(t_lo),
+            float(t_hi),
+            bool(include_ground),
+            self.boxes,
+            self.cylinders,
+            g.x0,
+            g.y0,
+            g.cell_m,
+            g.ncx,
+            g.ncy,
+            g.z_lo,
+            g.z_hi,
+            g.cell_start,
+            g.cell_items,
+            g.cell_zmax,
+            t,
+            kind,
+            index,
+            face,
+        )
         return t, kind, index, face
 
     def _rays(self, origins: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -330,8 +411,9 @@ class City:
             raise InputError("ray directions must be non-zero")
         return o, np.ascontiguousarray(d / norm[:, None])
 
-    def raycast(self, origins: np.ndarray, dirs: np.ndarray, include_ground: bool = True,
-                max_range_m: float = np.inf) -> np.ndarray:
+    def raycast(
+        self, origins: np.ndarray, dirs: np.ndarray, include_ground: bool = True, max_range_m: float = np.inf
+    ) -> np.ndarray:
         """Distance to the first surface along each ray.
 
         Args:
@@ -347,8 +429,9 @@ class City:
         t, _, _, _ = self._trace(o, d, include_ground, 0.0, max_range_m)
         return t
 
-    def raycast_hits(self, origins: np.ndarray, dirs: np.ndarray, include_ground: bool = True,
-                     max_range_m: float = np.inf) -> RayHits:
+    def raycast_hits(
+        self, origins: np.ndarray, dirs: np.ndarray, include_ground: bool = True, max_range_m: float = np.inf
+    ) -> RayHits:
         """As :meth:`raycast`, also returning the object id and surface normal of each hit."""
         o, d = self._rays(origins, dirs)
         t, kind, index, face = self._trace(o, d, include_ground, 0.0, max_range_m)
@@ -376,7 +459,9 @@ class City:
 
 def _gap_edges(blocks: np.ndarray, lo: float, hi: float) -> list[tuple[float, float]]:
     edges = [lo, *np.asarray(blocks, dtype=np.float64).ravel().tolist(), hi]
-    return [(edges[2 * i], edges[2 * i + 1]) for i in range(len(edges) // 2) if edges[2 * i + 1] > edges[2 * i]]
+    return [
+        (edges[2 * i], edges[2 * i + 1]) for i in range(len(edges) // 2) if edges[2 * i + 1] > edges[2 * i]
+    ]
 
 
 def _gap_centers(blocks: np.ndarray, lo: float, hi: float) -> np.ndarray:

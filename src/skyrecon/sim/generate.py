@@ -40,7 +40,14 @@ from skyrecon.sim.texture import (
 _BRICK = [(0.55, 0.27, 0.2), (0.62, 0.36, 0.26), (0.47, 0.24, 0.19), (0.72, 0.58, 0.44), (0.6, 0.3, 0.22)]
 _CONCRETE = [(0.62, 0.6, 0.56), (0.72, 0.7, 0.64), (0.52, 0.52, 0.52), (0.76, 0.71, 0.6), (0.66, 0.64, 0.66)]
 _GLASS = [(0.24, 0.34, 0.44), (0.3, 0.4, 0.38), (0.33, 0.36, 0.42), (0.22, 0.3, 0.36)]
-_PLAIN = [(0.86, 0.8, 0.7), (0.7, 0.76, 0.82), (0.9, 0.88, 0.84), (0.8, 0.62, 0.5), (0.62, 0.72, 0.6), (0.9, 0.8, 0.55)]
+_PLAIN = [
+    (0.86, 0.8, 0.7),
+    (0.7, 0.76, 0.82),
+    (0.9, 0.88, 0.84),
+    (0.8, 0.62, 0.5),
+    (0.62, 0.72, 0.6),
+    (0.9, 0.8, 0.55),
+]
 _ACCENT = [(0.9, 0.9, 0.88), (0.3, 0.3, 0.32), (0.55, 0.55, 0.58), (0.8, 0.78, 0.7)]
 
 
@@ -53,12 +60,25 @@ class _Builder:
         self.cyls: list[list[float]] = []
         self.cyl_info: list[tuple[int, int, tuple, tuple, tuple]] = []
 
-    def box(self, lo, hi, material, kind, albedo, accent=(0.5, 0.5, 0.5), params=(3.2, 3.0, 0.5, 0.5, 0.0, 1.0)):
+    def box(
+        self, lo, hi, material, kind, albedo, accent=(0.5, 0.5, 0.5), params=(3.2, 3.0, 0.5, 0.5, 0.0, 1.0)
+    ):
         self.boxes.append([float(v) for v in (*lo, *hi)])
         self.box_info.append((material, kind, tuple(albedo), tuple(accent), tuple(params)))
 
-    def cylinder(self, x, y, r, z0, z1, material, kind, albedo, accent=(0.5, 0.5, 0.5),
-                 params=(3.2, 0.0, 0.5, 0.5, 0.0, 1.0)):
+    def cylinder(
+        self,
+        x,
+        y,
+        r,
+        z0,
+        z1,
+        material,
+        kind,
+        albedo,
+        accent=(0.5, 0.5, 0.5),
+        params=(3.2, 0.0, 0.5, 0.5, 0.0, 1.0),
+    ):
         self.cyls.append([float(x), float(y), float(r), float(z0), float(z1)])
         self.cyl_info.append((material, kind, tuple(albedo), tuple(accent), tuple(params)))
 
@@ -74,8 +94,20 @@ class _Builder:
 
         b, bm, bk, ba, bc, bp = pack(self.boxes, self.box_info, 6)
         c, cm, ck, ca, cc, cp = pack(self.cyls, self.cyl_info, 5)
-        return dict(boxes=b, box_material=bm, box_kind=bk, box_albedo=ba, box_accent=bc, box_params=bp,
-                    cylinders=c, cyl_material=cm, cyl_kind=ck, cyl_albedo=ca, cyl_accent=cc, cyl_params=cp)
+        return dict(
+            boxes=b,
+            box_material=bm,
+            box_kind=bk,
+            box_albedo=ba,
+            box_accent=bc,
+            box_params=bp,
+            cylinders=c,
+            cyl_material=cm,
+            cyl_kind=ck,
+            cyl_albedo=ca,
+            cyl_accent=cc,
+            cyl_params=cp,
+        )
 
 
 def _jitter_color(rng: np.random.Generator, palette, amount: float = 0.05) -> tuple:
@@ -175,13 +207,24 @@ def _building_style(rng: np.random.Generator, height: float, low_texture_fractio
 def _tree(b: _Builder, rng: np.random.Generator, x: float, y: float, scale: float = 1.0) -> None:
     trunk_h = rng.uniform(2.2, 3.2) * scale
     tw = rng.uniform(0.25, 0.4) * scale
-    b.box((x - tw / 2, y - tw / 2, 0.0), (x + tw / 2, y + tw / 2, trunk_h), MAT_BARK, KIND_TREE_TRUNK,
-          _jitter_color(rng, [(0.36, 0.27, 0.2)]), params=(3.0, 0.0, 0.5, 0.5, 0.0, 1.0))
+    b.box(
+        (x - tw / 2, y - tw / 2, 0.0),
+        (x + tw / 2, y + tw / 2, trunk_h),
+        MAT_BARK,
+        KIND_TREE_TRUNK,
+        _jitter_color(rng, [(0.36, 0.27, 0.2)]),
+        params=(3.0, 0.0, 0.5, 0.5, 0.0, 1.0),
+    )
     cw = rng.uniform(2.4, 3.4) * scale
     ch = rng.uniform(2.5, 4.0) * scale
-    b.box((x - cw / 2, y - cw / 2, trunk_h), (x + cw / 2, y + cw / 2, trunk_h + ch), MAT_FOLIAGE, KIND_TREE_CANOPY,
-          _jitter_color(rng, [(0.22, 0.42, 0.16), (0.28, 0.45, 0.2), (0.2, 0.36, 0.18)]),
-          params=(3.0, 0.0, 0.5, 0.5, 0.0, 1.0))
+    b.box(
+        (x - cw / 2, y - cw / 2, trunk_h),
+        (x + cw / 2, y + cw / 2, trunk_h + ch),
+        MAT_FOLIAGE,
+        KIND_TREE_CANOPY,
+        _jitter_color(rng, [(0.22, 0.42, 0.16), (0.28, 0.45, 0.2), (0.2, 0.36, 0.18)]),
+        params=(3.0, 0.0, 0.5, 0.5, 0.0, 1.0),
+    )
 
 
 def generate_city(
@@ -252,7 +295,7 @@ def generate_city(
                 if fy1 - fy0 < 5.0:
                     fy0, fy1 = ly0, ly1
                 u = rng.random()
-                h = 6.0 * (max_height_m / 6.0) ** (u ** 1.2 * (0.6 + 0.4 * closeness))
+                h = 6.0 * (max_height_m / 6.0) ** (u**1.2 * (0.6 + 0.4 * closeness))
                 h = float(np.clip(h, 6.0, min(max_height_m, 7.0 * min(fx1 - fx0, fy1 - fy0))))
                 mat, alb, acc, params = _building_style(rng, h, low_texture_fraction)
                 b.box((fx0, fy0, 0.0), (fx1, fy1, h), mat, KIND_BUILDING, alb, acc, params)
@@ -261,21 +304,37 @@ def generate_city(
                     inset = rng.uniform(2.0, 3.5, 4)
                     th = min(max_height_m, h + rng.uniform(5.0, 16.0))
                     if th > h + 2.0:
-                        b.box((fx0 + inset[0], fy0 + inset[1], h), (fx1 - inset[2], fy1 - inset[3], th), mat,
-                              KIND_BUILDING, alb, acc, params)
+                        b.box(
+                            (fx0 + inset[0], fy0 + inset[1], h),
+                            (fx1 - inset[2], fy1 - inset[3], th),
+                            mat,
+                            KIND_BUILDING,
+                            alb,
+                            acc,
+                            params,
+                        )
                 elif rng.random() < 0.5 and min(wx, wy) > 7.0:
                     for _ in range(int(rng.integers(1, 4))):
                         uw, ud, uh = rng.uniform(1.5, 3.0), rng.uniform(1.5, 3.0), rng.uniform(1.0, 2.5)
                         ux = rng.uniform(fx0 + 1.0, fx1 - 1.0 - uw)
                         uy = rng.uniform(fy0 + 1.0, fy1 - 1.0 - ud)
-                        b.box((ux, uy, h), (ux + uw, uy + ud, h + uh), MAT_METAL, KIND_ROOF_UNIT,
-                              _jitter_color(rng, [(0.7, 0.7, 0.72), (0.55, 0.56, 0.58)]),
-                              params=(3.0, 0.0, 0.5, 0.5, 0.0, 1.0))
+                        b.box(
+                            (ux, uy, h),
+                            (ux + uw, uy + ud, h + uh),
+                            MAT_METAL,
+                            KIND_ROOF_UNIT,
+                            _jitter_color(rng, [(0.7, 0.7, 0.72), (0.55, 0.56, 0.58)]),
+                            params=(3.0, 0.0, 0.5, 0.5, 0.0, 1.0),
+                        )
     # poles and street trees along every pavement, just inside the kerb
     for bx in blocks_x:
         for by in blocks_y:
-            sides = [((bx[0], by[0] + 0.6), (bx[1], by[0] + 0.6)), ((bx[0], by[1] - 0.6), (bx[1], by[1] - 0.6)),
-                     ((bx[0] + 0.6, by[0]), (bx[0] + 0.6, by[1])), ((bx[1] - 0.6, by[0]), (bx[1] - 0.6, by[1]))]
+            sides = [
+                ((bx[0], by[0] + 0.6), (bx[1], by[0] + 0.6)),
+                ((bx[0], by[1] - 0.6), (bx[1], by[1] - 0.6)),
+                ((bx[0] + 0.6, by[0]), (bx[0] + 0.6, by[1])),
+                ((bx[1] - 0.6, by[0]), (bx[1] - 0.6, by[1])),
+            ]
             for (ax, ay), (ex, ey) in sides:
                 length = np.hypot(ex - ax, ey - ay)
                 s = rng.uniform(2.0, 6.0)
@@ -283,9 +342,17 @@ def generate_city(
                     px, py = ax + (ex - ax) * s / length, ay + (ey - ay) * s / length
                     if rng.random() < 0.8:
                         r = rng.uniform(0.1, 0.16) if rng.random() < 0.7 else rng.uniform(0.16, 0.3)
-                        b.cylinder(px, py, r, 0.0, rng.uniform(4.0, 10.0), MAT_METAL, KIND_POLE,
-                                   _jitter_color(rng, [(0.42, 0.44, 0.45), (0.3, 0.32, 0.3), (0.5, 0.42, 0.32)]),
-                                   params=(3.0, 0.0, 0.5, 0.5, 0.0, 1.0))
+                        b.cylinder(
+                            px,
+                            py,
+                            r,
+                            0.0,
+                            rng.uniform(4.0, 10.0),
+                            MAT_METAL,
+                            KIND_POLE,
+                            _jitter_color(rng, [(0.42, 0.44, 0.45), (0.3, 0.32, 0.3), (0.5, 0.42, 0.32)]),
+                            params=(3.0, 0.0, 0.5, 0.5, 0.0, 1.0),
+                        )
                     else:
                         # a street tree, set back into the pavement
                         nxv, nyv = -(ey - ay) / length, (ex - ax) / length
@@ -310,8 +377,17 @@ def generate_city(
         a_, b_ = lo - 0.6, hi + 0.6
         for q in (a_, b_):
             x, y = (pos, q) if along_x else (q, pos)
-            b.cylinder(x, y, 0.15, 0.0, ph, MAT_METAL, KIND_POLE, (0.35, 0.36, 0.36),
-                       params=(3.0, 0.0, 0.5, 0.5, 0.0, 1.0))
+            b.cylinder(
+                x,
+                y,
+                0.15,
+                0.0,
+                ph,
+                MAT_METAL,
+                KIND_POLE,
+                (0.35, 0.36, 0.36),
+                params=(3.0, 0.0, 0.5, 0.5, 0.0, 1.0),
+            )
         z0 = ph - 0.35
         if along_x:
             lo3, hi3 = (pos - thick / 2, a_, z0), (pos + thick / 2, b_, z0 + thick)
@@ -320,9 +396,17 @@ def generate_city(
         b.box(lo3, hi3, MAT_METAL, KIND_BEAM, (0.25, 0.25, 0.27), params=(3.0, 0.0, 0.5, 0.5, 0.0, 1.0))
     arrays = b.arrays()
     top = float(arrays["boxes"][:, 5].max()) if len(arrays["boxes"]) else 10.0
-    return City(seed=int(seed), extent=np.array([-half, -half, half, half]), blocks_x=blocks_x, blocks_y=blocks_y,
-                sidewalk_m=float(sidewalk_m), ground_style=GROUND_CITY, center=np.array([0.0, 0.0, top / 3]),
-                view_radius_m=size_m / 3, **arrays)
+    return City(
+        seed=int(seed),
+        extent=np.array([-half, -half, half, half]),
+        blocks_x=blocks_x,
+        blocks_y=blocks_y,
+        sidewalk_m=float(sidewalk_m),
+        ground_style=GROUND_CITY,
+        center=np.array([0.0, 0.0, top / 3]),
+        view_radius_m=size_m / 3,
+        **arrays,
+    )
 
 
 def _street_lines(blocks: np.ndarray, lo: float, hi: float) -> list[tuple[float, float]]:
@@ -354,33 +438,74 @@ def generate_object_scene(seed: int, size_m: float = 4.0) -> City:
     body = s * rng.uniform(0.5, 0.65)
     body_h = s * rng.uniform(0.7, 1.0)
     ox, oy = rng.uniform(-0.08, 0.08, 2) * s
-    b.box((ox - body / 2, oy - body / 2, plinth_h), (ox + body / 2, oy + body / 2, plinth_h + body_h), MAT_MURAL,
-          KIND_MONUMENT, mural(), params=tex)
+    b.box(
+        (ox - body / 2, oy - body / 2, plinth_h),
+        (ox + body / 2, oy + body / 2, plinth_h + body_h),
+        MAT_MURAL,
+        KIND_MONUMENT,
+        mural(),
+        params=tex,
+    )
     cap = body * rng.uniform(0.5, 0.75)
     cap_h = s * rng.uniform(0.2, 0.35)
     top = plinth_h + body_h + cap_h
-    b.box((ox - cap / 2, oy - cap / 2, plinth_h + body_h), (ox + cap / 2, oy + cap / 2, top), MAT_STONE,
-          KIND_MONUMENT, stone(), params=tex)
+    b.box(
+        (ox - cap / 2, oy - cap / 2, plinth_h + body_h),
+        (ox + cap / 2, oy + cap / 2, top),
+        MAT_STONE,
+        KIND_MONUMENT,
+        stone(),
+        params=tex,
+    )
     for k in range(4):
         a = np.pi / 4 + k * np.pi / 2
         r = s * 0.42
         x, y = r * np.cos(a), r * np.sin(a)
         if rng.random() < 0.5:
-            b.cylinder(x, y, s * rng.uniform(0.04, 0.07), plinth_h, plinth_h + body_h * rng.uniform(0.5, 0.9),
-                       MAT_STONE, KIND_COLUMN, stone(), params=tex)
+            b.cylinder(
+                x,
+                y,
+                s * rng.uniform(0.04, 0.07),
+                plinth_h,
+                plinth_h + body_h * rng.uniform(0.5, 0.9),
+                MAT_STONE,
+                KIND_COLUMN,
+                stone(),
+                params=tex,
+            )
         else:
             w = s * rng.uniform(0.08, 0.14)
-            b.box((x - w, y - w, plinth_h), (x + w, y + w, plinth_h + s * rng.uniform(0.12, 0.3)), MAT_MURAL,
-                  KIND_MONUMENT, mural(), params=tex)
+            b.box(
+                (x - w, y - w, plinth_h),
+                (x + w, y + w, plinth_h + s * rng.uniform(0.12, 0.3)),
+                MAT_MURAL,
+                KIND_MONUMENT,
+                mural(),
+                params=tex,
+            )
     for _ in range(int(rng.integers(2, 5))):
         a = rng.uniform(0, 2 * np.pi)
         r = s * rng.uniform(0.75, 1.2)
         w = s * rng.uniform(0.06, 0.12)
         x, y = r * np.cos(a), r * np.sin(a)
-        b.box((x - w, y - w, 0.0), (x + w, y + w, s * rng.uniform(0.1, 0.25)), MAT_MURAL, KIND_MONUMENT, mural(),
-              params=tex)
+        b.box(
+            (x - w, y - w, 0.0),
+            (x + w, y + w, s * rng.uniform(0.1, 0.25)),
+            MAT_MURAL,
+            KIND_MONUMENT,
+            mural(),
+            params=tex,
+        )
     arrays = b.arrays()
     e = max(15.0, 4.0 * s)
-    return City(seed=int(seed), extent=np.array([-e, -e, e, e]), blocks_x=np.zeros((0, 2)), blocks_y=np.zeros((0, 2)),
-                sidewalk_m=0.0, ground_style=GROUND_PLAZA, center=np.array([0.0, 0.0, top / 2]),
-                view_radius_m=1.7 * s, **arrays)
+    return City(
+        seed=int(seed),
+        extent=np.array([-e, -e, e, e]),
+        blocks_x=np.zeros((0, 2)),
+        blocks_y=np.zeros((0, 2)),
+        sidewalk_m=0.0,
+        ground_style=GROUND_PLAZA,
+        center=np.array([0.0, 0.0, top / 2]),
+        view_radius_m=1.7 * s,
+        **arrays,
+    )

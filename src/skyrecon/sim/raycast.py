@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+
 from skyrecon.sim._jit import jit
 
 TINY = 1e-30
@@ -96,8 +97,29 @@ def _hit_cyl(cyls, k, ox, oy, oz, dx, dy, dz, t_lo, t_hi):
 
 
 @jit()
-def _trace_one(ox, oy, oz, dx, dy, dz, t_lo, t_hi, ground, boxes, cyls,
-               gx0, gy0, cs, ncx, ncy, gz_lo, gz_hi, cell_start, cell_items, cell_zmax):
+def _trace_one(  # noqa: C901  (Numba kernel: one flat loop nest)
+    ox,
+    oy,
+    oz,
+    dx,
+    dy,
+    dz,
+    t_lo,
+    t_hi,
+    ground,
+    boxes,
+    cyls,
+    gx0,
+    gy0,
+    cs,
+    ncx,
+    ncy,
+    gz_lo,
+    gz_hi,
+    cell_start,
+    cell_items,
+    cell_zmax,
+):
     """Closest hit of one ray; returns (t, kind, index, face) with t = inf when nothing is hit."""
     if abs(dx) < TINY:
         dx = TINY
@@ -205,9 +227,32 @@ def _trace_one(ox, oy, oz, dx, dy, dz, t_lo, t_hi, ground, boxes, cyls,
 
 
 @jit()
-def trace_rays(start, stop, origins, dirs, rot, t_lo, t_hi, ground, boxes, cyls,
-               gx0, gy0, cs, ncx, ncy, gz_lo, gz_hi, cell_start, cell_items, cell_zmax,
-               out_t, out_kind, out_index, out_face):
+def trace_rays(
+    start,
+    stop,
+    origins,
+    dirs,
+    rot,
+    t_lo,
+    t_hi,
+    ground,
+    boxes,
+    cyls,
+    gx0,
+    gy0,
+    cs,
+    ncx,
+    ncy,
+    gz_lo,
+    gz_hi,
+    cell_start,
+    cell_items,
+    cell_zmax,
+    out_t,
+    out_kind,
+    out_index,
+    out_face,
+):
     """Cast rays ``start .. stop-1`` of N: ``origin + t * dir`` (t in [t_lo, t_hi)); write the first hit of each.
 
     Args:
@@ -228,8 +273,28 @@ def trace_rays(start, stop, origins, dirs, rot, t_lo, t_hi, ground, boxes, cyls,
         dy = rot[1, 0] * a + rot[1, 1] * b + rot[1, 2] * c
         dz = rot[2, 0] * a + rot[2, 1] * b + rot[2, 2] * c
         t, kind, index, face = _trace_one(
-            ox, oy, oz, dx, dy, dz, t_lo, t_hi, ground,
-            boxes, cyls, gx0, gy0, cs, ncx, ncy, gz_lo, gz_hi, cell_start, cell_items, cell_zmax)
+            ox,
+            oy,
+            oz,
+            dx,
+            dy,
+            dz,
+            t_lo,
+            t_hi,
+            ground,
+            boxes,
+            cyls,
+            gx0,
+            gy0,
+            cs,
+            ncx,
+            ncy,
+            gz_lo,
+            gz_hi,
+            cell_start,
+            cell_items,
+            cell_zmax,
+        )
         out_t[i] = t
         out_kind[i] = kind
         out_index[i] = index
@@ -259,7 +324,9 @@ def _sdf_cyl(cyls, k, x, y, z):
 
 
 @jit()
-def signed_distance(start, stop, points, ground, boxes, cyls, gx0, gy0, cs, ncx, ncy, cell_start, cell_items, out):
+def signed_distance(
+    start, stop, points, ground, boxes, cyls, gx0, gy0, cs, ncx, ncy, cell_start, cell_items, out
+):
     """Signed distance of points ``start .. stop-1`` of (N, 3) to the union of obstacles, metres (< 0 inside).
 
     Searches rings of grid cells around each point until no unvisited cell can hold anything closer.

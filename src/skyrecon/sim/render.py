@@ -125,13 +125,46 @@ def render(city: City, intrinsics: Intrinsics, cam_from_world: Rigid3) -> Render
     oid = np.empty(n, np.int32)
     # the footprint of a pixel at z-depth z is about z / f metres (use the coarser axis)
     inv_f = 1.0 / min(intrinsics.fx, intrinsics.fy)
-    run_chunks(_tx.shade, n, origin, dirs_cam, world_from_cam_R, t, kind, index, face, inv_f, np.int64(city.seed),
-              city.boxes, city.box_material, city.box_albedo, city.box_accent, city.box_params,
-              city.cylinders, city.cyl_material, city.cyl_albedo, city.cyl_accent, city.cyl_params,
-              city.blocks_x, city.blocks_y, city.extent, float(city.sidewalk_m), int(city.ground_style),
-              rgb, depth, normal, oid)
-    return RenderResult(rgb.reshape(H, W, 3), depth.reshape(H, W), normal.reshape(H, W, 3), oid.reshape(H, W),
-                        intrinsics, cam_from_world.with_frames("cam", "world"))
+    run_chunks(
+        _tx.shade,
+        n,
+        origin,
+        dirs_cam,
+        world_from_cam_R,
+        t,
+        kind,
+        index,
+        face,
+        inv_f,
+        np.int64(city.seed),
+        city.boxes,
+        city.box_material,
+        city.box_albedo,
+        city.box_accent,
+        city.box_params,
+        city.cylinders,
+        city.cyl_material,
+        city.cyl_albedo,
+        city.cyl_accent,
+        city.cyl_params,
+        city.blocks_x,
+        city.blocks_y,
+        city.extent,
+        float(city.sidewalk_m),
+        int(city.ground_style),
+        rgb,
+        depth,
+        normal,
+        oid,
+    )
+    return RenderResult(
+        rgb.reshape(H, W, 3),
+        depth.reshape(H, W),
+        normal.reshape(H, W, 3),
+        oid.reshape(H, W),
+        intrinsics,
+        cam_from_world.with_frames("cam", "world"),
+    )
 
 
 def render_depth(city: City, intrinsics: Intrinsics, cam_from_world: Rigid3) -> np.ndarray:
@@ -143,8 +176,9 @@ def render_depth(city: City, intrinsics: Intrinsics, cam_from_world: Rigid3) -> 
     """
     if not isinstance(cam_from_world, Rigid3):
         raise InputError(f"cam_from_world must be a Rigid3, got {type(cam_from_world).__name__}")
-    t, kind, _, _ = city._trace(cam_from_world.center[None], _ray_dirs(intrinsics), True,
-                                rot=np.ascontiguousarray(cam_from_world.R.T))
+    t, kind, _, _ = city._trace(
+        cam_from_world.center[None], _ray_dirs(intrinsics), True, rot=np.ascontiguousarray(cam_from_world.R.T)
+    )
     depth = t.astype(np.float32)
     depth[kind == 0] = np.nan
     return depth.reshape(intrinsics.height, intrinsics.width)
@@ -168,8 +202,18 @@ def render_stereo(city: City, rig: StereoRig, left_from_world: Rigid3) -> Stereo
     left = render(city, rig.left, left_from_world)
     right = render(city, rig.right, right_from_world)
     disparity = rig.depth_to_disparity(left.depth_m)
-    return StereoFrame(left.image, right.image, left.depth_m, disparity, right.depth_m, rig, left_from_world,
-                       right_from_world, left, right)
+    return StereoFrame(
+        left.image,
+        right.image,
+        left.depth_m,
+        disparity,
+        right.depth_m,
+        rig,
+        left_from_world,
+        right_from_world,
+        left,
+        right,
+    )
 
 
 def render_views(city: City, views: Iterable[PosedView]) -> list[RenderResult]:

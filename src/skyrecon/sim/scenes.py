@@ -17,11 +17,21 @@ from skyrecon.sim.city import City
 from skyrecon.sim.render import render_views
 from skyrecon.sim.texture import MAT_PLAIN
 
-__all__ = ["default_rig", "street_view_pose", "flight_poses", "flight_path", "ring_views", "orbit_views",
-           "render_views", "look_from"]
+__all__ = [
+    "default_rig",
+    "street_view_pose",
+    "flight_poses",
+    "flight_path",
+    "ring_views",
+    "orbit_views",
+    "render_views",
+    "look_from",
+]
 
 
-def default_rig(width: int = 640, height: int = 480, hfov_deg: float = 90.0, baseline_m: float = 0.12) -> StereoRig:
+def default_rig(
+    width: int = 640, height: int = 480, hfov_deg: float = 90.0, baseline_m: float = 0.12
+) -> StereoRig:
     """A rectified stereo rig (square pixels, principal point at the centre, horizontal field of view
     ``hfov_deg``), the right camera ``baseline_m`` metres to the right of the left one."""
     return StereoRig.rectified(Intrinsics.from_fov(width, height, hfov_deg), baseline_m)
@@ -31,8 +41,13 @@ def look_from(eye_world: np.ndarray, yaw_rad: float, pitch_down_rad: float) -> R
     """``cam_from_world`` of a level camera at ``eye`` (3,) heading ``yaw`` (radians from +x towards +y),
     tilted down by ``pitch_down`` radians (no roll)."""
     eye = np.asarray(eye_world, dtype=np.float64)
-    fwd = np.array([math.cos(pitch_down_rad) * math.cos(yaw_rad), math.cos(pitch_down_rad) * math.sin(yaw_rad),
-                    -math.sin(pitch_down_rad)])
+    fwd = np.array(
+        [
+            math.cos(pitch_down_rad) * math.cos(yaw_rad),
+            math.cos(pitch_down_rad) * math.sin(yaw_rad),
+            -math.sin(pitch_down_rad),
+        ]
+    )
     return Rigid3.look_at(eye, eye + fwd)
 
 
@@ -52,8 +67,9 @@ def _probe(city: City, cam_from_world: Rigid3, hfov_deg: float, aspect: float = 
     return z[obstacle], obstacle.mean(), 1.0 - finite.mean(), zmin, plain
 
 
-def street_view_pose(city: City, seed: int, hfov_deg: float = 90.0,
-                     altitude_m: tuple[float, float] = (10.0, 30.0)) -> Rigid3:
+def street_view_pose(
+    city: City, seed: int, hfov_deg: float = 90.0, altitude_m: tuple[float, float] = (10.0, 30.0)
+) -> Rigid3:
     """A good left-camera pose for a street-level stereo pair.
 
     The camera hovers over a street at ``altitude_m`` (metres), looks along it with a yaw offset of
@@ -94,8 +110,13 @@ def street_view_pose(city: City, seed: int, hfov_deg: float = 90.0,
             continue
         med = float(np.median(z_obj))
         ok = frac_obj >= 0.35 and 8.0 <= med <= 60.0 and frac_sky < 0.4 and zmin >= 2.5 and frac_plain < 0.2
-        score = (frac_obj - abs(np.log(med / 25.0)) - 2 * max(0.0, frac_sky - 0.3) - 5 * (zmin < 2.5)
-                 - 2 * max(0.0, frac_plain - 0.2))
+        score = (
+            frac_obj
+            - abs(np.log(med / 25.0))
+            - 2 * max(0.0, frac_sky - 0.3)
+            - 5 * (zmin < 2.5)
+            - 2 * max(0.0, frac_plain - 0.2)
+        )
         if ok:
             return pose
         if score > best_score:
@@ -192,9 +213,16 @@ def _sample(segs: list[_Segment], s: np.ndarray) -> tuple[np.ndarray, np.ndarray
     return pos, yaw
 
 
-def flight_path(city: City, n_frames: int, seed: int, speed_mps: float = 5.0, fps: float = 10.0,
-                altitude_m: float = 15.0, altitude_wobble_m: float = 1.5,
-                clearance_m: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
+def flight_path(
+    city: City,
+    n_frames: int,
+    seed: int,
+    speed_mps: float = 5.0,
+    fps: float = 10.0,
+    altitude_m: float = 15.0,
+    altitude_wobble_m: float = 1.5,
+    clearance_m: float = 2.0,
+) -> tuple[np.ndarray, np.ndarray]:
     """The positions (n, 3) (world, metres) and headings (n,) (radians from +x) of :func:`flight_poses`."""
     if n_frames < 1:
         raise InputError(f"n_frames must be at least 1, got {n_frames}")
@@ -217,12 +245,22 @@ def flight_path(city: City, n_frames: int, seed: int, speed_mps: float = 5.0, fp
         mid = (pos[1:] + pos[:-1]) / 2 if len(pos) > 1 else pos
         if np.all(city.distance(np.vstack([pos, mid]), include_ground=True) >= clearance_m):
             return pos, yaw
-    raise EstimationError(f"flight_poses: no route at {altitude_m} m keeps {clearance_m} m clear of obstacles")
+    raise EstimationError(
+        f"flight_poses: no route at {altitude_m} m keeps {clearance_m} m clear of obstacles"
+    )
 
 
-def flight_poses(city: City, n_frames: int, seed: int, speed_mps: float = 5.0, fps: float = 10.0,
-                 altitude_m: float = 15.0, pitch_deg: float = 12.0, altitude_wobble_m: float = 1.5,
-                 clearance_m: float = 2.0) -> list[Rigid3]:
+def flight_poses(
+    city: City,
+    n_frames: int,
+    seed: int,
+    speed_mps: float = 5.0,
+    fps: float = 10.0,
+    altitude_m: float = 15.0,
+    pitch_deg: float = 12.0,
+    altitude_wobble_m: float = 1.5,
+    clearance_m: float = 2.0,
+) -> list[Rigid3]:
     """Camera poses of a drone flying a smooth route along the streets.
 
     The route is a random walk over intersections (rounded corners of half a street's width) at
@@ -241,8 +279,15 @@ def flight_poses(city: City, n_frames: int, seed: int, speed_mps: float = 5.0, f
 
 
 # ----- rings and orbits ------------------------------------------------------------------------
-def ring_views(center: np.ndarray, radius_m: float, height_m: float, n: int, intrinsics: Intrinsics,
-               start_deg: float = 0.0, name_prefix: str = "ring") -> list[PosedView]:
+def ring_views(
+    center: np.ndarray,
+    radius_m: float,
+    height_m: float,
+    n: int,
+    intrinsics: Intrinsics,
+    start_deg: float = 0.0,
+    name_prefix: str = "ring",
+) -> list[PosedView]:
     """``n`` cameras evenly spaced on a horizontal circle, each looking at ``center``.
 
     Args:
@@ -268,9 +313,16 @@ def ring_views(center: np.ndarray, radius_m: float, height_m: float, n: int, int
     return views
 
 
-def orbit_views(city: City | np.ndarray, n: int, intrinsics: Intrinsics, seed: int = 0,
-                radius_m: float | None = None, heights_m: tuple[float, ...] | None = None,
-                arc_deg: float = 360.0, name_prefix: str = "orbit") -> list[PosedView]:
+def orbit_views(
+    city: City | np.ndarray,
+    n: int,
+    intrinsics: Intrinsics,
+    seed: int = 0,
+    radius_m: float | None = None,
+    heights_m: tuple[float, ...] | None = None,
+    arc_deg: float = 360.0,
+    name_prefix: str = "orbit",
+) -> list[PosedView]:
     """A monocular photo set around an object: an orbit at varying heights with a little jitter.
 
     Args:

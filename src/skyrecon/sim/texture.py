@@ -34,7 +34,18 @@ MAT_FOLIAGE = 6
 MAT_BARK = 7
 MAT_STONE = 8
 MAT_MURAL = 9
-MATERIAL_NAMES = ("ground", "brick", "glass", "concrete", "plain", "metal", "foliage", "bark", "stone", "mural")
+MATERIAL_NAMES = (
+    "ground",
+    "brick",
+    "glass",
+    "concrete",
+    "plain",
+    "metal",
+    "foliage",
+    "bark",
+    "stone",
+    "mural",
+)
 
 # ``box_params[:, 4]`` (style flags) for building materials: roof kind + 2 * window style.
 ROOF_PLAIN = 0
@@ -158,7 +169,9 @@ def _pulse(x, period, a, b, w):
     if w <= 1e-9:
         r = x - math.floor(x / period) * period
         return 1.0 if (r >= a and r < b) else 0.0
-    v = (_pulse_i2(x + w, period, a, b) - 2.0 * _pulse_i2(x, period, a, b) + _pulse_i2(x - w, period, a, b)) / (w * w)
+    v = (
+        _pulse_i2(x + w, period, a, b) - 2.0 * _pulse_i2(x, period, a, b) + _pulse_i2(x - w, period, a, b)
+    ) / (w * w)
     return min(max(v, 0.0), 1.0)
 
 
@@ -229,8 +242,19 @@ def _surface(mat, face, u, v, fp, seed, ar, ag, ab, cr, cg, cb, floor_h, col_p, 
         mull = 0.07
         m = _pulse(u, col_p, mull, col_p - mull, w) * _pulse(v, floor_h, 1.3 * mull, floor_h - 1.3 * mull, w)
         k = m * (0.65 + 0.7 * _cellval(u, v, col_p, floor_h, w, seed, 0.0))
-        return (cr * (1.0 - m) + ar * k, cg * (1.0 - m) + ag * k, cb * (1.0 - m) + ab * k,
-                7.0, 4, 0.2, 0.0, 0.0, 0.0, 0.0, 0.0)
+        return (
+            cr * (1.0 - m) + ar * k,
+            cg * (1.0 - m) + ag * k,
+            cb * (1.0 - m) + ab * k,
+            7.0,
+            4,
+            0.2,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+        )
     if building:
         if mat == MAT_BRICK:
             bw = 0.24 * scale
@@ -265,8 +289,19 @@ def _surface(mat, face, u, v, fp, seed, ar, ag, ab, cr, cg, cb, floor_h, col_p, 
             gr = 0.16 * g * (1.0 - mm) + cr * mm
             gg = 0.2 * g * (1.0 - mm) + cg * mm
             gb = 0.26 * g * (1.0 - mm) + cb * mm
-            return (wr * (1.0 - mv) + gr * mv, wg * (1.0 - mv) + gg * mv, wb * (1.0 - mv) + gb * mv,
-                    wl1, oct1, a1, 0.0, 0.0, 0.0, 0.0, 0.0)
+            return (
+                wr * (1.0 - mv) + gr * mv,
+                wg * (1.0 - mv) + gg * mv,
+                wb * (1.0 - mv) + gb * mv,
+                wl1,
+                oct1,
+                a1,
+                0.0,
+                0.0,
+                0.0,
+                0.0,
+                0.0,
+            )
         # punched windows with frames
         a = 0.5 * col_p * (1.0 - wf)
         av = floor_h * (1.0 - hf) * 0.6
@@ -282,8 +317,19 @@ def _surface(mat, face, u, v, fp, seed, ar, ag, ab, cr, cg, cb, floor_h, col_p, 
         gg = 0.18 * g + 0.2 * r2 * r2
         gb = 0.24 * g + 0.1 * r2 * r2
         rest = 1.0 - m_out
-        return (wr * rest + cr * frame + gr * m_in, wg * rest + cg * frame + gg * m_in,
-                wb * rest + cb * frame + gb * m_in, wl1, oct1, a1, 0.0, 0.0, 0.0, 0.0, 0.0)
+        return (
+            wr * rest + cr * frame + gr * m_in,
+            wg * rest + cg * frame + gg * m_in,
+            wb * rest + cb * frame + gb * m_in,
+            wl1,
+            oct1,
+            a1,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+        )
     if mat == MAT_FOLIAGE:
         return ar, ag, ab, 1.6 * scale, 8, 0.55, 4.0 * scale, 0.25, 0.6 * ar, 0.1 * ag, -0.5 * ab
     if mat == MAT_BARK:
@@ -310,8 +356,19 @@ def _surface(mat, face, u, v, fp, seed, ar, ag, ab, cr, cg, cb, floor_h, col_p, 
         k = 1.0 - 0.5 * (fb * grout + (1.0 - fb) * (1.0 - (1.0 - gt / t) ** 2))
         tl = _cellval(u, v, t, t, w, seed + 17, 0.0) - 0.5
         th = _cellval(u, v, t, t, w, seed + 18, 0.0) - 0.5
-        return ((ar + 0.35 * tl + 0.2 * th) * k, (ag + 0.35 * tl - 0.05 * th) * k, (ab + 0.35 * tl - 0.2 * th) * k,
-                0.9 * scale, 7, 0.3, 3.0 * scale, 0.35, 0.5, -0.1, -0.4)
+        return (
+            (ar + 0.35 * tl + 0.2 * th) * k,
+            (ag + 0.35 * tl - 0.05 * th) * k,
+            (ab + 0.35 * tl - 0.2 * th) * k,
+            0.9 * scale,
+            7,
+            0.3,
+            3.0 * scale,
+            0.35,
+            0.5,
+            -0.1,
+            -0.4,
+        )
     return ar, ag, ab, 0.0, 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
 
 
@@ -346,7 +403,11 @@ def _ground(x, y, fp, style, seed, blocks_x, blocks_y, extent, sidewalk):
             t = 1.2
             grout = 1.0 - _pulse(x, t, 0.03, t, w) * _pulse(y, t, 0.03, t, w)
             kerb = _pulse(e + 1.0, 1000.0, 1.0, 1.25, w)
-            k = (0.9 + 0.2 * _cellval(x, y, t, t, w, seed + 50, 0.0)) * (1.0 - 0.25 * grout) * (1.0 - 0.3 * kerb)
+            k = (
+                (0.9 + 0.2 * _cellval(x, y, t, t, w, seed + 50, 0.0))
+                * (1.0 - 0.25 * grout)
+                * (1.0 - 0.3 * kerb)
+            )
             return 0.66 * k, 0.64 * k, 0.6 * k, 1.5, 8, 0.12, 0.0, 0.0, 0.0, 0.0, 0.0
         if _hash(np.int64(bxi), np.int64(byi), seed + 51) < 0.5:
             return 0.28, 0.45, 0.18, 3.0, 9, 0.35, 8.0, 0.1, 0.3, 0.0, -0.2
@@ -365,8 +426,14 @@ def _ground(x, y, fp, style, seed, blocks_x, blocks_y, extent, sidewalk):
         mark = _pulse(y - c + 100.0, 1000.0, 100.0 - 0.08, 100.0 + 0.08, w) * _pulse(x, 6.0, 0.0, 3.0, w)
         x0 = blocks_x[bxi, 0]
         x1 = blocks_x[bxi, 1]
-        zone = _pulse(x - x0 + 100.0, 1000.0, 100.8, 103.8, w) + _pulse(x1 - x + 100.0, 1000.0, 100.8, 103.8, w)
-        zebra = zone * _pulse(y - c, 1.0, 0.0, 0.5, w) * _pulse(y - lo + 100.0, 1000.0, 101.0, 100.0 + hi - lo - 1.0, w)
+        zone = _pulse(x - x0 + 100.0, 1000.0, 100.8, 103.8, w) + _pulse(
+            x1 - x + 100.0, 1000.0, 100.8, 103.8, w
+        )
+        zebra = (
+            zone
+            * _pulse(y - c, 1.0, 0.0, 0.5, w)
+            * _pulse(y - lo + 100.0, 1000.0, 101.0, 100.0 + hi - lo - 1.0, w)
+        )
         mark = max(mark, zebra)
     elif byi >= 0 and bxi < 0:  # a street along y
         lo = extent[0]
@@ -380,8 +447,14 @@ def _ground(x, y, fp, style, seed, blocks_x, blocks_y, extent, sidewalk):
         mark = _pulse(x - c + 100.0, 1000.0, 100.0 - 0.08, 100.0 + 0.08, w) * _pulse(y, 6.0, 0.0, 3.0, w)
         y0 = blocks_y[byi, 0]
         y1 = blocks_y[byi, 1]
-        zone = _pulse(y - y0 + 100.0, 1000.0, 100.8, 103.8, w) + _pulse(y1 - y + 100.0, 1000.0, 100.8, 103.8, w)
-        zebra = zone * _pulse(x - c, 1.0, 0.0, 0.5, w) * _pulse(x - lo + 100.0, 1000.0, 101.0, 100.0 + hi - lo - 1.0, w)
+        zone = _pulse(y - y0 + 100.0, 1000.0, 100.8, 103.8, w) + _pulse(
+            y1 - y + 100.0, 1000.0, 100.8, 103.8, w
+        )
+        zebra = (
+            zone
+            * _pulse(x - c, 1.0, 0.0, 0.5, w)
+            * _pulse(x - lo + 100.0, 1000.0, 101.0, 100.0 + hi - lo - 1.0, w)
+        )
         mark = max(mark, zebra)
     r = 0.3 * (1.0 - mark) + 0.82 * mark
     b = 0.32 * (1.0 - mark) + 0.66 * mark
@@ -390,11 +463,38 @@ def _ground(x, y, fp, style, seed, blocks_x, blocks_y, extent, sidewalk):
 
 
 @jit()
-def shade(start, stop, origin, dirs, rot, t, kind, index, face, inv_f, seed,
-          boxes, box_mat, box_alb, box_acc, box_par,
-          cyls, cyl_mat, cyl_alb, cyl_acc, cyl_par,
-          blocks_x, blocks_y, extent, sidewalk, ground_style,
-          out_rgb, out_depth, out_normal, out_id):
+def shade(
+    start,
+    stop,
+    origin,
+    dirs,
+    rot,
+    t,
+    kind,
+    index,
+    face,
+    inv_f,
+    seed,
+    boxes,
+    box_mat,
+    box_alb,
+    box_acc,
+    box_par,
+    cyls,
+    cyl_mat,
+    cyl_alb,
+    cyl_acc,
+    cyl_par,
+    blocks_x,
+    blocks_y,
+    extent,
+    sidewalk,
+    ground_style,
+    out_rgb,
+    out_depth,
+    out_normal,
+    out_id,
+):
     """Colour, normal and object id of pixels ``start .. stop-1``.
 
     Args:
@@ -484,22 +584,55 @@ def shade(start, stop, origin, dirs, rot, t, kind, index, face, inv_f, seed,
         fp = tt * inv_f / max(cosi, 0.08)
         if k == 1:
             ar, ag, ab, wl1, oct1, a1, wl2, a2, xr, xg, xb = _ground(
-                x, y, fp, ground_style, seed, blocks_x, blocks_y, extent, sidewalk)
+                x, y, fp, ground_style, seed, blocks_x, blocks_y, extent, sidewalk
+            )
             out_id[i] = 0
             s = seed * 1000003
         elif k == 2:
             s = seed * 1000003 + j * 7 + 1
             ar, ag, ab, wl1, oct1, a1, wl2, a2, xr, xg, xb = _surface(
-                box_mat[j], f, u, v, fp, s, box_alb[j, 0], box_alb[j, 1], box_alb[j, 2],
-                box_acc[j, 0], box_acc[j, 1], box_acc[j, 2], box_par[j, 0], box_par[j, 1],
-                box_par[j, 2], box_par[j, 3], box_par[j, 4], box_par[j, 5])
+                box_mat[j],
+                f,
+                u,
+                v,
+                fp,
+                s,
+                box_alb[j, 0],
+                box_alb[j, 1],
+                box_alb[j, 2],
+                box_acc[j, 0],
+                box_acc[j, 1],
+                box_acc[j, 2],
+                box_par[j, 0],
+                box_par[j, 1],
+                box_par[j, 2],
+                box_par[j, 3],
+                box_par[j, 4],
+                box_par[j, 5],
+            )
             out_id[i] = 1 + j
         else:
             s = seed * 1000003 + (nb + j) * 7 + 1
             ar, ag, ab, wl1, oct1, a1, wl2, a2, xr, xg, xb = _surface(
-                cyl_mat[j], f, u, v, fp, s, cyl_alb[j, 0], cyl_alb[j, 1], cyl_alb[j, 2],
-                cyl_acc[j, 0], cyl_acc[j, 1], cyl_acc[j, 2], cyl_par[j, 0], cyl_par[j, 1],
-                cyl_par[j, 2], cyl_par[j, 3], cyl_par[j, 4], cyl_par[j, 5])
+                cyl_mat[j],
+                f,
+                u,
+                v,
+                fp,
+                s,
+                cyl_alb[j, 0],
+                cyl_alb[j, 1],
+                cyl_alb[j, 2],
+                cyl_acc[j, 0],
+                cyl_acc[j, 1],
+                cyl_acc[j, 2],
+                cyl_par[j, 0],
+                cyl_par[j, 1],
+                cyl_par[j, 2],
+                cyl_par[j, 3],
+                cyl_par[j, 4],
+                cyl_par[j, 5],
+            )
             out_id[i] = 1 + nb + j
         if a1 > 0.0:
             m = 1.0 + a1 * _fbm(u, v, wl1, oct1, 0.6, fp, s + 17, circ)
@@ -511,8 +644,11 @@ def shade(start, stop, origin, dirs, rot, t, kind, index, face, inv_f, seed,
             ar += m * xr
             ag += m * xg
             ab += m * xb
-        li = (0.38 + 0.62 * max(nx * SUN_X + ny * SUN_Y + nz * SUN_Z, 0.0)
-              + 0.18 * max(nx * FILL_X + ny * FILL_Y + nz * FILL_Z, 0.0))
+        li = (
+            0.38
+            + 0.62 * max(nx * SUN_X + ny * SUN_Y + nz * SUN_Z, 0.0)
+            + 0.18 * max(nx * FILL_X + ny * FILL_Y + nz * FILL_Z, 0.0)
+        )
         out_rgb[i, 0] = np.uint8(min(max(ar * li * 255.0 + 0.5, 0.0), 255.0))
         out_rgb[i, 1] = np.uint8(min(max(ag * li * 255.0 + 0.5, 0.0), 255.0))
         out_rgb[i, 2] = np.uint8(min(max(ab * li * 255.0 + 0.5, 0.0), 255.0))

@@ -28,7 +28,13 @@ from skyrecon.stereo.opencv_matchers import (
     OpenCVSGBMSettings,
 )
 from skyrecon.stereo.rectify import Rectification, rectify_rig
-from skyrecon.stereo.reproject import depth_error_bound, disparity_to_depth, disparity_to_points, trusted_range_m, max_disparity_for
+from skyrecon.stereo.reproject import (
+    depth_error_bound,
+    disparity_to_depth,
+    disparity_to_points,
+    max_disparity_for,
+    trusted_range_m,
+)
 from skyrecon.stereo.sgm import (
     FAST_SETTINGS,
     SkyreconMatcher,
@@ -38,9 +44,27 @@ from skyrecon.stereo.sgm import (
 )
 
 __all__ = [
-    "DisparityResult", "Matcher", "PreparedPair", "available_matchers", "create_matcher", "prepare_pair",
-    "to_grey", "OpenCVBMMatcher", "OpenCVBMSettings", "OpenCVSGBMMatcher", "OpenCVSGBMSettings",
-    "FAST_SETTINGS", "SkyreconMatcher", "SkyreconSettings", "fill_invalid", "remove_speckles",
-    "Rectification", "rectify_rig", "depth_error_bound", "disparity_to_depth", "disparity_to_points", "trusted_range_m",
+    "DisparityResult",
+    "Matcher",
+    "PreparedPair",
+    "available_matchers",
+    "create_matcher",
+    "prepare_pair",
+    "to_grey",
+    "OpenCVBMMatcher",
+    "OpenCVBMSettings",
+    "OpenCVSGBMMatcher",
+    "OpenCVSGBMSettings",
+    "FAST_SETTINGS",
+    "SkyreconMatcher",
+    "SkyreconSettings",
+    "fill_invalid",
+    "remove_speckles",
+    "Rectification",
+    "rectify_rig",
+    "depth_error_bound",
+    "disparity_to_depth",
+    "disparity_to_points",
+    "trusted_range_m",
     "max_disparity_for",
 ]

@@ -27,8 +27,8 @@ wrap-around becomes a select).
 
 from __future__ import annotations
 
-import numpy as np
 import llvmlite.ir as ir
+import numpy as np
 from numba import njit, types
 from numba.core import cgutils
 from numba.extending import intrinsic
@@ -90,8 +90,33 @@ def _vctpop(builder, v):
 
 
 @intrinsic
-def _sweep_block(typingctx, cl, cr, cr_pad, dmin, W, oc, x0, wp, st_prev, st_cur, offsets, Q, M, min_cur, P1, D,
-                 s_out, s_base, s_ks, other, o_base, o_ks, select, sel_out):
+def _sweep_block(
+    typingctx,
+    cl,
+    cr,
+    cr_pad,
+    dmin,
+    W,
+    oc,
+    x0,
+    wp,
+    st_prev,
+    st_cur,
+    offsets,
+    Q,
+    M,
+    min_cur,
+    P1,
+    D,
+    s_out,
+    s_base,
+    s_ks,
+    other,
+    o_base,
+    o_ks,
+    select,
+    sel_out,
+):
     """SGM recursion of every path of a sweep for the 32 columns ``x0 .. x0 + 31`` of one row.
 
     Explicit 32-lane int16 vectors; the disparity loop keeps the previous pixel's costs at
@@ -117,12 +142,60 @@ def _sweep_block(typingctx, cl, cr, cr_pad, dmin, W, oc, x0, wp, st_prev, st_cur
     if not isinstance(offsets, types.UniTuple):
         return None
     n = offsets.count
-    sig = types.void(cl, cr, cr_pad, dmin, W, oc, x0, wp, st_prev, st_cur, offsets, Q, M, min_cur, P1, D,
-                     s_out, s_base, s_ks, other, o_base, o_ks, select, sel_out)
+    sig = types.void(
+        cl,
+        cr,
+        cr_pad,
+        dmin,
+        W,
+        oc,
+        x0,
+        wp,
+        st_prev,
+        st_cur,
+        offsets,
+        Q,
+        M,
+        min_cur,
+        P1,
+        D,
+        s_out,
+        s_base,
+        s_ks,
+        other,
+        o_base,
+        o_ks,
+        select,
+        sel_out,
+    )
 
     def codegen(context, builder, signature, args):
-        (cl_v, cr_v, crp_v, dmin_v, w_v, oc_v, x0_v, wp_v, sp_v, sc_v, off_v, q_v, m_v, mn_v, p1_v, d_v,
-         so_v, sb_v, sks_v, ot_v, ob_v, oks_v, sel_v, selo_v) = args
+        (
+            cl_v,
+            cr_v,
+            crp_v,
+            dmin_v,
+            w_v,
+            oc_v,
+            x0_v,
+            wp_v,
+            sp_v,
+            sc_v,
+            off_v,
+            q_v,
+            m_v,
+            mn_v,
+            p1_v,
+            d_v,
+            so_v,
+            sb_v,
+            sks_v,
+            ot_v,
+            ob_v,
+            oks_v,
+            sel_v,
+            selo_v,
+        ) = args
         t = signature.args
         clp = _data(context, builder, t[0], cl_v)
         crp = _data(context, builder, t[1], cr_v)
@@ -182,13 +255,17 @@ def _sweep_block(typingctx, cl, cr, cr_pad, dmin, W, oc, x0, wp, st_prev, st_cur
             right_codes = _vload(builder, crp, builder.sub(cr_base, k), _V32)
             pc = builder.trunc(_vctpop(builder, builder.xor(left_codes, right_codes)), _V16)
             xr = builder.sub(xv, _splat(builder, builder.trunc(builder.add(dmin, k), _I32), _V32))  # x - d
-            ok = builder.and_(in_img, builder.and_(builder.icmp_signed(">=", xr, zero32), builder.icmp_signed("<", xr, Wv)))
+            ok = builder.and_(
+                in_img, builder.and_(builder.icmp_signed(">=", xr, zero32), builder.icmp_signed("<", xr, Wv))
+            )
             c = builder.select(ok, pc, ocv)
             total = None
             for p in range(n):
                 am = builder.load(am_s[p])
                 ac = builder.load(ac_s[p])
-                ap = _vload(builder, pp, builder.add(base_prev[p], builder.mul(builder.add(k, two), ks)), _V16)
+                ap = _vload(
+                    builder, pp, builder.add(base_prev[p], builder.mul(builder.add(k, two), ks)), _V16
+                )
                 tt = builder.add(_smin(builder, am, ap), p1)
                 tt = _smin(builder, _smin(builder, ac, tt), Qs[p])
                 v = builder.sub(builder.add(c, tt), Ms[p])
@@ -221,7 +298,9 @@ def _sweep_block(typingctx, cl, cr, cr_pad, dmin, W, oc, x0, wp, st_prev, st_cur
                     lt = builder.icmp_unsigned("<", tot, best)
                     isnext = builder.icmp_signed("==", arg, km1)
                     builder.store(builder.select(isnext, tot, builder.load(slots[3])), slots[3])
-                    builder.store(builder.select(lt, builder.load(slots[4]), builder.load(slots[2])), slots[2])
+                    builder.store(
+                        builder.select(lt, builder.load(slots[4]), builder.load(slots[2])), slots[2]
+                    )
                     builder.store(builder.select(lt, tot, best), slots[0])
                     builder.store(builder.select(lt, kv, arg), slots[1])
                     builder.store(tot, slots[4])
@@ -270,7 +349,9 @@ def _select_block_second(typingctx, Sa, base, wp, D, x0, arg, second):
             idx = builder.add(base, builder.mul(k, wp))
             tt = _vload(builder, ap, idx, _V16)
             dist = builder.sub(_splat(builder, builder.trunc(k, _I16), _V16), arg)
-            far = builder.or_(builder.icmp_signed(">", dist, one), builder.icmp_signed("<", dist, builder.neg(one)))
+            far = builder.or_(
+                builder.icmp_signed(">", dist, one), builder.icmp_signed("<", dist, builder.neg(one))
+            )
             builder.store(_ucmp_min(builder, builder.load(sec), builder.select(far, tt, MAXV)), sec)
         _vstore(builder, builder.load(sec), secp, x0)
         return context.get_dummy_value()
@@ -350,8 +431,8 @@ def census_transform(padded, rh, rw, checker, out, x_off, y0, y1, out_y0):
     """
     W = padded.shape[1] - 2 * rw
     for y in range(y0, y1):
-        code = out[y - out_y0, x_off:x_off + W]
-        centre = padded[y + rh, rw:rw + W]
+        code = out[y - out_y0, x_off : x_off + W]
+        centre = padded[y + rh, rw : rw + W]
         for x in range(W):
             code[x] = 0
         for dy in range(2 * rh + 1):
@@ -360,7 +441,7 @@ def census_transform(padded, rh, rw, checker, out, x_off, y0, y1, out_y0):
                     continue
                 if checker and (dy + dx - rh - rw) % 2 != 0:
                     continue
-                nb = padded[y + dy, dx:dx + W]
+                nb = padded[y + dy, dx : dx + W]
                 for x in range(W):
                     code[x] = (code[x] << np.uint32(1)) | np.uint32(nb[x] < centre[x])
 
@@ -381,9 +462,36 @@ def census_bits(width: int, height: int, checker: bool) -> int:
 # semi-global aggregation
 # --------------------------------------------------------------------------------------------
 @njit(inline="always")
-def _sweep_row(cl, cr, cr_pad, dmin, oc, D, W, grey_row, grey_prev, P1, P2, alpha, offsets, st_prev, st_cur,
-               min_prev, min_cur, Q, M, restart, s_out, s_base, block_major, other, o_base, o_block_major,
-               select, sel_out):
+def _sweep_row(
+    cl,
+    cr,
+    cr_pad,
+    dmin,
+    oc,
+    D,
+    W,
+    grey_row,
+    grey_prev,
+    P1,
+    P2,
+    alpha,
+    offsets,
+    st_prev,
+    st_cur,
+    min_prev,
+    min_cur,
+    Q,
+    M,
+    restart,
+    s_out,
+    s_base,
+    block_major,
+    other,
+    o_base,
+    o_block_major,
+    select,
+    sel_out,
+):
     """Advance every path of a sweep by one image row (see ``_sweep_block`` for the outputs).
 
     State layout ``st[path, k + 1, x + 1]`` (flattened): disparity rows 0 and D + 1 hold BIG;
@@ -402,14 +510,14 @@ def _sweep_row(cl, cr, cr_pad, dmin, oc, D, W, grey_row, grey_prev, P1, P2, alph
     ps = (D + 2) * (wp + 2)
     for p in range(n):
         off = offsets[p]
-        mp = min_prev[p * (wp + 2):(p + 1) * (wp + 2)]
-        qrow = Q[p * wp:(p + 1) * wp]
-        mrow = M[p * wp:(p + 1) * wp]
+        mp = min_prev[p * (wp + 2) : (p + 1) * (wp + 2)]
+        qrow = Q[p * wp : (p + 1) * wp]
+        mrow = M[p * wp : (p + 1) * wp]
         if restart:
             for x in range(wp):
                 mrow[x] = 0
                 qrow[x] = 0
-            z = st_prev[p * ps:(p + 1) * ps]
+            z = st_prev[p * ps : (p + 1) * ps]
             for k in range(1, D + 1):
                 for x in range(wp + 2):
                     z[k * (wp + 2) + x] = 0
@@ -420,7 +528,7 @@ def _sweep_row(cl, cr, cr_pad, dmin, oc, D, W, grey_row, grey_prev, P1, P2, alph
             xa = max(0, -off)
             xb = min(W, W - off)
             g = grey_row[xa:xb]
-            gp = grey_prev[xa + off:xb + off]
+            gp = grey_prev[xa + off : xb + off]
             mseg = mrow[xa:xb]
             qseg = qrow[xa:xb]
             for x in range(xb - xa):
@@ -439,16 +547,40 @@ def _sweep_row(cl, cr, cr_pad, dmin, oc, D, W, grey_row, grey_prev, P1, P2, alph
             ob, oks = o_base + x0 * D, LANES
         else:
             ob, oks = o_base + x0, wp
-        _sweep_block(cl, cr, cr_pad, dmin, W, oc, x0, wp, st_prev, st_cur, offsets, Q, M, min_cur, P1, D,
-                     s_out, sb, sks, other, ob, oks, select, sel_out)
+        _sweep_block(
+            cl,
+            cr,
+            cr_pad,
+            dmin,
+            W,
+            oc,
+            x0,
+            wp,
+            st_prev,
+            st_cur,
+            offsets,
+            Q,
+            M,
+            min_cur,
+            P1,
+            D,
+            s_out,
+            sb,
+            sks,
+            other,
+            ob,
+            oks,
+            select,
+            sel_out,
+        )
     # columns beyond the image restart diagonals, like column 0
     for p in range(n):
-        mc = min_cur[p * (wp + 2):(p + 1) * (wp + 2)]
+        mc = min_cur[p * (wp + 2) : (p + 1) * (wp + 2)]
         mc[0] = 0
         for x in range(W + 1, wp + 2):
             mc[x] = 0
         if W < wp:
-            z = st_cur[p * ps:(p + 1) * ps]
+            z = st_cur[p * ps : (p + 1) * ps]
             for k in range(1, D + 1):
                 for x in range(W + 1, wp + 2):
                     z[k * (wp + 2) + x] = 0
@@ -514,8 +646,32 @@ def band_workspace_sizes(D: int, wp: int, n: int) -> tuple[int, int, int]:
 
 
 @njit(**_JIT)
-def sgm_band(cl, cr, cr_pad, y_base, grey, dmin, out_of_image_cost, P1, P2, alpha, offsets, up_offsets, r0, r1,
-             margin, uniqueness, subpixel, lr_max_diff, S_band, disp, right_out, ws16, wsu16, ws8):
+def sgm_band(
+    cl,
+    cr,
+    cr_pad,
+    y_base,
+    grey,
+    dmin,
+    out_of_image_cost,
+    P1,
+    P2,
+    alpha,
+    offsets,
+    up_offsets,
+    r0,
+    r1,
+    margin,
+    uniqueness,
+    subpixel,
+    lr_max_diff,
+    S_band,
+    disp,
+    right_out,
+    ws16,
+    wsu16,
+    ws8,
+):
     """Semi-global matching of the image rows [r0, r1): aggregation, selection, LR check.
 
     Two sweeps over the band: upward from row ``min(H, r1 + margin) - 1`` storing the sum
@@ -555,10 +711,10 @@ def sgm_band(cl, cr, cr_pad, y_base, grey, dmin, out_of_image_cost, P1, P2, alph
     P1 = np.int16(P1)
     n_st = 2 * n * (D + 2) * (wp + 2)
     st = ws16[:n_st].reshape((2, n * (D + 2) * (wp + 2)))
-    mins = ws16[n_st:n_st + 2 * n * (wp + 2)].reshape((2, n * (wp + 2)))
+    mins = ws16[n_st : n_st + 2 * n * (wp + 2)].reshape((2, n * (wp + 2)))
     o = n_st + 2 * n * (wp + 2)
-    Q = ws16[o:o + n * wp]
-    M = ws16[o + n * wp:o + 2 * n * wp]
+    Q = ws16[o : o + n * wp]
+    M = ws16[o + n * wp : o + 2 * n * wp]
     st[:] = 0
     mins[:] = 0
     for a in range(2):
@@ -570,11 +726,11 @@ def sgm_band(cl, cr, cr_pad, y_base, grey, dmin, out_of_image_cost, P1, P2, alph
     nt = (D + 4) * wp
     total = wsu16[:nt].reshape((D + 4, wp))
     total[:] = 0
-    sel = wsu16[nt:nt + 4 * wp].reshape((4, wp))
-    second = wsu16[nt + 4 * wp:nt + 5 * wp]
-    rbest = wsu16[nt + 5 * wp:nt + 6 * wp]
-    rarg = wsu16[nt + 6 * wp:nt + 7 * wp]
-    scratch8 = ws8[:D * wp]
+    sel = wsu16[nt : nt + 4 * wp].reshape((4, wp))
+    second = wsu16[nt + 4 * wp : nt + 5 * wp]
+    rbest = wsu16[nt + 5 * wp : nt + 6 * wp]
+    rarg = wsu16[nt + 6 * wp : nt + 7 * wp]
+    scratch8 = ws8[: D * wp]
     oc = np.int64(out_of_image_cost)
     band_flat = S_band.reshape(-1)
     row_len = D * wp
@@ -584,25 +740,88 @@ def sgm_band(cl, cr, cr_pad, y_base, grey, dmin, out_of_image_cost, P1, P2, alph
     par = 0
     for y in range(ystart, r0 - 1, -1):
         inside = y < r1
-        _sweep_row(cl[y - y_base], cr[y - y_base], cr_pad, dmin, oc, D, W, grey[y], grey[min(y + 1, H - 1)], P1,
-                   P2, alpha, up_offsets, st[par], st[1 - par], mins[par], mins[1 - par], Q, M, y == ystart,
-                   band_flat if inside else scratch8, (y - r0) * row_len if inside else 0,
-                   True, scratch8, 0, True, False, sel)
+        _sweep_row(
+            cl[y - y_base],
+            cr[y - y_base],
+            cr_pad,
+            dmin,
+            oc,
+            D,
+            W,
+            grey[y],
+            grey[min(y + 1, H - 1)],
+            P1,
+            P2,
+            alpha,
+            up_offsets,
+            st[par],
+            st[1 - par],
+            mins[par],
+            mins[1 - par],
+            Q,
+            M,
+            y == ystart,
+            band_flat if inside else scratch8,
+            (y - r0) * row_len if inside else 0,
+            True,
+            scratch8,
+            0,
+            True,
+            False,
+            sel,
+        )
         par = 1 - par
     # downward sweep: total = its paths + S_band, winner-takes-all on the fly
     ystart = max(0, r0 - margin)
     par = 0
     for y in range(ystart, r1):
         inside = y >= r0
-        _sweep_row(cl[y - y_base], cr[y - y_base], cr_pad, dmin, oc, D, W, grey[y], grey[max(y - 1, 0)], P1,
-                   P2, alpha, offsets, st[par], st[1 - par], mins[par], mins[1 - par], Q, M, y == ystart,
-                   total.reshape(-1), 2 * wp, False,
-                   band_flat if inside else scratch8, (y - r0) * row_len if inside else 0,
-                   True, inside, sel)
+        _sweep_row(
+            cl[y - y_base],
+            cr[y - y_base],
+            cr_pad,
+            dmin,
+            oc,
+            D,
+            W,
+            grey[y],
+            grey[max(y - 1, 0)],
+            P1,
+            P2,
+            alpha,
+            offsets,
+            st[par],
+            st[1 - par],
+            mins[par],
+            mins[1 - par],
+            Q,
+            M,
+            y == ystart,
+            total.reshape(-1),
+            2 * wp,
+            False,
+            band_flat if inside else scratch8,
+            (y - r0) * row_len if inside else 0,
+            True,
+            inside,
+            sel,
+        )
         par = 1 - par
         if inside:
-            _select_row(total, W, dmin, uniqueness, subpixel, lr_max_diff, sel, second, rbest, rarg,
-                        disp[y], right_out[y])
+            _select_row(
+                total,
+                W,
+                dmin,
+                uniqueness,
+                subpixel,
+                lr_max_diff,
+                sel,
+                second,
+                rbest,
+                rarg,
+                disp[y],
+                right_out[y],
+            )
 
 
 INVALID16 = -32768  # "no disparity" in fixed-point maps

@@ -14,8 +14,9 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Callable, Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -107,9 +108,7 @@ def _check_image(image: Any, which: str) -> np.ndarray:
     if image.ndim == 3 and image.shape[2] == 4:
         image = image[..., :3]
     if not (image.ndim == 2 or (image.ndim == 3 and image.shape[2] in (1, 3))):
-        raise InputError(
-            f"the {which} image has shape {image.shape}; expected (H, W) grey or (H, W, 3) RGB"
-        )
+        raise InputError(f"the {which} image has shape {image.shape}; expected (H, W) grey or (H, W, 3) RGB")
     if image.ndim == 3 and image.shape[2] == 1:
         image = image[..., 0]
     if image.dtype not in (np.uint8, np.uint16):
@@ -118,7 +117,9 @@ def _check_image(image: Any, which: str) -> np.ndarray:
             "convert it (for floats in [0, 1]: (img * 255).round().astype(np.uint8))"
         )
     if image.shape[0] < 8 or image.shape[1] < 8:
-        raise InputError(f"the {which} image is {image.shape[1]}x{image.shape[0]}; at least 8x8 pixels needed")
+        raise InputError(
+            f"the {which} image is {image.shape[1]}x{image.shape[0]}; at least 8x8 pixels needed"
+        )
     return image
 
 
@@ -189,9 +190,7 @@ def prepare_pair(left: np.ndarray, right: np.ndarray) -> PreparedPair:
 def check_disparity_range(min_disparity: int, max_disparity: int, width: int | None = None) -> None:
     """Raise InputError unless ``min_disparity < max_disparity`` and the range fits the width."""
     if int(max_disparity) != max_disparity or int(min_disparity) != min_disparity:
-        raise InputError(
-            f"disparities must be whole pixels, got min {min_disparity}, max {max_disparity}"
-        )
+        raise InputError(f"disparities must be whole pixels, got min {min_disparity}, max {max_disparity}")
     if max_disparity <= min_disparity:
         raise InputError(
             f"max_disparity ({max_disparity}) must be larger than min_disparity ({min_disparity})"
@@ -218,8 +217,7 @@ def settings_from_kwargs(cls: type, name: str, kwargs: dict[str, Any]):
     unknown = sorted(set(kwargs) - names)
     if unknown:
         raise InputError(
-            f"unknown setting(s) {', '.join(unknown)} for matcher {name!r}; "
-            f"valid: {', '.join(sorted(names))}"
+            f"unknown setting(s) {', '.join(unknown)} for matcher {name!r}; valid: {', '.join(sorted(names))}"
         )
     try:
         return cls(**kwargs)
@@ -268,8 +266,9 @@ def _ensure_registered() -> None:
     from skyrecon.stereo import opencv_matchers, sgm  # noqa: F401
 
 
-def create_matcher(name: str = "skyrecon", max_disparity: int = 128, *, min_disparity: int = 0,
-                   **settings: Any) -> Matcher:
+def create_matcher(
+    name: str = "skyrecon", max_disparity: int = 128, *, min_disparity: int = 0, **settings: Any
+) -> Matcher:
     """Build a matcher by name.
 
     Args:
@@ -288,8 +287,6 @@ def create_matcher(name: str = "skyrecon", max_disparity: int = 128, *, min_disp
     """
     _ensure_registered()
     if name not in _REGISTRY:
-        raise InputError(
-            f"unknown stereo method {name!r}; choose one of {', '.join(sorted(_REGISTRY))}"
-        )
+        raise InputError(f"unknown stereo method {name!r}; choose one of {', '.join(sorted(_REGISTRY))}")
     check_disparity_range(min_disparity, max_disparity)
     return _REGISTRY[name][0](int(max_disparity), min_disparity=int(min_disparity), **settings)

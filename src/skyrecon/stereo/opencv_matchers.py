@@ -44,7 +44,9 @@ def num_disparities_for(min_disparity: int, max_disparity: int) -> int:
     return int(-(-n // 16) * 16)
 
 
-def _check_int(name: str, value: Any, lo: int | None = None, hi: int | None = None, odd: bool = False) -> None:
+def _check_int(
+    name: str, value: Any, lo: int | None = None, hi: int | None = None, odd: bool = False
+) -> None:
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
         raise InputError(f"setting {name} must be an integer, got {value!r}")
     if lo is not None and value < lo:
@@ -160,8 +162,13 @@ class OpenCVSGBMMatcher:
 
     name = "opencv-sgbm"
 
-    def __init__(self, max_disparity: int, min_disparity: int = 0,
-                 settings: OpenCVSGBMSettings | None = None, **kwargs: Any) -> None:
+    def __init__(
+        self,
+        max_disparity: int,
+        min_disparity: int = 0,
+        settings: OpenCVSGBMSettings | None = None,
+        **kwargs: Any,
+    ) -> None:
         check_disparity_range(min_disparity, max_disparity)
         if settings is not None and kwargs:
             raise InputError("give either settings= or individual settings, not both")
@@ -205,8 +212,13 @@ class OpenCVSGBMMatcher:
         disp = _from_fixed_point(raw, self.min_disparity)
         sw.lap("convert")
         return DisparityResult(
-            disp, np.zeros(disp.shape, bool), self.name, self.min_disparity, self.max_disparity,
-            sw.total(), {"density": float(np.isfinite(disp).mean()), "channels": cn, "settings": asdict(self.settings)},
+            disp,
+            np.zeros(disp.shape, bool),
+            self.name,
+            self.min_disparity,
+            self.max_disparity,
+            sw.total(),
+            {"density": float(np.isfinite(disp).mean()), "channels": cn, "settings": asdict(self.settings)},
         )
 
 
@@ -218,8 +230,13 @@ class OpenCVBMMatcher:
 
     name = "opencv-bm"
 
-    def __init__(self, max_disparity: int, min_disparity: int = 0,
-                 settings: OpenCVBMSettings | None = None, **kwargs: Any) -> None:
+    def __init__(
+        self,
+        max_disparity: int,
+        min_disparity: int = 0,
+        settings: OpenCVBMSettings | None = None,
+        **kwargs: Any,
+    ) -> None:
         check_disparity_range(min_disparity, max_disparity)
         if settings is not None and kwargs:
             raise InputError("give either settings= or individual settings, not both")
@@ -256,8 +273,13 @@ class OpenCVBMMatcher:
         disp = _from_fixed_point(raw, self.min_disparity)
         sw.lap("convert")
         return DisparityResult(
-            disp, np.zeros(disp.shape, bool), self.name, self.min_disparity, self.max_disparity,
-            sw.total(), {"density": float(np.isfinite(disp).mean()), "settings": asdict(self.settings)},
+            disp,
+            np.zeros(disp.shape, bool),
+            self.name,
+            self.min_disparity,
+            self.max_disparity,
+            sw.total(),
+            {"density": float(np.isfinite(disp).mean()), "settings": asdict(self.settings)},
         )
 
 

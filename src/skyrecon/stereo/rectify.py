@@ -73,17 +73,22 @@ class Rectification:
         self._check(image, "left")
         if self.map_left is None:
             return image
-        return cv2.remap(image, self.map_left[0], self.map_left[1], interpolation, borderMode=cv2.BORDER_CONSTANT)
+        return cv2.remap(
+            image, self.map_left[0], self.map_left[1], interpolation, borderMode=cv2.BORDER_CONSTANT
+        )
 
     def apply_right(self, image: np.ndarray, interpolation: int = cv2.INTER_LINEAR) -> np.ndarray:
         """Rectify a right image (H, W[, C]) of the original right camera's size."""
         self._check(image, "right")
         if self.map_right is None:
             return image
-        return cv2.remap(image, self.map_right[0], self.map_right[1], interpolation, borderMode=cv2.BORDER_CONSTANT)
+        return cv2.remap(
+            image, self.map_right[0], self.map_right[1], interpolation, borderMode=cv2.BORDER_CONSTANT
+        )
 
-    def apply(self, left: np.ndarray, right: np.ndarray,
-              interpolation: int = cv2.INTER_LINEAR) -> tuple[np.ndarray, np.ndarray]:
+    def apply(
+        self, left: np.ndarray, right: np.ndarray, interpolation: int = cv2.INTER_LINEAR
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Rectify a pair: ``(left_rect, right_rect)``, each of :attr:`size`.
 
         Images keep their dtype and channels; pixels that fall outside the source are 0.
@@ -92,8 +97,9 @@ class Rectification:
         return self.apply_left(left, interpolation), self.apply_right(right, interpolation)
 
 
-def rectify_rig(rig: StereoRig, alpha: float = 0.0, zero_disparity: bool = True,
-                new_size: tuple[int, int] | None = None) -> Rectification:
+def rectify_rig(
+    rig: StereoRig, alpha: float = 0.0, zero_disparity: bool = True, new_size: tuple[int, int] | None = None
+) -> Rectification:
     """Rectify a calibrated stereo rig.
 
     Args:
@@ -135,8 +141,16 @@ def rectify_rig(rig: StereoRig, alpha: float = 0.0, zero_disparity: bool = True,
             "the baseline is mostly vertical; only side-by-side rigs are supported (rotate the images 90 degrees)"
         )
     R1, R2, P1, P2, Q, roi1, roi2 = cv2.stereoRectify(
-        rig.left.K, rig.left.dist, rig.right.K, rig.right.dist, size, R, t,
-        flags=cv2.CALIB_ZERO_DISPARITY if zero_disparity else 0, alpha=float(alpha), newImageSize=out_size,
+        rig.left.K,
+        rig.left.dist,
+        rig.right.K,
+        rig.right.dist,
+        size,
+        R,
+        t,
+        flags=cv2.CALIB_ZERO_DISPARITY if zero_disparity else 0,
+        alpha=float(alpha),
+        newImageSize=out_size,
     )
     Tx = P2[0, 3] / P2[0, 0]  # = -baseline for a right camera on the right
     if Tx >= 0:
@@ -150,6 +164,13 @@ def rectify_rig(rig: StereoRig, alpha: float = 0.0, zero_disparity: bool = True,
     right = Intrinsics.from_K(P2[:, :3], W, H)
     rect = StereoRig(left, right, Rigid3(np.eye(3), [Tx, 0.0, 0.0]))
     return Rectification(
-        rect, rig, Rigid3(R1, np.zeros(3)), Rigid3(R2, np.zeros(3)), map_l, map_r,
-        tuple(int(v) for v in roi1), tuple(int(v) for v in roi2), rect.Q,
+        rect,
+        rig,
+        Rigid3(R1, np.zeros(3)),
+        Rigid3(R2, np.zeros(3)),
+        map_l,
+        map_r,
+        tuple(int(v) for v in roi1),
+        tuple(int(v) for v in roi2),
+        rect.Q,
     )

@@ -34,9 +34,14 @@ def disparity_to_depth(disparity: np.ndarray, rig: StereoRig) -> np.ndarray:
     return rig.disparity_to_depth(_check(disparity, rig))
 
 
-def disparity_to_points(disparity: np.ndarray, rig: StereoRig, image: np.ndarray | None = None,
-                        min_depth_m: float = 0.0, max_depth_m: float = np.inf,
-                        mask: np.ndarray | None = None) -> PointCloud:
+def disparity_to_points(
+    disparity: np.ndarray,
+    rig: StereoRig,
+    image: np.ndarray | None = None,
+    min_depth_m: float = 0.0,
+    max_depth_m: float = np.inf,
+    mask: np.ndarray | None = None,
+) -> PointCloud:
     """Reproject a disparity map to a (coloured) point cloud in the left camera frame.
 
     Args:
@@ -66,7 +71,9 @@ def disparity_to_points(disparity: np.ndarray, rig: StereoRig, image: np.ndarray
     return DepthMap(depth, rig.left).to_points_cam(image, min_depth_m, max_depth_m)
 
 
-def depth_error_bound(disparity: np.ndarray, rig: StereoRig, disparity_error_px: float | np.ndarray = 1.0) -> np.ndarray:
+def depth_error_bound(
+    disparity: np.ndarray, rig: StereoRig, disparity_error_px: float | np.ndarray = 1.0
+) -> np.ndarray:
     """First-order depth uncertainty ``f * B / (d + doffs)**2 * disparity_error``, metres.
 
     A disparity error of ``e`` pixels moves the depth by about ``Z**2 / (f B) * e``: depth

@@ -28,9 +28,10 @@ import os
 import queue
 import threading
 import time
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, replace
-from typing import Any, Callable, Literal
+from typing import Any, Literal
 
 import cv2
 import numpy as np
@@ -168,8 +169,9 @@ def _pool() -> ThreadPoolExecutor:
     global _POOL
     with _POOL_LOCK:
         if _POOL is None:
-            _POOL = ThreadPoolExecutor(max_workers=max(1, available_cores() - 1) + 1,
-                                       thread_name_prefix="skyrecon-stereo")
+            _POOL = ThreadPoolExecutor(
+                max_workers=max(1, available_cores() - 1) + 1, thread_name_prefix="skyrecon-stereo"
+            )
         return _POOL
 
 
@@ -178,7 +180,7 @@ def _run_all(tasks: list[Callable[[], Any]], max_workers: int | None = None) -> 
     the first runs in this thread and the others on the pool."""
     step = max(1, max_workers or len(tasks))
     for i in range(0, len(tasks), step):
-        wave = tasks[i:i + step]
+        wave = tasks[i : i + step]
         futures = [_pool().submit(t) for t in wave[1:]]
         try:
             wave[0]()
@@ -277,8 +279,13 @@ class SkyreconMatcher:
 
     name = "skyrecon"
 
-    def __init__(self, max_disparity: int, min_disparity: int = 0,
-                 settings: SkyreconSettings | None = None, **kwargs: Any) -> None:
+    def __init__(
+        self,
+        max_disparity: int,
+        min_disparity: int = 0,
+        settings: SkyreconSettings | None = None,
+        **kwargs: Any,
+    ) -> None:
         check_disparity_range(min_disparity, max_disparity)
         if settings is not None and kwargs:
             settings = replace(settings, **kwargs)
@@ -306,8 +313,16 @@ class SkyreconMatcher:
         return self.settings.threads or available_cores()
 
     # ----- core ----------------------------------------------------------------------------
-    def _match(self, gl: np.ndarray, gr: np.ndarray, dmin: int, dmax: int, scale: int, sw: Stopwatch,
-               diag: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
+    def _match(
+        self,
+        gl: np.ndarray,
+        gr: np.ndarray,
+        dmin: int,
+        dmax: int,
+        scale: int,
+        sw: Stopwatch,
+        diag: dict[str, Any],
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Disparity of an 8-bit grey pair: (disparity, measured mask).
 
         The image is split into bands of rows, one per thread; each band task runs the census
@@ -363,17 +378,38 @@ class SkyreconMatcher:
         def run_band(i: int, a: int, b: int, tid: int) -> None:
             t0 = time.perf_counter()
             lo, hi = max(0, a - margin), min(H, b + margin)
-            cl = self._buf(f"cl@{tid}", (max_rows + 2 * margin, wp), np.uint32)[:hi - lo]
-            cr = self._buf(f"cr@{tid}", (max_rows + 2 * margin, cr_width), np.uint32)[:hi - lo]
+            cl = self._buf(f"cl@{tid}", (max_rows + 2 * margin, wp), np.uint32)[: hi - lo]
+            cr = self._buf(f"cr@{tid}", (max_rows + 2 * margin, cr_width), np.uint32)[: hi - lo]
             K.census_transform(pl, rh, rw, chk, cl, 0, lo, hi, lo)
             K.census_transform(pr, rh, rw, chk, cr, cr_pad, lo, hi, lo)
             t1 = time.perf_counter()
-            S = self._buf(f"S@{tid}", (max_rows, D * wp), np.uint8)[:b - a]
-            K.sgm_band(cl, cr, cr_pad, lo, gl, int(dmin), self._ooi_cost, int(s.P1), float(s.P2),
-                       float(s.p2_edge_alpha), self._offsets, self._up_offsets, int(a), int(b), margin,
-                       float(s.uniqueness), _SUBPIXEL[s.subpixel], float(s.lr_check), S, disp, right,
-                       self._buf(f"w16@{tid}", (n16,), np.int16), self._buf(f"wu16@{tid}", (nu16,), np.uint16),
-                       self._buf(f"w8@{tid}", (n8,), np.uint8))
+            S = self._buf(f"S@{tid}", (max_rows, D * wp), np.uint8)[: b - a]
+            K.sgm_band(
+                cl,
+                cr,
+                cr_pad,
+                lo,
+                gl,
+                int(dmin),
+                self._ooi_cost,
+                int(s.P1),
+                float(s.P2),
+                float(s.p2_edge_alpha),
+                self._offsets,
+                self._up_offsets,
+                int(a),
+                int(b),
+                margin,
+                float(s.uniqueness),
+                _SUBPIXEL[s.subpixel],
+                float(s.lr_check),
+                S,
+                disp,
+                right,
+                self._buf(f"w16@{tid}", (n16,), np.int16),
+                self._buf(f"wu16@{tid}", (nu16,), np.uint16),
+                self._buf(f"w8@{tid}", (n8,), np.uint8),
+            )
             t2 = time.perf_counter()
             if fs is not None:
                 K.to_fixed(disp, np.float32(fs), fixed, a, b)
@@ -459,14 +495,17 @@ class SkyreconMatcher:
         out, measured = self._match(gl, gr, dmin, dmax, scale, sw, diag)
         if scale != 1:
             out = _upsample2(out, (W, H))
-            measured = cv2.resize(measured.view(np.uint8), (W, H), interpolation=cv2.INTER_NEAREST).astype(bool)
+            measured = cv2.resize(measured.view(np.uint8), (W, H), interpolation=cv2.INTER_NEAREST).astype(
+                bool
+            )
             sw.lap("upsample")
         out = np.ascontiguousarray(out, dtype=np.float32)
         filled_mask = np.isfinite(out) & ~measured
         diag["density"] = float(np.isfinite(out).mean())
         diag["measured_density"] = float(measured.mean())
-        return DisparityResult(out, filled_mask, self.name, self.min_disparity, self.max_disparity,
-                               sw.total(), diag)
+        return DisparityResult(
+            out, filled_mask, self.name, self.min_disparity, self.max_disparity, sw.total(), diag
+        )
 
     def warmup(self) -> None:
         """Compile (or load from the cache) the kernels on a tiny pair, so that the first real
@@ -478,8 +517,9 @@ class SkyreconMatcher:
 
 
 def _factory(fast: bool) -> Callable[..., SkyreconMatcher]:
-    def make(max_disparity: int, min_disparity: int = 0, settings: SkyreconSettings | None = None,
-             **kwargs: Any) -> SkyreconMatcher:
+    def make(
+        max_disparity: int, min_disparity: int = 0, settings: SkyreconSettings | None = None, **kwargs: Any
+    ) -> SkyreconMatcher:
         if settings is None:
             kwargs.setdefault("fast", fast)
         elif fast and not settings.fast:
@@ -490,4 +530,6 @@ def _factory(fast: bool) -> Callable[..., SkyreconMatcher]:
 
 
 register_matcher("skyrecon", _factory(False), "census + semi-global matching (default, most accurate)")
-register_matcher("skyrecon-fast", _factory(True), "skyrecon at half resolution (obstacle detection, video rate)")
+register_matcher(
+    "skyrecon-fast", _factory(True), "skyrecon at half resolution (obstacle detection, video rate)"
+)

@@ -47,7 +47,9 @@ def _engine_matcher(name: str, min_disparity: int, num_disparities: int):
     if engine_name not in names:
         raise InputError(f"unknown stereo matcher {name!r}; choose one of {', '.join(sorted(names))}")
     try:
-        return create_matcher(engine_name, max_disparity=int(min_disparity + num_disparities), min_disparity=int(min_disparity))
+        return create_matcher(
+            engine_name, max_disparity=int(min_disparity + num_disparities), min_disparity=int(min_disparity)
+        )
     except InputError as exc:  # the name is known: the range does not suit this pair
         raise EstimationError(f"the disparity matcher refused this pair: {exc}") from None
 
@@ -63,13 +65,23 @@ def _run_engine(matcher, left: np.ndarray, right: np.ndarray) -> np.ndarray:
     return d
 
 
-def _sgbm(left: np.ndarray, right: np.ndarray, min_disparity: int, num_disparities: int, block: int = 5) -> np.ndarray:
+def _sgbm(
+    left: np.ndarray, right: np.ndarray, min_disparity: int, num_disparities: int, block: int = 5
+) -> np.ndarray:
     gl, gr = to_gray_uint8(left), to_gray_uint8(right)
     num = int(np.ceil(max(16, num_disparities) / 16.0)) * 16
     sgbm = cv2.StereoSGBM_create(
-        minDisparity=int(min_disparity), numDisparities=num, blockSize=block,
-        P1=8 * block * block, P2=32 * block * block, disp12MaxDiff=1, uniquenessRatio=10,
-        speckleWindowSize=100, speckleRange=2, preFilterCap=63, mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY,
+        minDisparity=int(min_disparity),
+        numDisparities=num,
+        blockSize=block,
+        P1=8 * block * block,
+        P2=32 * block * block,
+        disp12MaxDiff=1,
+        uniquenessRatio=10,
+        speckleWindowSize=100,
+        speckleRange=2,
+        preFilterCap=63,
+        mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY,
     )
     raw = sgbm.compute(gl, gr)
     disp = raw.astype(np.float32) / 16.0
@@ -104,11 +116,15 @@ def compute_disparity(
         d[~np.isfinite(d)] = np.nan
         return d, f"skyrecon.stereo:{getattr(m, 'name', None) or _ALIASES.get(matcher, matcher)}"
     if matcher not in ("sgbm", "opencv-sgbm"):
-        raise InputError(f"stereo matcher {matcher!r} needs skyrecon.stereo, which is not installed; use sgbm")
+        raise InputError(
+            f"stereo matcher {matcher!r} needs skyrecon.stereo, which is not installed; use sgbm"
+        )
     return _sgbm(left, right, min_disparity, num_disparities), "opencv-sgbm"
 
 
-def _valid_mask(shape: tuple[int, int], intr: Intrinsics, rect_size: tuple[int, int], M: np.ndarray) -> np.ndarray:
+def _valid_mask(
+    shape: tuple[int, int], intr: Intrinsics, rect_size: tuple[int, int], M: np.ndarray
+) -> np.ndarray:
     """(H, W) bool: rectified pixels whose source lies inside the source image."""
     mx, my = cv2.initUndistortRectifyMap(intr.K, intr.dist, M, np.eye(3), rect_size, cv2.CV_32FC1)
     return (mx >= 0) & (my >= 0) & (mx <= intr.width - 1) & (my <= intr.height - 1)
@@ -159,7 +175,11 @@ def dense_stereo(
     disp[~ok_r] = np.nan
     s = 1.0 if settings.baseline_m is None else settings.baseline_m
     X, pix = triangulate_disparity(disp, rect, geo.R, geo.t * s, settings.dense_step)
-    cols = left[pix[:, 1], pix[:, 0]] if left.ndim == 3 else np.repeat(left[pix[:, 1], pix[:, 0], None], 3, axis=1)
+    cols = (
+        left[pix[:, 1], pix[:, 0]]
+        if left.ndim == 3
+        else np.repeat(left[pix[:, 1], pix[:, 0], None], 3, axis=1)
+    )
     keep = np.all(np.isfinite(X), axis=1) & (X[:, 2] > 0)
     with np.errstate(invalid="ignore"):
         keep &= parallax_angles_deg(X, geo.R, geo.t * s) > 0.05
@@ -224,9 +244,13 @@ def dense_epipolar(
     P = triangulate(geo.R, geo.t * s, w1.normalized(q1), w2.normalized(q2), "optimal")
     keep = np.all(np.isfinite(P), axis=1) & (P[:, 2] > 0)
     img = np.asarray(image1)
-    ij = np.clip(np.round(_working_to_full(q1[keep], s1x)).astype(np.int64), 0, [intr1.width - 1, intr1.height - 1])
+    ij = np.clip(
+        np.round(_working_to_full(q1[keep], s1x)).astype(np.int64), 0, [intr1.width - 1, intr1.height - 1]
+    )
     cols = img[ij[:, 1], ij[:, 0]] if img.ndim == 3 else np.repeat(img[ij[:, 1], ij[:, 0], None], 3, axis=1)
-    return DenseResult("epipolar", PointCloud(P[keep].astype(np.float32), cols[..., :3]), matcher="ncc-epipolar")
+    return DenseResult(
+        "epipolar", PointCloud(P[keep].astype(np.float32), cols[..., :3]), matcher="ncc-epipolar"
+    )
 
 
 def dense_model(

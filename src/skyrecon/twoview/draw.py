@@ -22,7 +22,11 @@ def _rgb(image: np.ndarray) -> np.ndarray:
         raise InputError(f"expected an (H, W) or (H, W, 3) image, got shape {img.shape}")
     img = img[..., :3]
     if img.dtype != np.uint8:
-        mx = 65535.0 if img.dtype == np.uint16 else (1.0 if img.dtype.kind == "f" and np.nanmax(img) <= 1 else 255.0)
+        mx = (
+            65535.0
+            if img.dtype == np.uint16
+            else (1.0 if img.dtype.kind == "f" and np.nanmax(img) <= 1 else 255.0)
+        )
         img = np.clip(np.nan_to_num(img.astype(np.float64)) * (255.0 / mx), 0, 255).astype(np.uint8)
     return np.ascontiguousarray(img)
 
@@ -35,7 +39,11 @@ def _side_by_side(a: np.ndarray, b: np.ndarray, max_width: int) -> tuple[np.ndar
     canvas[: b.shape[0], a.shape[1] :] = b
     s = min(1.0, max_width / canvas.shape[1])
     if s < 1.0:
-        canvas = cv2.resize(canvas, (int(round(canvas.shape[1] * s)), int(round(canvas.shape[0] * s))), interpolation=cv2.INTER_AREA)
+        canvas = cv2.resize(
+            canvas,
+            (int(round(canvas.shape[1] * s)), int(round(canvas.shape[0] * s))),
+            interpolation=cv2.INTER_AREA,
+        )
     return np.ascontiguousarray(canvas), s, a.shape[1]
 
 
@@ -140,7 +148,9 @@ def draw_epipolar_lines(
     return canvas
 
 
-def draw_rectified_pair(left: np.ndarray, right: np.ndarray, num_rows: int = 16, max_width: int = 2400) -> np.ndarray:
+def draw_rectified_pair(
+    left: np.ndarray, right: np.ndarray, num_rows: int = 16, max_width: int = 2400
+) -> np.ndarray:
     """Rectified pair side by side with horizontal guide lines (rows should show the same content)."""
     canvas, s, _ = _side_by_side(_rgb(left), _rgb(right), max_width)
     for y in np.linspace(0, canvas.shape[0] - 1, num_rows + 2)[1:-1]:

@@ -101,8 +101,17 @@ def fit_rotation(
 
 
 def _rotation_only(
-    R_rot: np.ndarray, x1n: np.ndarray, x2n: np.ndarray, rot_inl: np.ndarray, res_rot: np.ndarray,
-    thr_n: float, f: float, flow: float, M: int, warnings: list[str], diag: dict[str, float],
+    R_rot: np.ndarray,
+    x1n: np.ndarray,
+    x2n: np.ndarray,
+    rot_inl: np.ndarray,
+    res_rot: np.ndarray,
+    thr_n: float,
+    f: float,
+    flow: float,
+    M: int,
+    warnings: list[str],
+    diag: dict[str, float],
 ) -> TwoViewGeometry:
     """The verdict when a rotation alone explains the matches: R (refined), no t."""
     R_rot, _ = fit_rotation(x1n[rot_inl], x2n[rot_inl], thr_n)
@@ -120,7 +129,9 @@ def _rotation_only(
             f"{n_rot} of {M} matches, so there is no usable parallax and the translation cannot be "
             "recovered - move the camera sideways between the photos"
         )
-    return TwoViewGeometry("no_translation", R_rot, None, None, None, rot_inl, res_rot * f, [msg] + warnings, diag)
+    return TwoViewGeometry(
+        "no_translation", R_rot, None, None, None, rot_inl, res_rot * f, [msg] + warnings, diag
+    )
 
 
 def _unrelated(n_inl: int, n: int, s: TwoViewSettings) -> bool:
@@ -128,8 +139,14 @@ def _unrelated(n_inl: int, n: int, s: TwoViewSettings) -> bool:
 
 
 def _planar_candidates(
-    he, intr1: Intrinsics, intr2: Intrinsics, x1n: np.ndarray, x2n: np.ndarray, thr_n: float,
-    R: np.ndarray | None, t: np.ndarray | None,
+    he,
+    intr1: Intrinsics,
+    intr2: Intrinsics,
+    x1n: np.ndarray,
+    x2n: np.ndarray,
+    thr_n: float,
+    R: np.ndarray | None,
+    t: np.ndarray | None,
 ) -> list[tuple[float, np.ndarray, np.ndarray, np.ndarray]]:
     """Pose hypotheses of a (nearly) planar scene: the 5-point result and the motions from the
     homography decomposition, each polished by local optimisation; sorted by MSAC cost."""
@@ -193,7 +210,9 @@ def estimate_two_view_geometry(
     x1n, x2n = intr1.normalized(x1), intr2.normalized(x2)
     thr_n = thr / f
     opts = RansacOptions(
-        threshold=thr, confidence=settings.confidence, max_iterations=settings.max_iterations,
+        threshold=thr,
+        confidence=settings.confidence,
+        max_iterations=settings.max_iterations,
         min_iterations=settings.min_iterations,
     )
     warnings: list[str] = []
@@ -226,8 +245,10 @@ def estimate_two_view_geometry(
             fe_ = estimate_fundamental(x1, x2, settings.fundamental_method, opts, int(seeds[1]))  # type: ignore[arg-type]
         except EstimationError:
             return None, 0
-        n_ = fe_.num_inliers if settings.fundamental_method in ("ransac", "lmeds", "magsac") else int(
-            np.count_nonzero(fe_.errors_px < thr)
+        n_ = (
+            fe_.num_inliers
+            if settings.fundamental_method in ("ransac", "lmeds", "magsac")
+            else int(np.count_nonzero(fe_.errors_px < thr))
         )
         return fe_, n_
 
@@ -240,8 +261,16 @@ def estimate_two_view_geometry(
     try:
         if settings.pose_method == "essential":
             rp = estimate_essential(
-                x1n, x2n, thr_n, opts, int(seeds[0]), settings.refine, "cauchy",
-                settings.refine_loss_scale_px / ws / f, f, sigmas,
+                x1n,
+                x2n,
+                thr_n,
+                opts,
+                int(seeds[0]),
+                settings.refine,
+                "cauchy",
+                settings.refine_loss_scale_px / ws / f,
+                f,
+                sigmas,
             )
             R, t, E, inl, err = rp.R, rp.t, rp.E, rp.inliers, rp.errors_px
         else:
@@ -251,7 +280,12 @@ def estimate_two_view_geometry(
             R, t, _ = select_pose(E0, x1n, x2n, fe.inliers)
             if settings.refine and fe.num_inliers >= 6:
                 r = refine_relative_pose(
-                    R, t, x1n[fe.inliers], x2n[fe.inliers], "cauchy", settings.refine_loss_scale_px / ws / f,
+                    R,
+                    t,
+                    x1n[fe.inliers],
+                    x2n[fe.inliers],
+                    "cauchy",
+                    settings.refine_loss_scale_px / ws / f,
                     sigmas=None if sigmas is None else sigmas[fe.inliers],
                 )
                 R, t = r.R, r.t
@@ -269,16 +303,26 @@ def estimate_two_view_geometry(
     # (the planar test needs H only when it explains most matches: few samples find it then)
     try:
         he = estimate_homography(
-            x1, x2, RansacOptions(threshold=2.0 * thr, confidence=0.999, max_iterations=min(320, settings.max_iterations)),
+            x1,
+            x2,
+            RansacOptions(
+                threshold=2.0 * thr, confidence=0.999, max_iterations=min(320, settings.max_iterations)
+            ),
             int(seeds[2]),
         )
         n_H = he.num_inliers
     except EstimationError:
         he, n_H = None, 0
-    nf = float(n_F) if fe is not None or settings.pose_method == "fundamental" else float("nan")  # nan: not fitted
+    nf = (
+        float(n_F) if fe is not None or settings.pose_method == "fundamental" else float("nan")
+    )  # nan: not fitted
     diag.update(
-        num_inliers_E=float(n_E), num_inliers_F=nf, num_inliers_H=float(n_H),
-        inlier_ratio_E=n_E / M, inlier_ratio_F=nf / M, inlier_ratio_H=n_H / M,
+        num_inliers_E=float(n_E),
+        num_inliers_F=nf,
+        num_inliers_H=float(n_H),
+        inlier_ratio_E=n_E / M,
+        inlier_ratio_F=nf / M,
+        inlier_ratio_H=n_H / M,
     )
 
     # ----- decisions ----------------------------------------------------------------------
@@ -295,14 +339,22 @@ def estimate_two_view_geometry(
             cost, Rb, tb, inl_b = cands[0]
             if R is None or np.count_nonzero(inl_b) > n_E:
                 rp = finalize_pose(
-                    Rb, tb, x1n, x2n, thr_n, inl_b if settings.refine else None, "cauchy",
-                    settings.refine_loss_scale_px / ws / f, sigmas, f,
+                    Rb,
+                    tb,
+                    x1n,
+                    x2n,
+                    thr_n,
+                    inl_b if settings.refine else None,
+                    "cauchy",
+                    settings.refine_loss_scale_px / ws / f,
+                    sigmas,
+                    f,
                 )
                 R, t, E, inl, err = rp.R, rp.t, rp.E, rp.inliers, rp.errors_px
                 n_E = int(np.count_nonzero(inl))
                 diag["num_inliers_E"] = float(n_E)
                 diag["inlier_ratio_E"] = n_E / M
-            for c2, R2, t2, inl2 in cands[1:]:
+            for _c2, R2, t2, inl2 in cands[1:]:
                 differs = _rot_deg(R2, R) > 1.0 or np.degrees(np.arccos(np.clip(t2 @ t, -1, 1))) > 5.0
                 if differs and np.count_nonzero(inl2) >= PLANAR_AMBIGUITY * n_E:
                     status = "uncertain"
@@ -319,7 +371,17 @@ def estimate_two_view_geometry(
             f"{max(settings.min_inliers, int(np.ceil(settings.min_inlier_ratio * M)))} needed): "
             "the images may show different scenes",
         )
-        return TwoViewGeometry("failed", None, None, None, F_est if n_F >= settings.min_inliers else None, inl, err, warnings, diag)
+        return TwoViewGeometry(
+            "failed",
+            None,
+            None,
+            None,
+            F_est if n_F >= settings.min_inliers else None,
+            inl,
+            err,
+            warnings,
+            diag,
+        )
     assert R is not None and t is not None and E is not None
     # (a fundamental matrix is degenerate on a plane: it over-fits, so the K test needs 3D structure)
     if not planar and n_F >= settings.min_inliers and n_E < WRONG_K_RATIO * n_F:

@@ -1,9 +1,9 @@
 """The two-arbitrary-views pipeline: features -> matches -> relative pose -> sparse and dense model.
 
-    result = reconstruct_two_view(img1, img2, K1, K2, TwoViewSettings(), seed=0)
-    result.R, result.t            # cam2_from_cam1, |t| = 1 (None when not recoverable)
-    result.warnings               # why a pose is missing or doubtful
-    result.sparse, result.dense   # coloured clouds in camera 1's frame
+result = reconstruct_two_view(img1, img2, K1, K2, TwoViewSettings(), seed=0)
+result.R, result.t            # cam2_from_cam1, |t| = 1 (None when not recoverable)
+result.warnings               # why a pose is missing or doubtful
+result.sparse, result.dense   # coloured clouds in camera 1's frame
 """
 
 from __future__ import annotations
@@ -42,7 +42,9 @@ def _check_image(image: np.ndarray, intr: Intrinsics, what: str) -> np.ndarray:
     return img
 
 
-def detect_pair(image1: np.ndarray, image2: np.ndarray, settings: TwoViewSettings) -> tuple[Features, Features]:
+def detect_pair(
+    image1: np.ndarray, image2: np.ndarray, settings: TwoViewSettings
+) -> tuple[Features, Features]:
     """Features of both images (two threads when ``settings.parallel_features``)."""
     if settings.parallel_features:
         # one OpenCV thread per detection: the two detections already use both cores
@@ -160,7 +162,9 @@ def reconstruct_two_view(
     if settings.dense and geo.has_pose:
         t0 = time.perf_counter()
         try:
-            dense = dense_model(img1, img2, intrinsics1, intrinsics2, geo, x1[geo.inliers], x2[geo.inliers], settings)
+            dense = dense_model(
+                img1, img2, intrinsics1, intrinsics2, geo, x1[geo.inliers], x2[geo.inliers], settings
+            )
             geo.warnings.extend(dense.warnings)
         except EstimationError as exc:
             geo.warnings.append(f"no dense model: {exc}")
@@ -169,6 +173,15 @@ def reconstruct_two_view(
         geo.warnings.append("no dense model: the relative pose (with translation) is unknown")
     timings["total"] = time.perf_counter() - t_start
     return TwoViewResult(
-        geo, intrinsics1, intrinsics2, f1.keypoints, f2.keypoints, matches, sparse, sparse_idx, dense, timings,
+        geo,
+        intrinsics1,
+        intrinsics2,
+        f1.keypoints,
+        f2.keypoints,
+        matches,
+        sparse,
+        sparse_idx,
+        dense,
+        timings,
         settings.baseline_m,
     )

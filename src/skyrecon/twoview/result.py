@@ -194,6 +194,8 @@ class TwoViewResult:
             "num_sparse_points": len(self.sparse),
             "num_dense_points": 0 if self.dense is None else len(self.dense.cloud),
             "baseline_m": self.baseline_m,
-            "diagnostics": {k: (float(v) if np.isfinite(v) else None) for k, v in self.geometry.diagnostics.items()},
+            "diagnostics": {
+                k: (float(v) if np.isfinite(v) else None) for k, v in self.geometry.diagnostics.items()
+            },
             "timings_s": {k: float(v) for k, v in self.timings.items()},
         }

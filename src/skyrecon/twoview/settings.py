@@ -102,11 +102,15 @@ class TwoViewSettings:
         if not (0 < self.confidence < 1):
             raise InputError(f"confidence must be in (0, 1), got {self.confidence}")
         if self.triangulation not in ("optimal", "midpoint", "dlt", "pinv"):
-            raise InputError(f"unknown triangulation {self.triangulation!r}; use optimal, midpoint, dlt or pinv")
+            raise InputError(
+                f"unknown triangulation {self.triangulation!r}; use optimal, midpoint, dlt or pinv"
+            )
         if self.dense_method not in ("stereo", "epipolar"):
             raise InputError(f"unknown dense method {self.dense_method!r}; use stereo or epipolar")
         if self.rectification not in ("calibrated", "opencv", "uncalibrated"):
-            raise InputError(f"unknown rectification {self.rectification!r}; use calibrated, opencv or uncalibrated")
+            raise InputError(
+                f"unknown rectification {self.rectification!r}; use calibrated, opencv or uncalibrated"
+            )
         if self.baseline_m is not None and not (self.baseline_m > 0):
             raise InputError(f"baseline_m must be positive, got {self.baseline_m}")
         if self.dense_max_image_size < 64:
