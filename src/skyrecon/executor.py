@@ -14,7 +14,7 @@ from __future__ import annotations
 import multiprocessing
 import os
 from collections.abc import Callable, Iterable, Sequence
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from typing import Protocol, TypeVar
 
 from skyrecon.errors import InputError
@@ -82,8 +82,6 @@ class ProcessExecutor:
 
 
 def _wait_first(pending: dict) -> set:
-    from concurrent.futures import FIRST_COMPLETED, wait
-
     done, _ = wait(list(pending), return_when=FIRST_COMPLETED)
     return done
 

@@ -2,12 +2,15 @@
 
 import json
 
+import cv2
 import numpy as np
 import pytest
 
+from skyrecon import sim
 from skyrecon.cli.main import main
+from skyrecon.core import Intrinsics, Rigid3, StereoRig, rotvec_to_matrix
 from skyrecon.io import read_kitti_calib, read_pfm, read_ply, write_image
-from skyrecon.stereo import depth_error_bound
+from skyrecon.stereo import depth_error_bound, rectify_rig
 
 SMALL = ["--width", "192", "--height", "144", "--seed", "2", "--quiet"]
 
@@ -143,3 +146,79 @@ def test_bad_inputs(scene, tmp_path, capsys):
     assert "disparit" in _one_error_line(capsys)
     assert main(["stereo", str(scene), "--out", str(tmp_path / "o")]) == 2
     assert "sequence" in _one_error_line(capsys)
+
+
+def _unrectified_rig(width: int = 320, height: int = 240) -> StereoRig:
+    """A rig with lens distortion, different intrinsics and a rotated, slightly offset right camera."""
+    left = Intrinsics(165.0, 166.0, 161.0, 118.0, width, height, dist=[-0.08, 0.02, 0.001, -0.0005, 0.0])
+    right = Intrinsics(163.0, 163.5, 158.0, 122.0, width, height, dist=[-0.06, 0.01, -0.0008, 0.0006, 0.0])
+    right_from_left = Rigid3(rotvec_to_matrix([0.01, -0.03, 0.015]), np.array([-0.3, 0.008, 0.012]))
+    return StereoRig(left, right, right_from_left)
+
+
+def _write_opencv_yaml(path, rig: StereoRig) -> None:
+    """What ``cv2.stereoCalibrate`` users save: K1 D1 K2 D2 R T (x_right = R x_left + T, metres)."""
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    fs.write("imageSize", np.array([rig.left.width, rig.left.height], dtype=np.int32))
+    for key, value in (
+        ("K1", rig.left.K),
+        ("D1", np.asarray(rig.left.dist, dtype=np.float64).reshape(1, -1)),
+        ("K2", rig.right.K),
+        ("D2", np.asarray(rig.right.dist, dtype=np.float64).reshape(1, -1)),
+        ("R", rig.right_from_left.R),
+        ("T", rig.right_from_left.t.reshape(3, 1)),
+    ):
+        fs.write(key, value)
+    fs.release()
+
+
+@pytest.fixture(scope="module")
+def unrectified_scene(tmp_path_factory):
+    """A rendered pair of an unrectified, distorted rig, its OpenCV YAML and the true left depth."""
+    out = tmp_path_factory.mktemp("unrectified")
+    city = sim.generate_city(4)
+    rig = _unrectified_rig()
+    left_from_world = sim.street_view_pose(city, 4)
+    left = sim.render(city, rig.left, left_from_world)
+    right = sim.render(city, rig.right, rig.right_from_left @ left_from_world.with_frames("left", "world"))
+    write_image(out / "left.png", left.image)
+    write_image(out / "right.png", right.image)
+    _write_opencv_yaml(out / "rig.yml", rig)
+    return out, rig, left.depth_m
+
+
+def test_pair_with_unrectified_opencv_yaml(unrectified_scene, tmp_path):
+    scene, rig, true_depth = unrectified_scene
+    out = tmp_path / "out"
+    args = ["stereo", str(scene / "left.png"), str(scene / "right.png"), "--calib", str(scene / "rig.yml")]
+    assert main([*args, "--max-disparity", "64", "--out", str(out), "--quiet"]) == 0
+    summary = json.loads((out / "stereo.json").read_text())
+    assert summary["rectified_here"] is True
+    assert summary["baseline_m"] == pytest.approx(np.linalg.norm(rig.right_from_left.t), rel=1e-6)
+    assert read_pfm(out / "depth.pfm").shape == (240, 320)
+    # the points are in the rectified left frame: take them back to the original left camera and
+    # compare their depth with the rendered depth at the pixels they project to
+    cloud = read_ply(out / "points.ply")
+    assert len(cloud) == summary["points"] > 10000
+    left_rect_from_left = rectify_rig(rig).left_rect_from_left
+    p = left_rect_from_left.inverse().apply(cloud.points.astype(np.float64))
+    p = p[(p[:, 2] > 2.0) & (p[:, 2] < 40.0)]
+    uv = rig.left.project(p)
+    inside = rig.left.in_image(uv, margin=1)
+    u, v = np.rint(uv[inside]).astype(int).T
+    truth = true_depth[v, u]
+    ok = np.isfinite(truth)
+    assert ok.sum() > 5000
+    rel = np.abs(p[inside][ok, 2] - truth[ok]) / truth[ok]
+    assert np.median(rel) < 0.05
+    assert np.mean(rel < 0.2) > 0.9
+
+
+def test_sequence_refuses_a_separate_calibration(unrectified_scene, tmp_path, capsys):
+    scene, _rig, _depth = unrectified_scene
+    seq = tmp_path / "flight"
+    assert main(["render", "sequence", "--frames", "1", "--out", str(seq), *SMALL]) == 0
+    args = ["stereo", str(seq), "--calib", str(scene / "rig.yml"), "--out", str(tmp_path / "o")]
+    assert main(args) == 2
+    line = _one_error_line(capsys)
+    assert "calib" in line and "rig.yml" in line

@@ -187,7 +187,7 @@ def test_read_pose_count_mismatch(seq_dir):
     [
         ("1 0 0 0 0 1 0 0 0 0 1 nan", "line 2: the pose contains NaN"),
         ("1 0 0 0 0 1 0 0 0 0 1", "line 2: a pose needs 12 numbers"),
-        ("1 0 0 0 0 1 0 0 0 0 1 zero", "line 2: pose values must be numbers"),
+        ("1 0 0 0 0 1 0 0 0 0 1 zero", "line 2: the pose: 'zero' is not a number"),
         ("2 0 0 0 0 1 0 0 0 0 1 0", "line 2: not a rotation"),
         ("-1 0 0 0 0 1 0 0 0 0 1 0", "line 2: not a rotation"),
     ],

@@ -34,7 +34,7 @@ import numpy as np
 
 from skyrecon.cli.common import add_command, info, output_dir, positive_float, positive_int
 from skyrecon.errors import EstimationError, InputError
-from skyrecon.io.atomic import write_text_atomic
+from skyrecon.io.jsonio import write_json
 
 EXAMPLES = """  skyrecon align model/ --positions gps_enu.txt --out model_metric/
   skyrecon align flight2/sparse --to-model flight1/sparse --merge --out flight2_in_flight1/
@@ -504,7 +504,7 @@ def run(args: argparse.Namespace) -> int:
         "files": files,
         "seconds": time.perf_counter() - t_start,
     }
-    write_text_atomic(out / "align.json", json.dumps(_clean(summary), indent=2, allow_nan=False) + "\n")
+    write_json(out / "align.json", summary)
 
     for w in warnings:
         if not args.quiet or w.startswith("ICP did not converge"):
@@ -535,20 +535,3 @@ def run(args: argparse.Namespace) -> int:
             + ", align.json"
         )
     return 0
-
-
-def _clean(v):
-    if isinstance(v, dict):
-        return {str(k): _clean(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_clean(x) for x in v]
-    if isinstance(v, (np.integer,)):
-        return int(v)
-    if isinstance(v, (np.floating, float)):
-        f = float(v)
-        return f if math.isfinite(f) else None
-    if isinstance(v, np.ndarray):
-        return _clean(v.tolist())
-    if isinstance(v, np.bool_):
-        return bool(v)
-    return v

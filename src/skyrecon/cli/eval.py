@@ -9,11 +9,12 @@ errors in the rates.
 from __future__ import annotations
 
 import argparse
-import json
 
 from skyrecon.cli.common import add_command
 from skyrecon.errors import InputError
-from skyrecon.io.atomic import write_text_atomic
+from skyrecon.eval.stereo_metrics import evaluate_disparity
+from skyrecon.io.disparity import read_disparity, read_middlebury_disparity_pgm
+from skyrecon.io.jsonio import write_json
 
 EXAMPLES = """  skyrecon eval stereo out/disparity.pfm cones/disp2.pgm
   skyrecon eval stereo out/disparity.pfm training/disp_occ_0/000046_10.png --json scores.json
@@ -41,9 +42,6 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    from skyrecon.eval.stereo_metrics import evaluate_disparity
-    from skyrecon.io.disparity import read_disparity, read_middlebury_disparity_pgm
-
     pred = read_disparity(args.prediction)
     if args.gt_scale is not None:
         if not args.gt_scale > 0:
@@ -64,5 +62,5 @@ def run(args: argparse.Namespace) -> int:
         f"({int(scores['n_gt'])} ground-truth pixels)"
     )
     if args.json:
-        write_text_atomic(args.json, json.dumps({k: float(v) for k, v in scores.items()}, indent=2))
+        write_json(args.json, {k: float(v) for k, v in scores.items()})
     return 0

@@ -14,6 +14,7 @@ from collections.abc import Sequence
 from skyrecon import __version__
 from skyrecon.cli.common import ExampleFormatter, OneLineParser, add_global_options
 from skyrecon.errors import EstimationError, InputError, SkyreconError
+from skyrecon.progress import set_progress_enabled
 
 # Command modules, in the order --help lists them. Each has add_parser(subparsers) and run(args) -> int.
 COMMANDS = ["render", "stereo", "two-view", "sfm", "align", "mvs", "map", "plan", "eval", "demo"]
@@ -51,8 +52,6 @@ def main(argv: Sequence[str] | None = None) -> int:
             parser.print_help()
             return 0
         if args.quiet:
-            from skyrecon.progress import set_progress_enabled
-
             set_progress_enabled(False)
         module = importlib.import_module(f"skyrecon.cli.{args.command.replace('-', '_')}")
         return int(module.run(args) or 0)

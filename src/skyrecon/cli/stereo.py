@@ -13,16 +13,26 @@ a few pictures and ``stereo.json`` with frames per second.
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from skyrecon.cli.common import add_command, info, output_dir, positive_float, positive_int
+from skyrecon.core.stereo_rig import StereoRig
 from skyrecon.errors import InputError
-from skyrecon.io.atomic import write_text_atomic
-from skyrecon.io.images import write_image
+from skyrecon.eval.stereo_metrics import evaluate_disparity
+from skyrecon.io.calib import read_stereo_calib
+from skyrecon.io.disparity import colorize_depth, colorize_disparity, read_disparity
+from skyrecon.io.images import read_image_with_alpha, write_image
+from skyrecon.io.jsonio import write_json
+from skyrecon.io.pfm import write_pfm
+from skyrecon.io.ply import write_ply
+from skyrecon.io.sequence import is_sequence_dir, read_sequence
+from skyrecon.progress import progress
+from skyrecon.report.figures import contact_sheet
+from skyrecon.stereo import create_matcher, disparity_to_depth, disparity_to_points, rectify_rig
 
 EXAMPLES = """  skyrecon stereo left.png right.png --out out/                     # disparity only
   skyrecon stereo im0.png im1.png --calib calib.txt --out out/      # + depth.pfm, points.ply
@@ -71,8 +81,6 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    from skyrecon.io.sequence import is_sequence_dir
-
     if len(args.inputs) == 1:
         path = Path(args.inputs[0])
         if not path.exists():
@@ -89,20 +97,13 @@ def run(args: argparse.Namespace) -> int:
     return _run_pair(args, Path(args.inputs[0]), Path(args.inputs[1]))
 
 
-def _max_disparity(args, calib_bound: int | None, width: int) -> int:
+def _max_disparity(args: argparse.Namespace, calib_bound: int | None, width: int) -> int:
     value = args.max_disparity or calib_bound or min(128, width - 1)
     return int(value)
 
 
-def _run_pair(args, left_path: Path, right_path: Path) -> int:
-    from skyrecon.eval.stereo_metrics import evaluate_disparity
-    from skyrecon.io.calib import read_stereo_calib
-    from skyrecon.io.disparity import colorize_depth, colorize_disparity, read_disparity
-    from skyrecon.io.images import read_image_with_alpha
-    from skyrecon.io.pfm import write_pfm
-    from skyrecon.io.ply import write_ply
-    from skyrecon.stereo import create_matcher, disparity_to_depth, disparity_to_points, rectify_rig
-
+def _read_pair(left_path: Path, right_path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """The two images as read (any depth, grey or colour); InputError when their sizes differ."""
     left, _ = read_image_with_alpha(left_path, "unchanged")
     right, _ = read_image_with_alpha(right_path, "unchanged")
     if left.shape[:2] != right.shape[:2]:
@@ -110,15 +111,36 @@ def _run_pair(args, left_path: Path, right_path: Path) -> int:
             f"the images differ in size: {left_path} is {left.shape[1]}x{left.shape[0]}, "
             f"{right_path} is {right.shape[1]}x{right.shape[0]}; stereo needs a pair of the same size"
         )
+    return left, right
+
+
+def _calibrate(
+    calib_path: str, left: np.ndarray, right: np.ndarray
+) -> tuple[StereoRig, int | None, np.ndarray, np.ndarray, bool]:
+    """Read ``--calib`` and rectify the pair when the rig is not rectified.
+
+    Returns:
+        ``(rig, max_disparity, left, right, rectified_here)``: the rectified rig (metres),
+        the file's disparity bound (pixels, or None), the (rectified) images and whether
+        they were rectified here (then depth and points are in the rectified left frame).
+    """
     height, width = left.shape[:2]
-    rig, bound, rectified_here = None, None, False
+    calib = read_stereo_calib(calib_path, width, height)
+    if calib.rig.is_rectified:
+        return calib.rig, calib.max_disparity, left, right, False
+    rect = rectify_rig(calib.rig)
+    left_rect, right_rect = rect.apply(left, right)
+    return rect.rig, calib.max_disparity, left_rect, right_rect, True
+
+
+def _run_pair(args: argparse.Namespace, left_path: Path, right_path: Path) -> int:
+    left, right = _read_pair(left_path, right_path)
+    height, width = left.shape[:2]
+    rig: StereoRig | None = None
+    bound: int | None = None
+    rectified_here = False
     if args.calib:
-        calib = read_stereo_calib(args.calib, width, height)
-        rig, bound = calib.rig, calib.max_disparity
-        if not rig.is_rectified:
-            rect = rectify_rig(rig)
-            left, right = rect.apply(left, right)
-            rig, rectified_here = rect.rectified, True
+        rig, bound, left, right, rectified_here = _calibrate(args.calib, left, right)
     out = output_dir(args.out)
     max_disp = _max_disparity(args, bound, width)
     matcher = create_matcher(args.method, max_disp, min_disparity=args.min_disparity)
@@ -131,7 +153,7 @@ def _run_pair(args, left_path: Path, right_path: Path) -> int:
 
     write_pfm(out / "disparity.pfm", disparity)
     write_image(out / "disparity.png", colorize_disparity(disparity))
-    summary: dict = {
+    summary: dict[str, Any] = {
         "left": str(left_path),
         "right": str(right_path),
         "method": args.method,
@@ -161,7 +183,7 @@ def _run_pair(args, left_path: Path, right_path: Path) -> int:
                 args.gt,
             )
         summary["metrics"] = {k: round(float(v), 5) for k, v in evaluate_disparity(disparity, gt).items()}
-    write_text_atomic(out / "stereo.json", json.dumps(summary, indent=2))
+    write_json(out / "stereo.json", summary)
     if not args.quiet:
         line = f"{args.method}: {width}x{height}, disparities {args.min_disparity}..{max_disp}, "
         line += f"density {100 * summary['density']:.1f} %, {summary['milliseconds']:.0f} ms"
@@ -176,17 +198,14 @@ def _run_pair(args, left_path: Path, right_path: Path) -> int:
     return 0
 
 
-def _run_sequence(args, root: Path) -> int:
-    from skyrecon.io.disparity import colorize_disparity
-    from skyrecon.io.pfm import write_pfm
-    from skyrecon.io.sequence import read_sequence
-    from skyrecon.progress import progress
-    from skyrecon.report.figures import contact_sheet
-    from skyrecon.stereo import create_matcher, disparity_to_depth
-
-    seq = read_sequence(root)
+def _run_sequence(args: argparse.Namespace, root: Path) -> int:
     if args.calib:
-        raise InputError("a sequence carries its own calib.txt; drop --calib", args.calib)
+        raise InputError(
+            "a sequence carries its own rectified calib.txt (KITTI P2:/P3:); drop --calib, "
+            "or rectify the frames first and write their calib.txt",
+            args.calib,
+        )
+    seq = read_sequence(root)
     n = min(len(seq), args.frames or len(seq))
     if n == 0:
         raise InputError("the sequence has no frames", root)
@@ -195,7 +214,9 @@ def _run_sequence(args, root: Path) -> int:
     matcher = create_matcher(
         args.method, _max_disparity(args, None, rig.left.width), min_disparity=args.min_disparity
     )
-    compute_s, samples, labels = [], [], []
+    compute_s: list[float] = []
+    samples: list[np.ndarray] = []
+    labels: list[str] = []
     sample_at = set(np.linspace(0, n - 1, min(3, n)).round().astype(int).tolist())
     for i in progress(range(n), desc="stereo frames"):
         left, right = seq.frame(i)
@@ -221,7 +242,7 @@ def _run_sequence(args, root: Path) -> int:
         "median_ms_per_frame": round(1000 * float(np.median(steady)), 1),
         "first_frame_ms": round(1000 * compute_s[0], 1),
     }
-    write_text_atomic(out / "stereo.json", json.dumps(summary, indent=2))
+    write_json(out / "stereo.json", summary)
     if not args.quiet:
         info(
             f"{args.method}: {n} frames of {rig.left.width}x{rig.left.height}, "

@@ -19,6 +19,7 @@ from skyrecon.io.disparity import (
     write_kitti_disparity_png,
 )
 from skyrecon.io.images import read_image, read_image_with_alpha, write_image
+from skyrecon.io.jsonio import dumps_json, to_jsonable, write_json
 from skyrecon.io.multiview import (
     read_cameras,
     read_halcon_cameras,
@@ -35,6 +36,7 @@ __all__ = [
     "StereoSequence",
     "colorize_depth",
     "colorize_disparity",
+    "dumps_json",
     "is_sequence_dir",
     "read_K_txt",
     "read_cameras",
@@ -52,9 +54,11 @@ __all__ = [
     "read_ply",
     "read_sequence",
     "read_strecha_cameras",
+    "to_jsonable",
     "write_K_txt",
     "write_colmap_text",
     "write_image",
+    "write_json",
     "write_kitti_calib",
     "write_kitti_disparity_png",
     "write_nerfstudio_transforms",

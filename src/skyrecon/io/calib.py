@@ -27,6 +27,7 @@ from skyrecon.core.rigid import Rigid3
 from skyrecon.core.stereo_rig import StereoRig
 from skyrecon.errors import InputError
 from skyrecon.io.atomic import write_text_atomic
+from skyrecon.io.text import parse_numbers
 
 
 def _read_text(path: Path, what: str) -> str:
@@ -39,17 +40,6 @@ def _read_text(path: Path, what: str) -> str:
     if not text.strip():
         raise InputError(f"{what} file is empty", path)
     return text
-
-
-def _numbers(words: list[str], path: Path, lineno: int) -> np.ndarray:
-    """Parse words as finite floats; InputError naming the line otherwise."""
-    try:
-        values = np.array([float(w) for w in words], dtype=np.float64)
-    except ValueError:
-        raise InputError(f"line {lineno}: expected numbers, got {' '.join(words)!r}", path) from None
-    if not np.all(np.isfinite(values)):
-        raise InputError(f"line {lineno}: NaN or infinite value in {' '.join(words)!r}", path)
-    return values
 
 
 def _intrinsics(K: np.ndarray, width: int, height: int, path: Path) -> Intrinsics:
@@ -79,10 +69,7 @@ def read_K_txt(path: str | Path, width: int, height: int) -> Intrinsics:
     rows = [(i, line.split()) for i, line in enumerate(text.splitlines(), start=1) if line.strip()]
     if len(rows) != 3:
         raise InputError(f"K.txt must have 3 lines of 3 numbers, found {len(rows)} non-empty lines", path)
-    for lineno, words in rows:
-        if len(words) != 3:
-            raise InputError(f"line {lineno}: expected 3 numbers, found {len(words)}", path)
-    K = np.stack([_numbers(words, path, lineno) for lineno, words in rows])
+    K = np.stack([parse_numbers(words, path, lineno, count=3) for lineno, words in rows])
     return _intrinsics(K, width, height, path)
 
 
@@ -134,7 +121,7 @@ def _matlab_matrix(value: str, path: Path, lineno: int) -> np.ndarray:
     rows = m.group(1).split(";") if m else []
     if len(rows) != 3 or any(len(r.split()) != 3 for r in rows):
         raise InputError(f"line {lineno}: expected a 3x3 matrix '[a b c; d e f; g h i]', got {value!r}", path)
-    return np.stack([_numbers(r.split(), path, lineno) for r in rows])
+    return np.stack([parse_numbers(r.split(), path, lineno) for r in rows])
 
 
 def _middlebury_entries(text: str, path: Path) -> dict[str, tuple[str, int]]:
@@ -159,7 +146,7 @@ def _scalar(entries: dict, key: str, path: Path, required: bool = True) -> float
     words = value.split()
     if len(words) != 1:
         raise InputError(f"line {lineno}: '{key}' needs one number, got {value!r}", path)
-    return float(_numbers(words, path, lineno)[0])
+    return float(parse_numbers(words, path, lineno)[0])
 
 
 def _integer(entries: dict, key: str, path: Path, required: bool = True) -> int | None:
@@ -245,7 +232,7 @@ def _kitti_entries(text: str, path: Path) -> dict[str, tuple[np.ndarray, int]]:
         words = value.split()
         if key.strip() == "calib_time":
             continue
-        entries[key.strip()] = (_numbers(words, path, lineno), lineno)
+        entries[key.strip()] = (parse_numbers(words, path, lineno), lineno)
     return entries
 
 

@@ -29,6 +29,7 @@ from skyrecon.core.reconstruction import Image, Point3D, Reconstruction
 from skyrecon.core.rigid import Rigid3, matrix_to_quaternion, quaternion_to_matrix
 from skyrecon.errors import InputError
 from skyrecon.io.atomic import write_text_atomic
+from skyrecon.io.text import parse_numbers
 
 __all__ = [
     "COLMAP_MODELS",
@@ -98,30 +99,8 @@ def _read_lines(path: Path) -> list[str]:
 
 
 def _nums(tokens: list[str], path: Path, line_no: int, what: str, kind: type = float) -> list:
-    out = []
-    for tok in tokens:
-        try:
-            v = kind(tok)
-        except ValueError:
-            raise InputError(
-                f"line {line_no}: {what}: {tok!r} is not a valid {kind.__name__}", path
-            ) from None
-        if kind is float and not np.isfinite(v):
-            raise InputError(f"line {line_no}: {what} contains NaN or infinite values", path)
-        out.append(v)
-    return out
-
-
-def _array(tokens: list[str], path: Path, line_no: int, what: str, kind: type = float) -> np.ndarray:
-    """Vectorised :func:`_nums`: float64 or int64 array, same errors."""
-    try:
-        arr = np.asarray(tokens, dtype=str).astype(np.float64 if kind is float else np.int64)
-    except (ValueError, OverflowError):
-        _nums(tokens, path, line_no, what, kind)  # raises with the offending token
-        raise  # pragma: no cover
-    if kind is float and not np.all(np.isfinite(arr)):
-        raise InputError(f"line {line_no}: {what} contains NaN or infinite values", path)
-    return arr
+    """:func:`~skyrecon.io.text.parse_numbers` as a list of Python ints or floats."""
+    return parse_numbers(tokens, path, line_no, what, kind=kind).tolist()
 
 
 # ----------------------------------------------------------------------------------------------
@@ -270,9 +249,11 @@ def _read_images(path: Path) -> dict[int, Image]:
                 path,
             )
         triples = np.asarray(ptok, dtype=str).reshape(-1, 3)
-        xy = _array(triples[:, :2].ravel().tolist(), path, pts_no, f"keypoints of {name}").reshape(-1, 2)
+        xy = parse_numbers(triples[:, :2].ravel().tolist(), path, pts_no, f"keypoints of {name}").reshape(
+            -1, 2
+        )
         xy -= _PIXEL_OFFSET
-        ids = _array(triples[:, 2].tolist(), path, pts_no, f"POINT3D_IDs of {name}", int)
+        ids = parse_numbers(triples[:, 2].tolist(), path, pts_no, f"POINT3D_IDs of {name}", kind=int)
         if image_id in images:
             raise InputError(f"line {line_no}: image id {image_id} appears twice", path)
         pose = Rigid3(quaternion_to_matrix(q), t, "cam", "world")
@@ -296,7 +277,7 @@ def _read_points(path: Path) -> dict[int, Point3D]:
         if not all(0 <= c <= 255 for c in rgb):
             raise InputError(f"line {line_no}: colour {rgb} is outside 0..255", path)
         err = _nums([tok[7]], path, line_no, "ERROR")[0]
-        track = _array(tok[8:], path, line_no, "track", int).reshape(-1, 2)
+        track = parse_numbers(tok[8:], path, line_no, "track", kind=int).reshape(-1, 2)
         if pid in points:
             raise InputError(f"line {line_no}: point id {pid} appears twice", path)
         points[pid] = Point3D(pid, np.array(xyz), np.array(rgb, dtype=np.uint8), err, track)

@@ -32,6 +32,8 @@ from skyrecon.core.reconstruction import Reconstruction
 from skyrecon.core.rigid import Rigid3, orthonormalize
 from skyrecon.core.view import PosedView
 from skyrecon.errors import InputError
+from skyrecon.io.colmap import read_colmap_text
+from skyrecon.io.text import parse_numbers
 
 __all__ = [
     "ROTATION_TOL",
@@ -55,26 +57,6 @@ _DEFAULT_MIDDLEBURY_SIZE = (640, 480)
 # ----------------------------------------------------------------------------------------------
 def _where(line_no: int | None) -> str:
     return f"line {line_no}: " if line_no is not None else ""
-
-
-def _floats(tokens: Sequence[str], path: Path, line_no: int | None, what: str) -> np.ndarray:
-    """Parse tokens as finite float64 values, or raise ``InputError`` naming file and line."""
-    try:
-        vals = np.array([float(tok) for tok in tokens], dtype=np.float64)
-    except ValueError:
-        bad = next(tok for tok in tokens if not _is_float(tok))
-        raise InputError(f"{_where(line_no)}{what}: {bad!r} is not a number", path) from None
-    if not np.all(np.isfinite(vals)):
-        raise InputError(f"{_where(line_no)}{what} contains NaN or infinite values", path)
-    return vals
-
-
-def _is_float(tok: str) -> bool:
-    try:
-        float(tok)
-    except ValueError:
-        return False
-    return True
 
 
 def _rotation(R: np.ndarray, path: Path, line_no: int | None, what: str) -> np.ndarray:
@@ -223,7 +205,7 @@ def read_middlebury_par(
                 path,
             )
         name = tok[0]
-        vals = _floats(tok[1:], path, line_no, f"camera of {name}")
+        vals = parse_numbers(tok[1:], path, line_no, f"camera of {name}")
         K = vals[0:9].reshape(3, 3)
         R = _rotation(vals[9:18].reshape(3, 3), path, line_no, f"R of {name}")
         t = vals[18:21]
@@ -278,7 +260,7 @@ def _read_one_strecha(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, i
         want = 2 if k == 8 else 3
         if len(tok) != want:
             raise InputError(f"line {line_no}: expected {want} numbers, got {len(tok)}", path)
-        rows.append(_floats(tok, path, line_no, "camera values"))
+        rows.append(parse_numbers(tok, path, line_no, "camera values"))
     K = np.stack(rows[0:3])
     dist = rows[3]
     if np.any(dist != 0):
@@ -361,7 +343,7 @@ def _read_halcon_intrinsics(path: Path) -> Intrinsics:
         if not m or m.group(1) not in _HALCON_KNOWN:
             continue
         key, raw = m.group(1), m.group(3).strip()
-        values[key] = float(_floats([raw] if raw else ["<empty>"], path, line_no, key)[0])
+        values[key] = float(parse_numbers([raw] if raw else ["<empty>"], path, line_no, key)[0])
     missing = [k for k in _HALCON_REQUIRED if k not in values]
     if missing:
         raise InputError(
@@ -401,7 +383,7 @@ def _read_halcon_extrinsics(path: Path) -> Rigid3:
         raise InputError(
             f"expected 12 numbers (row-major 3x4 [R | T], camera-to-world), got {len(tok)}", path
         )
-    M = _floats(tok, path, None, "[R | T]").reshape(3, 4)
+    M = parse_numbers(tok, path, None, "[R | T]").reshape(3, 4)
     R_wc = _rotation(M[:, :3], path, None, "R (camera-to-world)")
     T = M[:, 3]
     return Rigid3(R_wc.T, -R_wc.T @ T, "cam", "world")
@@ -523,8 +505,6 @@ def read_cameras(spec: str | Path, image_dir: str | Path | None = None) -> list[
         InputError: ``spec`` does not exist or matches none of the layouts (the message lists them),
             or the files are malformed.
     """
-    from skyrecon.io.colmap import read_colmap_text  # local: colmap imports nothing from here
-
     p = Path(spec)
     if not p.exists():
         raise InputError(f"camera specification not found; expected {_ACCEPTED}", p)

@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 from PIL import Image as PILImage
+from tqdm import tqdm
 
 from skyrecon.core.rigid import Rigid3
 from skyrecon.core.stereo_rig import StereoRig
@@ -31,6 +32,7 @@ from skyrecon.errors import InputError
 from skyrecon.io.atomic import write_text_atomic
 from skyrecon.io.calib import format_kitti_calib, read_kitti_calib
 from skyrecon.io.images import read_image, write_image
+from skyrecon.io.text import parse_numbers
 
 LEFT_DIR, RIGHT_DIR, CALIB_FILE, POSES_FILE = "image_2", "image_3", "calib.txt", "poses.txt"
 _IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
@@ -125,14 +127,7 @@ def parse_poses(text: str, path: Path) -> list[Rigid3]:
             raise InputError(
                 f"line {lineno}: a pose needs 12 numbers (row-major 3x4), found {len(words)}", path
             )
-        try:
-            values = np.array([float(w) for w in words])
-        except ValueError:
-            raise InputError(
-                f"line {lineno}: pose values must be numbers, got {line.strip()!r}", path
-            ) from None
-        if not np.all(np.isfinite(values)):
-            raise InputError(f"line {lineno}: the pose contains NaN or infinite values", path)
+        values = parse_numbers(words, path, lineno, "the pose")
         try:
             poses.append(Rigid3.from_matrix(values.reshape(3, 4), "world", "left"))
         except InputError as exc:
@@ -236,8 +231,6 @@ def write_sequence(
             raise InputError(f"{len(world_from_left)} poses for {len(frames)} frames")  # type: ignore[arg-type]
     calib_text = format_kitti_calib(rig)
     if progress:
-        from tqdm import tqdm
-
         frames = tqdm(frames, desc="writing frames", unit="frame")
     count = 0
     for i, (left, right) in enumerate(frames):

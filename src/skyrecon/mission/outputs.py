@@ -19,13 +19,13 @@ A refused mission (impossible input) gets ``mission.json`` with ``success: false
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 
 from skyrecon.io.atomic import write_text_atomic
 from skyrecon.io.images import write_image
+from skyrecon.io.jsonio import dumps_json
 from skyrecon.mapping import export_occupied_ply, save_map
 from skyrecon.mission.config import MissionConfig
 from skyrecon.mission.loop import MissionResult
@@ -34,20 +34,6 @@ from skyrecon.planning import write_path_json
 
 FORMAT = "skyrecon.mission"
 VERSION = 1
-
-
-def _json(obj) -> str:
-    return json.dumps(obj, indent=2, allow_nan=False, default=_default) + "\n"
-
-
-def _default(o):
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, (np.floating, np.integer)):
-        return o.item()
-    if isinstance(o, np.bool_):
-        return bool(o)
-    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
 def write_mission_outputs(result: MissionResult, out_dir: str | Path, save_the_map: bool = True) -> dict:
@@ -82,7 +68,7 @@ def write_mission_outputs(result: MissionResult, out_dir: str | Path, save_the_m
     )
     write_text_atomic(
         out / "cycles.json",
-        _json(
+        dumps_json(
             {
                 "format": "skyrecon.mission.cycles",
                 "version": 1,
@@ -123,7 +109,7 @@ def write_mission_outputs(result: MissionResult, out_dir: str | Path, save_the_m
             for p in result.plans
         ],
     }
-    write_text_atomic(out / "mission.json", _json(doc))
+    write_text_atomic(out / "mission.json", dumps_json(doc))
     write_text_atomic(out / "report.html", render_mission_report(result, m))
     return m
 
@@ -175,6 +161,6 @@ def write_refused_outputs(
         s, g = np.asarray(start, dtype=float).reshape(-1), np.asarray(goal, dtype=float).reshape(-1)
         if s.shape == g.shape == (3,) and np.all(np.isfinite(s)) and np.all(np.isfinite(g)):
             doc["straight_line_m"] = round(float(np.linalg.norm(g - s)), 3)
-    write_text_atomic(out / "mission.json", _json(doc))
+    write_text_atomic(out / "mission.json", dumps_json(doc))
     write_text_atomic(out / "report.html", render_refused_report(message, code, seed, cfg, city, start, goal))
     return doc

@@ -10,15 +10,14 @@ Layout written under ``out_dir``::
 
 from __future__ import annotations
 
-import dataclasses
-import json
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from skyrecon.io import write_pfm, write_ply
-from skyrecon.io.atomic import write_bytes_atomic, write_text_atomic
+from skyrecon.io.atomic import write_bytes_atomic
+from skyrecon.io.jsonio import write_json
 
 __all__ = ["save_mvs_result", "encode_mesh_ply", "write_mesh_ply"]
 
@@ -66,22 +65,6 @@ def write_mesh_ply(
     write_bytes_atomic(Path(path), encode_mesh_ply(vertices, faces, colors))
 
 
-def _jsonable(x: Any) -> Any:
-    if dataclasses.is_dataclass(x) and not isinstance(x, type):
-        return {k: _jsonable(v) for k, v in dataclasses.asdict(x).items()}
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    if isinstance(x, (np.integer,)):
-        return int(x)
-    if isinstance(x, (np.floating,)):
-        return float(x)
-    return x
-
-
 def save_mvs_result(result: Any, out_dir: str | Path, settings: Any = None) -> dict[str, Path]:
     """Write an :class:`~skyrecon.mvs.MVSResult` under ``out_dir`` (created if missing).
 
@@ -117,5 +100,5 @@ def save_mvs_result(result: Any, out_dir: str | Path, settings: Any = None) -> d
     }
     if settings is not None:
         summary["settings"] = settings
-    write_text_atomic(paths["summary"], json.dumps(_jsonable(summary), indent=2))
+    write_json(paths["summary"], summary)
     return paths

@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 
 from skyrecon.core.reconstruction import Reconstruction
+from skyrecon.io.jsonio import to_jsonable
 
 __all__ = ["ImageStatus", "SfMResult"]
 
@@ -99,21 +100,7 @@ class SfMResult:
     def to_json_dict(self) -> dict[str, Any]:
         """A JSON-ready summary (no keypoints or points)."""
 
-        def clean(v: Any) -> Any:
-            if isinstance(v, dict):
-                return {str(k): clean(x) for k, x in v.items()}
-            if isinstance(v, (list, tuple)):
-                return [clean(x) for x in v]
-            if isinstance(v, (np.integer,)):
-                return int(v)
-            if isinstance(v, (np.floating, float)):
-                f = float(v)
-                return f if np.isfinite(f) else None
-            if isinstance(v, np.ndarray):
-                return clean(v.tolist())
-            return v
-
-        return clean(
+        return to_jsonable(
             {
                 "num_images": len(self.images),
                 "num_registered": self.num_registered,

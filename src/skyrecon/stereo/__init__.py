@@ -27,7 +27,7 @@ from skyrecon.stereo.opencv_matchers import (
     OpenCVSGBMMatcher,
     OpenCVSGBMSettings,
 )
-from skyrecon.stereo.rectify import Rectification, rectify_rig
+from skyrecon.stereo.rectify import RigRectification, rectify_rig
 from skyrecon.stereo.reproject import (
     depth_error_bound,
     disparity_to_depth,
@@ -60,7 +60,7 @@ __all__ = [
     "SkyreconSettings",
     "fill_invalid",
     "remove_speckles",
-    "Rectification",
+    "RigRectification",
     "rectify_rig",
     "depth_error_bound",
     "disparity_to_depth",

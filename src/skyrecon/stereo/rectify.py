@@ -3,7 +3,7 @@
 :func:`rectify_rig` turns a :class:`~skyrecon.core.StereoRig` with intrinsics, distortion and
 ``right_from_left`` into remapping tables for both images (``cv2.stereoRectify`` +
 ``cv2.initUndistortRectifyMap``), the rectified rig and its Q matrix. After
-:meth:`Rectification.apply`, rows are epipolar lines and a left pixel ``(x, y)`` matches the
+:meth:`RigRectification.apply`, rows are epipolar lines and a left pixel ``(x, y)`` matches the
 right pixel ``(x - d, y)``.
 
 The rectified left camera is rotated with respect to the original one: points computed from
@@ -13,6 +13,7 @@ between the two.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -23,12 +24,15 @@ from skyrecon.core.rigid import Rigid3
 from skyrecon.core.stereo_rig import StereoRig
 from skyrecon.errors import InputError
 
-__all__ = ["Rectification", "rectify_rig"]
+__all__ = ["RigRectification", "rectify_rig"]
 
 
 @dataclass
-class Rectification:
-    """Maps from an original stereo pair to a rectified one.
+class RigRectification:
+    """Maps from an original (calibrated, possibly distorted) stereo pair to a rectified one.
+
+    Not to be confused with :class:`skyrecon.geometry.Rectification`, the rectifying
+    homographies of an arbitrary uncalibrated image pair.
 
     Attributes:
         rig: the rectified rig (no distortion, pure x baseline, ``rig.Q`` valid).
@@ -97,9 +101,15 @@ class Rectification:
         return self.apply_left(left, interpolation), self.apply_right(right, interpolation)
 
 
+def _roi(roi: Sequence[float]) -> tuple[int, int, int, int]:
+    """OpenCV's ``(x, y, w, h)`` region as four ints, pixels."""
+    x, y, w, h = (int(v) for v in roi)
+    return x, y, w, h
+
+
 def rectify_rig(
     rig: StereoRig, alpha: float = 0.0, zero_disparity: bool = True, new_size: tuple[int, int] | None = None
-) -> Rectification:
+) -> RigRectification:
     """Rectify a calibrated stereo rig.
 
     Args:
@@ -112,7 +122,7 @@ def rectify_rig(
             non-zero and is carried by the rectified rig.
         new_size: (width, height) of the rectified images; default the left image size.
     Returns:
-        Rectification; for an already-rectified rig the identity (no remapping).
+        RigRectification; for an already-rectified rig the identity (no remapping).
     Raises:
         InputError: different image sizes, a mostly vertical baseline, or the right camera
             on the left.
@@ -120,7 +130,7 @@ def rectify_rig(
     if rig.is_rectified:
         eye = Rigid3(np.eye(3), np.zeros(3))
         W, H = rig.left.size
-        return Rectification(rig, rig, eye, eye, None, None, (0, 0, W, H), (0, 0, W, H), rig.Q)
+        return RigRectification(rig, rig, eye, eye, None, None, (0, 0, W, H), (0, 0, W, H), rig.Q)
     if rig.left.size != rig.right.size:
         raise InputError(
             f"the left camera is {rig.left.width}x{rig.left.height} but the right one is "
@@ -129,7 +139,8 @@ def rectify_rig(
     if not (np.isfinite(alpha) and -1.0 <= alpha <= 1.0):
         raise InputError(f"alpha must be in [-1, 1], got {alpha}")
     size = rig.left.size
-    out_size = tuple(int(v) for v in (new_size or size))
+    out_w, out_h = (int(v) for v in (new_size or size))
+    out_size = (out_w, out_h)
     if out_size[0] <= 0 or out_size[1] <= 0:
         raise InputError(f"new_size must be positive, got {new_size}")
     R = rig.right_from_left.R
@@ -162,15 +173,15 @@ def rectify_rig(
     W, H = out_size
     left = Intrinsics.from_K(P1[:, :3], W, H)
     right = Intrinsics.from_K(P2[:, :3], W, H)
-    rect = StereoRig(left, right, Rigid3(np.eye(3), [Tx, 0.0, 0.0]))
-    return Rectification(
+    rect = StereoRig(left, right, Rigid3(np.eye(3), np.array([Tx, 0.0, 0.0])))
+    return RigRectification(
         rect,
         rig,
         Rigid3(R1, np.zeros(3)),
         Rigid3(R2, np.zeros(3)),
         map_l,
         map_r,
-        tuple(int(v) for v in roi1),
-        tuple(int(v) for v in roi2),
+        _roi(roi1),
+        _roi(roi2),
         rect.Q,
     )
