@@ -8,6 +8,7 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 from skyrecon.errors import InputError
 
@@ -29,9 +30,11 @@ class ExampleFormatter(argparse.RawDescriptionHelpFormatter):
 
 def add_global_options(parser: argparse.ArgumentParser, suppress_defaults: bool = False) -> None:
     """``--debug`` and ``--quiet``, accepted before or after the command name."""
-    default = {"default": argparse.SUPPRESS} if suppress_defaults else {}
-    parser.add_argument("--debug", action="store_true", help="show full tracebacks on errors", **default)
-    parser.add_argument("--quiet", action="store_true", help="no progress bars or summaries", **default)
+    default: Any = argparse.SUPPRESS if suppress_defaults else False
+    parser.add_argument(
+        "--debug", action="store_true", default=default, help="show full tracebacks on errors"
+    )
+    parser.add_argument("--quiet", action="store_true", default=default, help="no progress bars or summaries")
 
 
 def add_command(subparsers, name: str, help: str, description: str, examples: str) -> argparse.ArgumentParser:

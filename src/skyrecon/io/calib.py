@@ -20,6 +20,7 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from skyrecon.core.intrinsics import Intrinsics
@@ -136,12 +137,13 @@ def _middlebury_entries(text: str, path: Path) -> dict[str, tuple[str, int]]:
     return entries
 
 
-def _scalar(entries: dict, key: str, path: Path, required: bool = True) -> float | None:
-    """The single number of ``key=value``; None when absent and not required."""
+_MiddleburyEntries = dict[str, tuple[str, int]]
+
+
+def _scalar(entries: _MiddleburyEntries, key: str, path: Path) -> float:
+    """The single number of a required ``key=value`` line."""
     if key not in entries:
-        if required:
-            raise InputError(f"missing '{key}=' line in the Middlebury calibration", path)
-        return None
+        raise InputError(f"missing '{key}=' line in the Middlebury calibration", path)
     value, lineno = entries[key]
     words = value.split()
     if len(words) != 1:
@@ -149,13 +151,20 @@ def _scalar(entries: dict, key: str, path: Path, required: bool = True) -> float
     return float(parse_numbers(words, path, lineno)[0])
 
 
-def _integer(entries: dict, key: str, path: Path, required: bool = True) -> int | None:
-    v = _scalar(entries, key, path, required)
-    if v is None:
-        return None
+def _integer(entries: _MiddleburyEntries, key: str, path: Path) -> int:
+    """The single integer of a required ``key=value`` line."""
+    v = _scalar(entries, key, path)
     if v != int(v):
         raise InputError(f"line {entries[key][1]}: '{key}' must be an integer, got {v}", path)
     return int(v)
+
+
+def _optional_scalar(entries: _MiddleburyEntries, key: str, path: Path) -> float | None:
+    return _scalar(entries, key, path) if key in entries else None
+
+
+def _optional_integer(entries: _MiddleburyEntries, key: str, path: Path) -> int | None:
+    return _integer(entries, key, path) if key in entries else None
 
 
 def read_middlebury_calib(path: str | Path) -> MiddleburyCalib:
@@ -187,12 +196,12 @@ def read_middlebury_calib(path: str | Path) -> MiddleburyCalib:
         K1,
         width,
         height,
-        ndisp=_integer(entries, "ndisp", path, False),
-        isint=_integer(entries, "isint", path, False),
-        vmin=_scalar(entries, "vmin", path, False),
-        vmax=_scalar(entries, "vmax", path, False),
-        dyavg=_scalar(entries, "dyavg", path, False),
-        dymax=_scalar(entries, "dymax", path, False),
+        ndisp=_optional_integer(entries, "ndisp", path),
+        isint=_optional_integer(entries, "isint", path),
+        vmin=_optional_scalar(entries, "vmin", path),
+        vmax=_optional_scalar(entries, "vmax", path),
+        dyavg=_optional_scalar(entries, "dyavg", path),
+        dymax=_optional_scalar(entries, "dymax", path),
     )
 
 
@@ -404,8 +413,6 @@ def read_opencv_stereo_calib(path: str | Path, width: int, height: int) -> Stere
     Returns:
         StereoRig, generally not rectified (rectify with ``skyrecon.stereo.rectify_rig``).
     """
-    import cv2
-
     path = Path(path)
     _read_text(path, "OpenCV stereo calibration")
     try:

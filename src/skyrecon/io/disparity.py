@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from skyrecon.errors import InputError
@@ -158,8 +159,6 @@ def read_disparity(path: str | Path) -> np.ndarray:
 
 def _colorize01(t: np.ndarray, valid: np.ndarray) -> np.ndarray:
     """(H, W) values in [0, 1] -> (H, W, 3) uint8 RGB turbo colours; invalid pixels black."""
-    import cv2
-
     codes = np.clip(np.rint(np.where(valid, t, 0.0) * 255.0), 0, 255).astype(np.uint8)
     rgb = cv2.applyColorMap(codes, cv2.COLORMAP_TURBO)[..., ::-1]
     rgb = np.ascontiguousarray(rgb)

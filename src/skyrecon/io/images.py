@@ -8,6 +8,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Literal
 
+import cv2
 import numpy as np
 from PIL import Image as PILImage
 from PIL import UnidentifiedImageError
@@ -77,8 +78,6 @@ def _is_16bit_colour_png(path: Path) -> bool:
 
 def _read_16bit_colour_png(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
     """Pillow keeps only 8 bits of 16-bit colour PNGs; OpenCV reads them whole (BGR[A] -> RGB)."""
-    import cv2
-
     arr = cv2.imdecode(np.fromfile(path, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
     if arr is None or arr.ndim != 3:
         raise InputError("cannot decode image; the file is corrupt or truncated", path)
@@ -89,8 +88,9 @@ def _read_16bit_colour_png(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
 def _read_with_pil(path: Path) -> tuple[np.ndarray, np.ndarray | None, str]:
     """Decode with Pillow; returns (array, alpha placeholder None, Pillow mode after normalising)."""
     try:
-        with PILImage.open(path) as im:
-            im.load()
+        with PILImage.open(path) as opened:
+            opened.load()
+            im: PILImage.Image = opened
             pil_mode = im.mode
             if pil_mode == "P":
                 im = im.convert("RGBA" if "transparency" in im.info else "RGB")
@@ -136,8 +136,6 @@ def to_gray(image: np.ndarray) -> np.ndarray:
 
 def encode_png(image: np.ndarray) -> bytes:
     """PNG bytes of an (H, W) or (H, W, 3|4) uint8/uint16 image (RGB[A] order)."""
-    import cv2
-
     arr = np.asarray(image)
     if arr.dtype not in (np.uint8, np.uint16):
         raise InputError(f"PNG needs uint8 or uint16 data, got {arr.dtype}")
@@ -157,8 +155,6 @@ def write_image(path: str | Path, image: np.ndarray) -> None:
     """Write an image atomically. PNG for ``.png``; JPEG (quality 95) for ``.jpg``/``.jpeg``."""
     path = Path(path)
     if path.suffix.lower() in (".jpg", ".jpeg"):
-        import cv2
-
         arr = np.asarray(image)
         if arr.ndim == 3:
             arr = arr[..., ::-1]

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import re
 import warnings
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
@@ -179,7 +179,7 @@ def read_middlebury_par(
     if (width is None) != (height is None):
         raise InputError("give both width and height, or neither", path)
     sizes: dict[str, tuple[int, int] | None] = {}
-    if width is None:
+    if width is None or height is None:
         sizes = {ln.split()[0]: image_size_from_header(image_dir / ln.split()[0]) for _, ln in rows}
         found = [sz for sz in sizes.values() if sz is not None]
         if found:

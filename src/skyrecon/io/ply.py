@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -71,6 +72,11 @@ class _Header:
     num_lines: int  # lines up to and including end_header
 
 
+def _names(dtype: np.dtype) -> tuple[str, ...]:
+    """Field names of a structured dtype (empty for a plain one)."""
+    return dtype.names or ()
+
+
 # ----- header ---------------------------------------------------------------
 def _type_code(name: str, path: Path, lineno: int) -> str:
     try:
@@ -103,7 +109,8 @@ def _header_lines(data: bytes, path: Path) -> tuple[list[str], int]:
     """The header's lines (without 'end_header') and the offset of the first data byte."""
     if not data.startswith(b"ply") or data[3:4] not in (b"\n", b"\r"):
         raise InputError("not a PLY file: it does not start with 'ply'", path)
-    lines, pos = [], 0
+    lines: list[str] = []
+    pos = 0
     while True:
         nl = data.find(b"\n", pos, _MAX_HEADER_BYTES)
         if nl < 0:
@@ -159,7 +166,8 @@ def _vertex_index(header: _Header, path: Path) -> int:
 # ----- binary body ------------------------------------------------------------
 def _uniform_row_dtype(element: _Element, order: str, data: bytes, offset: int) -> np.dtype | None:
     """Row dtype if every list of the element's first row has the same length, else None."""
-    fields, pos = [], offset
+    fields: list[tuple[Any, ...]] = []
+    pos = offset
     for j, p in enumerate(element.properties):
         if p.count_code is None:
             fields.append((f"f{j}", order + p.code))
@@ -186,7 +194,7 @@ def _skip_binary_rows(element: _Element, order: str, data: bytes, offset: int, p
     row = _uniform_row_dtype(element, order, data, offset)
     if row is not None and offset + element.count * row.itemsize <= len(data):
         rows = np.frombuffer(data, row, element.count, offset)
-        if all(np.all(rows[f] == rows[f][0]) for f in row.names if f.startswith("n")):
+        if all(np.all(rows[f] == rows[f][0]) for f in _names(row) if f.startswith("n")):
             return offset + element.count * row.itemsize
     for _ in range(element.count):  # ragged lists: walk row by row
         for p in element.properties:
@@ -257,7 +265,7 @@ def _read_ascii_vertices(data: bytes, header: _Header, vi: int, path: Path) -> n
 
 # ----- conversion to a PointCloud ----------------------------------------------
 def _colors(vertices: np.ndarray) -> np.ndarray | None:
-    names = vertices.dtype.names
+    names = _names(vertices.dtype)
     for triple in _COLOR_NAMES:
         if all(n in names for n in triple):
             c = np.stack([vertices[n] for n in triple], axis=1)
@@ -280,7 +288,7 @@ def _to_cloud(vertices: np.ndarray, path: Path) -> PointCloud:
             path,
         )
     normals = None
-    if all(n in vertices.dtype.names for n in ("nx", "ny", "nz")):
+    if all(n in _names(vertices.dtype) for n in ("nx", "ny", "nz")):
         normals = np.stack([vertices["nx"], vertices["ny"], vertices["nz"]], axis=1).astype(np.float32)
     return PointCloud(points, _colors(vertices), normals)
 
@@ -336,7 +344,7 @@ def _vertex_table(cloud: PointCloud) -> np.ndarray:
 def _header_text(table: np.ndarray, fmt: str) -> bytes:
     names = {"<f4": "float", "|u1": "uchar", "u1": "uchar"}
     lines = ["ply", f"format {fmt} 1.0", "comment written by skyrecon", f"element vertex {len(table)}"]
-    for name in table.dtype.names:
+    for name in _names(table.dtype):
         lines.append(f"property {names[table.dtype[name].str]} {name}")
     lines.append("end_header")
     return ("\n".join(lines) + "\n").encode("ascii")
@@ -346,8 +354,9 @@ def _ascii_body(table: np.ndarray) -> bytes:
     """One line per vertex; floats with 9 significant digits (exact for float32)."""
     if len(table) == 0:
         return b""
-    fmt = " ".join("%d" if table.dtype[n].kind == "u" else "%.9g" for n in table.dtype.names)
-    columns = np.stack([table[n].astype(np.float64) for n in table.dtype.names], axis=1)
+    names = _names(table.dtype)
+    fmt = " ".join("%d" if table.dtype[n].kind == "u" else "%.9g" for n in names)
+    columns = np.stack([table[n].astype(np.float64) for n in names], axis=1)
     return ("\n".join(fmt % tuple(row) for row in columns.tolist()) + "\n").encode("ascii")
 
 

@@ -27,13 +27,15 @@ wrap-around becomes a select).
 
 from __future__ import annotations
 
-import llvmlite.ir as ir
+from typing import Any
+
+import llvmlite.ir as ir  # type: ignore[import-untyped]  # llvmlite ships no type information
 import numpy as np
 from numba import njit, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-_JIT = dict(cache=True, nogil=True, boundscheck=False, error_model="numpy")
+_JIT: dict[str, Any] = dict(cache=True, nogil=True, boundscheck=False, error_model="numpy")
 
 BIG = 30000  # "infinite" path cost that still fits int16 arithmetic
 INVALID_RIGHT = -(1 << 20)

@@ -18,6 +18,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol, runtime_checkable
 
+import cv2
 import numpy as np
 
 from skyrecon.errors import InputError
@@ -68,7 +69,7 @@ class DisparityResult:
 
     @property
     def shape(self) -> tuple[int, int]:
-        return self.disparity.shape  # type: ignore[return-value]
+        return self.disparity.shape
 
 
 @runtime_checkable
@@ -141,8 +142,6 @@ def to_grey(image: np.ndarray) -> np.ndarray:
     """(H, W, 3) uint8 RGB -> (H, W) uint8 grey (ITU-R 601 luma, as OpenCV); grey passes."""
     if image.ndim == 2:
         return np.ascontiguousarray(image)
-    import cv2
-
     return cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_RGB2GRAY)
 
 
@@ -262,7 +261,8 @@ def available_matchers() -> dict[str, str]:
 
 
 def _ensure_registered() -> None:
-    # importing the modules registers their matchers
+    # importing the modules registers their matchers; imported here, not at the top, because both
+    # import this module (a real cycle: base <- sgm, opencv_matchers)
     from skyrecon.stereo import opencv_matchers, sgm  # noqa: F401
 
 

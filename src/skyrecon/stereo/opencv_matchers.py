@@ -182,7 +182,7 @@ class OpenCVSGBMMatcher:
         if channels not in self._sgbm:
             s = self.settings
             area = s.block_size * s.block_size
-            self._sgbm[channels] = cv2.StereoSGBM_create(
+            self._sgbm[channels] = cv2.StereoSGBM.create(
                 minDisparity=self.min_disparity,
                 numDisparities=self.num_disparities,
                 blockSize=s.block_size,
@@ -245,7 +245,7 @@ class OpenCVBMMatcher:
         self.num_disparities = num_disparities_for(min_disparity, max_disparity)
         self.max_disparity = self.min_disparity + self.num_disparities
         s = self.settings
-        bm = cv2.StereoBM_create(numDisparities=self.num_disparities, blockSize=s.block_size)
+        bm = cv2.StereoBM.create(numDisparities=self.num_disparities, blockSize=s.block_size)
         bm.setMinDisparity(self.min_disparity)
         bm.setPreFilterType(_BM_PREFILTERS[s.pre_filter_type])
         bm.setPreFilterSize(s.pre_filter_size)

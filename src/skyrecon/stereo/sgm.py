@@ -31,6 +31,7 @@ import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, replace
+from functools import partial
 from typing import Any, Literal
 
 import cv2
@@ -236,7 +237,7 @@ def fill_invalid(disparity: np.ndarray, threads: int = 1) -> np.ndarray:
     out = np.empty_like(disp)
     H = disp.shape[0]
     parts = max(1, min(threads, H // 64))
-    _run_all([lambda a=a, b=b: K.fill_background(disp, out, a, b) for a, b in _bands(H, parts)])
+    _run_all([partial(K.fill_background, disp, out, a, b) for a, b in _bands(H, parts)])
     if np.isnan(out).any():
         t = np.ascontiguousarray(out.T)
         t2 = np.empty_like(t)
@@ -420,7 +421,7 @@ class SkyreconMatcher:
             t3 = time.perf_counter()
             task_ms[i].update(census=(t1 - t0) * 1e3, sgm=(t2 - t1) * 1e3, post=(t3 - t2) * 1e3)
 
-        _run_all([lambda i=i, a=a, b=b: band_task(i, a, b) for i, (a, b) in enumerate(bands)], nthreads)
+        _run_all([partial(band_task, i, a, b) for i, (a, b) in enumerate(bands)], nthreads)
         sw.lap("match")
         diag["threads"] = min(nthreads, parts)
         diag["bands"] = parts
