@@ -166,36 +166,60 @@ def _run_pair(args: argparse.Namespace, left_path: Path, right_path: Path) -> in
         "rectified_here": rectified_here,
     }
     if rig is not None:
-        depth = disparity_to_depth(disparity, rig)
-        write_pfm(out / "depth.pfm", depth)
-        write_image(out / "depth.png", colorize_depth(depth))
-        colour = left if left.ndim == 3 else None
-        if colour is not None and colour.dtype != np.uint8:
-            colour = (colour // 257).astype(np.uint8)
-        cloud = disparity_to_points(disparity, rig, colour, args.min_depth, args.max_depth)
-        write_ply(out / "points.ply", cloud)
-        summary.update(points=len(cloud), baseline_m=rig.baseline_m, focal_px=rig.left.fx)
+        summary.update(_write_depth(out, disparity, rig, left, args.min_depth, args.max_depth))
     if args.gt:
-        gt = read_disparity(args.gt)
-        if gt.shape != disparity.shape:
-            raise InputError(
-                f"the ground truth is {gt.shape[1]}x{gt.shape[0]} but the images are {width}x{height}",
-                args.gt,
-            )
-        summary["metrics"] = {k: round(float(v), 5) for k, v in evaluate_disparity(disparity, gt).items()}
+        summary["metrics"] = _score(disparity, args.gt)
     write_json(out / "stereo.json", summary)
     if not args.quiet:
-        line = f"{args.method}: {width}x{height}, disparities {args.min_disparity}..{max_disp}, "
-        line += f"density {100 * summary['density']:.1f} %, {summary['milliseconds']:.0f} ms"
-        if "metrics" in summary:
-            m = summary["metrics"]
-            line += f"; bad-1px {100 * m['bad1']:.1f} %, bad-2px {100 * m['bad2']:.1f} %, D1 {100 * m['d1']:.1f} %, EPE {m['epe']:.2f} px"
-        info(line)
-        info(
-            f"wrote {out}/disparity.pfm, disparity.png"
-            + (", depth.pfm, points.ply" if rig is not None else "")
-        )
+        _report_pair(summary, out, with_depth=rig is not None)
     return 0
+
+
+def _write_depth(
+    out: Path, disparity: np.ndarray, rig: StereoRig, left: np.ndarray, min_depth: float, max_depth: float
+) -> dict[str, Any]:
+    """Write ``depth.pfm``, ``depth.png`` and ``points.ply`` (left camera frame of ``rig``, metres).
+
+    Args:
+        disparity: (H, W) float32 pixels, NaN invalid, of the rectified pair.
+        rig: the rectified rig; ``left``: its (H, W[, 3]) left image, colouring the points.
+        min_depth, max_depth: points outside this depth range are dropped, metres.
+    Returns:
+        The summary entries: ``points``, ``baseline_m``, ``focal_px``.
+    """
+    depth = disparity_to_depth(disparity, rig)
+    write_pfm(out / "depth.pfm", depth)
+    write_image(out / "depth.png", colorize_depth(depth))
+    colour = left if left.ndim == 3 else None
+    if colour is not None and colour.dtype != np.uint8:
+        colour = (colour // 257).astype(np.uint8)
+    cloud = disparity_to_points(disparity, rig, colour, min_depth, max_depth)
+    write_ply(out / "points.ply", cloud)
+    return {"points": len(cloud), "baseline_m": rig.baseline_m, "focal_px": rig.left.fx}
+
+
+def _score(disparity: np.ndarray, gt_path: str) -> dict[str, float]:
+    """Bad-pixel rates, D1, EPE and density of ``disparity`` (H, W) against a ground-truth file."""
+    gt = read_disparity(gt_path)
+    if gt.shape != disparity.shape:
+        raise InputError(
+            f"the ground truth is {gt.shape[1]}x{gt.shape[0]} but the images are "
+            f"{disparity.shape[1]}x{disparity.shape[0]}",
+            gt_path,
+        )
+    return {k: round(float(v), 5) for k, v in evaluate_disparity(disparity, gt).items()}
+
+
+def _report_pair(summary: dict[str, Any], out: Path, with_depth: bool) -> None:
+    """Two lines on stderr: size, range, density, time (and scores); the files written."""
+    (width, height), (lo, hi) = summary["size"], summary["disparity_range"]
+    line = f"{summary['method']}: {width}x{height}, disparities {lo}..{hi}, "
+    line += f"density {100 * summary['density']:.1f} %, {summary['milliseconds']:.0f} ms"
+    if "metrics" in summary:
+        m = summary["metrics"]
+        line += f"; bad-1px {100 * m['bad1']:.1f} %, bad-2px {100 * m['bad2']:.1f} %, D1 {100 * m['d1']:.1f} %, EPE {m['epe']:.2f} px"
+    info(line)
+    info(f"wrote {out}/disparity.pfm, disparity.png" + (", depth.pfm, points.ply" if with_depth else ""))
 
 
 def _run_sequence(args: argparse.Namespace, root: Path) -> int:
