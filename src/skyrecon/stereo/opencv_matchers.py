@@ -9,7 +9,7 @@ with NaN.
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
-from typing import Any, Literal
+from typing import Any, Literal, TypeVar
 
 import cv2
 import numpy as np
@@ -153,6 +153,37 @@ def _from_fixed_point(raw: np.ndarray, min_disparity: int) -> np.ndarray:
     return disp
 
 
+_SettingsT = TypeVar("_SettingsT")
+
+
+def _resolve_settings(
+    cls: type[_SettingsT], name: str, settings: _SettingsT | None, kwargs: dict[str, Any]
+) -> _SettingsT:
+    """``settings`` itself, or the settings dataclass built from keyword fields (not both)."""
+    if settings is not None and kwargs:
+        raise InputError("give either settings= or individual settings, not both")
+    return settings or settings_from_kwargs(cls, name, kwargs)
+
+
+def _opencv_range(min_disparity: int, max_disparity: int) -> tuple[int, int, int]:
+    """``(minDisparity, numDisparities, max_disparity)`` OpenCV searches for ``min <= d < max``, pixels."""
+    check_disparity_range(min_disparity, max_disparity)
+    num = num_disparities_for(min_disparity, max_disparity)
+    return int(min_disparity), num, int(min_disparity) + num
+
+
+def _result(
+    raw: np.ndarray, name: str, min_disparity: int, max_disparity: int, sw: Stopwatch, diag: dict[str, Any]
+) -> DisparityResult:
+    """A :class:`DisparityResult` from OpenCV's (H, W) int16 fixed-point output (times in ``sw``)."""
+    disp = _from_fixed_point(raw, min_disparity)
+    sw.lap("convert")
+    diagnostics = {"density": float(np.isfinite(disp).mean()), **diag}
+    return DisparityResult(
+        disp, np.zeros(disp.shape, bool), name, min_disparity, max_disparity, sw.total(), diagnostics
+    )
+
+
 class OpenCVSGBMMatcher:
     """``cv2.StereoSGBM`` with :class:`OpenCVSGBMSettings`.
 
@@ -169,13 +200,10 @@ class OpenCVSGBMMatcher:
         settings: OpenCVSGBMSettings | None = None,
         **kwargs: Any,
     ) -> None:
-        check_disparity_range(min_disparity, max_disparity)
-        if settings is not None and kwargs:
-            raise InputError("give either settings= or individual settings, not both")
-        self.settings = settings or settings_from_kwargs(OpenCVSGBMSettings, self.name, kwargs)
-        self.min_disparity = int(min_disparity)
-        self.num_disparities = num_disparities_for(min_disparity, max_disparity)
-        self.max_disparity = self.min_disparity + self.num_disparities
+        self.min_disparity, self.num_disparities, self.max_disparity = _opencv_range(
+            min_disparity, max_disparity
+        )
+        self.settings = _resolve_settings(OpenCVSGBMSettings, self.name, settings, kwargs)
         self._sgbm: dict[int, Any] = {}
 
     def _engine(self, channels: int):
@@ -209,17 +237,8 @@ class OpenCVSGBMMatcher:
         sw.lap("prepare")
         raw = self._engine(cn).compute(a, b)
         sw.lap("match")
-        disp = _from_fixed_point(raw, self.min_disparity)
-        sw.lap("convert")
-        return DisparityResult(
-            disp,
-            np.zeros(disp.shape, bool),
-            self.name,
-            self.min_disparity,
-            self.max_disparity,
-            sw.total(),
-            {"density": float(np.isfinite(disp).mean()), "channels": cn, "settings": asdict(self.settings)},
-        )
+        diag = {"channels": cn, "settings": asdict(self.settings)}
+        return _result(raw, self.name, self.min_disparity, self.max_disparity, sw, diag)
 
 
 class OpenCVBMMatcher:
@@ -237,13 +256,10 @@ class OpenCVBMMatcher:
         settings: OpenCVBMSettings | None = None,
         **kwargs: Any,
     ) -> None:
-        check_disparity_range(min_disparity, max_disparity)
-        if settings is not None and kwargs:
-            raise InputError("give either settings= or individual settings, not both")
-        self.settings = settings or settings_from_kwargs(OpenCVBMSettings, self.name, kwargs)
-        self.min_disparity = int(min_disparity)
-        self.num_disparities = num_disparities_for(min_disparity, max_disparity)
-        self.max_disparity = self.min_disparity + self.num_disparities
+        self.min_disparity, self.num_disparities, self.max_disparity = _opencv_range(
+            min_disparity, max_disparity
+        )
+        self.settings = _resolve_settings(OpenCVBMSettings, self.name, settings, kwargs)
         s = self.settings
         bm = cv2.StereoBM.create(numDisparities=self.num_disparities, blockSize=s.block_size)
         bm.setMinDisparity(self.min_disparity)
@@ -270,17 +286,8 @@ class OpenCVBMMatcher:
         sw.lap("prepare")
         raw = self._bm.compute(pair.left_grey, pair.right_grey)
         sw.lap("match")
-        disp = _from_fixed_point(raw, self.min_disparity)
-        sw.lap("convert")
-        return DisparityResult(
-            disp,
-            np.zeros(disp.shape, bool),
-            self.name,
-            self.min_disparity,
-            self.max_disparity,
-            sw.total(),
-            {"density": float(np.isfinite(disp).mean()), "settings": asdict(self.settings)},
-        )
+        diag = {"settings": asdict(self.settings)}
+        return _result(raw, self.name, self.min_disparity, self.max_disparity, sw, diag)
 
 
 register_matcher("opencv-sgbm", OpenCVSGBMMatcher, "OpenCV StereoSGBM (semi-global block matching)")
