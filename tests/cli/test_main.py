@@ -6,7 +6,7 @@ import sys
 import pytest
 
 from skyrecon import __version__
-from skyrecon.cli.main import main
+from skyrecon.cli.main import COMMANDS, main
 
 
 def run_cli(*args: str) -> subprocess.CompletedProcess:
@@ -25,8 +25,6 @@ def test_help_and_version(capsys):
 
 
 def test_every_command_has_help_with_an_example(capsys):
-    from skyrecon.cli.main import COMMANDS
-
     for name in COMMANDS:
         with pytest.raises(SystemExit) as exc:
             main([name, "--help"])

@@ -1,9 +1,12 @@
+"""Atomic writes: the usual file permissions (mkstemp alone gives owner-only files)."""
+
+import os
+import stat
+
+from skyrecon.io.atomic import write_text_atomic
+
+
 def test_written_files_get_the_usual_permissions(tmp_path):
-    import os
-    import stat
-
-    from skyrecon.io.atomic import write_text_atomic
-
     mask = os.umask(0o022)
     try:
         write_text_atomic(tmp_path / "a.txt", "x")

@@ -6,6 +6,8 @@ import cv2
 import numpy as np
 import pytest
 
+from skyrecon import sim
+
 
 def random_texture(height: int, width: int, seed: int, sigma: float = 1.2) -> np.ndarray:
     """(H, W) float32 band-limited random texture, mean 128, std 40."""
@@ -56,7 +58,6 @@ def slanted_pair():
 @pytest.fixture(scope="session")
 def sim_frame():
     """A rendered street-view pair of the synthetic city (640x480, exact disparity)."""
-    sim = pytest.importorskip("skyrecon.sim")
     city = sim.generate_city(2)
     rig = sim.default_rig()
     return sim.render_stereo(city, rig, sim.street_view_pose(city, 2))

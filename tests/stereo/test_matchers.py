@@ -12,6 +12,7 @@ from skyrecon.stereo import (
     SkyreconSettings,
     create_matcher,
 )
+from skyrecon.stereo import _kernels as K
 from tests.stereo.conftest import warp_pair
 
 INNER = (slice(8, -8), slice(40, -8))  # away from the borders and the left band without matches
@@ -133,8 +134,6 @@ def test_settings_object_and_overrides(slanted_pair):
 
 
 def test_sequence_reuses_buffers_without_recompiling(slanted_pair, fronto_pair):
-    from skyrecon.stereo import _kernels as K
-
     m = SkyreconMatcher(32)
     frames = [slanted_pair[:2], fronto_pair[:2], slanted_pair[:2]]
     m.compute(*frames[0])

@@ -4,6 +4,7 @@ import cv2
 import numpy as np
 import pytest
 
+from skyrecon import sim
 from skyrecon.core import Intrinsics, Rigid3, StereoRig, rotvec_to_matrix
 from skyrecon.errors import InputError
 from skyrecon.stereo import create_matcher, disparity_to_points, rectify_rig
@@ -94,14 +95,11 @@ def test_bad_rigs():
 
 
 def test_end_to_end_rendered_unrectified_pair():
-    sim = pytest.importorskip("skyrecon.sim")
-    from skyrecon.sim import render
-
     city = sim.generate_city(4)
     rig = unrectified_rig()
     left_from_world = sim.street_view_pose(city, 4)
-    left = render(city, rig.left, left_from_world)
-    right = render(city, rig.right, rig.right_from_left @ left_from_world.with_frames("left", "world"))
+    left = sim.render(city, rig.left, left_from_world)
+    right = sim.render(city, rig.right, rig.right_from_left @ left_from_world.with_frames("left", "world"))
     rect = rectify_rig(rig, alpha=0.0)
     lr, rr = rect.apply(left.image, right.image)
     res = create_matcher("skyrecon", 32).compute(lr, rr)
