@@ -104,10 +104,22 @@ def matrix_to_quaternion(R: np.ndarray) -> np.ndarray:
     return q if q[0] >= 0 else -q
 
 
+def rotation_angle(R: np.ndarray) -> float:
+    """Angle in radians, in [0, pi], of a (3, 3) rotation matrix (geodesic distance to identity).
+
+    Computed as ``atan2(|sin|, cos)`` from the skew and trace parts, which stays accurate for tiny
+    angles (where ``arccos`` of the trace loses half the digits). The angle between two rotations
+    ``A`` and ``B`` is ``rotation_angle(A.T @ B)``.
+    """
+    R = np.asarray(R, dtype=np.float64)
+    cos = np.clip((np.trace(R) - 1) / 2, -1.0, 1.0)
+    sin = 0.5 * np.linalg.norm([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    return float(np.arctan2(sin, cos))
+
+
 def rotation_angle_deg(R: np.ndarray) -> float:
-    """Angle in degrees of a rotation matrix (for error reporting)."""
-    cos = np.clip((np.trace(np.asarray(R)) - 1) / 2, -1.0, 1.0)
-    return float(np.degrees(np.arccos(cos)))
+    """Angle in degrees, in [0, 180], of a (3, 3) rotation matrix (see :func:`rotation_angle`)."""
+    return float(np.degrees(rotation_angle(R)))
 
 
 @dataclass(frozen=True)
