@@ -18,9 +18,11 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
+from scipy.spatial import ConvexHull
 
 from skyrecon.core.rigid import Rigid3, rotation_angle_deg
 from skyrecon.errors import EstimationError, InputError
+from skyrecon.sfm.align import umeyama
 
 __all__ = ["ExtentKind", "scene_extent", "rotation_alignment", "SfMEvaluation", "evaluate_sfm_poses"]
 
@@ -39,8 +41,6 @@ def scene_extent(centers: np.ndarray, kind: ExtentKind = "max_distance") -> floa
         raise InputError(f"unknown extent kind {kind!r}; use max_distance or bbox_diagonal")
     if len(c) > 2000:  # the farthest pair are vertices of the convex hull
         try:
-            from scipy.spatial import ConvexHull
-
             c = c[ConvexHull(c).vertices]
         except Exception:  # flat or degenerate sets: keep all points
             pass
@@ -131,8 +131,6 @@ def evaluate_sfm_poses(
     )
     if len(names) < 3:
         return SfMEvaluation(names, np.zeros(0), np.zeros(0), extent, extent_kind, len(gt_names), missing)
-    from skyrecon.sfm.align import umeyama  # local import: eval must not need sfm at import time
-
     R_est = np.stack([estimated[n].R for n in names])
     R_gt = np.stack([ground_truth[n].R for n in names])
     Q = rotation_alignment(R_est, R_gt)

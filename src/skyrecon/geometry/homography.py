@@ -12,7 +12,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from skyrecon.errors import EstimationError, InputError
-from skyrecon.geometry.epipolar import as_points2, hartley_normalization, homogeneous
+from skyrecon.geometry.epipolar import (
+    as_points2,
+    cheirality_depths,
+    hartley_normalization,
+    homogeneous,
+    null_vector,
+)
 from skyrecon.geometry.sampling import LocalOptimization, RansacOptions, as_generator, lo_ransac
 
 __all__ = [
@@ -51,10 +57,7 @@ def homography_dlt(x1: np.ndarray, x2: np.ndarray, weights: np.ndarray | None = 
     if weights is not None:
         w = np.asarray(weights, np.float64)
         A = A * np.concatenate([w, w])[:, None]
-    if len(A) > 9:
-        A = np.linalg.qr(A, mode="r")
-    _, _, Vt = np.linalg.svd(A, full_matrices=True)
-    Hn = Vt[-1].reshape(3, 3)
+    Hn = null_vector(A).reshape(3, 3)
     H = np.linalg.inv(T2) @ Hn @ T1
     return H / H[2, 2] if abs(H[2, 2]) > 1e-12 * np.abs(H).max() else H / np.linalg.norm(H)
 
@@ -229,8 +232,6 @@ def decompose_homography(
             norm = np.linalg.norm(TT)
             out.append((R, TT / norm if norm > 0 else TT, nn / np.linalg.norm(nn)))
     if x1n is not None and x2n is not None and len(x1n):
-        from skyrecon.geometry.epipolar import cheirality_depths
-
         kept = []
         for R, t, n in out:
             z1, z2 = cheirality_depths(R, t, x1n, x2n)
