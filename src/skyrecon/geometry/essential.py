@@ -149,7 +149,7 @@ def _msac(
     return float(np.where(inl, e2, thr2).sum()), inl
 
 
-Pose = tuple[np.ndarray, np.ndarray]
+PoseHypothesis = tuple[np.ndarray, np.ndarray]  # (R (3, 3), t (3,)), cam2_from_cam1
 
 
 class _RelativePoseProblem:
@@ -164,7 +164,7 @@ class _RelativePoseProblem:
         self.x1n, self.x2n, self.thr2 = x1n, x2n, thr2
         self.num_data = len(x1n)
 
-    def best_minimal_model(self, samples: np.ndarray) -> tuple[Pose, float] | None:
+    def best_minimal_model(self, samples: np.ndarray) -> tuple[PoseHypothesis, float] | None:
         x1n, x2n = self.x1n, self.x2n
         Es, si = essential_5point_batch(x1n[samples], x2n[samples])
         if len(Es) == 0:
@@ -177,10 +177,10 @@ class _RelativePoseProblem:
         k = int(np.argmin(costs))
         return (Rs[k], ts[k]), float(costs[k])
 
-    def score(self, pose: Pose) -> tuple[float, np.ndarray]:
+    def score(self, pose: PoseHypothesis) -> tuple[float, np.ndarray]:
         return _msac(pose[0], pose[1], self.x1n, self.x2n, self.thr2)
 
-    def refit(self, pose: Pose, inliers: np.ndarray) -> Pose:
+    def refit(self, pose: PoseHypothesis, inliers: np.ndarray) -> PoseHypothesis:
         res = refine_relative_pose(
             pose[0],
             pose[1],

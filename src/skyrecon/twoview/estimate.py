@@ -224,16 +224,16 @@ def _prepare(
         min_iterations=settings.min_iterations,
     )
     st = _Estimation(
-        x1,
-        x2,
-        intr1,
-        intr2,
-        settings,
-        rng.integers(0, 2**31 - 1, size=3),
-        ws,
-        focal_scale(intr1, intr2),
-        thr,
-        opts,
+        x1=x1,
+        x2=x2,
+        intr1=intr1,
+        intr2=intr2,
+        settings=settings,
+        seeds=rng.integers(0, 2**31 - 1, size=3),
+        working_scale=ws,
+        focal=focal_scale(intr1, intr2),
+        threshold=thr,
+        options=opts,
     )
     st.diag.update(num_matches=float(M), threshold_px_full=thr)
     st.flow = float(np.median(np.hypot(*(x2 - x1).T)) * ws)
