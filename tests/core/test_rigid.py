@@ -10,6 +10,7 @@ from skyrecon.core import (
     matrix_to_rotvec,
     orthonormalize,
     quaternion_to_matrix,
+    rotation_angle,
     rotation_angle_deg,
     rotvec_to_matrix,
 )
@@ -115,3 +116,10 @@ def test_rotation_angle_and_orthonormalize():
     Rn = orthonormalize(noisy)
     np.testing.assert_allclose(Rn @ Rn.T, np.eye(3), atol=1e-12)
     assert rotation_angle_deg(Rn.T @ R) < 0.2
+
+
+@pytest.mark.parametrize("angle", [0.0, 1e-9, 1e-6, 0.3, 2.0, np.pi - 1e-6, np.pi])
+def test_rotation_angle_is_accurate_over_the_whole_range(angle):
+    R = rotvec_to_matrix(angle * np.array([2.0, -1.0, 0.5]) / np.linalg.norm([2.0, -1.0, 0.5]))
+    assert rotation_angle(R) == pytest.approx(angle, rel=1e-6, abs=1e-15)
+    assert rotation_angle_deg(R) == pytest.approx(np.degrees(angle), rel=1e-6, abs=1e-13)

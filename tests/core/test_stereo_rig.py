@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from skyrecon.core import Intrinsics, StereoRig
+from skyrecon.core import Intrinsics, Rigid3, StereoRig
 from skyrecon.errors import InputError
 
 
@@ -49,8 +49,6 @@ def test_from_projections_kitti_like():
 def test_bad_baseline_and_unrectified_Q():
     with pytest.raises(InputError):
         StereoRig.rectified(Intrinsics.from_fov(10, 10, 60), 0.0)
-    from skyrecon.core import Rigid3
-
     cam = Intrinsics.from_fov(10, 10, 60)
     rig = StereoRig(cam, cam, Rigid3.from_rotvec([0, 0.1, 0], [-0.2, 0, 0]))
     assert not rig.is_rectified

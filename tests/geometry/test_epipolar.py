@@ -9,6 +9,7 @@ import pytest
 from skyrecon.core import rotvec_to_matrix
 from skyrecon.errors import EstimationError, InputError
 from skyrecon.geometry.epipolar import (
+    as_points2,
     decompose_essential,
     epipolar_lines,
     essential_8point,
@@ -139,8 +140,6 @@ def test_sampson_close_to_geometric_error_for_small_noise():
 
 
 def test_bad_point_arrays():
-    from skyrecon.geometry.epipolar import as_points2
-
     with pytest.raises(InputError):
         as_points2(np.zeros((4, 3)))
     with pytest.raises(InputError):

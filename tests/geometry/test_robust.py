@@ -12,7 +12,12 @@ from skyrecon.eval.pose_metrics import rotation_error_deg, translation_direction
 from skyrecon.geometry.epipolar import essential_from_pose, sampson_sq
 from skyrecon.geometry.essential import estimate_relative_pose
 from skyrecon.geometry.fundamental import estimate_fundamental, fundamental_7point_batch
-from skyrecon.geometry.homography import estimate_homography, homography_dlt, homography_transfer_sq
+from skyrecon.geometry.homography import (
+    decompose_homography,
+    estimate_homography,
+    homography_dlt,
+    homography_transfer_sq,
+)
 from skyrecon.geometry.refine import refine_relative_pose
 from skyrecon.geometry.sampling import RansacOptions, draw_samples, required_iterations
 from tests.geometry.synthetic import make_pair
@@ -164,8 +169,6 @@ def test_sampling_helpers():
 
 
 def test_homography_decomposition_contains_the_true_motion():
-    from skyrecon.geometry.homography import decompose_homography
-
     p = make_pair(seed=6, n=100, planar=True)
     H = homography_dlt(p.x1, p.x2)
     sols = decompose_homography(H, p.intr1.K, p.intr2.K, p.intr1.normalized(p.x1), p.intr2.normalized(p.x2))

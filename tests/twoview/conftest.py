@@ -10,6 +10,7 @@ import pytest
 from skyrecon.core import Intrinsics, PosedView, Rigid3
 from skyrecon.eval.gt_geometry import relative_pose
 from skyrecon.features import FeatureSettings
+from skyrecon.twoview import TwoViewSettings
 
 sim = pytest.importorskip("skyrecon.sim")
 
@@ -30,8 +31,6 @@ class Scene:
 
 def small_settings(**kw):
     """Pipeline settings for 640x480 test images (fast)."""
-    from skyrecon.twoview import TwoViewSettings
-
     base = TwoViewSettings(features=FeatureSettings(max_image_size=640), dense_max_image_size=640)
     return replace(base, **kw)
 

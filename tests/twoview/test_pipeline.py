@@ -4,15 +4,23 @@ bad input, and one real fountain pair."""
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
+import cv2
 import numpy as np
 import pytest
 
 from skyrecon.core import Intrinsics
 from skyrecon.errors import EstimationError, InputError
+from skyrecon.eval.gt_geometry import relative_pose
 from skyrecon.eval.pose_metrics import rotation_error_deg, translation_direction_error_deg
 from skyrecon.geometry.epipolar import sampson_distance
+from skyrecon.io.images import read_image
+from skyrecon.io.multiview import read_strecha_cameras
 from skyrecon.twoview import (
+    TwoViewGeometry,
+    TwoViewSettings,
+    compute_disparity,
     dense_model,
     draw_epipolar_lines,
     draw_matches,
@@ -240,13 +248,6 @@ def test_pictures_and_json(result, monument):
 # ----- real data -----------------------------------------------------------------------------
 @pytest.mark.realdata
 def test_fountain_pair(real_data):
-    from dataclasses import replace
-
-    from skyrecon.eval.gt_geometry import relative_pose
-    from skyrecon.io.images import read_image
-    from skyrecon.io.multiview import read_strecha_cameras
-    from skyrecon.twoview import TwoViewSettings
-
     root = require(real_data, "strecha-fountain-P11")
     views = {v.name: v for v in read_strecha_cameras(root / "gt_dense_cameras")}
     v1, v2 = views["0004.jpg"], views["0005.jpg"]
@@ -263,8 +264,6 @@ def test_fountain_pair(real_data):
 
 
 def test_dense_refuses_forward_motion_and_unknown_matchers(result, monument):
-    from skyrecon.twoview import TwoViewGeometry, compute_disparity
-
     fwd = TwoViewGeometry(
         "ok",
         np.eye(3),
@@ -308,14 +307,10 @@ def test_dense_refuses_forward_motion_and_unknown_matchers(result, monument):
 
 def test_grey_images_of_different_sizes(monument):
     """A grey 640x480 image against a colour one downscaled to 480x360 (different cameras)."""
-    import cv2
-
-    from skyrecon.core import Intrinsics as _I
-
     a = cv2.cvtColor(monument.images[0], cv2.COLOR_RGB2GRAY)
     b = cv2.resize(monument.images[1], (480, 360), interpolation=cv2.INTER_AREA)
     i2 = monument.intr.scaled(0.75)
-    assert isinstance(i2, _I) and (i2.width, i2.height) == (480, 360)
+    assert isinstance(i2, Intrinsics) and (i2.width, i2.height) == (480, 360)
     r = reconstruct_two_view(a, b, monument.intr, i2, small_settings(dense_max_image_size=320), seed=0)
     gt = monument.gt(0, 1)
     assert r.status == "ok"

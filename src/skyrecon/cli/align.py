@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from skyrecon.cli.common import add_command, info, output_dir, positive_float, positive_int
+from skyrecon.core.rigid import rotation_angle_deg
 from skyrecon.errors import EstimationError, InputError
 from skyrecon.io.jsonio import write_json
 
@@ -231,10 +232,6 @@ def read_init(path: str | Path):
 # ----------------------------------------------------------------------------------------------
 def _sim_json(T) -> dict:
     return {"scale": T.scale, "R": T.R.tolist(), "t": T.t.tolist(), "matrix": T.matrix.tolist()}
-
-
-def _rotation_deg(R: np.ndarray) -> float:
-    return math.degrees(math.acos(max(-1.0, min(1.0, (float(np.trace(R)) - 1.0) / 2.0))))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -488,7 +485,7 @@ def run(args: argparse.Namespace) -> int:
         write_ply(out / "merged.ply", merged)
         files.append("merged.ply")
 
-    R_deg = _rotation_deg(T.R)
+    R_deg = rotation_angle_deg(T.R)
     summary = {
         **{k: v for k, v in result.items() if k == "method"},
         "world_from_model": _sim_json(T),

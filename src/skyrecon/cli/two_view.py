@@ -13,9 +13,8 @@ import json
 from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
-
 from skyrecon.cli.common import add_command, info, output_dir, positive_float, positive_int
+from skyrecon.core.rigid import rotation_angle_deg
 from skyrecon.errors import EstimationError, InputError
 from skyrecon.io.atomic import write_text_atomic
 from skyrecon.io.images import write_image
@@ -148,7 +147,7 @@ def run(args: argparse.Namespace) -> int:
         raise EstimationError(f"{args.image1} and {args.image2}: {why} (details in {out / 'two_view.json'})")
     if not args.quiet:
         t = result.t
-        angle = np.degrees(np.arccos(np.clip((np.trace(result.R) - 1) / 2, -1, 1)))
+        angle = rotation_angle_deg(result.R)
         info(
             f"{result.num_inliers} of {result.num_matches} matches agree on the pose ({result.status}): "
             f"rotation {angle:.2f} deg, direction t = [{t[0]:+.3f} {t[1]:+.3f} {t[2]:+.3f}]"

@@ -10,6 +10,7 @@ from skyrecon.core.rigid import (
     matrix_to_rotvec,
     orthonormalize,
     quaternion_to_matrix,
+    rotation_angle,
     rotation_angle_deg,
     rotvec_to_matrix,
 )
@@ -31,6 +32,7 @@ __all__ = [
     "matrix_to_rotvec",
     "orthonormalize",
     "quaternion_to_matrix",
+    "rotation_angle",
     "rotation_angle_deg",
     "rotvec_to_matrix",
 ]

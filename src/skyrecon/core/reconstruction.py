@@ -102,8 +102,8 @@ class Reconstruction:
         errs = []
         for im in self.images.values():
             cam = self.cameras[im.camera_id]
-            sel = np.nonzero(im.point3d_ids >= 0)[0]
-            sel = [i for i in sel if int(im.point3d_ids[i]) in self.points3d]
+            observed = np.nonzero(im.point3d_ids >= 0)[0]
+            sel = [i for i in observed if int(im.point3d_ids[i]) in self.points3d]
             if not sel:
                 continue
             xyz = np.stack([self.points3d[int(im.point3d_ids[i])].xyz for i in sel])
@@ -118,10 +118,10 @@ class Reconstruction:
                 raise InputError(f"image {im.name} refers to missing camera {im.camera_id}")
         for p in self.points3d.values():
             for image_id, kp in p.track:
-                im = self.images.get(int(image_id))
-                if im is None:
+                seen_by = self.images.get(int(image_id))
+                if seen_by is None:
                     raise InputError(f"point {p.point3d_id} refers to missing image {image_id}")
-                if not 0 <= kp < len(im.keypoints):
+                if not 0 <= kp < len(seen_by.keypoints):
                     raise InputError(
-                        f"point {p.point3d_id} refers to keypoint {kp} of {im.name}, out of range"
+                        f"point {p.point3d_id} refers to keypoint {kp} of {seen_by.name}, out of range"
                     )

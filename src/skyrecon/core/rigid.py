@@ -8,6 +8,7 @@ catches the classic inverted-pose bug at the point where it happens.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -89,25 +90,36 @@ def matrix_to_quaternion(R: np.ndarray) -> np.ndarray:
     tr = np.trace(R)
     if tr > 0:
         s = np.sqrt(tr + 1.0) * 2
-        q = [0.25 * s, (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s]
+        q = np.array([0.25 * s, (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s])
     elif R[0, 0] > R[1, 1] and R[0, 0] > R[2, 2]:
         s = np.sqrt(1.0 + R[0, 0] - R[1, 1] - R[2, 2]) * 2
-        q = [(R[2, 1] - R[1, 2]) / s, 0.25 * s, (R[0, 1] + R[1, 0]) / s, (R[0, 2] + R[2, 0]) / s]
+        q = np.array([(R[2, 1] - R[1, 2]) / s, 0.25 * s, (R[0, 1] + R[1, 0]) / s, (R[0, 2] + R[2, 0]) / s])
     elif R[1, 1] > R[2, 2]:
         s = np.sqrt(1.0 + R[1, 1] - R[0, 0] - R[2, 2]) * 2
-        q = [(R[0, 2] - R[2, 0]) / s, (R[0, 1] + R[1, 0]) / s, 0.25 * s, (R[1, 2] + R[2, 1]) / s]
+        q = np.array([(R[0, 2] - R[2, 0]) / s, (R[0, 1] + R[1, 0]) / s, 0.25 * s, (R[1, 2] + R[2, 1]) / s])
     else:
         s = np.sqrt(1.0 + R[2, 2] - R[0, 0] - R[1, 1]) * 2
-        q = [(R[1, 0] - R[0, 1]) / s, (R[0, 2] + R[2, 0]) / s, (R[1, 2] + R[2, 1]) / s, 0.25 * s]
-    q = np.asarray(q)
+        q = np.array([(R[1, 0] - R[0, 1]) / s, (R[0, 2] + R[2, 0]) / s, (R[1, 2] + R[2, 1]) / s, 0.25 * s])
     q /= np.linalg.norm(q)
     return q if q[0] >= 0 else -q
 
 
+def rotation_angle(R: np.ndarray) -> float:
+    """Angle in radians, in [0, pi], of a (3, 3) rotation matrix (geodesic distance to identity).
+
+    Computed as ``atan2(|sin|, cos)`` from the skew and trace parts, which stays accurate for tiny
+    angles (where ``arccos`` of the trace loses half the digits). The angle between two rotations
+    ``A`` and ``B`` is ``rotation_angle(A.T @ B)``.
+    """
+    R = np.asarray(R, dtype=np.float64)
+    cos = np.clip((np.trace(R) - 1) / 2, -1.0, 1.0)
+    sin = 0.5 * np.linalg.norm([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    return float(np.arctan2(sin, cos))
+
+
 def rotation_angle_deg(R: np.ndarray) -> float:
-    """Angle in degrees of a rotation matrix (for error reporting)."""
-    cos = np.clip((np.trace(np.asarray(R)) - 1) / 2, -1.0, 1.0)
-    return float(np.degrees(np.arccos(cos)))
+    """Angle in degrees, in [0, 180], of a (3, 3) rotation matrix (see :func:`rotation_angle`)."""
+    return float(np.degrees(rotation_angle(R)))
 
 
 @dataclass(frozen=True)
@@ -159,7 +171,7 @@ class Rigid3:
         cls,
         eye_world: np.ndarray,
         target_world: np.ndarray,
-        up_world: np.ndarray = (0.0, 0.0, 1.0),
+        up_world: np.ndarray | Sequence[float] = (0.0, 0.0, 1.0),
     ) -> Rigid3:
         """``cam_from_world`` for an OpenCV camera at ``eye`` looking at ``target``.
 

@@ -48,7 +48,7 @@ class StereoRig:
         right = Intrinsics(
             left.fx, left.fy, left.cx + doffs_px, left.cy, left.width, left.height, skew=left.skew
         )
-        return cls(left, right, Rigid3(np.eye(3), [-baseline_m, 0.0, 0.0]))
+        return cls(left, right, Rigid3(np.eye(3), np.array([-baseline_m, 0.0, 0.0])))
 
     @classmethod
     def from_projections(cls, P_left: np.ndarray, P_right: np.ndarray, width: int, height: int) -> StereoRig:

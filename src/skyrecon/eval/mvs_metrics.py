@@ -21,6 +21,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.spatial import cKDTree
 
 from skyrecon.core import DepthMap
@@ -77,7 +78,7 @@ def _points(a: np.ndarray, what: str) -> np.ndarray:
     return p[np.all(np.isfinite(p), axis=1)]
 
 
-def crop_mask(points: np.ndarray, box: tuple[Sequence[float], Sequence[float]] | None) -> np.ndarray:
+def crop_mask(points: np.ndarray, box: tuple[ArrayLike, ArrayLike] | None) -> np.ndarray:
     """(N,) bool: points inside the axis-aligned box ``(lo (3,), hi (3,))`` (all True for None)."""
     p = np.asarray(points, np.float64)
     if box is None:
@@ -222,6 +223,8 @@ def reference_from_depth_maps(
             for j, other in enumerate(depth_maps):
                 if j == i:
                     continue
+                if other.cam_from_world is None:
+                    raise InputError(f"depth map {j} has no camera pose (cam_from_world)")
                 pc = other.cam_from_world.apply(X)
                 uv = other.intrinsics.project(pc)
                 ok = other.intrinsics.in_image(uv) & (pc[:, 2] > 0)

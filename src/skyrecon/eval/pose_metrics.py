@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from skyrecon.core.rigid import Rigid3
+from skyrecon.core.rigid import Rigid3, rotation_angle_deg
 from skyrecon.errors import InputError
 
 __all__ = ["rotation_error_deg", "translation_direction_error_deg", "relative_pose_errors", "pose_auc"]
@@ -21,11 +21,7 @@ def rotation_error_deg(R_est: np.ndarray, R_gt: np.ndarray) -> float:
     R_gt = np.asarray(R_gt, np.float64)
     if R_est.shape != (3, 3) or R_gt.shape != (3, 3):
         raise InputError(f"rotations must be 3x3, got {R_est.shape} and {R_gt.shape}")
-    c = (np.trace(R_est.T @ R_gt) - 1.0) / 2.0
-    # acos is ill-conditioned near 0: use atan2 of the sine part for small angles
-    w = R_est.T @ R_gt
-    s = 0.5 * np.linalg.norm([w[2, 1] - w[1, 2], w[0, 2] - w[2, 0], w[1, 0] - w[0, 1]])
-    return float(np.degrees(np.arctan2(s, np.clip(c, -1.0, 1.0))))
+    return rotation_angle_deg(R_est.T @ R_gt)
 
 
 def translation_direction_error_deg(t_est: np.ndarray, t_gt: np.ndarray) -> float:

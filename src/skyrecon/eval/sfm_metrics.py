@@ -18,9 +18,11 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
+from scipy.spatial import ConvexHull
 
-from skyrecon.core.rigid import Rigid3
+from skyrecon.core.rigid import Rigid3, rotation_angle_deg
 from skyrecon.errors import EstimationError, InputError
+from skyrecon.sfm.align import umeyama
 
 __all__ = ["ExtentKind", "scene_extent", "rotation_alignment", "SfMEvaluation", "evaluate_sfm_poses"]
 
@@ -39,18 +41,11 @@ def scene_extent(centers: np.ndarray, kind: ExtentKind = "max_distance") -> floa
         raise InputError(f"unknown extent kind {kind!r}; use max_distance or bbox_diagonal")
     if len(c) > 2000:  # the farthest pair are vertices of the convex hull
         try:
-            from scipy.spatial import ConvexHull
-
             c = c[ConvexHull(c).vertices]
         except Exception:  # flat or degenerate sets: keep all points
             pass
     d = np.linalg.norm(c[:, None, :] - c[None, :, :], axis=2)
     return float(d.max())
-
-
-def _rotation_angle_deg(R: np.ndarray) -> float:
-    w = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
-    return float(np.degrees(np.arctan2(0.5 * np.linalg.norm(w), np.clip((np.trace(R) - 1) / 2, -1, 1))))
 
 
 def rotation_alignment(R_est: np.ndarray, R_gt: np.ndarray) -> np.ndarray:
@@ -136,12 +131,10 @@ def evaluate_sfm_poses(
     )
     if len(names) < 3:
         return SfMEvaluation(names, np.zeros(0), np.zeros(0), extent, extent_kind, len(gt_names), missing)
-    from skyrecon.sfm.align import umeyama  # local import: eval must not need sfm at import time
-
     R_est = np.stack([estimated[n].R for n in names])
     R_gt = np.stack([ground_truth[n].R for n in names])
     Q = rotation_alignment(R_est, R_gt)
-    rot = np.array([_rotation_angle_deg((Re @ Q.T).T @ Rg) for Re, Rg in zip(R_est, R_gt)])
+    rot = np.array([rotation_angle_deg((Re @ Q.T).T @ Rg) for Re, Rg in zip(R_est, R_gt)])
     C_est = np.stack([estimated[n].center for n in names])
     C_gt = np.stack([ground_truth[n].center for n in names])
     try:

@@ -153,14 +153,14 @@ def resize_longer_side(image: np.ndarray, max_size: int | None) -> tuple[np.ndar
 
 def _detector(settings: FeatureSettings):
     if settings.method in ("sift", "rootsift"):
-        return cv2.SIFT_create(
+        return cv2.SIFT.create(
             nfeatures=settings.max_features,
             contrastThreshold=settings.sift_contrast_threshold,
             edgeThreshold=settings.sift_edge_threshold,
             enable_precise_upscale=settings.sift_precise_upscale,
         )
     if settings.method == "orb":
-        return cv2.ORB_create(
+        return cv2.ORB.create(
             nfeatures=settings.max_features or 8000, scaleFactor=1.2, nlevels=8, fastThreshold=10
         )
     create = getattr(cv2, "AKAZE_create", None)

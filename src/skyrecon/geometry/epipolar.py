@@ -17,6 +17,7 @@ __all__ = [
     "homogeneous",
     "as_points2",
     "hartley_normalization",
+    "null_vector",
     "fundamental_8point",
     "fundamental_7point",
     "essential_8point",
@@ -81,13 +82,14 @@ def _design_matrix(x1: np.ndarray, x2: np.ndarray) -> np.ndarray:
     return np.stack([u2 * u1, u2 * v1, u2, v2 * u1, v2 * v1, v2, u1, v1, one], axis=1)
 
 
-def _null_vector(A: np.ndarray) -> np.ndarray:
+def null_vector(A: np.ndarray) -> np.ndarray:
     """Right singular vector of the smallest singular value of a tall (N, 9) matrix.
 
     A QR factorisation first reduces it to 9 x 9 (cheap, and as accurate as the SVD of A).
     """
     if len(A) > 9:
-        A = np.linalg.qr(A, mode="r")
+        # numpy's stub types every mode as QRResult; mode="r" returns the R factor alone
+        A = np.linalg.qr(A, mode="r")  # type: ignore[assignment]
     _, _, Vt = np.linalg.svd(A, full_matrices=True)
     return Vt[-1]
 
@@ -124,7 +126,7 @@ def fundamental_8point(x1: np.ndarray, x2: np.ndarray, weights: np.ndarray | Non
     A = _design_matrix(n1, n2)
     if weights is not None:
         A = A * np.asarray(weights, dtype=np.float64)[:, None]
-    F = enforce_rank2(_null_vector(A).reshape(3, 3))
+    F = enforce_rank2(null_vector(A).reshape(3, 3))
     return _unit_frobenius(T2.T @ F @ T1)
 
 

@@ -26,7 +26,13 @@ from skyrecon.geometry.epipolar import (
 )
 from skyrecon.geometry.five_point import essential_5point_batch
 from skyrecon.geometry.refine import Loss, refine_relative_pose
-from skyrecon.geometry.sampling import RansacOptions, as_generator, draw_samples, required_iterations
+from skyrecon.geometry.sampling import (
+    LocalOptimization,
+    RansacOptions,
+    as_generator,
+    lo_ransac,
+    local_optimize,
+)
 
 __all__ = [
     "RelativePose",
@@ -143,21 +149,51 @@ def _msac(
     return float(np.where(inl, e2, thr2).sum()), inl
 
 
-def _local_optimize(
-    R: np.ndarray, t: np.ndarray, x1n: np.ndarray, x2n: np.ndarray, thr2: float, cost: float, inl: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
-    """Refine on the current inliers, re-select inliers, repeat while the MSAC cost drops."""
-    for _ in range(4):
-        if np.count_nonzero(inl) < 6:
-            break
+PoseHypothesis = tuple[np.ndarray, np.ndarray]  # (R (3, 3), t (3,)), cam2_from_cam1
+
+
+class _RelativePoseProblem:
+    """(R, t) for :func:`lo_ransac`: batched 5-point solutions decomposed into the pose that puts
+    its sample in front of both cameras, MSAC on the Sampson distance with cheirality (normalised
+    units), refit by robust (Cauchy) Levenberg-Marquardt on the inliers."""
+
+    model_name = "valid relative pose"
+    sample_size = 5
+
+    def __init__(self, x1n: np.ndarray, x2n: np.ndarray, thr2: float) -> None:
+        self.x1n, self.x2n, self.thr2 = x1n, x2n, thr2
+        self.num_data = len(x1n)
+
+    def best_minimal_model(self, samples: np.ndarray) -> tuple[PoseHypothesis, float] | None:
+        x1n, x2n = self.x1n, self.x2n
+        Es, si = essential_5point_batch(x1n[samples], x2n[samples])
+        if len(Es) == 0:
+            return None
+        Rs, ts, ok = _poses_from_essentials(Es, x1n[samples[si]], x2n[samples[si]])
+        if not np.any(ok):
+            return None
+        Rs, ts = Rs[ok], ts[ok]
+        costs, _ = msac_costs_pose(np.ascontiguousarray(Rs), np.ascontiguousarray(ts), x1n, x2n, self.thr2)
+        k = int(np.argmin(costs))
+        return (Rs[k], ts[k]), float(costs[k])
+
+    def score(self, pose: PoseHypothesis) -> tuple[float, np.ndarray]:
+        return _msac(pose[0], pose[1], self.x1n, self.x2n, self.thr2)
+
+    def refit(self, pose: PoseHypothesis, inliers: np.ndarray) -> PoseHypothesis:
         res = refine_relative_pose(
-            R, t, x1n[inl], x2n[inl], loss="cauchy", loss_scale=np.sqrt(thr2), max_iterations=8
+            pose[0],
+            pose[1],
+            self.x1n[inliers],
+            self.x2n[inliers],
+            loss="cauchy",
+            loss_scale=np.sqrt(self.thr2),
+            max_iterations=8,
         )
-        new_cost, new_inl = _msac(res.R, res.t, x1n, x2n, thr2)
-        if new_cost >= cost * (1.0 - 1e-6):
-            break
-        R, t, cost, inl = res.R, res.t, new_cost, new_inl
-    return R, t, cost, inl
+        return res.R, res.t
+
+
+_LOCAL = LocalOptimization(max_steps=4, min_inliers=6, min_relative_gain=1e-6)
 
 
 def estimate_essential(
@@ -199,45 +235,12 @@ def estimate_essential(
     n = len(x1n)
     if n < 5:
         raise EstimationError(f"relative pose needs at least 5 matches, got {n}")
-    rng = as_generator(seed)
-    thr2 = float(threshold) ** 2
-    best_cost = np.inf
-    best: tuple[np.ndarray, np.ndarray] | None = None
-    best_inl = np.zeros(n, dtype=bool)
-    iterations = 0
-    required = options.max_iterations
-    n_lo = 0
-    best_sample_cost = np.inf
-    while iterations < max(required, options.min_iterations) and iterations < options.max_iterations:
-        b = min(options.batch_size, options.max_iterations - iterations)
-        idx = draw_samples(rng, n, 5, b)
-        iterations += b
-        Es, si = essential_5point_batch(x1n[idx], x2n[idx])
-        if len(Es) == 0:
-            continue
-        Rs, ts, ok = _poses_from_essentials(Es, x1n[idx[si]], x2n[idx[si]])
-        if not np.any(ok):
-            continue
-        Es, Rs, ts = Es[ok], Rs[ok], ts[ok]
-        costs, _ = msac_costs_pose(np.ascontiguousarray(Rs), np.ascontiguousarray(ts), x1n, x2n, thr2)
-        k = int(np.argmin(costs))
-        # LO runs on every so-far-the-best *sample* model (compared with raw sample costs, so a
-        # better hypothesis is polished even when an earlier polished model scores lower)
-        if costs[k] < best_sample_cost:
-            best_sample_cost = float(costs[k])
-            R, t = Rs[k], ts[k]
-            cost, inl = _msac(R, t, x1n, x2n, thr2)
-            if options.local_optimization:
-                R, t, cost, inl = _local_optimize(R, t, x1n, x2n, thr2, cost, inl)
-                n_lo += 1
-            if cost < best_cost:
-                best_cost, best, best_inl = cost, (R, t), inl
-                required = required_iterations(
-                    np.count_nonzero(best_inl) / n, 5, options.confidence, options.max_iterations
-                )
-    if best is None:
-        raise EstimationError(f"no valid relative pose found in {iterations} samples of {n} matches")
-    R, t = best
+    # LO runs on every so-far-the-best *sample* model (compared with raw sample costs, so a
+    # better hypothesis is polished even when an earlier polished model scores lower)
+    problem = _RelativePoseProblem(x1n, x2n, float(threshold) ** 2)
+    found = lo_ransac(problem, options, as_generator(seed), _LOCAL, polish_every_best_sample=True)
+    R, t = found.model
+    best_inl = found.inliers
     out = finalize_pose(
         R,
         t,
@@ -250,7 +253,7 @@ def estimate_essential(
         sigmas,
         pixel_scale,
     )
-    out.iterations, out.local_optimizations = iterations, n_lo
+    out.iterations, out.local_optimizations = found.iterations, found.local_optimizations
     return out
 
 
@@ -265,9 +268,11 @@ def polish_pose(
     Returns:
         ``(R, t, cost, inliers)`` with the MSAC cost (normalised units squared) and (N,) bool.
     """
-    thr2 = float(threshold) ** 2
-    cost, inl = _msac(R, t, x1n, x2n, thr2)
-    return _local_optimize(np.asarray(R, np.float64), np.asarray(t, np.float64), x1n, x2n, thr2, cost, inl)
+    problem = _RelativePoseProblem(x1n, x2n, float(threshold) ** 2)
+    pose = (np.asarray(R, np.float64), np.asarray(t, np.float64))
+    cost, inl = problem.score(pose)
+    (R, t), cost, inl = local_optimize(problem, pose, cost, inl, _LOCAL)
+    return R, t, cost, inl
 
 
 def finalize_pose(

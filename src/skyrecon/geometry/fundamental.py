@@ -1,9 +1,10 @@
 """Robust fundamental-matrix estimation: 8-point, 7-point, RANSAC, LMedS and MAGSAC++.
 
 Selectable like OpenCV's ``FM_8POINT / FM_7POINT / FM_RANSAC / FM_LMEDS`` (plus ``"magsac"``,
-which delegates to OpenCV's USAC MAGSAC++). The RANSAC variant is our own: batched 7-point
-minimal solutions (every real root), MSAC scoring on the Sampson distance in pixels, local
-optimisation by iteratively reweighted 8-point fits, adaptive stopping.
+which delegates to OpenCV's USAC MAGSAC++). The RANSAC variant is our own, plugged into the
+generic :func:`~skyrecon.geometry.sampling.lo_ransac`: batched 7-point minimal solutions (every
+real root), MSAC scoring on the Sampson distance in pixels, local optimisation by iteratively
+reweighted 8-point fits, adaptive stopping.
 """
 
 from __future__ import annotations
@@ -22,7 +23,14 @@ from skyrecon.geometry.epipolar import (
     fundamental_8point,
     sampson_sq,
 )
-from skyrecon.geometry.sampling import RansacOptions, as_generator, draw_samples, required_iterations
+from skyrecon.geometry.sampling import (
+    LocalOptimization,
+    RansacOptions,
+    as_generator,
+    draw_samples,
+    lo_ransac,
+    required_iterations,
+)
 
 __all__ = [
     "FundamentalMethod",
@@ -152,41 +160,36 @@ def refine_fundamental_irls(F: np.ndarray, x1: np.ndarray, x2: np.ndarray, itera
     return F
 
 
-def _ransac(
-    x1: np.ndarray, x2: np.ndarray, options: RansacOptions, rng: np.random.Generator
-) -> tuple[np.ndarray, int]:
-    n = len(x1)
-    thr2 = options.threshold**2
-    best_cost, best_F, iterations = np.inf, None, 0
-    required = options.max_iterations
-    while iterations < max(required, options.min_iterations) and iterations < options.max_iterations:
-        b = min(options.batch_size, options.max_iterations - iterations)
-        idx = draw_samples(rng, n, 7, b)
-        iterations += b
-        Fs, _ = fundamental_7point_batch(x1[idx], x2[idx])
+class _FundamentalProblem:
+    """F for :func:`lo_ransac`: 7-point minimal solver, MSAC on the Sampson distance (pixels),
+    refit by the 8-point method and a few reweighted (Sampson) iterations on the inliers."""
+
+    model_name = "fundamental matrix"
+    sample_size = 7
+
+    def __init__(self, x1: np.ndarray, x2: np.ndarray, threshold: float) -> None:
+        self.x1, self.x2 = x1, x2
+        self.thr2 = threshold**2
+        self.num_data = len(x1)
+
+    def best_minimal_model(self, samples: np.ndarray) -> tuple[np.ndarray, float] | None:
+        Fs, _ = fundamental_7point_batch(self.x1[samples], self.x2[samples])
         if len(Fs) == 0:
-            continue
-        costs, _ = msac_costs(np.ascontiguousarray(Fs), x1, x2, thr2)
+            return None
+        costs, _ = msac_costs(np.ascontiguousarray(Fs), self.x1, self.x2, self.thr2)
         k = int(np.argmin(costs))
-        if costs[k] >= best_cost:
-            continue
-        F, cost = Fs[k], float(costs[k])
-        if options.local_optimization:
-            for _ in range(3):
-                inl = sampson_sq(F, x1, x2) < thr2
-                if np.count_nonzero(inl) < 9:
-                    break
-                F_lo = refine_fundamental_irls(fundamental_8point(x1[inl], x2[inl]), x1[inl], x2[inl], 3)
-                c_lo = float(msac_costs(F_lo[None], x1, x2, thr2)[0][0])
-                if c_lo >= cost:
-                    break
-                F, cost = F_lo, c_lo
-        best_cost, best_F = cost, F
-        w = np.count_nonzero(sampson_sq(F, x1, x2) < thr2) / n
-        required = required_iterations(w, 7, options.confidence, options.max_iterations)
-    if best_F is None:
-        raise EstimationError(f"no fundamental matrix found in {iterations} samples of {n} matches")
-    return best_F, iterations
+        return Fs[k], float(costs[k])
+
+    def score(self, F: np.ndarray) -> tuple[float, np.ndarray]:
+        cost = float(msac_costs(np.ascontiguousarray(F[None]), self.x1, self.x2, self.thr2)[0][0])
+        return cost, sampson_sq(F, self.x1, self.x2) < self.thr2
+
+    def refit(self, F: np.ndarray, inliers: np.ndarray) -> np.ndarray:
+        x1, x2 = self.x1[inliers], self.x2[inliers]
+        return refine_fundamental_irls(fundamental_8point(x1, x2), x1, x2, 3)
+
+
+_LOCAL = LocalOptimization(max_steps=3, min_inliers=9)
 
 
 def _lmeds(
@@ -293,7 +296,8 @@ def estimate_fundamental(
         F, inl, iterations = _lmeds(x1, x2, options, rng)
     else:
         if method == "ransac":
-            F, iterations = _ransac(x1, x2, options, rng)
+            found = lo_ransac(_FundamentalProblem(x1, x2, options.threshold), options, rng, _LOCAL)
+            F, iterations = found.model, found.iterations
         else:
             F = _magsac(x1, x2, options, int(rng.integers(0, 2**31 - 1)))
         inl = sampson_sq(F, x1, x2) < thr2

@@ -12,8 +12,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from skyrecon.errors import EstimationError, InputError
-from skyrecon.geometry.epipolar import as_points2, hartley_normalization, homogeneous
-from skyrecon.geometry.sampling import RansacOptions, as_generator, draw_samples, required_iterations
+from skyrecon.geometry.epipolar import (
+    as_points2,
+    cheirality_depths,
+    hartley_normalization,
+    homogeneous,
+    null_vector,
+)
+from skyrecon.geometry.sampling import LocalOptimization, RansacOptions, as_generator, lo_ransac
 
 __all__ = [
     "homography_dlt",
@@ -51,10 +57,7 @@ def homography_dlt(x1: np.ndarray, x2: np.ndarray, weights: np.ndarray | None = 
     if weights is not None:
         w = np.asarray(weights, np.float64)
         A = A * np.concatenate([w, w])[:, None]
-    if len(A) > 9:
-        A = np.linalg.qr(A, mode="r")
-    _, _, Vt = np.linalg.svd(A, full_matrices=True)
-    Hn = Vt[-1].reshape(3, 3)
+    Hn = null_vector(A).reshape(3, 3)
     H = np.linalg.inv(T2) @ Hn @ T1
     return H / H[2, 2] if abs(H[2, 2]) > 1e-12 * np.abs(H).max() else H / np.linalg.norm(H)
 
@@ -111,6 +114,37 @@ def _batch_4point(n1: np.ndarray, n2: np.ndarray) -> np.ndarray:
     return Vt[:, -1].reshape(-1, 3, 3)
 
 
+class _HomographyProblem:
+    """H for :func:`lo_ransac`: batched 4-point DLT on Hartley-normalised samples, MSAC on the
+    symmetric transfer error (pixels^2), refit by the normalised DLT on the inliers."""
+
+    model_name = "homography"
+    sample_size = 4
+
+    def __init__(self, x1: np.ndarray, x2: np.ndarray, thr2: float) -> None:
+        self.x1, self.x2, self.thr2 = x1, x2, thr2
+        self.num_data = len(x1)
+        self.n1, self.T1 = hartley_normalization(x1)
+        self.n2, T2 = hartley_normalization(x2)
+        self.T2inv = np.linalg.inv(T2)
+
+    def best_minimal_model(self, samples: np.ndarray) -> tuple[np.ndarray, float] | None:
+        Hs = self.T2inv @ _batch_4point(self.n1[samples], self.n2[samples]) @ self.T1
+        costs = np.minimum(homography_transfer_sq(Hs, self.x1, self.x2), self.thr2).sum(axis=1)
+        k = int(np.argmin(costs))
+        return Hs[k], float(costs[k])
+
+    def score(self, H: np.ndarray) -> tuple[float, np.ndarray]:
+        e2 = homography_transfer_sq(H, self.x1, self.x2)
+        return float(np.minimum(e2, self.thr2).sum()), e2 < self.thr2
+
+    def refit(self, H: np.ndarray, inliers: np.ndarray) -> np.ndarray:
+        return homography_dlt(self.x1[inliers], self.x2[inliers])
+
+
+_LOCAL = LocalOptimization(max_steps=3, min_inliers=5)
+
+
 def estimate_homography(
     x1: np.ndarray,
     x2: np.ndarray,
@@ -131,42 +165,12 @@ def estimate_homography(
         raise InputError(f"{n} points in image 1 but {len(x2)} in image 2")
     if n < 4:
         raise EstimationError(f"a homography needs at least 4 matches, got {n}")
-    rng = as_generator(seed)
-    n1, T1 = hartley_normalization(x1)
-    n2, T2 = hartley_normalization(x2)
-    T2inv = np.linalg.inv(T2)
     thr2 = options.threshold**2
-    best_cost, best_H, iterations = np.inf, None, 0
-    required = options.max_iterations
-    while iterations < max(required, options.min_iterations) and iterations < options.max_iterations:
-        b = min(options.batch_size, options.max_iterations - iterations)
-        idx = draw_samples(rng, n, 4, b)
-        iterations += b
-        Hs = T2inv @ _batch_4point(n1[idx], n2[idx]) @ T1
-        e2 = homography_transfer_sq(Hs, x1, x2)
-        costs = np.minimum(e2, thr2).sum(axis=1)
-        k = int(np.argmin(costs))
-        if costs[k] >= best_cost:
-            continue
-        H, cost = Hs[k], float(costs[k])
-        if options.local_optimization:
-            for _ in range(3):
-                inl = homography_transfer_sq(H, x1, x2) < thr2
-                if np.count_nonzero(inl) < 5:
-                    break
-                H_lo = homography_dlt(x1[inl], x2[inl])
-                c_lo = float(np.minimum(homography_transfer_sq(H_lo, x1, x2), thr2).sum())
-                if c_lo >= cost:
-                    break
-                H, cost = H_lo, c_lo
-        best_cost, best_H = cost, H
-        w = np.count_nonzero(homography_transfer_sq(H, x1, x2) < thr2) / n
-        required = required_iterations(w, 4, options.confidence, options.max_iterations)
-    if best_H is None:
-        raise EstimationError("no homography found")
+    found = lo_ransac(_HomographyProblem(x1, x2, thr2), options, as_generator(seed), _LOCAL)
+    best_H = found.model
     H = best_H / best_H[2, 2] if abs(best_H[2, 2]) > 1e-12 else best_H
     e2 = homography_transfer_sq(H, x1, x2)
-    return HomographyEstimate(H, e2 < thr2, np.sqrt(e2), iterations)
+    return HomographyEstimate(H, e2 < thr2, np.sqrt(e2), found.iterations)
 
 
 def decompose_homography(
@@ -228,8 +232,6 @@ def decompose_homography(
             norm = np.linalg.norm(TT)
             out.append((R, TT / norm if norm > 0 else TT, nn / np.linalg.norm(nn)))
     if x1n is not None and x2n is not None and len(x1n):
-        from skyrecon.geometry.epipolar import cheirality_depths
-
         kept = []
         for R, t, n in out:
             z1, z2 = cheirality_depths(R, t, x1n, x2n)

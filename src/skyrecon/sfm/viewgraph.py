@@ -16,13 +16,10 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import breadth_first_order, connected_components, minimum_spanning_tree
 
+from skyrecon.core.rigid import rotation_angle_deg
 from skyrecon.sfm.matching import PairGeometry
 
 __all__ = ["chained_rotations", "rotation_inconsistent_pairs"]
-
-
-def _angle_deg(R: np.ndarray) -> float:
-    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
 
 
 def chained_rotations(pairs: Sequence[PairGeometry], n_images: int) -> tuple[np.ndarray, np.ndarray]:
@@ -82,7 +79,7 @@ def rotation_inconsistent_pairs(
     for k, p in enumerate(pairs):
         if p.R is None or label[p.i] != label[p.j]:
             continue
-        err[k] = _angle_deg(p.R.T @ R[p.j] @ R[p.i].T)
+        err[k] = rotation_angle_deg(p.R.T @ R[p.j] @ R[p.i].T)
         if err[k] > max_error_deg:
             bad.append(k)
     return bad, err

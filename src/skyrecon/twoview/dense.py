@@ -1,9 +1,9 @@
 """Dense two-view model: rectify from the pose, compute disparity, triangulate; or the write-up's
 direct NCC search along epipolar lines.
 
-The disparity matcher is reached through :func:`compute_disparity`, a small adapter: it uses the
-stereo engine's ``skyrecon.stereo.create_matcher`` when that exists and OpenCV's StereoSGBM
-otherwise, so the engine can be switched without touching the pipeline.
+The disparity matcher is reached through :func:`compute_disparity`, a small adapter over the
+stereo engine's ``skyrecon.stereo.create_matcher``, so the engine can be switched without touching
+the pipeline.
 """
 
 from __future__ import annotations
@@ -23,6 +23,7 @@ from skyrecon.geometry.rectification import (
     warp_images,
 )
 from skyrecon.geometry.triangulation import parallax_angles_deg, triangulate
+from skyrecon.stereo import available_matchers, create_matcher
 from skyrecon.twoview.result import DenseResult, TwoViewGeometry
 from skyrecon.twoview.settings import TwoViewSettings
 
@@ -36,12 +37,12 @@ _ALIASES = {"sgbm": "opencv-sgbm", "bm": "opencv-bm"}
 
 
 def _engine_matcher(name: str, min_disparity: int, num_disparities: int):
-    """The stereo engine's matcher (``skyrecon.stereo.create_matcher``), or None when the engine
-    is not installed. Raises InputError for a name neither the engine nor the fallback knows."""
-    try:
-        from skyrecon.stereo import available_matchers, create_matcher
-    except ImportError:
-        return None
+    """The stereo engine's matcher (``skyrecon.stereo.create_matcher``).
+
+    Raises:
+        InputError: a name the engine does not know.
+        EstimationError: the matcher refuses the disparity range.
+    """
     names = available_matchers()
     engine_name = name if name in names else _ALIASES.get(name)
     if engine_name not in names:
@@ -65,30 +66,6 @@ def _run_engine(matcher, left: np.ndarray, right: np.ndarray) -> np.ndarray:
     return d
 
 
-def _sgbm(
-    left: np.ndarray, right: np.ndarray, min_disparity: int, num_disparities: int, block: int = 5
-) -> np.ndarray:
-    gl, gr = to_gray_uint8(left), to_gray_uint8(right)
-    num = int(np.ceil(max(16, num_disparities) / 16.0)) * 16
-    sgbm = cv2.StereoSGBM_create(
-        minDisparity=int(min_disparity),
-        numDisparities=num,
-        blockSize=block,
-        P1=8 * block * block,
-        P2=32 * block * block,
-        disp12MaxDiff=1,
-        uniquenessRatio=10,
-        speckleWindowSize=100,
-        speckleRange=2,
-        preFilterCap=63,
-        mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY,
-    )
-    raw = sgbm.compute(gl, gr)
-    disp = raw.astype(np.float32) / 16.0
-    disp[raw <= (min_disparity - 1) * 16] = np.nan
-    return disp
-
-
 def compute_disparity(
     left: np.ndarray, right: np.ndarray, min_disparity: int, num_disparities: int, matcher: str = "sgbm"
 ) -> tuple[np.ndarray, str]:
@@ -99,7 +76,7 @@ def compute_disparity(
         min_disparity, num_disparities: search range ``[min, min + num)``, pixels.
         matcher: stereo-engine matcher name (``skyrecon.stereo.available_matchers()``:
             ``"skyrecon"``, ``"skyrecon-fast"``, ``"opencv-sgbm"``, ``"opencv-bm"``; ``"sgbm"`` and
-            ``"bm"`` are aliases); without the engine only ``"sgbm"`` (OpenCV) is available.
+            ``"bm"`` are aliases).
     Returns:
         ``(disparity, used)``: (H, W) float32 pixels with NaN where invalid
         (``x_right = x_left - d``), and the name of the matcher that ran.
@@ -108,18 +85,12 @@ def compute_disparity(
         EstimationError: the matcher refused this pair (e.g. its disparity range).
     """
     m = _engine_matcher(matcher, int(min_disparity), int(num_disparities))
-    if m is not None:
-        try:
-            d = _run_engine(m, left, right).copy()
-        except InputError as exc:  # e.g. a disparity range as wide as the image
-            raise EstimationError(f"the disparity matcher refused this pair: {exc}") from None
-        d[~np.isfinite(d)] = np.nan
-        return d, f"skyrecon.stereo:{getattr(m, 'name', None) or _ALIASES.get(matcher, matcher)}"
-    if matcher not in ("sgbm", "opencv-sgbm"):
-        raise InputError(
-            f"stereo matcher {matcher!r} needs skyrecon.stereo, which is not installed; use sgbm"
-        )
-    return _sgbm(left, right, min_disparity, num_disparities), "opencv-sgbm"
+    try:
+        d = _run_engine(m, left, right).copy()
+    except InputError as exc:  # e.g. a disparity range as wide as the image
+        raise EstimationError(f"the disparity matcher refused this pair: {exc}") from None
+    d[~np.isfinite(d)] = np.nan
+    return d, f"skyrecon.stereo:{getattr(m, 'name', None) or _ALIASES.get(matcher, matcher)}"
 
 
 def _valid_mask(
@@ -210,12 +181,13 @@ def dense_epipolar(
     inliers (x1, x2: (K, 2) full-resolution pixels); unambiguous matches with NCC above
     ``epipolar_min_ncc`` are triangulated optimally.
     """
-    assert geo.R is not None and geo.t is not None
+    R, t = geo.R, geo.t
+    assert R is not None and t is not None
     g1, s1x, _ = resize_longer_side(to_gray_uint8(image1), settings.features.max_image_size)
     g2, s2x, _ = resize_longer_side(to_gray_uint8(image2), settings.features.max_image_size)
     w1 = intr1.scaled(s1x) if s1x != 1.0 else intr1
     w2 = intr2.scaled(s2x) if s2x != 1.0 else intr2
-    X = triangulate(geo.R, geo.t, intr1.normalized(x1), intr2.normalized(x2), "midpoint")
+    X = triangulate(R, t, intr1.normalized(x1), intr2.normalized(x2), "midpoint")
     z = X[:, 2][np.isfinite(X[:, 2]) & (X[:, 2] > 0)]
     if len(z) < 5:
         raise EstimationError("too few triangulated inliers to bound the depth of the epipolar search")
@@ -226,7 +198,7 @@ def dense_epipolar(
     def grid(step: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         vv, uu = np.mgrid[half : g1.shape[0] - half : step, half : g1.shape[1] - half : step]
         q = np.stack([uu.ravel(), vv.ravel()], 1).astype(np.float64)
-        sg = search_segments_from_depth(q, w1, w2, geo.R, geo.t, (near, far))
+        sg = search_segments_from_depth(q, w1, w2, R, t, (near, far))
         return q, sg, np.all(np.isfinite(sg), axis=1)
 
     p1, seg, ok = grid(st)
@@ -241,7 +213,7 @@ def dense_epipolar(
     q1 = p1[ok][good]
     q2 = res.points2[good]
     s = 1.0 if settings.baseline_m is None else settings.baseline_m
-    P = triangulate(geo.R, geo.t * s, w1.normalized(q1), w2.normalized(q2), "optimal")
+    P = triangulate(R, t * s, w1.normalized(q1), w2.normalized(q2), "optimal")
     keep = np.all(np.isfinite(P), axis=1) & (P[:, 2] > 0)
     img = np.asarray(image1)
     ij = np.clip(

@@ -138,7 +138,7 @@ def draw_epipolar_lines(
     thick = max(1, int(round(s * max(a.shape[:2]) / 800)))
     for k in range(len(idx)):
         hue = int(180 * k / max(1, len(idx)))
-        col = cv2.cvtColor(np.uint8([[[hue, 220, 255]]]), cv2.COLOR_HSV2RGB)[0, 0].tolist()
+        col = cv2.cvtColor(np.array([[[hue, 220, 255]]], np.uint8), cv2.COLOR_HSV2RGB)[0, 0].tolist()
         for line, (w, h), dx in ((l1[k], a.shape[1::-1], 0.0), (l2[k], b.shape[1::-1], float(off))):
             ends = _line_ends(line, w, h)
             if ends is not None:

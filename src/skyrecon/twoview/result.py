@@ -167,10 +167,11 @@ class TwoViewResult:
     @property
     def cam2_from_cam1(self) -> Rigid3 | None:
         """The pose as a Rigid3 (|t| = 1, or the metric baseline), or None without a full pose."""
-        if not self.geometry.has_pose:
+        R, t = self.geometry.R, self.geometry.t
+        if R is None or t is None:
             return None
         s = 1.0 if self.baseline_m is None else self.baseline_m
-        return Rigid3(self.geometry.R, self.geometry.t * s, "cam2", "cam1")
+        return Rigid3(R, t * s, "cam2", "cam1")
 
     def to_json_dict(self) -> dict[str, Any]:
         """The ``two_view.json`` content: R, t (|t| = 1), F, E, counts, status, warnings.

@@ -8,6 +8,7 @@ from typing import Literal
 from skyrecon.errors import InputError
 from skyrecon.features.detect import FeatureSettings
 from skyrecon.features.match import MatchSettings
+from skyrecon.geometry.fundamental import FundamentalMethod
 
 __all__ = ["TwoViewSettings", "PoseMethod", "DenseMethod"]
 
@@ -63,7 +64,7 @@ class TwoViewSettings:
     features: FeatureSettings = field(default_factory=FeatureSettings)
     matching: MatchSettings = field(default_factory=MatchSettings)
     pose_method: PoseMethod = "essential"
-    fundamental_method: str = "ransac"
+    fundamental_method: FundamentalMethod = "ransac"
     threshold_px: float = 1.0
     confidence: float = 0.9999
     max_iterations: int = 2000
