@@ -20,6 +20,8 @@ from skyrecon.mapping.occupancy import (
     IntegrationStats,
     OccupancyMap,
     build_map_from_depth_frames,
+    load_map,
+    save_map,
 )
 from skyrecon.mapping.octomap_bt import write_octomap_bt
 from skyrecon.mapping.stereo_sequence import (
@@ -28,7 +30,7 @@ from skyrecon.mapping.stereo_sequence import (
     map_stereo_sequence,
     stereo_hit_range_m,
 )
-from skyrecon.mapping.storage import export_occupied_ply, load_map, save_map
+from skyrecon.mapping.storage import export_occupied_ply
 
 __all__ = [
     "MapConfig",

@@ -20,6 +20,7 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -32,6 +33,7 @@ from skyrecon.mapping import _raycast as rc
 from skyrecon.mapping.blocks import BlockGrid
 from skyrecon.mapping.config import MapConfig
 from skyrecon.mapping.inputs import as_world_from_cam, check_depth, check_point3, check_points
+from skyrecon.mapping.storage import BLOCKS, read_map_files, write_map_files
 
 UNKNOWN, FREE, OCCUPIED = -1, 0, 1
 
@@ -525,18 +527,57 @@ class OccupancyMap:
         return m
 
     # ----- persistence -----------------------------------------------------------------
-    def save(self, directory) -> None:
-        """Write the map to ``directory`` (see :mod:`skyrecon.mapping.storage` for the format)."""
-        from skyrecon.mapping.storage import save_map
+    @classmethod
+    def from_blocks(cls, config: MapConfig, coords: np.ndarray, log_odds: np.ndarray) -> OccupancyMap:
+        """A map holding the given blocks, every one of them reported as changed.
 
-        save_map(self, directory)
+        Args:
+            config: the map's settings.
+            coords: (N, 3) int block coordinates.
+            log_odds: (N, B, B, B) float log-odds, NaN unknown (see :mod:`skyrecon.mapping.storage`).
+        Raises:
+            InputError: arrays that do not fit together.
+        """
+        m = cls(config)
+        B = config.block_size
+        try:
+            m.grid = BlockGrid.from_blocks(B, np.nan, coords, np.asarray(log_odds).reshape(len(coords), -1))
+        except ValueError as e:
+            raise InputError(f"corrupt block file ({e})") from None
+        m._dirty = np.full(m.grid.coords.shape[0], 3, np.uint8)  # every block changed, occupied ones included
+        m._sat = np.zeros(m.grid.coords.shape[0], np.uint8)
+        return m
+
+    def save(self, directory: str | Path, compress: bool = False) -> None:
+        """Write the map to ``directory`` (see :mod:`skyrecon.mapping.storage` for the format)."""
+        B = self.block_size
+        n = self.grid.count
+        write_map_files(
+            directory,
+            self.config,
+            self.grid.block_coords.copy(),
+            self.grid.blocks.reshape(n, B, B, B),
+            compress,
+        )
 
     @classmethod
-    def load(cls, directory) -> OccupancyMap:
+    def load(cls, directory: str | Path) -> OccupancyMap:
         """Read a map written by :meth:`save`; raises InputError for missing or corrupt files."""
-        from skyrecon.mapping.storage import load_map
+        stored = read_map_files(directory)
+        try:
+            return cls.from_blocks(stored.config, stored.coords, stored.log_odds)
+        except InputError as e:
+            raise InputError(e.reason, Path(directory) / BLOCKS) from None
 
-        return load_map(directory)
+
+def save_map(occ_map: OccupancyMap, directory: str | Path, compress: bool = False) -> None:
+    """Write ``occ_map`` to ``directory`` (created if missing); see :meth:`OccupancyMap.save`."""
+    occ_map.save(directory, compress)
+
+
+def load_map(directory: str | Path) -> OccupancyMap:
+    """Read a map directory written by :func:`save_map`; raises InputError if missing or corrupt."""
+    return OccupancyMap.load(directory)
 
 
 def build_map_from_depth_frames(
