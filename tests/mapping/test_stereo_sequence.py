@@ -14,7 +14,7 @@ from skyrecon.mapping import (
     map_stereo_sequence,
     stereo_hit_range_m,
 )
-from skyrecon.mapping.stereo_sequence import disparity_discontinuities
+from skyrecon.perception import disparity_discontinuities
 
 VOXEL = 0.5
 HALF_DIAGONAL = 0.5 * np.sqrt(3) * VOXEL
