@@ -80,6 +80,7 @@ class OccupancyMap:
         self._lodds = base.log_odds
         self._camera_cache: dict[tuple, tuple] = {}
         self.version = 0  # incremented by every change
+        self.last_build_stats: list[IntegrationStats] = []  # per frame, of build_map_from_depth_frames
         self._bounds_cache: tuple | None = None
 
     def __repr__(self) -> str:
@@ -603,50 +604,11 @@ def build_map_from_depth_frames(
     Raises:
         InputError: counts that do not match, NaN poses, depth not in metres, wrong sizes.
     """
-    depths = list(depths)
-    n = len(depths)
-    if n == 0:
-        raise InputError("no depth frames to build a map from")
-    if all(isinstance(d, DepthMap) for d in depths) and world_from_cam is None:
-        poses = []
-        for i, d in enumerate(depths):
-            if d.cam_from_world is None:
-                raise InputError(f"depth frame {i} has no camera pose")
-            poses.append(d.cam_from_world.inverse().with_frames("world", "cam"))
-        intr = [d.intrinsics for d in depths]
-        images = [d.depth_m for d in depths]
-    else:
-        if world_from_cam is None:
-            raise InputError("camera poses are required (world_from_cam, one per depth frame)")
-        poses = (
-            list(world_from_cam)
-            if not isinstance(world_from_cam, np.ndarray) or world_from_cam.ndim == 3
-            else None
-        )
-        if poses is None:
-            raise InputError(
-                f"poses array must have shape (N, 4, 4) or (N, 3, 4), got {np.shape(world_from_cam)}"
-            )
-        images = [d.depth_m if isinstance(d, DepthMap) else d for d in depths]
-        if intrinsics is None:
-            intr = [d.intrinsics if isinstance(d, DepthMap) else None for d in depths]
-            if any(i is None for i in intr):
-                raise InputError("intrinsics are required for plain depth images")
-        elif isinstance(intrinsics, Intrinsics):
-            intr = [intrinsics] * n
-        else:
-            intr = list(intrinsics)
-            if len(intr) != n:
-                raise InputError(
-                    f"{len(intr)} intrinsics for {n} depth frames; give one camera or one per frame"
-                )
-    if len(poses) != n:
-        raise InputError(
-            f"{len(poses)} poses for {n} depth frames; give exactly one world_from_cam pose per frame"
-        )
+    images, intr, poses = _posed_frames(list(depths), intrinsics, world_from_cam)
+    n = len(images)
     checked = [as_world_from_cam(p, f"pose {i}") for i, p in enumerate(poses)]
     m = OccupancyMap(config, **overrides)
-    stats = []
+    stats: list[IntegrationStats] = []
     for i in range(n):
         try:
             stats.append(m.integrate_depth(images[i], intr[i], checked[i]))
@@ -656,3 +618,47 @@ def build_map_from_depth_frames(
             progress(i + 1, n)
     m.last_build_stats = stats
     return m
+
+
+def _posed_frames(
+    depths: list[np.ndarray | DepthMap],
+    intrinsics: Intrinsics | Sequence[Intrinsics] | None,
+    world_from_cam: Sequence[Rigid3 | np.ndarray] | np.ndarray | None,
+) -> tuple[list[np.ndarray], list[Intrinsics], list[Rigid3 | np.ndarray]]:
+    """(depth images, cameras, world_from_cam poses), one each per frame, of the arguments of
+    :func:`build_map_from_depth_frames` (poses not yet checked)."""
+    n = len(depths)
+    if n == 0:
+        raise InputError("no depth frames to build a map from")
+    maps = [d for d in depths if isinstance(d, DepthMap)]
+    if len(maps) == n and world_from_cam is None:
+        poses: list[Rigid3 | np.ndarray] = []
+        for i, d in enumerate(maps):
+            if d.cam_from_world is None:
+                raise InputError(f"depth frame {i} has no camera pose")
+            poses.append(d.cam_from_world.inverse().with_frames("world", "cam"))
+        return [d.depth_m for d in maps], [d.intrinsics for d in maps], poses
+    if world_from_cam is None:
+        raise InputError("camera poses are required (world_from_cam, one per depth frame)")
+    if isinstance(world_from_cam, np.ndarray) and world_from_cam.ndim != 3:
+        raise InputError(
+            f"poses array must have shape (N, 4, 4) or (N, 3, 4), got {np.shape(world_from_cam)}"
+        )
+    poses = list(world_from_cam)
+    images = [d.depth_m if isinstance(d, DepthMap) else d for d in depths]
+    if intrinsics is None:
+        given = [d.intrinsics if isinstance(d, DepthMap) else None for d in depths]
+        intr = [c for c in given if c is not None]
+        if len(intr) != n:
+            raise InputError("intrinsics are required for plain depth images")
+    elif isinstance(intrinsics, Intrinsics):
+        intr = [intrinsics] * n
+    else:
+        intr = list(intrinsics)
+        if len(intr) != n:
+            raise InputError(f"{len(intr)} intrinsics for {n} depth frames; give one camera or one per frame")
+    if len(poses) != n:
+        raise InputError(
+            f"{len(poses)} poses for {n} depth frames; give exactly one world_from_cam pose per frame"
+        )
+    return images, intr, poses
