@@ -84,7 +84,9 @@ def flight(seed: int, frames: int, width: int, height: int, baseline: float):
 # ----- the two methods -------------------------------------------------------------------
 def run_ours(rig, poses, frames, voxel: float, max_range: float, max_disparity: int, **settings):
     """StereoMapper as ``skyrecon map`` uses it; returns (map, depth_s, integrate_s)."""
-    s = StereoMapSettings(voxel_size_m=voxel, max_range_m=max_range, max_disparity=max_disparity, **settings)
+    s = StereoMapSettings(voxel_size_m=voxel, max_range_m=max_range).with_overrides(
+        max_disparity=max_disparity, **settings
+    )
     warm = StereoMapper(rig, s)  # compile / load the kernels, build the matcher
     warm.add_frame(frames[0].left, frames[0].right, poses[0])
     mapper = StereoMapper(rig, s, matcher=warm.matcher)

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from skyrecon.cli.main import main
-from skyrecon.io import read_ply, read_sequence
+from skyrecon.core import PointCloud
+from skyrecon.io import read_ply, read_sequence, write_ply
 from skyrecon.mapping import load_map
 from skyrecon.sim import generate_city
 
@@ -86,9 +87,6 @@ def test_map_bad_inputs(tmp_path, capsys):
     assert main(["map", str(tmp_path / "nothing"), "--out", str(tmp_path / "m")]) == 2
     assert "not found" in capsys.readouterr().err
     ply = tmp_path / "c.ply"
-    from skyrecon.core import PointCloud
-    from skyrecon.io import write_ply
-
     write_ply(ply, PointCloud(np.random.default_rng(0).normal(size=(100, 3))))
     assert main(["map", str(ply), "--out", str(tmp_path / "m")]) == 2
     assert "--origin" in capsys.readouterr().err

@@ -6,7 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from skyrecon.cli.main import main
 from skyrecon.errors import InputError
+from skyrecon.io.sequence import write_sequence
 from skyrecon.mapping import (
     StereoMapper,
     StereoMapSettings,
@@ -14,7 +16,8 @@ from skyrecon.mapping import (
     map_stereo_sequence,
     stereo_hit_range_m,
 )
-from skyrecon.mapping.stereo_sequence import disparity_discontinuities
+from skyrecon.perception import PerceptionSettings, disparity_discontinuities
+from skyrecon.sim import default_rig, flight_poses, generate_city, render_stereo
 
 VOXEL = 0.5
 HALF_DIAGONAL = 0.5 * np.sqrt(3) * VOXEL
@@ -24,8 +27,6 @@ HALF_DIAGONAL = 0.5 * np.sqrt(3) * VOXEL
 def flight():
     """(city, rig, poses, frames): 5 stereo frames 320x240 (0.6 m baseline: trusted range ~19.6 m
     at 0.5 m voxels) of a flight down a street with buildings 5 to 40 m away."""
-    from skyrecon.sim import default_rig, flight_poses, generate_city, render_stereo
-
     city = generate_city(7, 200.0)
     rig = default_rig(320, 240, 90.0, 0.6)
     poses = flight_poses(city, 5, seed=7, fps=2.0)
@@ -107,9 +108,6 @@ def test_bad_input(flight):
 
 
 def test_command_line_runs_the_same_stereo_mapper(flight, tmp_path):
-    from skyrecon.cli.main import main
-    from skyrecon.io.sequence import write_sequence
-
     _, rig, poses, frames = flight
     seq = tmp_path / "seq"
     write_sequence(seq, rig, ((f.left, f.right) for f in frames), poses)
@@ -122,3 +120,15 @@ def test_command_line_runs_the_same_stereo_mapper(flight, tmp_path):
     a = {tuple(v) for v in cli.occupied_voxels().tolist()}
     b = {tuple(v) for v in lib.occupied_voxels().tolist()}
     assert len(a ^ b) <= 0.01 * len(b)
+
+
+def test_settings_overrides_reach_the_perception_rules():
+    s = StereoMapSettings(voxel_size_m=0.5).with_overrides(
+        max_disparity=64, max_depth_error_m=1.0, prob_hit=0.7
+    )
+    assert s.perception == PerceptionSettings.mapping(max_disparity=64, max_depth_error_m=1.0)
+    assert (s.voxel_size_m, s.prob_hit) == (0.5, 0.7)
+    flying = s.with_overrides(perception=PerceptionSettings.flight(), depth_stride=1)
+    assert flying.perception == PerceptionSettings.flight(depth_stride=1)
+    with pytest.raises(InputError, match="unknown"):
+        s.with_overrides(voxels=3)

@@ -5,12 +5,17 @@
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+
+from skyrecon.cli.main import main
+from skyrecon.mission import small_test_config
 
 os.environ.setdefault("OMP_WAIT_POLICY", "passive")
 
@@ -28,11 +33,6 @@ class Flight:
 
 @pytest.fixture(scope="session")
 def flight(tmp_path_factory) -> Flight:
-    import contextlib
-    import io
-
-    from skyrecon.cli.main import main
-
     out = tmp_path_factory.mktemp("demo") / "mission"
     so, se = io.StringIO(), io.StringIO()
     with contextlib.redirect_stdout(so), contextlib.redirect_stderr(se):
@@ -44,8 +44,6 @@ def flight(tmp_path_factory) -> Flight:
 @pytest.fixture(scope="session")
 def tiny_config():
     """A 60 m city, 160x120 images, 20-35 m deliveries: a mission in a few seconds."""
-    from skyrecon.mission import small_test_config
-
     return small_test_config(
         width=160,
         height=120,

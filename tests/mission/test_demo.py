@@ -11,6 +11,8 @@ import numpy as np
 import pytest
 
 from skyrecon.cli.main import main
+from skyrecon.io import read_ply
+from skyrecon.mapping import load_map
 from skyrecon.sim import generate_city
 
 METRIC_KEYS = {
@@ -62,9 +64,6 @@ def test_mission_delivers_without_touching_the_true_city(flight):
 
 
 def test_outputs_exist_and_parse(flight):
-    from skyrecon.io import read_ply
-    from skyrecon.mapping import load_map
-
     out = flight.out
     assert f"report: {out / 'report.html'}" in flight.stdout
     m = flight.mission

@@ -6,7 +6,9 @@ import math
 
 import numpy as np
 
+from skyrecon.core import Intrinsics
 from skyrecon.mission import MissionConfig, make_scenario
+from skyrecon.mission.guidance import guide, hover
 from skyrecon.mission.navigator import Navigator
 from skyrecon.mission.scenario import MapBox, _segment_blocked
 from skyrecon.mission.vehicle import (
@@ -17,6 +19,7 @@ from skyrecon.mission.vehicle import (
     step,
     wrap_angle,
 )
+from skyrecon.sim import look_from
 
 
 def test_step_respects_speed_acceleration_and_turn_rate():
@@ -67,9 +70,6 @@ def _box_navigator(cfg: MissionConfig, goal=(30.0, 4.0, 14.0)) -> Navigator:
 
 def _look(nav: Navigator, depth_m: float, times: int = 3) -> None:
     """A 64x48 camera at (0, 4, 14) looking along +x sees a flat wall at ``depth_m`` (inf: open sky)."""
-    from skyrecon.core import Intrinsics
-    from skyrecon.sim import look_from
-
     cam = Intrinsics.from_fov(64, 48, 90.0)
     pose = look_from(np.array([0.0, 4.0, 14.0]), 0.0, 0.0)
     for _ in range(times):
@@ -115,8 +115,6 @@ def test_seed_endpoints_are_far_apart_clear_and_blocked(tiny_config):
 
 
 def test_guidance_brakes_before_unobserved_space_and_looks_at_it():
-    from skyrecon.mission.guidance import guide, hover
-
     cfg = MissionConfig()
     s = DroneState(np.zeros(3), np.array([6.0, 0, 0]), 0.0, 0.0)
     rest = np.array([[0.0, 0, 15], [100, 0, 15]])

@@ -25,6 +25,10 @@ from collections import deque
 
 from skyrecon.cli.common import add_command, info, output_dir, positive_float, positive_int
 from skyrecon.errors import InputError
+from skyrecon.executor import get_executor
+from skyrecon.mission import MissionConfig
+from skyrecon.mission.batch import fly_and_write, mission_line, run_missions
+from skyrecon.progress import progress, progress_enabled
 
 EXAMPLES = """  skyrecon demo                                  # one delivery, seed 0, into ./demo_out/
   skyrecon demo --seed 7 --out mission7/
@@ -83,8 +87,6 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def _config(args):
-    from skyrecon.mission import MissionConfig
-
     cfg = MissionConfig()
     changes = dict(
         width=args.width,
@@ -116,11 +118,9 @@ class _Progress:
     """The live line: distance to go, loop rate (median of the last 25 cycles), replans, speed."""
 
     def __init__(self, quiet: bool):
-        from skyrecon.progress import progress, progress_enabled
-
         self.quiet = quiet
         self.bar = None if quiet or not progress_enabled() else progress(desc="flying", unit=" cycles")
-        self.loop = deque(maxlen=25)
+        self.loop: deque[float] = deque(maxlen=25)
         self.replans = 0
         self.plans = 0
         self.last_info = -1e9
@@ -154,8 +154,6 @@ def run(args: argparse.Namespace) -> int:
     # The loop's parallel kernels wait passively between frames; spinning OpenMP workers would
     # steal the cores the stereo threads need (and a shared machine's cores from others).
     os.environ.setdefault("OMP_WAIT_POLICY", "passive")
-    from skyrecon.mission.batch import fly_and_write, mission_line, run_missions
-
     cfg = _config(args)
     start = _xyz(args.start, "--start") if args.start else None
     goal = _xyz(args.goal, "--goal") if args.goal else None
@@ -165,8 +163,6 @@ def run(args: argparse.Namespace) -> int:
     if args.missions > 1:
         if start is not None:
             raise InputError("--start/--goal fix one mission; drop them with --missions")
-        from skyrecon.executor import get_executor
-
         seeds = list(range(args.seed, args.seed + args.missions))
         if not args.quiet:
             info(f"flying {len(seeds)} missions (seeds {seeds[0]}..{seeds[-1]}) into {out}/seed_NNNN/")
@@ -216,6 +212,7 @@ __all__ = ["add_parser", "run"]
 
 
 if __name__ == "__main__":  # pragma: no cover
+    # imported here: cli.main imports every command module (this one too) to build its parser
     from skyrecon.cli.main import main
 
     sys.exit(main(["demo", *sys.argv[1:]]))

@@ -24,11 +24,27 @@ import shutil
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from skyrecon.cli.common import add_command, info, positive_float, positive_int
 from skyrecon.errors import InputError
+from skyrecon.io.depth_dir import iter_depth_maps, sequence_depth_paths
+from skyrecon.io.ply import read_ply
+from skyrecon.io.sequence import read_sequence
+from skyrecon.mapping import (
+    MapConfig,
+    OccupancyMap,
+    StereoMapSettings,
+    export_occupied_ply,
+    map_depth_sequence,
+    map_stereo_sequence,
+    save_map,
+    write_map_preview,
+    write_octomap_bt,
+)
+from skyrecon.progress import progress
 
 EXAMPLES = """  skyrecon map flight/ --out flight_map/ --voxel-size 0.2
   skyrecon map flight/ --depth depth_2 --out gt_map/        # use depth maps instead of stereo
@@ -75,48 +91,29 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    from skyrecon.mapping import OccupancyMap, export_occupied_ply, save_map, write_octomap_bt
-
     source = Path(args.source)
     if not source.exists():
         raise InputError("not found; give a sequence directory or a .ply point cloud", source)
     t0 = time.perf_counter()
     if source.is_file() and source.suffix.lower() == ".ply":
-        occ = OccupancyMap(voxel_size_m=args.voxel_size, max_range_m=args.max_range)
-        summary = _integrate_cloud(occ, source, args)
+        occ, summary, track = _map_cloud(source, args)
     else:
-        occ, summary = _integrate_sequence(source, args)
-    max_range = occ.config.max_range_m
+        occ, summary, track = _map_sequence(source, args)
     seconds = time.perf_counter() - t0
     counts = occ.counts()
     if counts.get("occupied", 0) == 0:
         raise InputError(
             "no occupied voxel was observed: check the depth (metres?), the poses and --max-range", source
         )
-
+    summary.update(
+        voxel_size_m=args.voxel_size,
+        max_range_m=round(occ.config.max_range_m, 2),
+        seconds=round(seconds, 2),
+        voxels={k: int(v) for k, v in counts.items()},
+        memory_mb=round(occ.memory_bytes() / 1e6, 1),
+    )
     out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise InputError("--out must be a directory, but a file of that name exists", out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
-    try:
-        save_map(occ, tmp)
-        n_occ = export_occupied_ply(occ, tmp / "occupied.ply")
-        if args.bt:
-            write_octomap_bt(occ, tmp / "map.bt")
-        _write_preview(occ, tmp / "preview.png", summary.pop("track", None))
-        summary.update(
-            voxel_size_m=args.voxel_size,
-            max_range_m=round(max_range, 2),
-            seconds=round(seconds, 2),
-            voxels={k: int(v) for k, v in counts.items()},
-            memory_mb=round(occ.memory_bytes() / 1e6, 1),
-        )
-        (tmp / "map_summary.json").write_text(json.dumps(summary, indent=2))
-        _replace_dir(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
+    n_occ = _write_map_dir(occ, out, summary, track, args.bt)
     if not args.quiet:
         info(
             f"map of {summary.get('frames', 1)} input(s): {n_occ} occupied, {counts.get('free', 0)} free voxels "
@@ -127,73 +124,42 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _integrate_sequence(root: Path, args) -> tuple:
-    """(map, summary) of a sequence: stereo through StereoMapper, or ``--depth`` maps."""
-    from skyrecon.io.pfm import read_pfm
-    from skyrecon.io.sequence import read_sequence
-    from skyrecon.mapping import OccupancyMap, StereoMapper, StereoMapSettings
-    from skyrecon.mapping.stereo_sequence import StereoMapTimings
-    from skyrecon.progress import progress
-
+def _map_sequence(root: Path, args: argparse.Namespace) -> tuple[OccupancyMap, dict[str, Any], np.ndarray]:
+    """(map, summary, camera track (N, 3) world metres) of a sequence: stereo, or ``--depth`` maps."""
     seq = read_sequence(root)
     if seq.world_from_left is None:
         raise InputError(
             "the sequence has no poses.txt; a map needs one world_from_left_camera pose per frame", root
         )
     n = min(len(seq), args.frames or len(seq))
-    rig = seq.rig
+    poses = seq.world_from_left[:n]
     if args.depth is None:
-        mapper = StereoMapper(
-            rig,
-            StereoMapSettings(
-                voxel_size_m=args.voxel_size,
-                max_range_m=args.max_range,
-                method=args.method,
-                max_disparity=args.max_disparity,
-                max_depth_error_m=args.max_depth_error,
-            ),
+        settings = StereoMapSettings(voxel_size_m=args.voxel_size, max_range_m=args.max_range).with_overrides(
+            method=args.method, max_disparity=args.max_disparity, max_depth_error_m=args.max_depth_error
         )
-        _ = mapper.matcher  # build (and warm up) the matcher before the first frame
-        occ, timings = mapper.map, mapper.timings
+        frames = (seq.frame(i) for i in range(n))
+        built = map_stereo_sequence(progress(frames, total=n, desc="map frames"), seq.rig, poses, settings)
+        occ, timings = built.map, built.timings
     else:
-        occ, timings = (
-            OccupancyMap(voxel_size_m=args.voxel_size, max_range_m=args.max_range),
-            StereoMapTimings(),
+        depths = iter_depth_maps(sequence_depth_paths(seq, args.depth)[:n], seq.rig.left)
+        config = MapConfig(voxel_size_m=args.voxel_size, max_range_m=args.max_range)
+        built_d = map_depth_sequence(
+            progress(depths, total=n, desc="map frames"), seq.rig.left, poses, config
         )
-    for i in progress(range(n), desc="map frames"):
-        try:
-            if args.depth is None:
-                left, right = seq.frame(i)
-                mapper.add_frame(left, right, seq.world_from_left[i])
-            else:
-                path = root / args.depth / f"{seq.left_paths[i].stem}.pfm"
-                t0 = time.perf_counter()
-                depth = read_pfm(path)
-                if depth.shape != rig.left.shape:
-                    raise InputError(
-                        f"depth map is {depth.shape[1]}x{depth.shape[0]}, images are {rig.left.width}x{rig.left.height}",
-                        path,
-                    )
-                t1 = time.perf_counter()
-                occ.integrate_depth(depth, rig.left, seq.world_from_left[i])
-                timings.depth_s.append(t1 - t0)
-                timings.integrate_s.append(time.perf_counter() - t1)
-        except InputError as exc:
-            raise InputError(f"frame {seq.left_paths[i].stem}: {exc}") from None
+        occ, timings = built_d.map, built_d.timings
     summary = timings.summary()
     summary.pop("frames", None)
-    return occ, {
+    summary = {
         "source": str(root),
         "frames": n,
         "depth_from": args.depth or f"stereo ({args.method})",
         **summary,
-        "track": np.array([p.t for p in seq.world_from_left[:n]]),
     }
+    return occ, summary, np.array([p.t for p in poses])
 
 
-def _integrate_cloud(occ, path: Path, args) -> dict:
-    from skyrecon.io.ply import read_ply
-
+def _map_cloud(path: Path, args: argparse.Namespace) -> tuple[OccupancyMap, dict[str, Any], None]:
+    """(map, summary, no track) of a point cloud seen from ``--origin``."""
     if args.origin is None:
         raise InputError(
             "a point cloud needs the sensor position it was seen from: add --origin X Y Z (world, metres)",
@@ -202,30 +168,32 @@ def _integrate_cloud(occ, path: Path, args) -> dict:
     cloud = read_ply(path)
     if len(cloud) == 0:
         raise InputError("the point cloud is empty", path)
+    occ = OccupancyMap(voxel_size_m=args.voxel_size, max_range_m=args.max_range)
     occ.integrate_points(cloud.points.astype(np.float64), np.asarray(args.origin, dtype=np.float64))
-    return {"source": str(path), "frames": 1, "points": len(cloud)}
+    return occ, {"source": str(path), "frames": 1, "points": len(cloud)}, None
 
 
-def _write_preview(occ, path: Path, track: np.ndarray | None) -> None:
-    """Top view of the occupied voxels (darker = higher) with the camera track."""
-    write_map_preview(occ, path, [] if track is None else [track])
-
-
-def write_map_preview(occ, path: Path, paths: list[np.ndarray]) -> None:
-    """Top view of a map's occupied voxels (darker = higher) with paths drawn on top."""
-    from skyrecon.io.images import write_image
-    from skyrecon.report.figures import height_map_image
-
-    centers = occ.occupied_centers()
-    if len(centers) == 0:
-        return
-    lo, hi = centers.min(axis=0) - 5, centers.max(axis=0) + 5
-    for track in paths:
-        if len(track):
-            lo[:2] = np.minimum(lo[:2], np.asarray(track)[:, :2].min(axis=0) - 5)
-            hi[:2] = np.maximum(hi[:2], np.asarray(track)[:, :2].max(axis=0) + 5)
-    px_per_m = min(8.0, 1600.0 / max(hi[0] - lo[0], hi[1] - lo[1]))
-    write_image(path, height_map_image(centers, (lo[0], lo[1], hi[0], hi[1]), paths, px_per_m=px_per_m))
+def _write_map_dir(
+    occ: OccupancyMap, out: Path, summary: dict[str, Any], track: np.ndarray | None, bt: bool
+) -> int:
+    """Write the map directory ``out`` as a whole (built beside it, then swapped in); returns
+    the number of occupied voxels written to ``occupied.ply``."""
+    if out.exists() and not out.is_dir():
+        raise InputError("--out must be a directory, but a file of that name exists", out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    try:
+        save_map(occ, tmp)
+        n_occ = export_occupied_ply(occ, tmp / "occupied.ply")
+        if bt:
+            write_octomap_bt(occ, tmp / "map.bt")
+        write_map_preview(occ, tmp / "preview.png", [] if track is None else [track])
+        (tmp / "map_summary.json").write_text(json.dumps(summary, indent=2))
+        _replace_dir(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return n_occ
 
 
 def _replace_dir(new: Path, target: Path) -> None:

@@ -15,6 +15,8 @@ import numpy as np
 
 from skyrecon.cli.common import add_command, info, output_dir
 from skyrecon.errors import EstimationError, InputError
+from skyrecon.mapping import load_map, write_map_preview
+from skyrecon.planning import plan_path, write_path_json, write_qgc_plan
 
 EXAMPLES = """  skyrecon plan flight_map/ --start 0 0 15 --goal 120 80 20 --out route/
   skyrecon plan flight_map/ --start 0 0 15 --goal 120 80 20 --clearance 3 --max-z 40 --out route/
@@ -53,10 +55,6 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    from skyrecon.cli.map import write_map_preview
-    from skyrecon.mapping import load_map
-    from skyrecon.planning import plan_path, write_path_json, write_qgc_plan
-
     start, goal = np.asarray(args.start), np.asarray(args.goal)
     for name, p in (("--start", start), ("--goal", goal)):
         if not np.all(np.isfinite(p)):

@@ -6,12 +6,15 @@ Main entry points:
 * :func:`build_map_from_depth_frames` and :class:`OccupancyMap` (``integrate_depth``,
   ``integrate_points``, ``save`` / ``load``, ``pop_changed_blocks``);
 * :class:`StereoMapper` / :func:`map_stereo_sequence`: a map from a rectified stereo sequence
-  (what ``skyrecon map`` runs);
+  (what ``skyrecon map`` runs; stereo depth from :mod:`skyrecon.perception`);
+* :func:`map_depth_sequence`: a map from posed depth images, streamed (``skyrecon map --depth``);
+* :func:`write_map_preview` / :func:`map_preview_image`: a top view with paths;
 * :func:`export_occupied_ply`, :func:`write_octomap_bt`;
 * :class:`DistanceField` (``update``, ``query_distance``).
 """
 
 from skyrecon.mapping.config import MapConfig
+from skyrecon.mapping.depth_sequence import DepthSequenceMap, FrameTimings, map_depth_sequence
 from skyrecon.mapping.distance import DistanceField
 from skyrecon.mapping.occupancy import (
     FREE,
@@ -20,15 +23,18 @@ from skyrecon.mapping.occupancy import (
     IntegrationStats,
     OccupancyMap,
     build_map_from_depth_frames,
+    load_map,
+    save_map,
 )
 from skyrecon.mapping.octomap_bt import write_octomap_bt
+from skyrecon.mapping.preview import map_preview_image, write_map_preview
 from skyrecon.mapping.stereo_sequence import (
     StereoMapper,
     StereoMapSettings,
     map_stereo_sequence,
-    stereo_hit_range_m,
 )
-from skyrecon.mapping.storage import export_occupied_ply, load_map, save_map
+from skyrecon.mapping.storage import export_occupied_ply
+from skyrecon.perception import stereo_hit_range_m
 
 __all__ = [
     "MapConfig",
@@ -47,4 +53,9 @@ __all__ = [
     "StereoMapSettings",
     "map_stereo_sequence",
     "stereo_hit_range_m",
+    "DepthSequenceMap",
+    "FrameTimings",
+    "map_depth_sequence",
+    "map_preview_image",
+    "write_map_preview",
 ]

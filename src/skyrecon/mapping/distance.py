@@ -58,7 +58,7 @@ class DistanceField:
         self.tile_blocks = int(tile_blocks)
         self.max_box_voxels = int(max_box_voxels)
         self.missing_value = np.float32(0.0 if self.unknown_is_occupied else self.max_distance)
-        self.grid = BlockGrid(occ_map.block_size, self.missing_value)
+        self.grid = BlockGrid(occ_map.block_size, float(self.missing_value))
         self.version = 0
         self.last_update_seconds = 0.0
         self.update(None)
@@ -141,7 +141,7 @@ class DistanceField:
     # ----- queries ---------------------------------------------------------------------
     def dense(self, lo_voxel: np.ndarray, shape: tuple[int, int, int]) -> np.ndarray:
         """(X, Y, Z) float32 distances, metres, at the centres of the voxel box ``[lo, lo + shape)``."""
-        return self.grid.gather(lo_voxel, shape, self.missing_value)
+        return self.grid.gather(lo_voxel, shape, float(self.missing_value))
 
     def query_distance(self, points: np.ndarray, interpolate: bool = False) -> np.ndarray:
         """Distance to the nearest obstacle at world points.

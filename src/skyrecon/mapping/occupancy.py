@@ -20,6 +20,7 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -32,6 +33,7 @@ from skyrecon.mapping import _raycast as rc
 from skyrecon.mapping.blocks import BlockGrid
 from skyrecon.mapping.config import MapConfig
 from skyrecon.mapping.inputs import as_world_from_cam, check_depth, check_point3, check_points
+from skyrecon.mapping.storage import BLOCKS, read_map_files, write_map_files
 
 UNKNOWN, FREE, OCCUPIED = -1, 0, 1
 
@@ -78,6 +80,7 @@ class OccupancyMap:
         self._lodds = base.log_odds
         self._camera_cache: dict[tuple, tuple] = {}
         self.version = 0  # incremented by every change
+        self.last_build_stats: list[IntegrationStats] = []  # per frame, of build_map_from_depth_frames
         self._bounds_cache: tuple | None = None
 
     def __repr__(self) -> str:
@@ -525,18 +528,57 @@ class OccupancyMap:
         return m
 
     # ----- persistence -----------------------------------------------------------------
-    def save(self, directory) -> None:
-        """Write the map to ``directory`` (see :mod:`skyrecon.mapping.storage` for the format)."""
-        from skyrecon.mapping.storage import save_map
+    @classmethod
+    def from_blocks(cls, config: MapConfig, coords: np.ndarray, log_odds: np.ndarray) -> OccupancyMap:
+        """A map holding the given blocks, every one of them reported as changed.
 
-        save_map(self, directory)
+        Args:
+            config: the map's settings.
+            coords: (N, 3) int block coordinates.
+            log_odds: (N, B, B, B) float log-odds, NaN unknown (see :mod:`skyrecon.mapping.storage`).
+        Raises:
+            InputError: arrays that do not fit together.
+        """
+        m = cls(config)
+        B = config.block_size
+        try:
+            m.grid = BlockGrid.from_blocks(B, np.nan, coords, np.asarray(log_odds).reshape(len(coords), -1))
+        except ValueError as e:
+            raise InputError(f"corrupt block file ({e})") from None
+        m._dirty = np.full(m.grid.coords.shape[0], 3, np.uint8)  # every block changed, occupied ones included
+        m._sat = np.zeros(m.grid.coords.shape[0], np.uint8)
+        return m
+
+    def save(self, directory: str | Path, compress: bool = False) -> None:
+        """Write the map to ``directory`` (see :mod:`skyrecon.mapping.storage` for the format)."""
+        B = self.block_size
+        n = self.grid.count
+        write_map_files(
+            directory,
+            self.config,
+            self.grid.block_coords.copy(),
+            self.grid.blocks.reshape(n, B, B, B),
+            compress,
+        )
 
     @classmethod
-    def load(cls, directory) -> OccupancyMap:
+    def load(cls, directory: str | Path) -> OccupancyMap:
         """Read a map written by :meth:`save`; raises InputError for missing or corrupt files."""
-        from skyrecon.mapping.storage import load_map
+        stored = read_map_files(directory)
+        try:
+            return cls.from_blocks(stored.config, stored.coords, stored.log_odds)
+        except InputError as e:
+            raise InputError(e.reason, Path(directory) / BLOCKS) from None
 
-        return load_map(directory)
+
+def save_map(occ_map: OccupancyMap, directory: str | Path, compress: bool = False) -> None:
+    """Write ``occ_map`` to ``directory`` (created if missing); see :meth:`OccupancyMap.save`."""
+    occ_map.save(directory, compress)
+
+
+def load_map(directory: str | Path) -> OccupancyMap:
+    """Read a map directory written by :func:`save_map`; raises InputError if missing or corrupt."""
+    return OccupancyMap.load(directory)
 
 
 def build_map_from_depth_frames(
@@ -562,50 +604,11 @@ def build_map_from_depth_frames(
     Raises:
         InputError: counts that do not match, NaN poses, depth not in metres, wrong sizes.
     """
-    depths = list(depths)
-    n = len(depths)
-    if n == 0:
-        raise InputError("no depth frames to build a map from")
-    if all(isinstance(d, DepthMap) for d in depths) and world_from_cam is None:
-        poses = []
-        for i, d in enumerate(depths):
-            if d.cam_from_world is None:
-                raise InputError(f"depth frame {i} has no camera pose")
-            poses.append(d.cam_from_world.inverse().with_frames("world", "cam"))
-        intr = [d.intrinsics for d in depths]
-        images = [d.depth_m for d in depths]
-    else:
-        if world_from_cam is None:
-            raise InputError("camera poses are required (world_from_cam, one per depth frame)")
-        poses = (
-            list(world_from_cam)
-            if not isinstance(world_from_cam, np.ndarray) or world_from_cam.ndim == 3
-            else None
-        )
-        if poses is None:
-            raise InputError(
-                f"poses array must have shape (N, 4, 4) or (N, 3, 4), got {np.shape(world_from_cam)}"
-            )
-        images = [d.depth_m if isinstance(d, DepthMap) else d for d in depths]
-        if intrinsics is None:
-            intr = [d.intrinsics if isinstance(d, DepthMap) else None for d in depths]
-            if any(i is None for i in intr):
-                raise InputError("intrinsics are required for plain depth images")
-        elif isinstance(intrinsics, Intrinsics):
-            intr = [intrinsics] * n
-        else:
-            intr = list(intrinsics)
-            if len(intr) != n:
-                raise InputError(
-                    f"{len(intr)} intrinsics for {n} depth frames; give one camera or one per frame"
-                )
-    if len(poses) != n:
-        raise InputError(
-            f"{len(poses)} poses for {n} depth frames; give exactly one world_from_cam pose per frame"
-        )
+    images, intr, poses = _posed_frames(list(depths), intrinsics, world_from_cam)
+    n = len(images)
     checked = [as_world_from_cam(p, f"pose {i}") for i, p in enumerate(poses)]
     m = OccupancyMap(config, **overrides)
-    stats = []
+    stats: list[IntegrationStats] = []
     for i in range(n):
         try:
             stats.append(m.integrate_depth(images[i], intr[i], checked[i]))
@@ -615,3 +618,47 @@ def build_map_from_depth_frames(
             progress(i + 1, n)
     m.last_build_stats = stats
     return m
+
+
+def _posed_frames(
+    depths: list[np.ndarray | DepthMap],
+    intrinsics: Intrinsics | Sequence[Intrinsics] | None,
+    world_from_cam: Sequence[Rigid3 | np.ndarray] | np.ndarray | None,
+) -> tuple[list[np.ndarray], list[Intrinsics], list[Rigid3 | np.ndarray]]:
+    """(depth images, cameras, world_from_cam poses), one each per frame, of the arguments of
+    :func:`build_map_from_depth_frames` (poses not yet checked)."""
+    n = len(depths)
+    if n == 0:
+        raise InputError("no depth frames to build a map from")
+    maps = [d for d in depths if isinstance(d, DepthMap)]
+    if len(maps) == n and world_from_cam is None:
+        poses: list[Rigid3 | np.ndarray] = []
+        for i, d in enumerate(maps):
+            if d.cam_from_world is None:
+                raise InputError(f"depth frame {i} has no camera pose")
+            poses.append(d.cam_from_world.inverse().with_frames("world", "cam"))
+        return [d.depth_m for d in maps], [d.intrinsics for d in maps], poses
+    if world_from_cam is None:
+        raise InputError("camera poses are required (world_from_cam, one per depth frame)")
+    if isinstance(world_from_cam, np.ndarray) and world_from_cam.ndim != 3:
+        raise InputError(
+            f"poses array must have shape (N, 4, 4) or (N, 3, 4), got {np.shape(world_from_cam)}"
+        )
+    poses = list(world_from_cam)
+    images = [d.depth_m if isinstance(d, DepthMap) else d for d in depths]
+    if intrinsics is None:
+        given = [d.intrinsics if isinstance(d, DepthMap) else None for d in depths]
+        intr = [c for c in given if c is not None]
+        if len(intr) != n:
+            raise InputError("intrinsics are required for plain depth images")
+    elif isinstance(intrinsics, Intrinsics):
+        intr = [intrinsics] * n
+    else:
+        intr = list(intrinsics)
+        if len(intr) != n:
+            raise InputError(f"{len(intr)} intrinsics for {n} depth frames; give one camera or one per frame")
+    if len(poses) != n:
+        raise InputError(
+            f"{len(poses)} poses for {n} depth frames; give exactly one world_from_cam pose per frame"
+        )
+    return images, intr, poses

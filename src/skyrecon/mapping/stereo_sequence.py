@@ -1,7 +1,9 @@
 """Occupancy map from a rectified stereo sequence: stereo -> depth -> map, frame by frame.
 
 This is what ``skyrecon map SEQUENCE_DIR`` runs (the command only reads the files and writes
-the map), as a library stage. Per frame:
+the map), as a library stage. Stereo depth comes from the perception layer
+(:class:`skyrecon.perception.StereoDepth` with :meth:`~skyrecon.perception.PerceptionSettings.mapping`
+rules by default). Per frame:
 
 1. disparity of the rectified pair with a stereo matcher (full-resolution ``skyrecon`` with a
    uniqueness test by default), kept between frames;
@@ -29,7 +31,8 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field, fields, replace
+from typing import Any
 
 import numpy as np
 
@@ -37,7 +40,12 @@ from skyrecon.core.rigid import Rigid3
 from skyrecon.core.stereo_rig import StereoRig
 from skyrecon.errors import InputError
 from skyrecon.mapping.config import MapConfig
+from skyrecon.mapping.depth_sequence import FrameTimings
 from skyrecon.mapping.occupancy import IntegrationStats, OccupancyMap
+from skyrecon.perception import PerceptionSettings, StereoDepth
+from skyrecon.stereo import Matcher
+
+_PERCEPTION_FIELDS = frozenset(f.name for f in fields(PerceptionSettings))
 
 
 @dataclass(frozen=True)
@@ -47,30 +55,16 @@ class StereoMapSettings:
     Attributes:
         voxel_size_m: voxel edge, metres.
         max_range_m: measurements farther than this carve free space only, metres (the map's
-            range is further limited to the trusted range of the rig).
-        method: stereo matcher name (see :func:`skyrecon.stereo.available_matchers`).
-        max_disparity: disparity search range, pixels.
-        matcher_settings: settings of the matcher (see :func:`skyrecon.stereo.create_matcher`);
-            None: ``{"uniqueness": 0.05}`` for the skyrecon matchers, nothing for the others.
-        max_disparity_step_px: drop pixels whose 3x3 neighbourhood spans more disparity than
-            this, pixels (depth discontinuities); None keeps them.
-        max_depth_error_m: obstacles are marked only where a ``disparity_error_px`` disparity
-            error moves depth by less than this, metres; None: 2 voxels.
-        disparity_error_px: the disparity error assumed for the trusted range, pixels.
-        use_filled: also integrate pixels the matcher filled by interpolation (off: they are
-            guesses, not measurements).
+            range is further limited to the trusted range of the rig, see
+            :meth:`PerceptionSettings.hit_range_m`).
+        perception: the stereo-to-depth rules (matcher, measured pixels, discontinuity filter,
+            resolution, trusted range); default :meth:`PerceptionSettings.mapping`.
         prob_hit, prob_miss: the map's sensor model (see :class:`MapConfig`).
     """
 
     voxel_size_m: float = 0.2
     max_range_m: float = 40.0
-    method: str = "skyrecon"
-    max_disparity: int = 128
-    matcher_settings: dict | None = None
-    max_disparity_step_px: float | None = 1.0
-    max_depth_error_m: float | None = None
-    disparity_error_px: float = 0.25
-    use_filled: bool = False
+    perception: PerceptionSettings = field(default_factory=PerceptionSettings.mapping)
     prob_hit: float = 0.6
     prob_miss: float = 0.35
 
@@ -79,55 +73,21 @@ class StereoMapSettings:
             raise InputError(f"voxel size must be positive, got {self.voxel_size_m} m")
         if not (np.isfinite(self.max_range_m) and self.max_range_m > 0):
             raise InputError(f"max range must be positive, got {self.max_range_m} m")
-        if self.max_depth_error_m is not None and not self.max_depth_error_m > 0:
-            raise InputError(f"max depth error must be positive, got {self.max_depth_error_m} m")
-        if not self.disparity_error_px > 0:
-            raise InputError(f"disparity error must be positive, got {self.disparity_error_px} px")
-        if self.max_disparity_step_px is not None and not self.max_disparity_step_px > 0:
-            raise InputError(f"max disparity step must be positive, got {self.max_disparity_step_px} px")
 
-    def matcher_kwargs(self) -> dict:
-        """The settings passed to :func:`skyrecon.stereo.create_matcher`."""
-        if self.matcher_settings is not None:
-            return dict(self.matcher_settings)
-        return {"uniqueness": 0.05} if self.method in ("skyrecon", "skyrecon-fast") else {}
+    def with_overrides(self, **overrides: Any) -> StereoMapSettings:
+        """A copy with fields replaced; names of :class:`PerceptionSettings` fields (e.g.
+        ``max_disparity=64``, ``max_depth_error_m=1.0``) go to ``perception``."""
+        unknown = set(overrides) - _PERCEPTION_FIELDS - {f.name for f in fields(self)}
+        if unknown:
+            raise InputError(f"unknown stereo map setting(s): {', '.join(sorted(unknown))}")
+        p = {k: v for k, v in overrides.items() if k in _PERCEPTION_FIELDS}
+        own = {k: v for k, v in overrides.items() if k not in _PERCEPTION_FIELDS}
+        perception = replace(own.pop("perception", self.perception), **p)
+        return replace(self, perception=perception, **own)
 
     def hit_range_m(self, rig: StereoRig) -> float:
-        """The map's maximum range for this rig, metres (see :func:`stereo_hit_range_m`)."""
-        return stereo_hit_range_m(
-            rig, self.voxel_size_m, self.max_range_m, self.max_depth_error_m, self.disparity_error_px
-        )
-
-
-def stereo_hit_range_m(
-    rig: StereoRig,
-    voxel_size_m: float,
-    max_range_m: float,
-    max_depth_error_m: float | None = None,
-    disparity_error_px: float = 0.25,
-) -> float:
-    """Range up to which stereo measurements may mark obstacles, metres.
-
-    ``min(max_range_m, trusted_range_m(rig, max_depth_error_m or 2 * voxel_size_m, disparity_error_px))``.
-    """
-    from skyrecon.stereo import trusted_range_m
-
-    err = max_depth_error_m if max_depth_error_m is not None else 2.0 * voxel_size_m
-    return float(min(max_range_m, trusted_range_m(rig, err, disparity_error_px)))
-
-
-def disparity_discontinuities(disparity: np.ndarray, max_step_px: float) -> np.ndarray:
-    """(H, W) bool: pixels whose 3x3 neighbourhood spans more than ``max_step_px`` of disparity.
-
-    Args:
-        disparity: (H, W) float32 pixels, NaN invalid (an invalid neighbour counts as 0, so the
-            pixels bordering invalid ones are flagged too).
-    """
-    import cv2
-
-    d = np.nan_to_num(np.asarray(disparity, dtype=np.float32), nan=0.0, posinf=0.0, neginf=0.0)
-    k = np.ones((3, 3), np.uint8)
-    return (cv2.dilate(d, k) - cv2.erode(d, k)) > max_step_px
+        """The map's maximum range for this rig, metres (see :meth:`PerceptionSettings.hit_range_m`)."""
+        return self.perception.hit_range_m(rig, self.voxel_size_m, self.max_range_m)
 
 
 @dataclass
@@ -146,40 +106,20 @@ class StereoFrameResult:
     integrate_s: float
 
 
-@dataclass
-class StereoMapTimings:
-    """Per-frame wall times, seconds (lists in frame order)."""
-
-    depth_s: list[float] = field(default_factory=list)
-    integrate_s: list[float] = field(default_factory=list)
-
-    def summary(self) -> dict:
-        """Medians in milliseconds and frames per second (of the median total)."""
-        if not self.depth_s:
-            return {"frames": 0}
-        total = np.add(self.depth_s, self.integrate_s)
-        return {
-            "frames": len(total),
-            "frames_per_s": round(float(1.0 / max(np.median(total), 1e-9)), 2),
-            "median_ms": {
-                "depth": round(1000 * float(np.median(self.depth_s)), 1),
-                "integration": round(1000 * float(np.median(self.integrate_s)), 1),
-            },
-        }
-
-
 class StereoMapper:
     """Builds an occupancy map from the frames of a rectified stereo sequence, one at a time.
 
     Args:
         rig: the rectified rig (``rig.left`` is the camera the poses and depth refer to).
-        settings: :class:`StereoMapSettings`; keyword overrides are applied on top.
+        settings: :class:`StereoMapSettings`; keyword overrides are applied on top (see
+            :meth:`StereoMapSettings.with_overrides`).
         config: optional base :class:`MapConfig` of the map (its voxel size, range and
             hit / miss probabilities are replaced by the settings').
         matcher: optional matcher to use instead of building one from the settings (e.g. one
             already warmed up by another mapper).
     Attributes:
         map: the :class:`OccupancyMap` being built (range = :meth:`StereoMapSettings.hit_range_m`).
+        stereo: the :class:`StereoDepth` stage.
         timings: per-frame wall times.
     """
 
@@ -188,16 +128,17 @@ class StereoMapper:
         rig: StereoRig,
         settings: StereoMapSettings | None = None,
         config: MapConfig | None = None,
-        matcher=None,
-        **overrides,
+        matcher: Matcher | None = None,
+        **overrides: Any,
     ):
         s = settings or StereoMapSettings()
         if overrides:
-            s = StereoMapSettings(**{**asdict(s), **overrides})
+            s = s.with_overrides(**overrides)
         if not rig.is_rectified:
             raise InputError("the stereo rig is not rectified; a stereo map needs a rectified sequence")
         self.rig = rig
         self.settings = s
+        self.stereo = StereoDepth(rig, s.perception, matcher)
         self.hit_range_m = s.hit_range_m(rig)
         base = (config or MapConfig()).to_dict()
         base.update(
@@ -207,36 +148,21 @@ class StereoMapper:
             prob_miss=s.prob_miss,
         )
         self.map = OccupancyMap(MapConfig.from_dict(base))
-        self.timings = StereoMapTimings()
-        self._matcher = matcher
+        self.timings = FrameTimings()
 
     @property
-    def matcher(self):
+    def matcher(self) -> Matcher:
         """The stereo matcher (created, and warmed up, on first use)."""
-        if self._matcher is None:
-            from skyrecon.stereo import create_matcher
-
-            self._matcher = create_matcher(
-                self.settings.method, self.settings.max_disparity, **self.settings.matcher_kwargs()
-            )
-            if hasattr(self._matcher, "warmup"):
-                self._matcher.warmup()
-        return self._matcher
+        return self.stereo.matcher
 
     def depth(self, left: np.ndarray, right: np.ndarray) -> np.ndarray:
-        """(H, W) float32 depth, metres along the left optical axis, NaN where not measured.
+        """(h, w) float32 depth, metres along the left optical axis, NaN where not kept
+        (see :class:`skyrecon.perception.StereoDepth`).
 
         Args:
             left, right: (H, W, 3) uint8 RGB (or grey) rectified images of the rig.
         """
-        from skyrecon.stereo import disparity_to_depth
-
-        result = self.matcher.compute(left, right)
-        keep = result.valid if self.settings.use_filled else result.measured
-        step = self.settings.max_disparity_step_px
-        if step is not None:
-            keep &= ~disparity_discontinuities(result.disparity, step)
-        return disparity_to_depth(np.where(keep, result.disparity, np.float32(np.nan)), self.rig)
+        return self.stereo.depth(left, right)
 
     def add_frame(
         self, left: np.ndarray, right: np.ndarray, world_from_left: Rigid3 | np.ndarray
@@ -245,7 +171,7 @@ class StereoMapper:
         t0 = time.perf_counter()
         depth = self.depth(left, right)
         t1 = time.perf_counter()
-        stats = self.map.integrate_depth(depth, self.rig.left, world_from_left)
+        stats = self.map.integrate_depth(depth, self.stereo.intrinsics, world_from_left)
         t2 = time.perf_counter()
         self.timings.depth_s.append(t1 - t0)
         self.timings.integrate_s.append(t2 - t1)
@@ -258,7 +184,7 @@ def map_stereo_sequence(
     world_from_left: Sequence[Rigid3 | np.ndarray],
     settings: StereoMapSettings | None = None,
     progress: Callable[[int, int], None] | None = None,
-    **overrides,
+    **overrides: Any,
 ) -> StereoMapper:
     """Build an occupancy map from a rectified stereo sequence.
 
@@ -277,6 +203,7 @@ def map_stereo_sequence(
             the frame).
     """
     mapper = StereoMapper(rig, settings, **overrides)
+    _ = mapper.matcher  # build (and warm up) the matcher before the first frame is timed
     n = len(world_from_left)
     i = -1
     for i, (left, right) in enumerate(frames):

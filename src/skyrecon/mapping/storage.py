@@ -1,4 +1,5 @@
-"""Saving and loading occupancy maps.
+"""The map directory format: reading and writing its files (the map class itself is not needed here:
+:meth:`skyrecon.mapping.OccupancyMap.save` / ``load`` call these).
 
 A map directory holds two files, each written atomically (temporary file + rename), the
 blocks first and the header last, so that a directory with a header always has its blocks:
@@ -26,13 +27,16 @@ from __future__ import annotations
 
 import json
 import zipfile
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 
+from skyrecon.core.depth import PointCloud
 from skyrecon.errors import InputError
 from skyrecon.io.atomic import atomic_write, write_text_atomic
-from skyrecon.mapping.blocks import BlockGrid
+from skyrecon.io.ply import write_ply
 from skyrecon.mapping.config import MapConfig
 
 FORMAT = "skyrecon.occupancy"
@@ -41,37 +45,60 @@ HEADER = "map.json"
 BLOCKS = "blocks.npz"
 
 
-def save_map(occ_map, directory: str | Path, compress: bool = False) -> None:
-    """Write ``occ_map`` (an :class:`OccupancyMap`) to ``directory`` (created if missing)."""
+@dataclass(frozen=True)
+class StoredBlocks:
+    """The content of a map directory, as arrays.
+
+    Attributes:
+        config: the map's settings.
+        coords: (N, 3) int block coordinates ``b``.
+        log_odds: (N, B, B, B) float log-odds, ``log_odds[n, i, j, k]`` of voxel
+            ``coords[n] * B + (i, j, k)``, NaN where unknown.
+    """
+
+    config: MapConfig
+    coords: np.ndarray
+    log_odds: np.ndarray
+
+
+class HasOccupiedCenters(Protocol):
+    """Anything that lists the centres of its occupied voxels (an ``OccupancyMap``)."""
+
+    def occupied_centers(self) -> np.ndarray: ...
+
+
+def write_map_files(
+    directory: str | Path, config: MapConfig, coords: np.ndarray, log_odds: np.ndarray, compress: bool = False
+) -> None:
+    """Write a map directory (created if missing): the blocks first, then the header.
+
+    Args:
+        config: the map's settings.
+        coords: (N, 3) int32 block coordinates.
+        log_odds: (N, B, B, B) float32 log-odds (NaN unknown), B = ``config.block_size``.
+        compress: ``savez_compressed`` instead of ``savez``.
+    """
     d = Path(directory)
     d.mkdir(parents=True, exist_ok=True)
-    B = occ_map.block_size
-    n = occ_map.grid.count
-    coords = occ_map.grid.block_coords.copy()
-    logodds = occ_map.grid.blocks.reshape(n, B, B, B)
     with atomic_write(d / BLOCKS, "wb") as f:
-        (np.savez_compressed if compress else np.savez)(f, coords=coords, log_odds=logodds)
+        (np.savez_compressed if compress else np.savez)(f, coords=coords, log_odds=log_odds)
     header = {
         "format": FORMAT,
         "version": VERSION,
         "frame": "world",
         "units": "m",
-        "voxel_size_m": occ_map.voxel_size,
-        "block_size": B,
-        "num_blocks": int(n),
+        "voxel_size_m": config.voxel_size_m,
+        "block_size": config.block_size,
+        "num_blocks": int(len(coords)),
         "blocks_file": BLOCKS,
-        "config": occ_map.config.to_dict(),
+        "config": config.to_dict(),
         "layout": "log_odds[n, i, j, k] is voxel coords[n] * block_size + (i, j, k); "
         "voxel v spans [v, v + 1) * voxel_size_m in the world frame; NaN = unknown",
     }
     write_text_atomic(d / HEADER, json.dumps(header, indent=2) + "\n")
 
 
-def load_map(directory: str | Path):
-    """Read a map directory written by :func:`save_map`; raises InputError if missing or corrupt."""
-    from skyrecon.mapping.occupancy import OccupancyMap
-
-    d = Path(directory)
+def _read_header(d: Path) -> dict:
     hp = d / HEADER
     if not hp.is_file():
         raise InputError(f"no {HEADER} here; is this a map directory written by 'skyrecon map'?", d)
@@ -85,6 +112,14 @@ def load_map(directory: str | Path):
         raise InputError(
             f"unsupported map version {header.get('version')!r} (this skyrecon reads {VERSION})", hp
         )
+    return header
+
+
+def read_map_files(directory: str | Path) -> StoredBlocks:
+    """Read a map directory written by :func:`write_map_files`; raises InputError if missing or corrupt."""
+    d = Path(directory)
+    header = _read_header(d)
+    hp = d / HEADER
     try:
         config = MapConfig.from_dict(header["config"])
     except (KeyError, TypeError) as e:
@@ -108,24 +143,14 @@ def load_map(directory: str | Path):
         )
     if coords.dtype.kind not in "iu" or logodds.dtype.kind != "f":
         raise InputError("block file has wrong data types (need integer coords, float log_odds)", bp)
-    m = OccupancyMap(config)
-    try:
-        m.grid = BlockGrid.from_blocks(B, np.nan, coords, logodds.reshape(n, -1))
-    except ValueError as e:
-        raise InputError(f"corrupt block file ({e})", bp) from None
-    m._dirty = np.full(m.grid.coords.shape[0], 3, np.uint8)  # every block changed, occupied ones included
-    m._sat = np.zeros(m.grid.coords.shape[0], np.uint8)
-    return m
+    return StoredBlocks(config, coords, logodds)
 
 
-def export_occupied_ply(occ_map, path: str | Path, colorize: bool = True) -> int:
+def export_occupied_ply(occ_map: HasOccupiedCenters, path: str | Path, colorize: bool = True) -> int:
     """Write the centres of the occupied voxels (world frame, metres) as a binary PLY.
 
     Colours encode height (blue low, red high) when ``colorize``. Returns the number of points.
     """
-    from skyrecon.core.depth import PointCloud
-    from skyrecon.io.ply import write_ply
-
     pts = occ_map.occupied_centers().astype(np.float32)
     colors = None
     if colorize and len(pts):

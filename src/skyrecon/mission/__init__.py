@@ -9,7 +9,7 @@ seen, mapping as it goes (stereo -> occupancy map -> distance field -> planner, 
     run_missions(range(20), out_dir, cfg)              # many seeds in parallel, summary.json/.md/.html
 
 Modules: :mod:`~skyrecon.mission.config` (settings), :mod:`~skyrecon.mission.scenario` (city,
-endpoints, truth), :mod:`~skyrecon.mission.perception` (stereo to depth),
+endpoints, truth), :mod:`~skyrecon.mission.perception` (the rig and its stereo-depth rules),
 :mod:`~skyrecon.mission.navigator` (map, planner, and how unknown space is handled),
 :mod:`~skyrecon.mission.vehicle` (dynamics and guidance), :mod:`~skyrecon.mission.loop` (the
 loop), :mod:`~skyrecon.mission.metrics`, :mod:`~skyrecon.mission.outputs`,

@@ -20,11 +20,14 @@ from pathlib import Path
 
 import numpy as np
 
+from skyrecon.executor import get_executor
 from skyrecon.io.atomic import write_text_atomic
 from skyrecon.mission.config import MissionConfig
 from skyrecon.mission.loop import run_mission
 from skyrecon.mission.outputs import write_mission_outputs, write_refused_outputs
 from skyrecon.mission.scenario import ImpossibleMission, make_scenario
+from skyrecon.report.mission_report import render_summary_report
+from skyrecon.sim import generate_city
 
 SUMMARY_KEYS = (
     "seed",
@@ -80,8 +83,6 @@ def fly_and_write(
     except ImpossibleMission as e:
         city = None
         try:
-            from skyrecon.sim import generate_city
-
             city = generate_city(int(seed), cfg.city_size_m)
         except Exception:  # noqa: BLE001 - the picture is optional; the reason is what matters
             city = None
@@ -209,9 +210,6 @@ def run_missions(
     Returns:
         (rows, totals): one summary row per mission, in seed order, and the totals.
     """
-    from skyrecon.executor import get_executor
-    from skyrecon.report.mission_report import render_summary_report
-
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     jobs = [MissionJob(int(s), str(out / f"seed_{int(s):04d}"), cfg.to_dict(), quiet) for s in seeds]

@@ -34,9 +34,10 @@ from skyrecon.mapping import OccupancyMap
 from skyrecon.mission.config import MissionConfig
 from skyrecon.mission.guidance import guide, hover
 from skyrecon.mission.navigator import Navigator, timed
-from skyrecon.mission.perception import StereoDepth, mission_rig
+from skyrecon.mission.perception import flight_perception, mission_rig
 from skyrecon.mission.scenario import Scenario
 from skyrecon.mission.vehicle import DroneState, step
+from skyrecon.perception import StereoDepth
 from skyrecon.sim import render_stereo
 
 #: Stages of the loop proper (rendering is the simulator's and is reported apart).
@@ -192,8 +193,8 @@ class _FrameKeeper:
         fr = self.frames + (
             [last] if last is not None and (not self.frames or self.frames[-1].cycle != last.cycle) else []
         )
-        idx = (
-            np.unique(np.round(np.linspace(0, len(fr) - 1, min(self.keep, len(fr)))).astype(int))
+        idx: list[int] = (
+            np.unique(np.round(np.linspace(0, len(fr) - 1, min(self.keep, len(fr)))).astype(int)).tolist()
             if fr
             else []
         )
@@ -226,8 +227,12 @@ def run_mission(
     """
     t_start = time.perf_counter()
     rig = mission_rig(cfg)
-    stereo = StereoDepth(cfg, rig)
-    nav = Navigator(cfg, scenario.box, scenario.goal)
+    perception = flight_perception(cfg)
+    stereo = StereoDepth(rig, perception)
+    _ = stereo.matcher  # build (and warm up) the matcher before the first cycle
+    nav = Navigator(
+        cfg, scenario.box, scenario.goal, perception.hit_range_m(rig, cfg.voxel_size_m, cfg.max_range_m)
+    )
     setup_s = time.perf_counter() - t_start
     state = DroneState(
         scenario.start.copy(), np.zeros(3), scenario.start_yaw, math.radians(cfg.camera_pitch_deg)

@@ -15,12 +15,14 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from skyrecon.mission.loop import LOOP_STAGES, STAGES, MissionResult
 
 
-def _stats(values: np.ndarray) -> dict:
+def _stats(values: np.ndarray | Sequence[float]) -> dict:
     v = np.asarray(values, dtype=np.float64)
     if v.size == 0:
         return {"median": None, "p95": None, "mean": None, "max": None}

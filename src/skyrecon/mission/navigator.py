@@ -68,12 +68,16 @@ class Navigator:
         box: the world box the map is pre-allocated over (unknown everywhere at first), so that
             the goal lies inside the map from the start and the planner's dense grid keeps its size.
         goal: (3,) world metres.
+        max_range_m: the map's range (measurements farther carve free space only), metres;
+            None: ``cfg.max_range_m``.
     """
 
-    def __init__(self, cfg: MissionConfig, box: MapBox, goal: np.ndarray):
+    def __init__(self, cfg: MissionConfig, box: MapBox, goal: np.ndarray, max_range_m: float | None = None):
         self.cfg = cfg
         self.goal = np.asarray(goal, dtype=np.float64)
-        mc = MapConfig(voxel_size_m=cfg.voxel_size_m, max_range_m=cfg.max_range_m)
+        mc = MapConfig(
+            voxel_size_m=cfg.voxel_size_m, max_range_m=cfg.max_range_m if max_range_m is None else max_range_m
+        )
         nothing = np.zeros(box.shape, bool)
         self.map = OccupancyMap.from_occupancy_grid(nothing, box.origin, mc, known=nothing)
         self.map.pop_changed_blocks()
@@ -81,8 +85,9 @@ class Navigator:
         v = cfg.voxel_size_m
         need = cfg.clearance_m + cfg.planning_margin_m + 2 * v + 0.05  # what the Planner needs, no more
         self.df = DistanceField(self.map, max_distance_m=need, unknown_is_occupied=False)
-        kw = dict(allow_unknown=True, min_z=cfg.min_altitude_m, max_z=cfg.max_altitude_m)
-        self.planner = Planner(self.df, cfg.clearance_m, **kw)
+        self.planner = Planner(
+            self.df, cfg.clearance_m, allow_unknown=True, min_z=cfg.min_altitude_m, max_z=cfg.max_altitude_m
+        )
         self.replanner = Replanner(self.planner, self.goal)
 
     # ----- sensing -----------------------------------------------------------------------

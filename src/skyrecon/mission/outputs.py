@@ -31,6 +31,7 @@ from skyrecon.mission.config import MissionConfig
 from skyrecon.mission.loop import MissionResult
 from skyrecon.mission.metrics import mission_metrics
 from skyrecon.planning import write_path_json
+from skyrecon.report.mission_report import overview_image, render_mission_report, render_refused_report
 
 FORMAT = "skyrecon.mission"
 VERSION = 1
@@ -42,8 +43,6 @@ def write_mission_outputs(result: MissionResult, out_dir: str | Path, save_the_m
     Returns:
         The metrics dict that was written to ``mission.json`` (with its ``files``).
     """
-    from skyrecon.report.mission_report import overview_image, render_mission_report
-
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     m = mission_metrics(result)
@@ -129,8 +128,6 @@ def write_refused_outputs(
     Returns:
         The dict written to ``mission.json``.
     """
-    from skyrecon.report.mission_report import render_refused_report
-
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
 

@@ -67,8 +67,8 @@ def map_box(city: City, cfg: MissionConfig, z_lo: float, z_hi: float) -> MapBox:
     pad = cfg.map_padding_m
     lo = np.floor(np.array([x0 - pad, y0 - pad, z_lo]) / edge) * edge
     hi = np.ceil(np.array([x1 + pad, y1 + pad, z_hi]) / edge) * edge
-    shape = tuple(int(s) for s in np.round((hi - lo) / v))
-    return MapBox(lo, shape, v)
+    nx, ny, nz = (int(s) for s in np.round((hi - lo) / v))
+    return MapBox(lo, (nx, ny, nz), v)
 
 
 def drone_map_box(city: City, cfg: MissionConfig) -> MapBox:

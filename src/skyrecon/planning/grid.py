@@ -81,7 +81,7 @@ class PlanningGrid:
         p = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
         return _geom.sample_many(self.dist, self.origin, self.inv_v, self.zmin, self.zmax, p)
 
-    def ctx(self) -> tuple:
+    def ctx(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float, float, float, float]:
         """Leading arguments of the :mod:`_geom` path functions."""
         return (
             self.safe,
@@ -94,7 +94,7 @@ class PlanningGrid:
             self.step,
         )
 
-    def sampled_ctx(self) -> tuple:
+    def sampled_ctx(self) -> tuple[np.ndarray, np.ndarray, float, float, float, float, float]:
         """Leading arguments of :func:`_geom.sampled_clear` / :func:`_geom.first_blocked`."""
         return (self.dist, self.origin, self.inv_v, self.zmin, self.zmax, self.threshold, self.step)
 

@@ -153,7 +153,7 @@ def qgc_plan(
     rel = altitude_mode == "relative"
     frame = MAV_FRAME_GLOBAL_RELATIVE_ALT if rel else MAV_FRAME_GLOBAL
     alts = w[:, 2] if rel else alt0 + w[:, 2]
-    items = []
+    items: list[dict] = []
 
     def item(cmd: int, params: list, alt: float) -> dict:
         return {

@@ -148,10 +148,13 @@ class Planner:
         """
         if changed_blocks is None:
             changed_blocks = self.map.pop_changed_blocks()
-        grid_was_current = self._grid is not None and self._grid.version == self.df.version
+        grid = self._grid
+        grid_was_current = grid is not None and grid.version == self.df.version
         rewritten = self.df.update(changed_blocks)
-        if grid_was_current:  # patch the dense grid in place (a grown map is caught by grid_for)
-            self._grid.refresh(self.df, rewritten)
+        if (
+            grid is not None and grid_was_current
+        ):  # patch the dense grid in place (a grown map is caught by grid_for)
+            grid.refresh(self.df, rewritten)
         return rewritten
 
     def _box_for(self, start: np.ndarray, goal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -267,17 +270,19 @@ class Planner:
                 return bad
         expansions = 0
         t_search = time.perf_counter()
+        raw: np.ndarray | None
         if _geom.clear(*grid.ctx(), s, g, True):
             raw = np.stack([s, g])
         else:
             raw = None
-            failure = None
+            failure: PlanResult | None = None
             for f in self.levels:
                 raw, failure, n_exp = self._search_level(grid, f, s, g)
                 expansions += n_exp
                 if raw is not None:
                     break
             if raw is None:
+                assert failure is not None  # a level without a path says why
                 failure.timings = {"grid": t_grid - t0, "total": time.perf_counter() - t0}
                 failure.expansions = expansions
                 return failure
@@ -306,7 +311,9 @@ class Planner:
             },
         )
 
-    def _search_level(self, grid: PlanningGrid, f: int, s: np.ndarray, g: np.ndarray):
+    def _search_level(
+        self, grid: PlanningGrid, f: int, s: np.ndarray, g: np.ndarray
+    ) -> tuple[np.ndarray | None, PlanResult | None, int]:
         """Search on level f: (raw polyline or None, failure PlanResult or None, expansions)."""
         starts, costs = self._connect(grid, f, s, 8)
         goals, _ = self._connect(grid, f, g, 1)

@@ -108,7 +108,7 @@ def overview_image(
         if len(c):
             uv = np.floor(view.px(c[:, :2])).astype(np.int64)
             ok = (uv[:, 0] >= 0) & (uv[:, 0] < W) & (uv[:, 1] >= 0) & (uv[:, 1] < H)
-            mask = np.zeros((H, W), np.uint8)
+            mask: np.ndarray = np.zeros((H, W), np.uint8)
             mask[uv[ok, 1], uv[ok, 0]] = 255
             r = max(1, int(round(0.25 * ppm)))
             mask = cv2.dilate(mask, np.ones((2 * r + 1, 2 * r + 1), np.uint8)) if r > 1 else mask

@@ -1,0 +1,23 @@
+"""Perception: what the drone's sensors tell the map.
+
+Today stereo depth (:class:`StereoDepth` with the rules in :class:`PerceptionSettings`, presets
+``mapping()`` for ``skyrecon map`` and ``flight()`` for the delivery loop); visual odometry
+is meant to live here too.
+"""
+
+from skyrecon.perception.settings import PerceptionSettings, stereo_hit_range_m
+from skyrecon.perception.stereo_depth import (
+    DepthFrame,
+    StereoDepth,
+    disparity_discontinuities,
+    strided_intrinsics,
+)
+
+__all__ = [
+    "DepthFrame",
+    "PerceptionSettings",
+    "StereoDepth",
+    "disparity_discontinuities",
+    "stereo_hit_range_m",
+    "strided_intrinsics",
+]

@@ -1,0 +1,126 @@
+"""The rules by which stereo becomes depth for the map, as one settings object with two presets.
+
+:meth:`PerceptionSettings.mapping` is what ``skyrecon map`` uses (accuracy first: full
+resolution, uniqueness test, discontinuity filter, obstacles only within the rig's trusted
+range); :meth:`PerceptionSettings.flight` is what the delivery loop uses (speed first: the fast
+half-resolution matcher, depth subsampled, matches at infinity carve free space).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
+from typing import Any
+
+from skyrecon.core.stereo_rig import StereoRig
+from skyrecon.errors import InputError
+from skyrecon.stereo import trusted_range_m
+
+_SKYRECON_MATCHERS = ("skyrecon", "skyrecon-fast")
+
+
+@dataclass(frozen=True)
+class PerceptionSettings:
+    """How a rectified stereo pair becomes a depth image for the occupancy map.
+
+    Attributes:
+        method: stereo matcher name (see :func:`skyrecon.stereo.available_matchers`).
+        max_disparity: disparity search range, pixels.
+        matcher_settings: settings of the matcher (see :func:`skyrecon.stereo.create_matcher`);
+            None: ``{"uniqueness": 0.05}`` for the skyrecon matchers, nothing for the others.
+        use_filled: also keep pixels the matcher filled by interpolation (off: they are
+            guesses, not measurements, and could carve free space through a textureless wall).
+        max_disparity_step_px: drop pixels whose 3x3 neighbourhood spans more disparity than
+            this, pixels (depth discontinuities, where smoothing puts points in the air between
+            foreground and background); None keeps them.
+        depth_stride: the depth image is ``depth[::stride, ::stride]`` of the full-resolution
+            one (with the matching camera, see :func:`strided_intrinsics`).
+        sky_is_free: matches at ``d + doffs <= 0`` (beyond any range: open sky) become +inf
+            depth, so the map carves free space along them up to its range; off: NaN (no evidence).
+        max_depth_error_m: obstacles are marked only within the trusted range where a
+            ``disparity_error_px`` disparity error moves depth by less than this, metres;
+            None: ``max_depth_error_voxels`` voxels of the map.
+        max_depth_error_voxels: the same bound in voxels of the map (used when
+            ``max_depth_error_m`` is None); None with ``max_depth_error_m`` None: no trusted-range limit.
+        disparity_error_px: the disparity error assumed for the trusted range, pixels.
+    """
+
+    method: str = "skyrecon"
+    max_disparity: int = 128
+    matcher_settings: Mapping[str, Any] | None = None
+    use_filled: bool = False
+    max_disparity_step_px: float | None = 1.0
+    depth_stride: int = 1
+    sky_is_free: bool = False
+    max_depth_error_m: float | None = None
+    max_depth_error_voxels: float | None = 2.0
+    disparity_error_px: float = 0.25
+
+    def __post_init__(self) -> None:
+        if not int(self.max_disparity) > 0:
+            raise InputError(f"max disparity must be positive, got {self.max_disparity} px")
+        if not (int(self.depth_stride) == self.depth_stride and self.depth_stride >= 1):
+            raise InputError(f"depth stride must be a positive integer, got {self.depth_stride}")
+        if self.max_depth_error_m is not None and not self.max_depth_error_m > 0:
+            raise InputError(f"max depth error must be positive, got {self.max_depth_error_m} m")
+        if self.max_depth_error_voxels is not None and not self.max_depth_error_voxels > 0:
+            raise InputError(f"max depth error must be positive, got {self.max_depth_error_voxels} voxels")
+        if not self.disparity_error_px > 0:
+            raise InputError(f"disparity error must be positive, got {self.disparity_error_px} px")
+        if self.max_disparity_step_px is not None and not self.max_disparity_step_px > 0:
+            raise InputError(f"max disparity step must be positive, got {self.max_disparity_step_px} px")
+
+    @classmethod
+    def mapping(cls, **overrides: Any) -> PerceptionSettings:
+        """What ``skyrecon map`` uses: full-resolution ``skyrecon`` matcher with a uniqueness
+        test, measured pixels away from discontinuities, sky dropped, obstacles within the
+        trusted range of 2 voxels of depth error. Keyword overrides on top."""
+        return replace(cls(), **overrides)
+
+    @classmethod
+    def flight(cls, **overrides: Any) -> PerceptionSettings:
+        """What the delivery loop uses: ``skyrecon-fast`` (half resolution) without extra
+        matcher settings, 64 px disparity, measured pixels, no discontinuity filter, depth
+        subsampled by 2, sky carves free space, no trusted-range limit (the map's range decides).
+        Keyword overrides on top."""
+        base = cls(
+            method="skyrecon-fast",
+            max_disparity=64,
+            matcher_settings={},
+            max_disparity_step_px=None,
+            depth_stride=2,
+            sky_is_free=True,
+            max_depth_error_voxels=None,
+        )
+        return replace(base, **overrides)
+
+    def matcher_kwargs(self) -> dict[str, Any]:
+        """The settings passed to :func:`skyrecon.stereo.create_matcher`."""
+        if self.matcher_settings is not None:
+            return dict(self.matcher_settings)
+        return {"uniqueness": 0.05} if self.method in _SKYRECON_MATCHERS else {}
+
+    def hit_range_m(self, rig: StereoRig, voxel_size_m: float, max_range_m: float) -> float:
+        """Range up to which measurements may mark obstacles, metres: ``max_range_m`` limited
+        to the rig's trusted range (see :func:`skyrecon.stereo.trusted_range_m`), if any."""
+        err = self.max_depth_error_m
+        if err is None and self.max_depth_error_voxels is not None:
+            err = self.max_depth_error_voxels * voxel_size_m
+        if err is None:
+            return float(max_range_m)
+        return float(min(max_range_m, trusted_range_m(rig, err, self.disparity_error_px)))
+
+
+def stereo_hit_range_m(
+    rig: StereoRig,
+    voxel_size_m: float,
+    max_range_m: float,
+    max_depth_error_m: float | None = None,
+    disparity_error_px: float = 0.25,
+) -> float:
+    """Range up to which stereo measurements may mark obstacles, metres.
+
+    ``min(max_range_m, trusted_range_m(rig, max_depth_error_m or 2 * voxel_size_m, disparity_error_px))``.
+    """
+    s = PerceptionSettings(max_depth_error_m=max_depth_error_m, disparity_error_px=disparity_error_px)
+    return s.hit_range_m(rig, voxel_size_m, max_range_m)

@@ -1,0 +1,133 @@
+"""Stereo depth for the map: rectified pair -> disparity -> filtered depth image.
+
+One stage for every user (``skyrecon map`` / :class:`skyrecon.mapping.StereoMapper` and the
+delivery loop); the rules are a :class:`~skyrecon.perception.settings.PerceptionSettings`.
+Per pair:
+
+1. disparity with the stereo matcher (built once, warmed up, kept between pairs);
+2. only *measured* disparities are kept (unless ``use_filled``), and, with
+   ``max_disparity_step_px``, none at a disparity discontinuity (full resolution);
+3. the disparity and the mask are subsampled by ``depth_stride`` and converted with the full
+   rig (disparities stay in full-resolution pixels): ``Z = f B / (d + doffs)``;
+4. matches at ``d + doffs <= 0`` become +inf (``sky_is_free``) or NaN.
+
+Frames and units: images (H, W, 3) uint8 RGB (or grey) of a rectified rig; depth (h, w)
+float32 metres along the left optical axis, NaN where not measured.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from skyrecon.core.intrinsics import Intrinsics
+from skyrecon.core.stereo_rig import StereoRig
+from skyrecon.errors import InputError
+from skyrecon.perception.settings import PerceptionSettings
+from skyrecon.stereo import Matcher, create_matcher
+
+
+def strided_intrinsics(cam: Intrinsics, stride: int) -> Intrinsics:
+    """The camera of ``image[::stride, ::stride]``: pixel (u, v) of the result is pixel
+    ``(stride u, stride v)`` of the original (no averaging), so ``f / stride`` and ``c / stride``."""
+    if stride == 1:
+        return cam
+    w = -(-cam.width // stride)
+    h = -(-cam.height // stride)
+    return Intrinsics(
+        cam.fx / stride, cam.fy / stride, cam.cx / stride, cam.cy / stride, w, h, skew=cam.skew / stride
+    )
+
+
+def disparity_discontinuities(disparity: np.ndarray, max_step_px: float) -> np.ndarray:
+    """(H, W) bool: pixels whose 3x3 neighbourhood spans more than ``max_step_px`` of disparity.
+
+    Args:
+        disparity: (H, W) float32 pixels, NaN invalid (an invalid neighbour counts as 0, so the
+            pixels bordering invalid ones are flagged too).
+    """
+    d = np.nan_to_num(np.asarray(disparity, dtype=np.float32), nan=0.0, posinf=0.0, neginf=0.0)
+    k = np.ones((3, 3), np.uint8)
+    return (cv2.dilate(d, k) - cv2.erode(d, k)) > max_step_px
+
+
+@dataclass(eq=False)
+class DepthFrame:
+    """The depth of one stereo pair, ready for the map.
+
+    Attributes:
+        depth_m: (h, w) float32 depth along the left optical axis, metres, NaN where not kept,
+            +inf for matches beyond any range when ``sky_is_free``; (h, w) is the image size
+            divided by the depth stride.
+        intrinsics: the camera of ``depth_m``.
+        disparity: (H, W) float32 full-resolution disparity of the matcher, pixels, NaN invalid.
+        measured_fraction: share of pixels with a measured disparity.
+        stereo_ms: wall-clock milliseconds of matching and conversion.
+    """
+
+    depth_m: np.ndarray
+    intrinsics: Intrinsics
+    disparity: np.ndarray
+    measured_fraction: float
+    stereo_ms: float
+
+
+class StereoDepth:
+    """A reusable stereo-to-depth stage for one rectified rig.
+
+    Args:
+        rig: the rectified rig the pairs come from (``rig.left`` is the depth's camera).
+        settings: the rules (default :meth:`PerceptionSettings.mapping`).
+        matcher: optional matcher to use instead of building one from the settings (e.g. one
+            already warmed up by another stage); otherwise built and warmed up on first use.
+    """
+
+    def __init__(
+        self, rig: StereoRig, settings: PerceptionSettings | None = None, matcher: Matcher | None = None
+    ):
+        if not rig.is_rectified:
+            raise InputError("the stereo rig is not rectified; stereo depth needs a rectified pair")
+        self.rig = rig
+        self.settings = settings or PerceptionSettings.mapping()
+        self.stride = int(self.settings.depth_stride)
+        self.intrinsics = strided_intrinsics(rig.left, self.stride)
+        self._matcher = matcher
+
+    @property
+    def matcher(self) -> Matcher:
+        """The stereo matcher (created, and warmed up, on first use)."""
+        if self._matcher is None:
+            s = self.settings
+            self._matcher = create_matcher(s.method, int(s.max_disparity), **s.matcher_kwargs())
+            warmup = getattr(self._matcher, "warmup", None)
+            if warmup is not None:
+                warmup()
+        return self._matcher
+
+    def compute(self, left: np.ndarray, right: np.ndarray) -> DepthFrame:
+        """Depth of one rectified pair, each (H, W, 3) uint8 RGB (or (H, W) grey)."""
+        t0 = time.perf_counter()
+        self.rig.left.check_image(np.asarray(left), "left image")
+        result = self.matcher.compute(left, right)
+        s = self.settings
+        keep = result.valid if s.use_filled else result.measured
+        if s.max_disparity_step_px is not None:
+            keep = keep & ~disparity_discontinuities(result.disparity, s.max_disparity_step_px)
+        k = self.stride
+        disp = result.disparity[::k, ::k]
+        keep = keep[::k, ::k]
+        # disparities stay in full-resolution pixels, so the full rig converts them
+        depth = self.rig.disparity_to_depth(np.where(keep, disp, np.float32(np.nan)))
+        if s.sky_is_free:
+            with np.errstate(invalid="ignore"):
+                depth[keep & (disp + self.rig.doffs_px <= 0)] = np.inf
+        depth = np.ascontiguousarray(depth, dtype=np.float32)
+        ms = 1e3 * (time.perf_counter() - t0)
+        return DepthFrame(depth, self.intrinsics, result.disparity, float(result.measured.mean()), ms)
+
+    def depth(self, left: np.ndarray, right: np.ndarray) -> np.ndarray:
+        """(h, w) float32 depth of one pair, metres (see :meth:`compute`)."""
+        return self.compute(left, right).depth_m

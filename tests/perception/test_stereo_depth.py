@@ -1,0 +1,99 @@
+"""The perception layer: stereo -> filtered depth for the map, with the mapping and flight presets
+reproducing the rules of ``skyrecon map`` and of the delivery loop exactly."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from skyrecon.core import Rigid3, StereoRig
+from skyrecon.errors import InputError
+from skyrecon.perception import (
+    PerceptionSettings,
+    StereoDepth,
+    disparity_discontinuities,
+    stereo_hit_range_m,
+    strided_intrinsics,
+)
+from skyrecon.sim import default_rig, flight_poses, generate_city, render_stereo
+from skyrecon.stereo import create_matcher, disparity_to_depth
+
+
+@pytest.fixture(scope="module")
+def pair():
+    """(rig, frame): one 320x240 stereo frame (0.6 m baseline) of a flight down a street."""
+    city = generate_city(7, 200.0)
+    rig = default_rig(320, 240, 90.0, 0.6)
+    pose = flight_poses(city, 1, seed=7, fps=2.0)[0]
+    return rig, render_stereo(city, rig, pose.inverse())
+
+
+def test_mapping_preset_keeps_measured_pixels_away_from_discontinuities(pair):
+    rig, f = pair
+    stage = StereoDepth(rig, PerceptionSettings.mapping())
+    frame = stage.compute(f.left, f.right)
+    # the rule of StereoMapper before the layer existed
+    result = create_matcher("skyrecon", 128, uniqueness=0.05).compute(f.left, f.right)
+    keep = result.measured & ~disparity_discontinuities(result.disparity, 1.0)
+    expected = disparity_to_depth(np.where(keep, result.disparity, np.float32(np.nan)), rig)
+    np.testing.assert_array_equal(frame.depth_m, expected)
+    assert frame.intrinsics is rig.left and frame.depth_m.dtype == np.float32
+    assert not np.isinf(frame.depth_m).any()  # sky gives no evidence with this preset
+    ok = np.isfinite(frame.depth_m)
+    near = ok & np.isfinite(f.depth_left_m) & (frame.depth_m < 20.0)
+    assert ok.mean() > 0.5 and np.median(np.abs(frame.depth_m[near] - f.depth_left_m[near])) < 0.3
+
+
+def test_flight_preset_subsamples_and_carves_sky(pair):
+    rig, f = pair
+    stage = StereoDepth(rig, PerceptionSettings.flight())
+    frame = stage.compute(f.left, f.right)
+    assert frame.depth_m.shape == (120, 160) and frame.intrinsics.fx == pytest.approx(rig.left.fx / 2)
+    # the rule of the mission's StereoDepth before the layer existed
+    result = create_matcher("skyrecon-fast", 64).compute(f.left, f.right)
+    disp, measured = result.disparity[::2, ::2], result.measured[::2, ::2]
+    expected = rig.disparity_to_depth(np.where(measured, disp, np.float32(np.nan)))
+    with np.errstate(invalid="ignore"):
+        expected[measured & (disp + rig.doffs_px <= 0)] = np.inf
+    np.testing.assert_array_equal(frame.depth_m, expected)
+    assert frame.measured_fraction == pytest.approx(float(result.measured.mean()))
+    assert frame.disparity.shape == (240, 320) and frame.stereo_ms > 0
+
+
+def test_hit_range_of_the_presets(pair):
+    rig, _ = pair
+    mapping = PerceptionSettings.mapping()
+    assert mapping.hit_range_m(rig, 0.5, 40.0) == pytest.approx(stereo_hit_range_m(rig, 0.5, 40.0))
+    assert mapping.hit_range_m(rig, 0.5, 40.0) < 40.0
+    assert mapping.hit_range_m(rig, 0.5, 10.0) == 10.0
+    assert PerceptionSettings.flight().hit_range_m(rig, 0.5, 20.0) == 20.0  # the map's range decides
+    assert PerceptionSettings.mapping(max_depth_error_m=100.0).hit_range_m(rig, 0.5, 40.0) == 40.0
+
+
+def test_matcher_settings_and_reuse(pair):
+    rig, _ = pair
+    assert PerceptionSettings.mapping().matcher_kwargs() == {"uniqueness": 0.05}
+    assert PerceptionSettings.mapping(method="opencv-sgbm").matcher_kwargs() == {}
+    assert PerceptionSettings.flight().matcher_kwargs() == {}
+    matcher = create_matcher("skyrecon-fast", 64)
+    assert StereoDepth(rig, PerceptionSettings.flight(), matcher).matcher is matcher
+
+
+def test_bad_input(pair):
+    rig, f = pair
+    for bad in ({"depth_stride": 0}, {"max_depth_error_m": -1.0}, {"max_disparity_step_px": 0.0}):
+        with pytest.raises(InputError):
+            PerceptionSettings.mapping(**bad)
+    tilted = Rigid3.from_rotvec(np.array([0.0, 0.05, 0.0]), rig.right_from_left.t)
+    unrectified = StereoRig(rig.left, rig.right, tilted)
+    with pytest.raises(InputError, match="not rectified"):
+        StereoDepth(unrectified)
+    with pytest.raises(InputError, match="calibration"):
+        StereoDepth(rig, PerceptionSettings.flight()).compute(f.left[:100], f.right[:100])
+
+
+def test_strided_intrinsics(pair):
+    rig, _ = pair
+    cam = strided_intrinsics(rig.left, 3)
+    assert (cam.width, cam.height) == (107, 80) and cam.cx == pytest.approx(rig.left.cx / 3)
+    assert strided_intrinsics(rig.left, 1) is rig.left
