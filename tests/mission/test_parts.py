@@ -17,6 +17,7 @@ from skyrecon.mission.vehicle import (
     point_along,
     sample_path,
     step,
+    turn_speed,
     wrap_angle,
 )
 from skyrecon.sim import look_from
@@ -59,7 +60,9 @@ def test_path_helpers():
     cfg = MissionConfig()
     assert corner_speed_limit(path, cfg, 20.0) == cfg.cruise_speed_mps  # 10 m is enough to slow down
     near = np.array([[0.0, 0, 0], [3, 0, 0], [3, 10, 0]])  # a right angle 3 m ahead
-    assert corner_speed_limit(near, cfg, 20.0) == np.float64(math.sqrt(1.0 + 2 * cfg.max_accel_mps2 * 3.0))
+    slow = MissionConfig(max_accel_mps2=2.0)  # 3 m is too short to slow from 6 m/s to the turn speed
+    v_turn = turn_speed(math.pi / 2, slow)
+    assert corner_speed_limit(near, slow, 20.0) == np.float64(math.sqrt(v_turn**2 + 2 * 2.0 * 3.0)) < 6.0
     assert corner_speed_limit(near[:2], cfg, 20.0) == cfg.cruise_speed_mps
 
 
@@ -121,7 +124,9 @@ def test_guidance_brakes_before_unobserved_space_and_looks_at_it():
     free = guide(rest, s, cfg.verify_horizon_m, cfg)
     assert free.speed_limit == cfg.cruise_speed_mps and free.look_within_rad is not None
     g = guide(rest, s, 5.0, cfg)  # unobserved from 5 m on
-    assert g.speed_limit == np.float64(math.sqrt(2 * cfg.max_accel_mps2 * (5.0 - cfg.verify_buffer_m)))
+    a, t = cfg.max_accel_mps2, cfg.reaction_s  # stop (after reacting) before the buffer
+    assert g.speed_limit == np.float64(-a * t + math.sqrt((a * t) ** 2 + 2 * a * (5.0 - cfg.verify_buffer_m)))
+    assert g.limit is not None and g.limit.reason == "path_seen"
     assert np.allclose(g.look_at, [5.0, 0, 15]) and g.look_within_rad is None
     assert guide(rest, s, 1.0, cfg).speed_limit == 0.0  # within the buffer: stop
     h = hover(np.zeros(3), np.array([10.0, 0, 0]))

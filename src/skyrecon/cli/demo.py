@@ -28,6 +28,7 @@ from skyrecon.errors import InputError
 from skyrecon.executor import get_executor
 from skyrecon.mission import MissionConfig
 from skyrecon.mission.batch import fly_and_write, mission_line, run_missions
+from skyrecon.mission.safety import speed_warning
 from skyrecon.progress import progress, progress_enabled
 
 EXAMPLES = """  skyrecon demo                                  # one delivery, seed 0, into ./demo_out/
@@ -70,6 +71,17 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--height", type=positive_int, help="camera image height, pixels (default 480)")
     p.add_argument("--speed", type=positive_float, help="cruise speed, m/s (default 6)")
     p.add_argument(
+        "--max-accel",
+        type=positive_float,
+        help="the vehicle's acceleration and braking limit, m/s^2 (default 5); with the rig's trusted "
+        "range it sets the highest speed the drone can stop from (a faster --speed is capped, with a warning)",
+    )
+    p.add_argument(
+        "--max-range",
+        type=positive_float,
+        help="depth is trusted up to this range, metres (default 20); farther matches only carve free space",
+    )
+    p.add_argument(
         "--clearance", type=positive_float, help="distance kept from mapped obstacles, metres (default 2)"
     )
     p.add_argument(
@@ -92,6 +104,8 @@ def _config(args):
         width=args.width,
         height=args.height,
         cruise_speed_mps=args.speed,
+        max_accel_mps2=args.max_accel,
+        max_range_m=args.max_range,
         clearance_m=args.clearance,
         time_limit_s=args.time_limit,
         max_altitude_m=args.max_altitude,
@@ -160,6 +174,9 @@ def run(args: argparse.Namespace) -> int:
     if (start is None) != (goal is None):
         raise InputError("give both --start and --goal, or neither (then the seed picks them)")
     out = output_dir(args.out)
+    warning = speed_warning(cfg)
+    if warning:  # shown even with --quiet: the user asked for a speed the drone will not fly
+        info(f"warning: {warning}")
     if args.missions > 1:
         if start is not None:
             raise InputError("--start/--goal fix one mission; drop them with --missions")

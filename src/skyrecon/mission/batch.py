@@ -42,7 +42,12 @@ SUMMARY_KEYS = (
     "length_ratio",
     "replans",
     "loop_hz",
+    "loop_ms_p99",
     "flight_time_s",
+    "mean_speed_mps",
+    "speed_ratio",
+    "stop_limited_fraction",
+    "stop_rule_ok",
     "wall_s",
 )
 

@@ -44,7 +44,7 @@ class MissionConfig:
             10 m (poles, trees and overhead wires stay below), so the band starts at 12 m.
     Vehicle:
         cruise_speed_mps: top speed, m/s.
-        max_accel_mps2: acceleration and braking limit, m/s^2.
+        max_accel_mps2: acceleration and braking limit, m/s^2 (5: a multirotor tilting about 27 degrees).
         max_yaw_rate_deg_s: turn-rate limit, degrees/s.
         max_heading_error_deg: the drone only moves while the camera looks within this angle of
             its direction of travel (it turns on the spot otherwise).
@@ -52,6 +52,8 @@ class MissionConfig:
         safety_margin_m: the mission's clearance target: the true distance to every obstacle
             stays above this, metres (reported as ``clearance_ok``).
         cycle_hz: rate of the sense-plan-act loop in simulated time (one stereo frame per cycle).
+        latency_budget_s: the loop's latency budget, seconds: the stopping rule reacts one cycle
+            plus this late (:mod:`skyrecon.mission.safety`); cycles slower than it are counted.
         verify_buffer_m: the drone stops this far before the first stretch of its path it has
             not yet observed free, metres.
         verify_radius_m: radius of the tube around the path that must be observed (not unknown).
@@ -83,12 +85,13 @@ class MissionConfig:
     min_altitude_m: float = 12.0
     max_altitude_m: float = 30.0
     cruise_speed_mps: float = 6.0
-    max_accel_mps2: float = 3.0
+    max_accel_mps2: float = 5.0
     max_yaw_rate_deg_s: float = 90.0
     max_heading_error_deg: float = 45.0
     drone_radius_m: float = 0.35
     safety_margin_m: float = 1.0
     cycle_hz: float = 10.0
+    latency_budget_s: float = 0.1
     verify_buffer_m: float = 1.5
     verify_radius_m: float = 1.0
     verify_skip_m: float = 1.5
@@ -144,6 +147,8 @@ class MissionConfig:
             )
         if not 0 < self.min_goal_distance_m <= self.max_goal_distance_m:
             raise InputError("need 0 < min_goal_distance_m <= max_goal_distance_m")
+        if not self.latency_budget_s >= 0:
+            raise InputError(f"latency_budget_s must be at least 0, got {self.latency_budget_s}")
         if self.time_limit_s is not None and not self.time_limit_s > 0:
             raise InputError(f"time_limit_s must be positive, got {self.time_limit_s}")
 
@@ -168,9 +173,15 @@ class MissionConfig:
         return 0.5 * math.sqrt(3.0) * self.voxel_size_m
 
     @property
+    def reaction_s(self) -> float:
+        """Seconds from an observation to the vehicle acting on it: one cycle plus the latency budget."""
+        return self.dt + self.latency_budget_s
+
+    @property
     def stopping_distance_m(self) -> float:
-        """Braking distance from cruise speed, metres."""
-        return self.cruise_speed_mps**2 / (2 * self.max_accel_mps2)
+        """Distance to stop from cruise speed (reaction, then braking), metres."""
+        v = self.cruise_speed_mps
+        return v * self.reaction_s + v**2 / (2 * self.max_accel_mps2)
 
     @property
     def verify_horizon_m(self) -> float:

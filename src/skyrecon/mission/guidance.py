@@ -3,10 +3,11 @@
 Given the rest of the path (starting at the drone) and how far along it space has been
 observed free (:meth:`~skyrecon.mission.navigator.Navigator.verified_distance`):
 
-* **speed limit**: the lowest of the cruise speed, the speed from which the drone can stop
-  ``verify_buffer_m`` before the first unobserved point, the speed from which it can stop at
-  the goal, and the speed allowed by the turns ahead
-  (:func:`~skyrecon.mission.vehicle.corner_speed_limit`);
+* **speed limit** (:func:`~skyrecon.mission.safety.speed_limit`): the lowest of the cruise
+  speed, the speeds from which the drone can stop ``verify_buffer_m`` before the first
+  unobserved point of the path and before the end of the known-free space along its current
+  velocity (the stopping rule), the speed from which it can stop at the goal, and the speed
+  allowed by the turns ahead (:func:`~skyrecon.mission.vehicle.corner_speed_limit`);
 * **pursuit point** (carrot): on the path 1 to 2.5 m ahead (further when faster);
 * **look-at point**: the first unobserved point when there is one within the horizon (the drone
   turns to look at it, and stops if it must), else the path point ``verify_horizon_m`` ahead,
@@ -23,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from skyrecon.mission.config import MissionConfig
+from skyrecon.mission.safety import SpeedLimit, speed_limit
 from skyrecon.mission.vehicle import DroneState, corner_speed_limit, point_along
 
 
@@ -33,6 +35,7 @@ class Guidance:
     Attributes:
         carrot: (3,) pursuit point, world metres.
         speed_limit: m/s.
+        limit: the speed limit with what set it (None when hovering without a path).
         look_at: (3,) where the camera should look, world metres.
         look_within_rad: clamp of the look-at bearing around the direction of motion, or None.
         to_go_m: length of the rest of the path, metres.
@@ -43,27 +46,28 @@ class Guidance:
     look_at: np.ndarray
     look_within_rad: float | None
     to_go_m: float
+    limit: SpeedLimit | None = None
 
 
-def guide(rest: np.ndarray, state: DroneState, verified_m: float, cfg: MissionConfig) -> Guidance:
+def guide(
+    rest: np.ndarray,
+    state: DroneState,
+    verified_m: float,
+    cfg: MissionConfig,
+    momentum_room_m: float = math.inf,
+) -> Guidance:
     """Guidance along ``rest`` (K >= 2, 3) world metres, whose first ``verified_m`` metres are
-    observed free (``cfg.verify_horizon_m`` when all of the horizon is)."""
+    observed free (``cfg.verify_horizon_m`` when all of the horizon is), with ``momentum_room_m``
+    metres known free along the drone's current velocity."""
     horizon = cfg.verify_horizon_m
     to_go = float(np.linalg.norm(np.diff(rest, axis=0), axis=1).sum())
-    room = max(0.0, verified_m - cfg.verify_buffer_m) if verified_m < horizon else math.inf
-    a = cfg.max_accel_mps2
-    speed_limit = min(
-        cfg.cruise_speed_mps,
-        math.sqrt(2 * a * room),
-        math.sqrt(2 * a * to_go) + 0.2,
-        corner_speed_limit(rest, cfg, horizon),
-    )
+    limit = speed_limit(cfg, verified_m, momentum_room_m, to_go, corner_speed_limit(rest, cfg, horizon))
     carrot = point_along(rest, max(1.0, min(2.5, 0.4 * state.speed + 1.0)))
     if verified_m < horizon:
         look, within = point_along(rest, verified_m), None
     else:
         look, within = point_along(rest, min(horizon, to_go)), 0.5 * math.radians(cfg.max_heading_error_deg)
-    return Guidance(carrot, speed_limit, look, within, to_go)
+    return Guidance(carrot, limit.value_mps, look, within, to_go, limit)
 
 
 def hover(position: np.ndarray, goal: np.ndarray) -> Guidance:

@@ -62,6 +62,9 @@ class CycleRecord:
         verified_m: how far ahead the path was observed free, metres.
         to_go_m: length of the remaining planned path, metres.
         measured_fraction: share of pixels the matcher measured.
+        speed_limit_mps: the cycle's speed limit; stop_limit_mps: the stopping rule's part of it
+            (:mod:`skyrecon.mission.safety`); limit_reason: what set the limit.
+        momentum_room_m: known-free room along the velocity at the start of the cycle, metres.
     """
 
     cycle: int
@@ -78,6 +81,15 @@ class CycleRecord:
     verified_m: float
     to_go_m: float
     measured_fraction: float
+    speed_limit_mps: float = 0.0
+    stop_limit_mps: float = 0.0
+    limit_reason: str = "hover"
+    momentum_room_m: float = math.inf
+
+    @property
+    def stop_limited(self) -> bool:
+        """The stopping rule set this cycle's speed limit."""
+        return self.limit_reason in ("path_seen", "momentum", "rig")
 
     @property
     def loop_ms(self) -> float:
@@ -101,6 +113,12 @@ class CycleRecord:
             "verified_m": round(self.verified_m, 2),
             "to_go_m": round(self.to_go_m, 2),
             "measured_fraction": round(self.measured_fraction, 4),
+            "speed_limit_mps": round(self.speed_limit_mps, 3),
+            "stop_limit_mps": round(self.stop_limit_mps, 3),
+            "limit_reason": self.limit_reason,
+            "momentum_room_m": round(self.momentum_room_m, 2)
+            if math.isfinite(self.momentum_room_m)
+            else None,
         }
 
 
@@ -271,13 +289,21 @@ def run_mission(
         # control: how far the path is seen free, how fast we may go, where we look
         t0 = time.perf_counter()
         rest = nav.rest(p) if len(nav.waypoints) else np.zeros((0, 3))
+        momentum = nav.free_along(p, state.velocity, cfg.verify_horizon_m)
         if len(rest) >= 2 and (outcome.clear or replan_ok):
             verified = nav.verified_distance(rest, cfg.verify_horizon_m, cfg.verify_skip_m)
-            g = guide(rest, state, verified, cfg)
+            g = guide(rest, state, verified, cfg, momentum)
         else:
             verified, g = 0.0, hover(p, scenario.goal)
+        brake = g.limit is not None and state.speed > g.limit.stop_mps + 1e-9
         new_state = step(
-            state, g.carrot, g.speed_limit, cfg, look_at=g.look_at, look_within_rad=g.look_within_rad
+            state,
+            g.carrot,
+            g.speed_limit,
+            cfg,
+            look_at=g.look_at,
+            look_within_rad=g.look_within_rad,
+            brake=brake,
         )
         ms["control"] = 1e3 * (time.perf_counter() - t0)
         clearance = _truth_clearance(scenario, p, new_state.position)
@@ -296,6 +322,10 @@ def run_mission(
             verified,
             g.to_go_m,
             depth.measured_fraction,
+            g.speed_limit,
+            g.limit.stop_mps if g.limit is not None else 0.0,
+            g.limit.reason if g.limit is not None else "hover",
+            momentum,
         )
         records.append(rec)
         keeper.offer(cycle, frame.left, depth.disparity, replanned)

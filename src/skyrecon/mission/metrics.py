@@ -9,6 +9,14 @@
   altitude band; ``length_ratio``: flown / shortest feasible;
 * ``replans``: cycles in which a new path was planned after the first one;
 * ``loop_hz``: 1000 / median milliseconds of the loop without rendering;
+* ``loop_ms_p50/p95/p99/max``: the loop's milliseconds per cycle (rendering excluded), and
+  ``latency_overruns``: cycles slower than the latency budget the stopping rule assumes;
+* the stopping rule (:mod:`skyrecon.mission.safety`): ``speed_supported_mps`` (the highest
+  speed the rig's trusted range lets the drone stop from), ``mean_speed_mps`` (flown length over
+  flight time) and ``speed_ratio`` (over the cruise speed), ``stop_limited_fraction`` (share of
+  cycles whose speed limit the stopping rule set), ``braking_cycles`` (cycles braking at full
+  deceleration because the limit fell below the speed) and ``stop_rule_ok`` (every cycle was
+  within the stopping rule's limit or braking at full deceleration along a line checked free);
 * ``stage_ms``: per stage (render, stereo, integrate, distance, check, replan, control, loop)
   the median, 95th percentile and mean in milliseconds.
 """
@@ -19,7 +27,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from skyrecon.mission.loop import LOOP_STAGES, STAGES, MissionResult
+from skyrecon.mission.loop import LOOP_STAGES, STAGES, CycleRecord, MissionResult
+from skyrecon.mission.safety import rig_supported_speed, speed_warning
 
 
 def _stats(values: np.ndarray | Sequence[float]) -> dict:
@@ -38,6 +47,25 @@ def path_length(points: np.ndarray) -> float:
     """Length of a polyline (N, 3), metres."""
     p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     return float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum()) if len(p) > 1 else 0.0
+
+
+def stop_rule_holds(records: list[CycleRecord], max_accel_mps2: float, dt: float) -> list[bool]:
+    """Per cycle: the speed after the cycle's step is within the stopping rule's limit, or the
+    drone braked at full deceleration (the speed fell by ``max_accel_mps2 * dt``, or to 0)."""
+    out, prev = [], 0.0
+    for r in records:
+        braked = r.speed_mps <= max(0.0, prev - 0.999 * max_accel_mps2 * dt) + 1e-9
+        out.append(bool(r.speed_mps <= r.stop_limit_mps + 1e-6 or braked))
+        prev = r.speed_mps
+    return out
+
+
+def _percentiles(loop_ms: np.ndarray) -> dict:
+    keys = ("loop_ms_p50", "loop_ms_p95", "loop_ms_p99", "loop_ms_max")
+    if loop_ms.size == 0:
+        return dict.fromkeys(keys)
+    vals = [*np.percentile(loop_ms, [50, 95, 99]), loop_ms.max()]
+    return {k: round(float(v), 2) for k, v in zip(keys, vals)}
 
 
 def mission_metrics(result: MissionResult) -> dict:
@@ -71,6 +99,15 @@ def mission_metrics(result: MissionResult) -> dict:
         "loop_hz": round(1000.0 / med, 2) if med > 0 else None,
         "loop_stages": list(LOOP_STAGES),
         "stage_ms": stage_ms,
+        **_percentiles(loop),
+        "latency_overruns": int(np.sum(loop > 1e3 * cfg.latency_budget_s)),
+        "speed_supported_mps": round(rig_supported_speed(cfg), 2),
+        "mean_speed_mps": round(flown / (len(recs) * cfg.dt), 3) if recs else None,
+        "speed_ratio": round(flown / (len(recs) * cfg.dt) / cfg.cruise_speed_mps, 4) if recs else None,
+        "stop_limited_fraction": round(float(np.mean([r.stop_limited for r in recs])), 4) if recs else None,
+        "braking_cycles": int(sum(1 for r in recs if r.speed_mps > r.stop_limit_mps + 1e-6)),
+        "stop_rule_ok": all(stop_rule_holds(recs, cfg.max_accel_mps2, cfg.dt)),
+        "warnings": [w for w in (speed_warning(cfg),) if w],
         "cycles": len(recs),
         "flight_time_s": round(len(recs) * cfg.dt, 2),
         "distance_to_goal_m": round(float(np.linalg.norm(result.final_position - sc.goal)), 3),

@@ -236,6 +236,28 @@ class Navigator:
         bad = np.flatnonzero(~ok)
         return float(s[bad[0]]) if len(bad) else horizon_m
 
+    def free_along(self, position: np.ndarray, velocity: np.ndarray, horizon_m: float) -> float:
+        """How far along the straight line from ``position`` (3,) in the direction of ``velocity``
+        (3,) world m/s the space is known free (observed, as :meth:`verified_distance` checks a
+        path) and keeps ``drone_radius_m + safety_margin_m`` from every mapped obstacle: where the
+        drone's momentum carries it if it brakes now.
+
+        Returns:
+            Metres (at most ``horizon_m``); ``inf`` when the drone is about still (below 0.5 m/s).
+        """
+        v = np.asarray(velocity, dtype=np.float64)
+        speed = float(np.linalg.norm(v))
+        if speed < 0.5:
+            return float("inf")
+        p = np.asarray(position, dtype=np.float64)
+        ray = np.stack([p, p + v / speed * horizon_m])
+        seen = self.verified_distance(ray, horizon_m, self.cfg.verify_skip_m)
+        pts, s = sample_path(ray, 0.5 * self.cfg.voxel_size_m, seen)
+        grid = self.planner.grid_for(pts.min(axis=0), pts.max(axis=0))
+        near = np.flatnonzero(grid.distance(pts) < self.cfg.drone_radius_m + self.cfg.safety_margin_m)
+        near = near[s[near] >= self.cfg.verify_skip_m]
+        return float(min(seen, s[near[0]])) if len(near) else seen
+
     def counts(self) -> dict:
         """Occupied / free / unknown voxel counts of the map (allocated blocks)."""
         return self.map.counts()

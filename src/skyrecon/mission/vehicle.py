@@ -82,10 +82,25 @@ def sample_path(path: np.ndarray, step: float, max_length: float) -> tuple[np.nd
     return pts, s
 
 
+def turn_speed(turn_rad: float, cfg: MissionConfig) -> float:
+    """Highest speed at which the drone takes a corner of ``turn_rad`` radians without cutting it
+    by more than the room the clearance leaves (``clearance_m - drone_radius_m - safety_margin_m``,
+    at least 0.25 m), m/s (at least 1).
+
+    Turning at its acceleration limit ``a`` from speed ``v`` the drone flies an arc of radius
+    ``v^2 / a``, which passes ``r (1 / cos(turn / 2) - 1)`` inside the corner.
+    """
+    room = max(0.25, cfg.clearance_m - cfg.drone_radius_m - cfg.safety_margin_m)
+    excess = 1.0 / max(math.cos(0.5 * min(abs(turn_rad), 0.99 * math.pi)), 1e-6) - 1.0
+    if excess < 1e-9:
+        return math.inf
+    return max(1.0, math.sqrt(cfg.max_accel_mps2 * room / excess))
+
+
 def corner_speed_limit(path: np.ndarray, cfg: MissionConfig, horizon_m: float) -> float:
     """Highest speed from which the drone can slow down for the turns of ``path`` (K, 3) (starting
     at the drone) within ``horizon_m``: each turn of angle a at distance s allows
-    ``sqrt(v_turn(a)^2 + 2 a_max s)``, with ``v_turn`` the cruise speed times cos(a) (at least 1 m/s)."""
+    ``sqrt(turn_speed(a)^2 + 2 a_max s)`` (:func:`turn_speed`)."""
     limit = cfg.cruise_speed_mps
     if len(path) < 3:
         return limit
@@ -101,7 +116,7 @@ def corner_speed_limit(path: np.ndarray, cfg: MissionConfig, horizon_m: float) -
         if na < 1e-9 or nb < 1e-9:
             continue
         cos_t = float(np.clip(a @ b / (na * nb), -1.0, 1.0))
-        v_turn = max(1.0, cfg.cruise_speed_mps * max(cos_t, 0.0) ** 2)
+        v_turn = turn_speed(math.acos(cos_t), cfg)
         limit = min(limit, math.sqrt(v_turn**2 + 2 * cfg.max_accel_mps2 * s))
     return limit
 
@@ -113,6 +128,7 @@ def step(
     cfg: MissionConfig,
     look_at: np.ndarray | None = None,
     look_within_rad: float | None = None,
+    brake: bool = False,
 ) -> DroneState:
     """Advance the drone by one cycle towards ``carrot`` (3,) world metres.
 
@@ -122,6 +138,10 @@ def step(
     ``max_heading_error_deg`` of its direction of motion (slower the larger the error), at most
     ``speed_limit``, its velocity changing by at most ``max_accel_mps2 * dt``. The camera
     pitches towards the look-at point (plus ``camera_pitch_deg``), within ``max_camera_pitch_deg``.
+
+    With ``brake`` the drone brakes at ``max_accel_mps2`` along its current velocity instead (the
+    stopping rule's response when it is faster than it can stop in the space ahead: braking in a
+    straight line keeps it on the line that was checked free).
     """
     dt = cfg.dt
     p = state.position
@@ -155,6 +175,13 @@ def step(
     if n > max_dv:
         dv *= max_dv / n
     v = state.velocity + dv
+    if brake:
+        speed_now = state.speed
+        v = (
+            state.velocity * (max(0.0, speed_now - max_dv) / speed_now)
+            if speed_now > 1e-9
+            else state.velocity
+        )
     climb = math.atan2(q[2], max(q_h, 1e-6)) if float(np.linalg.norm(q)) > 0.3 else 0.0
     lim = math.radians(cfg.max_camera_pitch_deg)
     pitch = float(np.clip(math.radians(cfg.camera_pitch_deg) - climb, -lim, lim))

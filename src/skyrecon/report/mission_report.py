@@ -331,8 +331,9 @@ def render_mission_report(result, metrics: dict, extra_notes: Sequence[str] = ()
         [
             ("true clearance (m)", np.minimum(clr, 15.0), (70, 120, 230)),
             ("speed (m/s)", np.array([r.speed_mps for r in recs]), (20, 150, 60)),
+            ("stopping-rule limit (m/s)", np.array([r.stop_limit_mps for r in recs]), (200, 120, 20)),
         ],
-        "clearance to the true geometry and speed vs. simulated time (s)",
+        "clearance to the true geometry, speed and the speed it can stop from vs. simulated time (s)",
         [(f"safety margin {cfg.safety_margin_m:g} m", cfg.safety_margin_m, (200, 40, 40))],
         y_max=max(10.0, cfg.cruise_speed_mps * 1.2),
     )
@@ -355,6 +356,26 @@ def render_mission_report(result, metrics: dict, extra_notes: Sequence[str] = ()
         ("length ratio", m["length_ratio"], ratio_note),
         ("replans", m["replans"], "new paths after the first"),
         ("loop rate (Hz)", m["loop_hz"], "median, rendering excluded; target >= 10"),
+        (
+            "loop p99 (ms)",
+            m["loop_ms_p99"],
+            f"max {m['loop_ms_max']} ms; latency budget {1e3 * cfg.latency_budget_s:g} ms",
+        ),
+        (
+            "mean speed (m/s)",
+            m["mean_speed_mps"],
+            f"cruise {cfg.cruise_speed_mps:g} m/s; the rig supports {m['speed_supported_mps']} m/s",
+        ),
+        (
+            "stop-limited cycles",
+            m["stop_limited_fraction"],
+            "share of cycles the stopping rule set the speed",
+        ),
+        (
+            "stopping rule held",
+            m["stop_rule_ok"],
+            f"braking at full deceleration in {m['braking_cycles']} cycles",
+        ),
         ("flight time (s)", m["flight_time_s"], "simulated"),
         ("cycles", m["cycles"], f"{cfg.cycle_hz:g} per simulated second"),
         ("measured pixels", m["mean_measured_fraction"], "mean share with a stereo match"),
@@ -371,6 +392,7 @@ def render_mission_report(result, metrics: dict, extra_notes: Sequence[str] = ()
         f"{cfg.max_yaw_rate_deg_s:g}°/s; drone radius {cfg.drone_radius_m:g} m"
     )
     notes = "".join(f"<p><small>{html.escape(n)}</small></p>" for n in extra_notes)
+    notes += "".join(f"<p><b>Warning:</b> {html.escape(w)}</p>" for w in m.get("warnings", []))
     body = [
         f"<h1>Delivery mission, seed {sc.seed}</h1>",
         f"<p>From {_xyz(sc.start)} to {_xyz(sc.goal)} ({sc.straight_line_m:.0f} m apart, buildings in between) through "

@@ -1,0 +1,108 @@
+"""The stopping rule: formulas, the speed limit's parts, the rig's supported speed, and the rule
+holding in every cycle of missions flown faster than the rig supports."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from skyrecon.mission import MissionConfig, make_scenario, run_mission
+from skyrecon.mission.metrics import mission_metrics, stop_rule_holds
+from skyrecon.mission.safety import (
+    rig_supported_speed,
+    speed_limit,
+    speed_warning,
+    stoppable_speed_mps,
+    stopping_distance_m,
+)
+from skyrecon.mission.vehicle import DroneState, step, turn_speed
+
+
+@pytest.mark.parametrize("room", [0.5, 3.0, 12.0, 40.0])
+@pytest.mark.parametrize("accel,reaction", [(3.0, 0.2), (5.0, 0.1), (8.0, 0.0)])
+def test_stoppable_speed_stops_exactly_within_the_room(room, accel, reaction):
+    v = stoppable_speed_mps(room, accel, reaction)
+    assert stopping_distance_m(v, accel, reaction) == pytest.approx(room, rel=1e-9)
+    assert stopping_distance_m(v * 1.01, accel, reaction) > room
+    assert (
+        stoppable_speed_mps(0.0, accel, reaction) == 0.0 and stoppable_speed_mps(-1.0, accel, reaction) == 0.0
+    )
+
+
+def test_braking_in_the_simulated_vehicle_fits_the_formula():
+    """A drone at speed v told to brake stops within stopping_distance_m(v, a, dt)."""
+    cfg = MissionConfig(cruise_speed_mps=15.0)
+    s = DroneState(np.zeros(3), np.array([12.0, 0.0, 0.0]), 0.0, 0.0)
+    start = s.position.copy()
+    for _ in range(100):
+        s = step(s, s.position + [5.0, 0, 0], 15.0, cfg, brake=True)
+        if s.speed == 0.0:
+            break
+    assert s.speed == 0.0
+    assert np.linalg.norm(s.position - start) <= stopping_distance_m(12.0, cfg.max_accel_mps2, cfg.dt) + 1e-9
+
+
+def test_speed_limit_takes_the_tightest_part_and_says_which():
+    cfg = MissionConfig(cruise_speed_mps=15.0)
+    free = speed_limit(cfg, verified_m=100.0, momentum_room_m=math.inf, to_go_m=500.0, turns_mps=99.0)
+    # the path is never trusted beyond the rig's range: the rig's supported speed binds
+    assert free.value_mps == pytest.approx(rig_supported_speed(cfg)) and free.reason == "rig"
+    assert free.path_room_m == cfg.max_range_m - cfg.verify_buffer_m and free.stop_limited
+    slow = speed_limit(cfg, 100.0, momentum_room_m=4.0, to_go_m=500.0, turns_mps=99.0)
+    assert slow.reason == "momentum" and slow.stop_mps == slow.value_mps
+    assert slow.value_mps == pytest.approx(
+        stoppable_speed_mps(4.0 - cfg.verify_buffer_m, 5.0, cfg.reaction_s)
+    )
+    turn = speed_limit(cfg, 100.0, math.inf, 500.0, turns_mps=2.0)
+    assert turn.reason == "turns" and turn.value_mps == 2.0 and not turn.stop_limited
+    assert turn.stop_mps > 2.0  # the stopping rule's own part is kept for the log
+    cruise = speed_limit(MissionConfig(), 100.0, math.inf, 500.0, 99.0)
+    assert cruise.reason == "cruise" and cruise.value_mps == 6.0
+
+
+def test_a_cruise_speed_the_rig_cannot_stop_from_is_warned_about():
+    assert speed_warning(MissionConfig(cruise_speed_mps=6.0)) == ""
+    cfg = MissionConfig(cruise_speed_mps=15.0)
+    v = rig_supported_speed(cfg)
+    assert 6.0 < v < 15.0
+    text = speed_warning(cfg)
+    assert "15 m/s" in text and f"{v:.1f} m/s" in text
+    # a longer trusted range or harder braking supports more
+    assert rig_supported_speed(MissionConfig(max_range_m=40.0)) > v
+    assert rig_supported_speed(MissionConfig(max_accel_mps2=8.0)) > v
+
+
+def test_turn_speed_falls_with_the_angle_and_grows_with_the_braking_limit():
+    cfg = MissionConfig()
+    speeds = [turn_speed(math.radians(a), cfg) for a in (0, 15, 30, 60, 90, 150)]
+    assert speeds[0] == math.inf and all(a > b for a, b in zip(speeds[1:], speeds[2:]))
+    assert speeds[-1] >= 1.0
+    assert turn_speed(0.5, MissionConfig(max_accel_mps2=8.0)) > turn_speed(0.5, cfg)
+
+
+def test_stop_rule_holds_flags_a_cycle_faster_than_it_may_be():
+    from skyrecon.mission.loop import CycleRecord
+
+    def rec(speed, stop):
+        return CycleRecord(
+            0, 0.0, np.zeros(3), 0.0, 0.0, speed, {}, 9.0, False, True, True, 9.0, 9.0, 1.0, 9.0, stop
+        )
+
+    assert stop_rule_holds([rec(1.0, 2.0), rec(1.5, 2.0)], 5.0, 0.1) == [True, True]
+    # above the limit but braking at full deceleration: allowed; above it and not braking: flagged
+    assert stop_rule_holds([rec(4.0, 9.0), rec(3.5, 1.0), rec(3.4, 1.0)], 5.0, 0.1) == [True, True, False]
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_missions_faster_than_the_rig_supports_keep_the_stopping_rule_every_cycle(tiny_config, seed):
+    cfg = tiny_config.with_overrides(cruise_speed_mps=15.0)
+    assert speed_warning(cfg)
+    result = run_mission(make_scenario(seed, cfg), cfg)
+    m = mission_metrics(result)
+    assert m["collisions"] == 0 and m["success"], m["message"]
+    assert m["stop_rule_ok"] and all(stop_rule_holds(result.records, cfg.max_accel_mps2, cfg.dt))
+    assert m["min_clearance_m"] > cfg.safety_margin_m
+    assert max(r.speed_mps for r in result.records) <= rig_supported_speed(cfg) + 1e-6
+    assert m["warnings"] and m["loop_ms_p99"] is not None
