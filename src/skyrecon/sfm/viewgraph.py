@@ -16,13 +16,10 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import breadth_first_order, connected_components, minimum_spanning_tree
 
+from skyrecon.core.rigid import rotation_angle_deg
 from skyrecon.sfm.matching import PairGeometry
 
 __all__ = ["chained_rotations", "rotation_inconsistent_pairs"]
-
-
-def _angle_deg(R: np.ndarray) -> float:
-    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
 
 
 def chained_rotations(pairs: Sequence[PairGeometry], n_images: int) -> tuple[np.ndarray, np.ndarray]:
@@ -46,7 +43,7 @@ def chained_rotations(pairs: Sequence[PairGeometry], n_images: int) -> tuple[np.
     T = minimum_spanning_tree(G)
     T = T + T.T
     n_comp, label = connected_components(T, directed=False)
-    rel = {(p.i, p.j): p.R for p in usable}
+    rel = {(p.i, p.j): p.R for p in usable if p.R is not None}
     for c in range(n_comp):
         members = np.nonzero(label == c)[0]
         root = int(members[0])
@@ -82,7 +79,7 @@ def rotation_inconsistent_pairs(
     for k, p in enumerate(pairs):
         if p.R is None or label[p.i] != label[p.j]:
             continue
-        err[k] = _angle_deg(p.R.T @ R[p.j] @ R[p.i].T)
+        err[k] = rotation_angle_deg(p.R.T @ R[p.j] @ R[p.i].T)
         if err[k] > max_error_deg:
             bad.append(k)
     return bad, err
