@@ -162,3 +162,15 @@ def test_align_to_cloud_from_centroids_and_the_icp_residuals():
 def test_match_names_by_name_file_name_and_stem():
     m = match_names(["images/a.png", "images/b.png", "c.png"], ["a.png", "b", "c.png", "z.png"])
     assert m == {"c.png": "c.png", "images/a.png": "a.png", "images/b.png": "b"}
+
+
+def test_align_to_model_without_common_names_and_without_icp_keeps_the_init():
+    ref = _model(_box_surface(500, 10), CENTRES, NAMES)
+    rec = _model(TRUE.inverse().apply(_box_surface(300, 11)), CENTRES[:2], ["a.jpg", "b.jpg"])
+    options = AlignOptions(init=TRUE, refine_with_icp=False)
+    result = align_model(rec, ref, options)
+    assert result.world_from_model is TRUE and result.icp is None
+    assert result.residuals_of.startswith("none") and np.isnan(result.residual_rms_m)
+    assert result.to_json_dict()["icp"] is None
+    with pytest.raises(InputError, match="no image names in common"):
+        align_model(rec, ref, AlignOptions())

@@ -644,19 +644,16 @@ def align_to_model(
                 options.max_iterations,
                 options.seed,
             )
-    result = AlignResult(
+    result = _icp_aligned(
         "model",
         T,
-        model,
-        reference,
-        "",
-        0,
-        float("nan"),
-        float("nan"),
+        T0,
+        init_kind,
+        icp_stats,
+        "point-to-plane distances of the 3D points (ICP)",
+        model=model,
+        reference=reference,
         warnings=warnings,
-        init=init_kind,
-        initial_world_from_model=T0,
-        icp=icp_stats,
         reference_points=reference_points,
     )
     if matched:
@@ -668,22 +665,43 @@ def align_to_model(
         result.residual_rms_m, result.residual_median_m = _inlier_stats(res, inl)
         result.residuals_m = {n: float(r) for n, r in zip(matched, res)}
         result.outliers = [n for n, ok in zip(matched, inl) if not ok]
-    else:
-        # without common names there is an init and ICP ran (else an error or too few points)
-        _icp_residuals(result, "point-to-plane distances of the 3D points (ICP)")
     return result
 
 
-def _icp_residuals(result: AlignResult, what: str) -> None:
-    """Fill the residual fields of ``result`` from its ICP statistics."""
-    stats = result.icp
-    if stats is None:  # no common images and no ICP: the initial alignment, unchecked
-        result.residuals_of = "none (no common images and no ICP)"
-        return
-    result.residuals_of = what
-    result.num_correspondences = stats["num_correspondences"]
-    result.residual_rms_m = stats["point_to_plane_rms_m"]
-    result.residual_median_m = stats["point_to_plane_median_m"]
+def _icp_aligned(
+    method: AlignMethod,
+    T: Sim3,
+    T0: Sim3,
+    init_kind: str,
+    icp_stats: dict[str, Any] | None,
+    residuals_of: str,
+    *,
+    model: str,
+    reference: str,
+    warnings: list[str],
+    reference_points: PointCloud,
+) -> AlignResult:
+    """An :class:`AlignResult` whose residuals are ICP's point-to-plane distances (NaN without ICP)."""
+    if icp_stats is None:  # no ICP: the initial alignment, unchecked
+        what, n, rms, median = "none (no common images and no ICP)", 0, float("nan"), float("nan")
+    else:
+        what, n = residuals_of, icp_stats["num_correspondences"]
+        rms, median = icp_stats["point_to_plane_rms_m"], icp_stats["point_to_plane_median_m"]
+    return AlignResult(
+        method,
+        T,
+        model,
+        reference,
+        what,
+        n,
+        rms,
+        median,
+        warnings=warnings,
+        init=init_kind,
+        initial_world_from_model=T0,
+        icp=icp_stats,
+        reference_points=reference_points,
+    )
 
 
 def align_to_cloud(
@@ -730,25 +748,20 @@ def align_to_cloud(
     T, icp_stats = icp_refine(
         xyz, target, T0, options.with_scale, options.max_distance, options.max_iterations, options.seed
     )
-    result = AlignResult(
+    result = _icp_aligned(
         "cloud",
         T,
-        model,
-        reference,
-        "",
-        0,
-        float("nan"),
-        float("nan"),
+        T0,
+        init_kind,
+        icp_stats,
+        "point-to-plane distances of the model's points to the cloud (within the ICP distance)",
+        model=model,
+        reference=reference,
         warnings=warnings,
-        init=init_kind,
-        initial_world_from_model=T0,
-        icp=icp_stats,
-        cloud_points_used=len(target) if len(target) < len(cloud) else None,
         reference_points=cloud,
     )
-    _icp_residuals(
-        result, "point-to-plane distances of the model's points to the cloud (within the ICP distance)"
-    )
+    if len(target) < len(cloud):
+        result.cloud_points_used = len(target)
     return result
 
 
