@@ -52,9 +52,6 @@ EXAMPLES = """  skyrecon align model/ --positions gps_enu.txt --out model_metric
   skyrecon align model/ --to-cloud scan.ply --init model_metric/align.json --out refined/
 """
 
-#: ICP works on at most this many reference points (a seeded random subset beyond).
-MAX_TARGET_POINTS = 400_000
-
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
     p = add_command(
@@ -247,7 +244,6 @@ def run(args: argparse.Namespace) -> int:
         refine_with_icp=not args.no_icp,
         max_iterations=args.max_iterations,
         seed=args.seed,
-        max_target_points=MAX_TARGET_POINTS,
     )
     reference, reference_label = _read_reference(args)
     result = align_model(rec, reference, options, model_label=str(model_dir), reference_label=reference_label)

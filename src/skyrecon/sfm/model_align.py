@@ -1,6 +1,13 @@
 """Aligning models to each other: similarity from matched camera centres, ICP with or without scale.
 
-The algorithms behind ``skyrecon align``. Frames: every transform returned is a
+The library behind ``skyrecon align``:
+
+    result = align_model(rec, positions, AlignOptions(max_distance=2.0))   # name -> (3,) metres
+    result = align_model(rec, other_reconstruction)                        # common images, then ICP
+    result = align_model(rec, point_cloud, AlignOptions(init=T0))          # ICP
+    result.world_from_model, result.residual_rms_m, result.outliers, result.to_json_dict()
+
+Frames: every transform returned is a
 :class:`~skyrecon.sfm.align.Sim3` ``target_from_source`` (``p_target = s R p_source + t``); points
 are (N, 3) float64 in their frame's units (metres once georeferenced).
 """
