@@ -11,12 +11,13 @@ import numpy as np
 import pytest
 
 from skyrecon.cli.main import main
-from skyrecon.cli.sfm import list_images, looks_like_sequence
+from skyrecon.cli.sfm import list_images
 from skyrecon.core import Intrinsics
 from skyrecon.errors import InputError
 from skyrecon.eval.sfm_metrics import evaluate_sfm_poses
 from skyrecon.io import read_colmap_text, read_image, read_ply, write_image
 from skyrecon.io.calib import write_K_txt
+from skyrecon.sfm.pairs import looks_like_sequence
 from skyrecon.sim import generate_object_scene, orbit_views, render_views
 
 INTR = Intrinsics.from_fov(320, 240, 70)

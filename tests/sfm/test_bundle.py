@@ -11,7 +11,7 @@ from skyrecon.errors import InputError
 from skyrecon.eval.sfm_metrics import evaluate_sfm_poses
 from skyrecon.sfm import _ba_kernels as K
 from skyrecon.sfm.align import umeyama
-from skyrecon.sfm.bundle import BundleOptions, BundleProblem, bundle_adjust
+from skyrecon.sfm.bundle import BundleProblem, BundleSolverOptions, bundle_adjust
 from skyrecon.sfm.pnp import estimate_absolute_pose
 
 
@@ -114,7 +114,7 @@ def test_converges_to_ground_truth_within_noise(loss):
     Rp, tp, Xp = _perturb(R, t, X)
     prob = BundleProblem(Rp, tp, Xp, cams, np.zeros(len(R), np.int64), oi, op, uv)
     _fix_gauge(prob, R, t)
-    rep = bundle_adjust(prob, BundleOptions(loss=loss))
+    rep = bundle_adjust(prob, BundleSolverOptions(loss=loss))
     assert rep.initial_rms_px > 5.0
     # 2-D noise of 0.5 px per axis: rms of the residual norm about 0.7 px, a bit less after fitting
     assert 0.5 < rep.final_rms_px < 0.75
@@ -122,7 +122,7 @@ def test_converges_to_ground_truth_within_noise(loss):
     # the same minimum as an adjustment started from the truth
     oracle = BundleProblem(R.copy(), t.copy(), X.copy(), cams, np.zeros(len(R), np.int64), oi, op, uv)
     _fix_gauge(oracle, R, t)
-    bundle_adjust(oracle, BundleOptions(loss=loss, function_tolerance=1e-12))
+    bundle_adjust(oracle, BundleSolverOptions(loss=loss, function_tolerance=1e-12))
     assert np.abs(prob.t - oracle.t).max() < 1e-3
     assert np.abs(prob.points - oracle.points).max() < 1e-2
     # and the truth within the noise, after a similarity alignment (the gauge drifts with the noise)
@@ -141,7 +141,9 @@ def test_exact_data_converges_to_exact_answer():
     Rp, tp, Xp = _perturb(R, t, X, rot=0.02, trans=0.1, pts=0.1)
     prob = BundleProblem(Rp, tp, Xp, cams, np.zeros(len(R), np.int64), oi, op, uv)
     _fix_gauge(prob, R, t)
-    rep = bundle_adjust(prob, BundleOptions(loss="trivial", function_tolerance=1e-14, max_iterations=100))
+    rep = bundle_adjust(
+        prob, BundleSolverOptions(loss="trivial", function_tolerance=1e-14, max_iterations=100)
+    )
     assert rep.final_rms_px < 1e-6
     assert np.abs(prob.t - t).max() < 1e-6
     assert np.abs(prob.points - X).max() < 1e-6
@@ -158,7 +160,7 @@ def test_robust_loss_handles_outliers():
         Rp, tp, Xp = _perturb(R, t, X)
         prob = BundleProblem(Rp, tp, Xp, cams, np.zeros(len(R), np.int64), oi, op, uv)
         _fix_gauge(prob, R, t)
-        bundle_adjust(prob, BundleOptions(loss=loss, loss_scale=1.0, max_iterations=100))
+        bundle_adjust(prob, BundleSolverOptions(loss=loss, loss_scale=1.0, max_iterations=100))
         errs[loss] = np.abs(_centres(prob.R, prob.t) - _centres(R, t)).max()
     assert errs["cauchy"] < 0.03
     assert errs["cauchy"] < 0.25 * errs["trivial"]
@@ -171,7 +173,7 @@ def test_gauge_is_held():
     _fix_gauge(prob, R, t)
     fixed = prob.constant_pose_coords[1].copy()
     t1_fixed = prob.t[1, fixed[3:]].copy()
-    bundle_adjust(prob, BundleOptions())
+    bundle_adjust(prob, BundleSolverOptions())
     assert np.array_equal(prob.R[0], R[0]) and np.array_equal(prob.t[0], t[0])
     assert np.array_equal(prob.t[1, fixed[3:]], t1_fixed)
 
@@ -186,7 +188,7 @@ def test_refines_focal_length_and_radial_distortion():
     prob = BundleProblem(Rp, tp, Xp, start, np.zeros(len(R), np.int64), oi, op, uv)
     _fix_gauge(prob, R, t)
     rep = bundle_adjust(
-        prob, BundleOptions(refine_focal_length=True, refine_distortion=True, max_iterations=100)
+        prob, BundleSolverOptions(refine_focal_length=True, refine_distortion=True, max_iterations=100)
     )
     assert rep.final_rms_px < 0.3
     assert rep.termination != "max iterations"
@@ -200,7 +202,7 @@ def test_large_problem_uses_conjugate_gradients():
     Rp, tp, Xp = _perturb(R, t, X)
     prob = BundleProblem(Rp, tp, Xp, cams, np.zeros(len(R), np.int64), oi, op, uv)
     _fix_gauge(prob, R, t)
-    rep = bundle_adjust(prob, BundleOptions(max_dense_columns=10))
+    rep = bundle_adjust(prob, BundleSolverOptions(max_dense_columns=10))
     assert rep.solver == "pcg"
     assert rep.final_rms_px < 0.75
 
@@ -211,7 +213,7 @@ def test_points_behind_the_camera_do_not_break_it():
     Xp[:5] = -_centres(R, t)[0] * 3  # far behind camera 0
     prob = BundleProblem(Rp, tp, Xp, cams, np.zeros(len(R), np.int64), oi, op, uv)
     _fix_gauge(prob, R, t)
-    rep = bundle_adjust(prob, BundleOptions())
+    rep = bundle_adjust(prob, BundleSolverOptions())
     assert np.isfinite(rep.final_cost) and rep.final_cost < rep.initial_cost
     assert np.isinf(rep.errors_px).any()
 
@@ -225,7 +227,7 @@ def test_bad_problems_are_rejected():
     with pytest.raises(InputError):
         BundleProblem(R, t, X, cams, np.zeros(len(R), np.int64), oi, op, uv2)
     with pytest.raises(InputError):
-        BundleOptions(loss="l7")
+        BundleSolverOptions(loss="l7")
 
 
 def test_absolute_pose_with_outliers():

@@ -6,13 +6,22 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from skyrecon.core import Rigid3
+from skyrecon.core import Rigid3, rotvec_to_matrix
 from skyrecon.errors import InputError
 from skyrecon.eval.sfm_metrics import evaluate_sfm_poses, scene_extent
-from skyrecon.sfm.pairs import exhaustive_pairs, retrieval_pairs, select_pairs, sequential_pairs
+from skyrecon.sfm.align import Sim3
+from skyrecon.sfm.matching import PairGeometry
+from skyrecon.sfm.pairs import (
+    exhaustive_pairs,
+    resolve_pair_mode,
+    retrieval_pairs,
+    select_pairs,
+    sequential_pairs,
+)
 from skyrecon.sfm.settings import PairingSettings
 from skyrecon.sfm.tracks import UnionFind, build_tracks
 from skyrecon.sfm.triangulation import max_triangulation_angles_deg, triangulate_tracks
+from skyrecon.sfm.viewgraph import rotation_inconsistent_pairs
 
 
 def test_union_find_joins_sets():
@@ -87,6 +96,19 @@ def test_pair_selection_modes():
         select_pairs(1, "auto", PairingSettings())
 
 
+def test_one_auto_pairing_rule():
+    settings = PairingSettings()
+    frames = [f"frame_{k:05d}.png" for k in range(0, 2 * 60, 2)]
+    photos = [f"{name}_{k}.jpg" for k in range(20) for name in ("tower", "gate", "wall")]
+    assert resolve_pair_mode("auto", frames[:50], settings) == "exhaustive"
+    assert resolve_pair_mode("auto", frames, settings) == "sequential"
+    assert resolve_pair_mode("auto", photos, settings) == "retrieval"
+    assert resolve_pair_mode("retrieval", frames, settings) == "retrieval"
+    descriptors = lambda: np.eye(60)  # noqa: E731
+    assert select_pairs(60, "auto", settings, descriptors, names=frames).mode == "sequential"
+    assert select_pairs(60, "auto", settings, descriptors).mode == "retrieval"  # no names: not numbered
+
+
 def _cams(n: int = 4):
     R, t = [], []
     for k in range(n):
@@ -121,9 +143,6 @@ def test_multiview_triangulation_rejects_outlier_observations():
 def test_sfm_metrics_are_invariant_to_a_similarity():
     R, t = _cams(5)
     gt = {f"{k}": Rigid3(R[k], t[k]) for k in range(5)}
-    from skyrecon.core import rotvec_to_matrix
-    from skyrecon.sfm.align import Sim3
-
     S = Sim3(rotvec_to_matrix([0.3, -0.2, 1.0]), [5, 6, 7], 0.25)
     est = {k: S.transform_pose(v) for k, v in gt.items()}
     ev = evaluate_sfm_poses(est, gt)
@@ -138,10 +157,6 @@ def test_sfm_metrics_are_invariant_to_a_similarity():
 
 
 def test_view_graph_rejects_pairs_with_inconsistent_rotations():
-    from skyrecon.core import rotvec_to_matrix
-    from skyrecon.sfm.matching import PairGeometry
-    from skyrecon.sfm.viewgraph import rotation_inconsistent_pairs
-
     rng = np.random.default_rng(0)
     R = [rotvec_to_matrix(rng.normal(0, 0.3, 3)) for _ in range(8)]
     pairs = []

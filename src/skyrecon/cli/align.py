@@ -28,22 +28,28 @@ import argparse
 import json
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from skyrecon.cli.common import add_command, info, output_dir, positive_float, positive_int
-from skyrecon.core.rigid import rotation_angle_deg
-from skyrecon.errors import EstimationError, InputError
+from skyrecon.core.depth import PointCloud
+from skyrecon.core.reconstruction import Reconstruction
+from skyrecon.core.rigid import orthonormalize
+from skyrecon.errors import InputError
+from skyrecon.io.colmap import read_colmap_text, write_colmap_text
 from skyrecon.io.jsonio import write_json
+from skyrecon.io.ply import read_ply, write_ply
+from skyrecon.sfm.align import Sim3
+from skyrecon.sfm.model_align import AlignOptions, AlignResult, align_model, merged_cloud
+from skyrecon.sfm.model_align import match_names as match_names  # re-exported: tests and users import it here
+from skyrecon.sfm.outputs import sparse_cloud
 
 EXAMPLES = """  skyrecon align model/ --positions gps_enu.txt --out model_metric/
   skyrecon align flight2/sparse --to-model flight1/sparse --merge --out flight2_in_flight1/
   skyrecon align model_metric/ --to-cloud lidar.ply --no-scale --max-distance 0.5 --out refined/
   skyrecon align model/ --to-cloud scan.ply --init model_metric/align.json --out refined/
 """
-
-#: ICP works on at most this many reference points (a seeded random subset beyond).
-MAX_TARGET_POINTS = 400_000
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -107,9 +113,9 @@ def model_directory(path: str | Path) -> Path:
     raise InputError("no COLMAP text model here (cameras.txt and images.txt, or sparse/ holding them)", p)
 
 
-def read_model(path: str | Path):
-    from skyrecon.io.colmap import read_colmap_text
-
+def read_model(path: str | Path) -> tuple[Reconstruction, Path]:
+    """The COLMAP text model of ``path`` (see :func:`model_directory`) and its directory; every
+    registered image must have a finite pose."""
     d = model_directory(path)
     rec = read_colmap_text(d)
     if not rec.images:
@@ -155,36 +161,13 @@ def read_positions(path: str | Path) -> dict[str, np.ndarray]:
     return out
 
 
-def match_names(model_names: list[str], other_names: list[str]) -> dict[str, str]:
-    """model name -> other name: exact names first, then by file name, then by name without
-    extension (only where that key is unique on both sides)."""
-    pairs: dict[str, str] = {}
-    for key in (lambda n: n, lambda n: Path(n).name, lambda n: Path(n).stem):
-        left = [n for n in model_names if n not in pairs]
-        taken = set(pairs.values())
-        right = [n for n in other_names if n not in taken]
-        km: dict[str, list[str]] = {}
-        ko: dict[str, list[str]] = {}
-        for n in left:
-            km.setdefault(key(n), []).append(n)
-        for n in right:
-            ko.setdefault(key(n), []).append(n)
-        for k, ms in km.items():
-            if len(ms) == 1 and len(ko.get(k, [])) == 1:
-                pairs[ms[0]] = ko[k][0]
-    return pairs
-
-
-def read_init(path: str | Path):
+def read_init(path: str | Path) -> Sim3:
     """A Sim3 ``world_from_model`` from an align.json or a text file of 12 / 16 numbers."""
-    from skyrecon.core.rigid import orthonormalize
-    from skyrecon.sfm.align import Sim3
-
     p = Path(path)
     if not p.is_file():
         raise InputError("--init file not found; check the path", p)
     text = p.read_text(encoding="utf-8", errors="replace")
-    M = None
+    M: Any = None
     if text.lstrip().startswith("{"):
         try:
             data = json.loads(text)
@@ -212,8 +195,8 @@ def read_init(path: str | Path):
         raise InputError("the matrix must hold numbers", p) from None
     if A.size not in (12, 16) or not np.all(np.isfinite(A)):
         raise InputError(f"expected 12 or 16 finite numbers (3x4 or 4x4 [sR | t]), got {A.size}", p)
-    A = A.reshape(-1, 4)
-    sR, t = A[:3, :3], A[:3, 3]
+    rows = A.reshape(-1, 4)
+    sR, t = rows[:3, :3], rows[:3, 3]
     det = float(np.linalg.det(sR))
     if not det > 0:
         raise InputError("the 3x3 part is not a scaled rotation (determinant <= 0)", p)
@@ -227,307 +210,71 @@ def read_init(path: str | Path):
 
 
 # ----------------------------------------------------------------------------------------------
-# presentation (the fitting itself is skyrecon.sfm.model_align)
-# ----------------------------------------------------------------------------------------------
-def _sim_json(T) -> dict:
-    return {"scale": T.scale, "R": T.R.tolist(), "t": T.t.tolist(), "matrix": T.matrix.tolist()}
-
-
-# ----------------------------------------------------------------------------------------------
 # the command
 # ----------------------------------------------------------------------------------------------
-def run(args: argparse.Namespace) -> int:
-    from skyrecon.core.depth import PointCloud
-    from skyrecon.io.colmap import write_colmap_text
-    from skyrecon.io.ply import read_ply, write_ply
-    from skyrecon.sfm.model_align import centroid_init as _centroid_init
-    from skyrecon.sfm.model_align import fit_camera_centres as _fit_centres
-    from skyrecon.sfm.model_align import icp_refine as _icp_refine
-    from skyrecon.sfm.model_align import scene_extent as _extent
-    from skyrecon.sfm.model_align import subsample_cloud as _subsample
-    from skyrecon.sfm.outputs import sparse_cloud
-
-    t_start = time.perf_counter()
-    if args.merge and args.positions:
-        raise InputError("--merge needs --to-model or --to-cloud (positions have no points to merge)")
-    rec, model_dir = read_model(args.model_dir)
-    ims = sorted(rec.images.values(), key=lambda im: im.image_id)
-    names = [im.name for im in ims]
-    centres = {im.name: im.center_world for im in ims}
-    xyz, _ = rec.points_array()
-    if len(xyz) and not np.all(np.isfinite(xyz)):
-        raise InputError("the model has NaN or infinite 3D points", model_dir)
-    init = read_init(args.init) if args.init else None
-    with_scale = not args.no_scale
-    warnings: list[str] = []
-    result: dict = {"model": str(model_dir)}
-    reference_points = None
-
+def _read_reference(
+    args: argparse.Namespace,
+) -> tuple[dict[str, np.ndarray] | Reconstruction | PointCloud, str]:
+    """The reference the arguments name, and its label."""
     if args.positions:
         if args.init:
             raise InputError(
                 "--init is for --to-model and --to-cloud; --positions needs no initial alignment"
             )
-        positions = read_positions(args.positions)
-        pairs = match_names(names, list(positions))
-        if not pairs:
-            raise InputError(
-                f"none of the {len(positions)} names in the positions file matches one of the {len(names)} model "
-                f"images (model: {', '.join(names[:3])}{' ...' if len(names) > 3 else ''}; file: "
-                f"{', '.join(list(positions)[:3])}{' ...' if len(positions) > 3 else ''})",
-                args.positions,
-            )
-        matched = [n for n in names if n in pairs]
-        if len(matched) < 3:
-            raise InputError(
-                f"only {len(matched)} model images have a position ({', '.join(matched)}); "
-                "at least 3 are needed",
-                args.positions,
-            )
-        src = np.stack([centres[n] for n in matched])
-        dst = np.stack([positions[pairs[n]] for n in matched])
-        fit, thr = _fit_centres(src, dst, matched, with_scale, args.max_distance, args.seed, "positions")
-        T = fit.transform
-        res = np.linalg.norm(T.apply(src) - dst, axis=1)
-        inl = fit.inliers
-        outliers = [n for n, ok in zip(matched, inl) if not ok]
-        if outliers:
-            warnings.append(
-                f"{len(outliers)} positions do not fit the others (more than {thr:.3g} m off) and were "
-                f"ignored: "
-                + ", ".join(f"{n} ({r:.2f} m)" for n, r, ok in zip(matched, res, inl) if not ok)[:400]
-            )
-        unmatched = sorted(set(positions) - set(pairs.values()))
-        result.update(
-            {
-                "method": "positions",
-                "reference": str(Path(args.positions)),
-                "residuals_of": "camera centres",
-                "num_correspondences": len(matched),
-                "num_inliers": int(inl.sum()),
-                "inlier_threshold_m": thr,
-                "residual_rms_m": float(np.sqrt(np.mean(res[inl] ** 2))),
-                "residual_median_m": float(np.median(res[inl])),
-                "residual_max_m": float(res[inl].max()),
-                "residuals_m": {n: float(r) for n, r in zip(matched, res)},
-                "outliers": outliers,
-                "positions_without_image": unmatched,
-                "images_without_position": [n for n in names if n not in pairs],
-            }
-        )
-        scale_hint = float(np.ptp(dst[:, :2], axis=0).max())
-        if np.all(np.abs(dst[:, 0]) <= 180) and np.all(np.abs(dst[:, 1]) <= 90) and scale_hint < 0.05:
-            warnings.append(
-                "the positions look like latitude/longitude in degrees; convert them to metres "
-                "(e.g. local east-north-up or UTM) first"
-            )
-    elif args.to_model:
+        return read_positions(args.positions), str(Path(args.positions))
+    if args.to_model:
         ref, ref_dir = read_model(args.to_model)
-        ref_centres = {im.name: im.center_world for im in ref.images.values()}
-        pairs = match_names(names, list(ref_centres))
-        matched = [n for n in names if n in pairs]
-        ref_xyz, ref_rgb = ref.points_array()
-        reference_points = PointCloud(ref_xyz, ref_rgb)
-        fit = None
-        if len(matched) >= 3:
-            src = np.stack([centres[n] for n in matched])
-            dst = np.stack([ref_centres[pairs[n]] for n in matched])
-            fit, _ = _fit_centres(
-                src, dst, matched, with_scale, None, args.seed, "reference model's camera centres"
-            )
-            T0, init_kind = fit.transform, "camera centres"
-            if init is not None:
-                warnings.append("--init ignored: the common images give the initial alignment")
-        elif init is not None:
-            T0, init_kind = init, "file"
-        else:
-            common = f" ({', '.join(matched)})" if matched else ""
-            raise InputError(
-                f"the models have {len(matched) or 'no'} image names in common{common}; at least 3 are needed to align "
-                "by camera centres: give --init FILE (e.g. the align.json of both models aligned to GPS), or align "
-                "each with --positions",
-                ref_dir,
-            )
-        T, icp_stats = T0, None
-        if not args.no_icp:
-            if len(xyz) < 10 or len(ref_xyz) < 10:
-                warnings.append("too few 3D points for ICP; the camera centres alone give the alignment")
-            else:
-                T, icp_stats = _icp_refine(
-                    xyz,
-                    _subsample(reference_points, MAX_TARGET_POINTS, args.seed),
-                    T0,
-                    with_scale and init_kind == "file",
-                    args.max_distance,
-                    args.max_iterations,
-                    args.seed,
-                )
-        result.update(
-            {
-                "method": "model",
-                "reference": str(ref_dir),
-                "init": init_kind,
-                "initial_world_from_model": _sim_json(T0),
-                "icp": icp_stats,
-            }
-        )
-        if matched:
-            src = np.stack([centres[n] for n in matched])
-            dst = np.stack([ref_centres[pairs[n]] for n in matched])
-            res = np.linalg.norm(T.apply(src) - dst, axis=1)
-            inl = fit.inliers if fit is not None else np.ones(len(matched), bool)
-            result.update(
-                {
-                    "residuals_of": "camera centres of common images",
-                    "num_correspondences": len(matched),
-                    "num_inliers": int(inl.sum()),
-                    "residual_rms_m": float(np.sqrt(np.mean(res[inl] ** 2))),
-                    "residual_median_m": float(np.median(res[inl])),
-                    "residuals_m": {n: float(r) for n, r in zip(matched, res)},
-                    "outliers": [n for n, ok in zip(matched, inl) if not ok],
-                }
-            )
-        else:
-            result.update(
-                {
-                    "residuals_of": "point-to-plane distances of the 3D points (ICP)",
-                    "num_correspondences": icp_stats["num_correspondences"],
-                    "residual_rms_m": icp_stats["point_to_plane_rms_m"],
-                    "residual_median_m": icp_stats["point_to_plane_median_m"],
-                }
-            )
-    else:
-        cloud = read_ply(args.to_cloud)
-        if len(cloud) < 10:
-            raise InputError(f"the cloud has only {len(cloud)} points; ICP needs more", args.to_cloud)
-        if len(xyz) < 10:
-            raise InputError(f"the model has only {len(xyz)} 3D points; ICP needs more", model_dir)
-        reference_points = cloud
-        target = _subsample(cloud, MAX_TARGET_POINTS, args.seed)
-        tgt = np.asarray(target.points, np.float64)
-        if init is not None:
-            T0, init_kind = init, "file"
-        else:
-            from scipy.spatial import cKDTree
+        return ref, str(ref_dir)
+    return read_ply(args.to_cloud), str(Path(args.to_cloud))
 
-            from skyrecon.sfm.align import Sim3
 
-            probe = 0.05 * _extent(tgt)
-            d, _ = cKDTree(tgt).query(xyz, k=1, distance_upper_bound=probe)
-            if np.mean(np.isfinite(d)) >= 0.5:
-                T0, init_kind = Sim3(), "identity (the model already overlaps the cloud)"
-            else:
-                T0, init_kind = _centroid_init(xyz, tgt, with_scale), "centroids and spread (no rotation)"
-                warnings.append(
-                    "initial alignment from the centroids and spreads of both clouds, without rotation; "
-                    "if the model is turned relative to the cloud give --init (or align with "
-                    "--positions first)"
-                )
-        T, icp_stats = _icp_refine(
-            xyz, target, T0, with_scale, args.max_distance, args.max_iterations, args.seed
-        )
-        result.update(
-            {
-                "method": "cloud",
-                "reference": str(Path(args.to_cloud)),
-                "init": init_kind,
-                "initial_world_from_model": _sim_json(T0),
-                "icp": icp_stats,
-                "residuals_of": "point-to-plane distances of the model's points to the cloud (within the ICP distance)",
-                "num_correspondences": icp_stats["num_correspondences"],
-                "residual_rms_m": icp_stats["point_to_plane_rms_m"],
-                "residual_median_m": icp_stats["point_to_plane_median_m"],
-            }
-        )
-        if len(target) < len(cloud):
-            result["cloud_points_used"] = len(target)
-    icp_stats = result.get("icp")
-    if icp_stats:
-        if not icp_stats["converged"]:
-            last = icp_stats["stages"][-1]
-            warnings.insert(
-                0,
-                f"ICP did not converge in {last['iterations']} iterations (RMS {last['rmse_m']:.3g} m); "
-                "the alignment may be off: check it, give --init, or raise --max-iterations",
-            )
-        if icp_stats["fitness"] < 0.2:
-            warnings.append(
-                f"only {100 * icp_stats['fitness']:.0f} % of the model's points lie within "
-                f"{icp_stats['max_distance_m']:.3g} m of the reference after ICP: the two may overlap "
-                "little, or the initial alignment was too far off"
-            )
+def run(args: argparse.Namespace) -> int:
+    t_start = time.perf_counter()
+    if args.merge and args.positions:
+        raise InputError("--merge needs --to-model or --to-cloud (positions have no points to merge)")
+    rec, model_dir = read_model(args.model_dir)
+    xyz, _ = rec.points_array()
+    if len(xyz) and not np.all(np.isfinite(xyz)):
+        raise InputError("the model has NaN or infinite 3D points", model_dir)
+    options = AlignOptions(
+        with_scale=not args.no_scale,
+        max_distance=args.max_distance,
+        init=read_init(args.init) if args.init else None,
+        refine_with_icp=not args.no_icp,
+        max_iterations=args.max_iterations,
+        seed=args.seed,
+    )
+    reference, reference_label = _read_reference(args)
+    result = align_model(rec, reference, options, model_label=str(model_dir), reference_label=reference_label)
 
-    if not (np.all(np.isfinite(T.matrix)) and T.scale > 0):
-        raise EstimationError("the alignment is not finite")
     out = output_dir(args.out)
-    aligned = T.transform_reconstruction(rec)
+    aligned = result.world_from_model.transform_reconstruction(rec)
     write_colmap_text(out / "sparse", aligned)
     cloud_out = sparse_cloud(aligned, args.frusta)
     if len(cloud_out) and float(np.abs(cloud_out.points).max()) > 1e5:
-        warnings.append(
+        result.warnings.append(
             "coordinates above 100 km: sparse.ply stores float32 (about 1 cm or worse at this size); "
             "sparse/ keeps full precision"
         )
     write_ply(out / "sparse.ply", cloud_out)
     files = ["sparse/cameras.txt", "sparse/images.txt", "sparse/points3D.txt", "sparse.ply", "align.json"]
-    if args.merge and reference_points is not None:
-        a_xyz, a_rgb = aligned.points_array()
-        ref_rgb = (
-            reference_points.colors
-            if reference_points.colors is not None
-            else np.full((len(reference_points), 3), 160, np.uint8)
-        )
-        merged = PointCloud(
-            np.concatenate([a_xyz.astype(np.float32), reference_points.points]),
-            np.concatenate([a_rgb, ref_rgb]),
-        )
-        write_ply(out / "merged.ply", merged)
+    if args.merge and result.reference_points is not None:
+        write_ply(out / "merged.ply", merged_cloud(aligned, result.reference_points))
         files.append("merged.ply")
-
-    R_deg = rotation_angle_deg(T.R)
-    summary = {
-        **{k: v for k, v in result.items() if k == "method"},
-        "world_from_model": _sim_json(T),
-        "scale": T.scale,
-        "R": T.R.tolist(),
-        "t": T.t.tolist(),
-        "rotation_deg": R_deg,
-        **{k: v for k, v in result.items() if k != "method"},
-        "num_images": len(names),
-        "num_points": len(xyz),
-        "with_scale": with_scale,
-        "warnings": warnings,
-        "files": files,
-        "seconds": time.perf_counter() - t_start,
-    }
+    summary = {**result.to_json_dict(), "files": files, "seconds": time.perf_counter() - t_start}
     write_json(out / "align.json", summary)
+    _say(args, result, out)
+    return 0
 
-    for w in warnings:
+
+def _say(args: argparse.Namespace, result: AlignResult, out: Path) -> None:
+    for w in result.warnings:
         if not args.quiet or w.startswith("ICP did not converge"):
             info(f"warning: {w}")
     if not args.quiet:
-        if result["method"] == "positions":
-            what = f"{result['num_correspondences']} camera positions ({result['num_inliers']} inliers)"
-        elif result["method"] == "model":
-            what = f"the model {result['reference']}"
-            if result.get("num_inliers") is not None:
-                what += f" ({result['num_correspondences']} common images)"
-        else:
-            what = f"the cloud {result['reference']}"
-        icp_note = ""
-        if result.get("icp"):
-            icp_note = (
-                f"; ICP {'converged' if result['icp']['converged'] else 'did NOT converge'}, "
-                f"{100 * result['icp']['fitness']:.0f} % of points matched"
-            )
-        info(
-            f"aligned {len(names)} images and {len(xyz)} points to {what}: scale {T.scale:.6g}, rotation "
-            f"{R_deg:.2f} deg, residual RMS {result['residual_rms_m']:.4g} m, "
-            f"median {result['residual_median_m']:.4g} m{icp_note}"
-        )
+        info(result.summary_line())
         info(
             f"wrote {out}/sparse/ (COLMAP text), sparse.ply"
             + (", merged.ply" if args.merge else "")
             + ", align.json"
         )
-    return 0

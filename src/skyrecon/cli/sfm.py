@@ -28,13 +28,23 @@ import os
 import re
 import time
 from collections import Counter
+from collections.abc import Collection
+from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from skyrecon.cli.common import add_command, info, output_dir, positive_int
+from skyrecon.core.intrinsics import Intrinsics
 from skyrecon.errors import InputError, SkyreconError
+from skyrecon.executor import get_executor
 from skyrecon.io.atomic import write_text_atomic
+from skyrecon.io.calib import read_K_txt
+from skyrecon.io.multiview import image_size_from_header
+from skyrecon.sfm import SfMResult, SfMSettings, run_sfm, write_sfm_outputs
+from skyrecon.sfm._pool import run_scoped_executor
+from skyrecon.sfm.pairs import resolve_pair_mode
 
 EXAMPLES = """  skyrecon sfm photos/images --camera photos/K.txt --out model/
   skyrecon sfm fountain/images --camera fountain/images/K.txt --max-image-size 1024 --frusta --out fountain_sfm/
@@ -146,30 +156,9 @@ def list_images(images_dir: str | Path) -> list[Path]:
     return paths
 
 
-def looks_like_sequence(names: list[str]) -> bool:
-    """The names are numbered frames of one sequence: the same text around one number that grows
-    with the (natural) name order, mostly in equal steps."""
-    if len(names) < 3:
-        return False
-    pattern = re.compile(r"^(.*?)(\d+)(\D*)$")
-    parts = [pattern.match(Path(n).stem) for n in names]
-    if any(m is None for m in parts):
-        return False
-    if len({(m.group(1), m.group(3)) for m in parts}) != 1:  # type: ignore[union-attr]
-        return False
-    nums = np.array([int(m.group(2)) for m in parts])  # type: ignore[union-attr]
-    steps = np.diff(nums)
-    if np.any(steps <= 0):
-        return False
-    return bool(np.mean(steps == np.median(steps)) >= 0.8)
-
-
-def _camera_for(k_path: str, paths: list[Path]) -> tuple:
+def _camera_for(k_path: str, paths: list[Path]) -> tuple[Intrinsics, tuple[int, int]]:
     """The intrinsics of K.txt at the size most images have (images of other sizes are left out
     by the pipeline, each with the reason); returns (intrinsics, (width, height))."""
-    from skyrecon.io.calib import read_K_txt
-    from skyrecon.io.multiview import image_size_from_header
-
     sizes = [image_size_from_header(p) for p in paths]
     counts = Counter(s for s in sizes if s is not None)
     if not counts:
@@ -191,7 +180,7 @@ def _camera_for(k_path: str, paths: list[Path]) -> tuple:
     return cam, size
 
 
-def _camera_warnings(cam, k_path: str) -> list[str]:
+def _camera_warnings(cam: Intrinsics, k_path: str) -> list[str]:
     off = max(abs(cam.cx - (cam.width - 1) / 2) / cam.width, abs(cam.cy - (cam.height - 1) / 2) / cam.height)
     if off > 0.2:
         return [
@@ -204,37 +193,35 @@ def _camera_warnings(cam, k_path: str) -> list[str]:
 # ----------------------------------------------------------------------------------------------
 # the command
 # ----------------------------------------------------------------------------------------------
-def run(args: argparse.Namespace) -> int:
-    from dataclasses import replace
-
-    from skyrecon.executor import get_executor
-    from skyrecon.sfm import SfMSettings, run_sfm, write_sfm_outputs
-    from skyrecon.sfm._pool import run_scoped_executor
-
-    t_start = time.perf_counter()
-    paths = list_images(args.images_dir)
-    cam, size = _camera_for(args.camera, paths)
-    out = output_dir(args.out)
-    workspace = Path(args.workspace) if args.workspace else out / "workspace"
-    names = [p.name for p in paths]
-
-    n = len(paths)
+def _settings(args: argparse.Namespace, names: list[str]) -> SfMSettings:
+    """The pipeline settings of the arguments, with ``--pairing auto`` resolved for these images."""
     settings = SfMSettings(max_image_size=args.max_image_size or None)
-    pairing = args.pairing
-    if pairing == "auto":
-        if n <= settings.pairing.exhaustive_max_images:
-            pairing = "exhaustive"
-        else:
-            pairing = "sequential" if looks_like_sequence(names) else "retrieval"
-    pair_kw = {"mode": pairing}
+    pair_kw: dict[str, Any] = {"mode": resolve_pair_mode(args.pairing, names, settings.pairing)}
     if args.window is not None:
         pair_kw["window"] = args.window
-    settings = replace(settings, pairing=replace(settings.pairing, **pair_kw))
+    return replace(settings, pairing=replace(settings.pairing, **pair_kw))
 
-    executor, release = run_scoped_executor(get_executor(None, args.workers))
-    workers = int(getattr(executor, "workers", 1) or 1)
-    pre_warnings = _camera_warnings(cam, args.camera)
-    cli = {
+
+def _image_prefix(images_dir: str, out: Path) -> str:
+    """The images directory relative to ``out`` (absolute on another drive), ending in ``/``."""
+    try:
+        return (
+            os.path.relpath(Path(images_dir).resolve(), out.resolve()).replace(os.sep, "/").rstrip("/") + "/"
+        )
+    except ValueError:  # another drive
+        return Path(images_dir).resolve().as_posix().rstrip("/") + "/"
+
+
+def _run_record(
+    args: argparse.Namespace,
+    cam: Intrinsics,
+    size: tuple[int, int],
+    settings: SfMSettings,
+    workers: int,
+    workspace: Path,
+) -> dict[str, Any]:
+    """The head of ``sfm.json``: the command, its inputs and the settings it ran with."""
+    return {
         "command": "skyrecon sfm",
         "images_dir": str(Path(args.images_dir)),
         "camera": str(Path(args.camera)),
@@ -243,13 +230,28 @@ def run(args: argparse.Namespace) -> int:
         "settings": {
             "max_image_size": args.max_image_size or None,
             "pairing_requested": args.pairing,
-            "pairing": pairing,
+            "pairing": settings.pairing.mode,
             "window": settings.pairing.window,
             "seed": args.seed,
             "workers": workers,
             "workspace": str(workspace),
         },
     }
+
+
+def run(args: argparse.Namespace) -> int:
+    t_start = time.perf_counter()
+    paths = list_images(args.images_dir)
+    cam, size = _camera_for(args.camera, paths)
+    out = output_dir(args.out)
+    workspace = Path(args.workspace) if args.workspace else out / "workspace"
+    n = len(paths)
+    settings = _settings(args, [p.name for p in paths])
+    pairing = settings.pairing.mode
+    executor, release = run_scoped_executor(get_executor(None, args.workers))
+    workers = int(getattr(executor, "workers", 1) or 1)
+    pre_warnings = _camera_warnings(cam, args.camera)
+    cli = _run_record(args, cam, size, settings, workers, workspace)
     if not args.quiet:
         info(
             f"{n} images ({size[0]}x{size[1]}) in {args.images_dir}; features at "
@@ -273,31 +275,22 @@ def run(args: argparse.Namespace) -> int:
         release()
 
     t0 = time.perf_counter()
-    try:  # transforms.json: image paths relative to the output directory
-        prefix = (
-            os.path.relpath(Path(args.images_dir).resolve(), out.resolve()).replace(os.sep, "/").rstrip("/")
-            + "/"
-        )
-    except ValueError:  # another drive
-        prefix = Path(args.images_dir).resolve().as_posix().rstrip("/") + "/"
     files = write_sfm_outputs(
         out,
         result,
         frusta=args.frusta,
-        image_prefix=prefix,
+        image_prefix=_image_prefix(args.images_dir, out),
         title=f"Structure from motion: {Path(args.images_dir).name}",
     )
     write_s = time.perf_counter() - t0
     warnings = pre_warnings + [w for w in result.warnings if w not in pre_warnings]
-    left = result.unregistered
-    k = result.num_registered
     summary = {
         **cli,
-        "status": "complete" if not left else "partial",
+        "status": "complete" if not result.unregistered else "partial",
         **result.to_json_dict(),
         "note": result.note,
+        "warnings": warnings,
     }
-    summary["warnings"] = warnings
     summary["timings_s"] = {
         **summary.get("timings_s", {}),
         "write": write_s,
@@ -305,28 +298,40 @@ def run(args: argparse.Namespace) -> int:
     }
     summary["files"] = sorted([*files, "sfm.json"])
     write_text_atomic(out / "sfm.json", json.dumps(summary, indent=2, allow_nan=False) + "\n")
+    _say(args, result, warnings, files, out, time.perf_counter() - t_start)
+    return 0
 
-    # left-out images: always said (a partial model is a success with a caveat)
+
+def _say(
+    args: argparse.Namespace,
+    result: SfMResult,
+    warnings: list[str],
+    files: Collection[str],
+    out: Path,
+    seconds: float,
+) -> None:
+    """Left-out images always (a partial model is a success with a caveat); the rest unless quiet."""
+    left, n = result.unregistered, len(result.images)
     if left:
         listed = "; ".join(f"{name}: {why}" for name, why in list(left.items())[:8])
         more = f"; and {len(left) - 8} more" if len(left) > 8 else ""
         info(
             f"warning: {len(left)} of {n} images left out of the model: {listed}{more}; details in {out / 'sfm.json'}"
         )
-    if not args.quiet:
-        for w in warnings:
-            if "were left out of the model" not in w:
-                info(f"warning: {w}")
-        err = result.mean_reprojection_error_px()
-        tl = [len(p.track) for p in result.reconstruction.points3d.values()]
-        info(
-            f"registered {k} of {n} images, {len(result.reconstruction.points3d)} points, mean reprojection error "
-            f"{err:.2f} px, mean track length {np.mean(tl) if tl else 0:.1f}, in {time.perf_counter() - t_start:.1f} s"
-        )
-        info(
-            f"wrote {out}/sparse/ (COLMAP text), sparse.ply"
-            + (" (with frusta)" if args.frusta else "")
-            + (", transforms.json" if "transforms.json" in files else "")
-            + ", report.html, sfm.json"
-        )
-    return 0
+    if args.quiet:
+        return
+    for w in warnings:
+        if "were left out of the model" not in w:
+            info(f"warning: {w}")
+    err = result.mean_reprojection_error_px()
+    tl = [len(p.track) for p in result.reconstruction.points3d.values()]
+    info(
+        f"registered {result.num_registered} of {n} images, {len(result.reconstruction.points3d)} points, mean "
+        f"reprojection error {err:.2f} px, mean track length {np.mean(tl) if tl else 0:.1f}, in {seconds:.1f} s"
+    )
+    info(
+        f"wrote {out}/sparse/ (COLMAP text), sparse.ply"
+        + (" (with frusta)" if args.frusta else "")
+        + (", transforms.json" if "transforms.json" in files else "")
+        + ", report.html, sfm.json"
+    )

@@ -13,11 +13,25 @@ import json
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
+
 from skyrecon.cli.common import add_command, info, output_dir, positive_float, positive_int
+from skyrecon.core.intrinsics import Intrinsics
 from skyrecon.core.rigid import rotation_angle_deg
 from skyrecon.errors import EstimationError, InputError
 from skyrecon.io.atomic import write_text_atomic
-from skyrecon.io.images import write_image
+from skyrecon.io.calib import read_K_txt
+from skyrecon.io.disparity import colorize_disparity
+from skyrecon.io.images import read_image, write_image
+from skyrecon.io.ply import write_ply
+from skyrecon.twoview import (
+    TwoViewResult,
+    TwoViewSettings,
+    draw_epipolar_lines,
+    draw_matches,
+    draw_rectified_pair,
+    reconstruct_two_view,
+)
 
 EXAMPLES = """  skyrecon two-view 0004.jpg 0005.jpg --camera K.txt --out pair/
   skyrecon two-view a.jpg b.jpg --camera K_a.txt --camera2 K_b.txt --baseline 1.6 --out pair/
@@ -79,28 +93,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     return p
 
 
-def run(args: argparse.Namespace) -> int:
-    from skyrecon.io.calib import read_K_txt
-    from skyrecon.io.disparity import colorize_disparity
-    from skyrecon.io.images import read_image
-    from skyrecon.io.ply import write_ply
-    from skyrecon.twoview import (
-        TwoViewSettings,
-        draw_epipolar_lines,
-        draw_matches,
-        draw_rectified_pair,
-        reconstruct_two_view,
-    )
-
-    image1, image2 = read_image(args.image1), read_image(args.image2)
-    h1, w1 = image1.shape[:2]
-    h2, w2 = image2.shape[:2]
-    cam1 = read_K_txt(args.camera, w1, h1)
-    cam2 = read_K_txt(args.camera2 or args.camera, w2, h2)
-    _check_K_fits(cam1, args.camera, args.image1)
-    _check_K_fits(cam2, args.camera2 or args.camera, args.image2)
+def _settings(args: argparse.Namespace) -> TwoViewSettings:
+    """The two-view settings the arguments ask for."""
     settings = TwoViewSettings()
-    settings = replace(
+    return replace(
         settings,
         features=replace(settings.features, method=args.features, max_image_size=args.max_image_size),
         pose_method=args.pose_method,
@@ -111,41 +107,32 @@ def run(args: argparse.Namespace) -> int:
         rectification=args.rectification,
         baseline_m=args.baseline,
     )
+
+
+def run(args: argparse.Namespace) -> int:
+    image1, image2 = read_image(args.image1), read_image(args.image2)
+    h1, w1 = image1.shape[:2]
+    h2, w2 = image2.shape[:2]
+    cam1 = read_K_txt(args.camera, w1, h1)
+    cam2 = read_K_txt(args.camera2 or args.camera, w2, h2)
+    _check_K_fits(cam1, args.camera, args.image1)
+    _check_K_fits(cam2, args.camera2 or args.camera, args.image2)
     out = output_dir(args.out)
     try:
-        result = reconstruct_two_view(image1, image2, cam1, cam2, settings, seed=args.seed)
+        result = reconstruct_two_view(image1, image2, cam1, cam2, _settings(args), seed=args.seed)
     except EstimationError as exc:
         raise EstimationError(f"{args.image1} and {args.image2}: {exc}") from None
 
     summary = result.to_json_dict()
     write_text_atomic(out / "two_view.json", json.dumps(summary, indent=2, allow_nan=False))
-    if len(result.matches):
-        write_image(
-            out / "matches.png",
-            draw_matches(image1, image2, result.x1, result.x2, result.inliers, seed=args.seed),
-        )
-    if result.F is not None:
-        inl = result.inliers
-        write_image(
-            out / "epipolar.png",
-            draw_epipolar_lines(image1, image2, result.F, result.x1[inl], result.x2[inl], seed=args.seed),
-        )
-    if len(result.sparse):
-        write_ply(out / "sparse.ply", result.sparse)
-    if result.dense is not None:
-        write_ply(out / "dense.ply", result.dense.cloud)
-        if result.dense.left is not None and result.dense.right is not None:
-            write_image(out / "rectified.png", draw_rectified_pair(result.dense.left, result.dense.right))
-        if result.dense.disparity is not None:
-            write_image(out / "disparity.png", colorize_disparity(result.dense.disparity))
-
+    _write_models_and_pictures(out, result, image1, image2, args.seed)
     if not args.quiet:
         for warning in result.warnings:
             info(f"warning: {warning}")
     if result.status in ("failed", "no_translation"):
         why = result.warnings[0] if result.warnings else "no relative pose could be estimated"
         raise EstimationError(f"{args.image1} and {args.image2}: {why} (details in {out / 'two_view.json'})")
-    if not args.quiet:
+    if not args.quiet and result.R is not None and result.t is not None:
         t = result.t
         angle = rotation_angle_deg(result.R)
         info(
@@ -160,7 +147,33 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _check_K_fits(cam, k_path: str, image_path: str) -> None:
+def _write_models_and_pictures(
+    out: Path, result: TwoViewResult, image1: np.ndarray, image2: np.ndarray, seed: int
+) -> None:
+    """sparse.ply, dense.ply and the pictures (matches, epipolar lines, rectified pair, disparity)
+    that the result has."""
+    if len(result.matches):
+        write_image(
+            out / "matches.png",
+            draw_matches(image1, image2, result.x1, result.x2, result.inliers, seed=seed),
+        )
+    if result.F is not None:
+        inl = result.inliers
+        write_image(
+            out / "epipolar.png",
+            draw_epipolar_lines(image1, image2, result.F, result.x1[inl], result.x2[inl], seed=seed),
+        )
+    if len(result.sparse):
+        write_ply(out / "sparse.ply", result.sparse)
+    if result.dense is not None:
+        write_ply(out / "dense.ply", result.dense.cloud)
+        if result.dense.left is not None and result.dense.right is not None:
+            write_image(out / "rectified.png", draw_rectified_pair(result.dense.left, result.dense.right))
+        if result.dense.disparity is not None:
+            write_image(out / "disparity.png", colorize_disparity(result.dense.disparity))
+
+
+def _check_K_fits(cam: Intrinsics, k_path: str, image_path: str) -> None:
     """A principal point far outside the image means the K is for another image size."""
     if not (0 <= cam.cx <= cam.width and 0 <= cam.cy <= cam.height):
         raise InputError(

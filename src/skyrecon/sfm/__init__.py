@@ -20,7 +20,7 @@ from skyrecon.sfm.align import (
     robust_umeyama,
     umeyama,
 )
-from skyrecon.sfm.bundle import BundleOptions, BundleProblem, BundleReport, bundle_adjust
+from skyrecon.sfm.bundle import BundleProblem, BundleReport, BundleSolverOptions, bundle_adjust
 from skyrecon.sfm.outputs import write_sfm_outputs
 from skyrecon.sfm.pipeline import run_sfm
 from skyrecon.sfm.pnp import AbsolutePose, estimate_absolute_pose
@@ -45,7 +45,7 @@ __all__ = [
     "VerificationSettings",
     "MapperSettings",
     "BundleSettings",
-    "BundleOptions",
+    "BundleSolverOptions",
     "BundleProblem",
     "BundleReport",
     "bundle_adjust",

@@ -56,7 +56,7 @@ def _openblas() -> list:
 def limited_threads(n: int = 1) -> Iterator[None]:
     """Run the block with at most ``n`` OpenBLAS and OpenCV threads; restore them afterwards."""
     libs = _openblas()
-    before = []
+    before: list[int | None] = []
     for g, s in libs:
         try:
             before.append(int(g()))

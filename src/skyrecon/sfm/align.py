@@ -73,6 +73,15 @@ class Sim3:
         p = np.asarray(points, np.float64)
         return self.scale * p @ self.R.T + self.t
 
+    def to_json_dict(self) -> dict:
+        """``scale``, ``R`` (3x3 rows), ``t`` and the 4x4 ``matrix`` as plain lists and floats."""
+        return {
+            "scale": self.scale,
+            "R": self.R.tolist(),
+            "t": self.t.tolist(),
+            "matrix": self.matrix.tolist(),
+        }
+
     def inverse(self) -> Sim3:
         """``src_from_dst``."""
         Ri = self.R.T

@@ -5,14 +5,14 @@ blocks and a robust loss (IRLS weights).
     problem = BundleProblem(R, t, points, cameras, camera_of_image, obs_image, obs_point, obs_uv)
     problem.constant_images[0] = True                      # gauge: first camera fixed
     problem.constant_pose_coords[1, 3 + k] = True          # ... and one coordinate of the second
-    report = bundle_adjust(problem, BundleOptions(loss="cauchy", loss_scale=1.0))
+    report = bundle_adjust(problem, BundleSolverOptions(loss="cauchy", loss_scale=1.0))
 
 Frames and units: ``R``, ``t`` are ``cam_from_world`` (``p_cam = R p_world + t``); points are
 world coordinates in the reconstruction's units; observations are pixels (top-left pixel centre
 (0, 0)); cameras are rows ``[fx, fy, cx, cy, k1, k2]`` (pixels; radial coefficients on the
 normalised plane). The reduced camera system (Schur complement of the 3 x 3 point blocks) is
 assembled as a dense matrix and solved by Cholesky factorisation up to
-``BundleOptions.max_dense_columns`` columns (1000 cameras by default) and by Jacobi-preconditioned
+``BundleSolverOptions.max_dense_columns`` columns (1000 cameras by default) and by Jacobi-preconditioned
 conjugate gradients above that.
 """
 
@@ -29,15 +29,16 @@ import scipy.linalg
 from skyrecon.errors import InputError
 from skyrecon.sfm import _ba_kernels as K
 
-__all__ = ["BundleOptions", "BundleProblem", "BundleReport", "bundle_adjust", "LossName"]
+__all__ = ["BundleSolverOptions", "BundleProblem", "BundleReport", "bundle_adjust", "LossName"]
 
 LossName = Literal["trivial", "huber", "cauchy"]
 _LOSS_CODES = {"trivial": K.LOSS_TRIVIAL, "huber": K.LOSS_HUBER, "cauchy": K.LOSS_CAUCHY}
 
 
 @dataclass(frozen=True)
-class BundleOptions:
-    """How to run the adjustment.
+class BundleSolverOptions:
+    """How the solver runs one adjustment (the mapper derives these from
+    :class:`~skyrecon.sfm.settings.BundleSettings` for each local or global run).
 
     Attributes:
         loss: robust loss on each observation's squared residual: ``"cauchy"`` (default),
@@ -158,6 +159,13 @@ def _mask(m: np.ndarray | None, n: int) -> np.ndarray:
     return np.zeros(n, bool) if m is None else np.asarray(m, bool).reshape(n).copy()
 
 
+def _filled(value: np.ndarray | None) -> np.ndarray:
+    """An optional array of a :class:`BundleProblem`, which its ``__post_init__`` always fills."""
+    if value is None:
+        raise RuntimeError("BundleProblem.__post_init__ did not fill an optional array")
+    return value
+
+
 @dataclass
 class BundleReport:
     """What an adjustment did.
@@ -212,13 +220,14 @@ class _Structure:
         return len(self.intr_cameras) > 0
 
 
-def _structure(p: BundleProblem, o: BundleOptions) -> _Structure:
+def _structure(p: BundleProblem, o: BundleSolverOptions) -> _Structure:
     n_img, n_pt, n_cam = len(p.R), len(p.points), len(p.cameras)
     seen_img = np.zeros(n_img, bool)
     seen_img[p.obs_image] = True
-    var_img = seen_img & ~p.constant_images & ~np.all(p.constant_pose_coords, axis=1)
+    constant_pose_coords = _filled(p.constant_pose_coords)
+    var_img = seen_img & ~_filled(p.constant_images) & ~np.all(constant_pose_coords, axis=1)
     pose_images = np.nonzero(var_img)[0]
-    pose_free = ~p.constant_pose_coords[pose_images]
+    pose_free = ~constant_pose_coords[pose_images]
     pose_block = np.full(n_img, -1, np.int64)
     pose_block[pose_images] = np.arange(len(pose_images))
     intr_base = 6 * len(pose_images)
@@ -226,7 +235,7 @@ def _structure(p: BundleProblem, o: BundleOptions) -> _Structure:
     intr_free = np.array([o.refine_focal_length, o.refine_distortion, o.refine_distortion])
     cam_seen = np.zeros(n_cam, bool)
     cam_seen[p.camera_of_image[pose_images]] = True  # only cameras of variable images are refined
-    var_cam = cam_seen & ~p.constant_cameras & bool(intr_free.any())
+    var_cam = cam_seen & ~_filled(p.constant_cameras) & bool(intr_free.any())
     intr_cameras = np.nonzero(var_cam)[0]
     intr_block = np.full(n_cam, -1, np.int64)
     intr_block[intr_cameras] = np.arange(len(intr_cameras))
@@ -238,7 +247,7 @@ def _structure(p: BundleProblem, o: BundleOptions) -> _Structure:
 
     seen_pt = np.zeros(n_pt, bool)
     seen_pt[p.obs_point] = True
-    var_pt = seen_pt & ~p.constant_points
+    var_pt = seen_pt & ~_filled(p.constant_points)
     var_points = np.nonzero(var_pt)[0]
     pt_var = np.full(n_pt, -1, np.int64)
     pt_var[var_points] = np.arange(len(var_points))
@@ -355,7 +364,9 @@ def _pcg(S_mv, rhs: np.ndarray, precond: np.ndarray, tol: float = 1e-6, max_iter
     return x
 
 
-def bundle_adjust(problem: BundleProblem, options: BundleOptions = BundleOptions()) -> BundleReport:
+def bundle_adjust(
+    problem: BundleProblem, options: BundleSolverOptions = BundleSolverOptions()
+) -> BundleReport:
     """Minimise the robust reprojection error of ``problem`` in place (Levenberg-Marquardt).
 
     Args:
@@ -373,7 +384,7 @@ def bundle_adjust(problem: BundleProblem, options: BundleOptions = BundleOptions
     n_obs = len(p.obs_image)
     loss = _LOSS_CODES[o.loss]
     c2 = float(o.loss_scale) ** 2
-    inv_sigma = 1.0 / p.obs_sigma
+    inv_sigma = 1.0 / _filled(p.obs_sigma)
     s = _structure(p, o)
     nq = len(s.var_points)
     buf = _Buffers(n_obs)

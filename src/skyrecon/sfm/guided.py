@@ -42,7 +42,7 @@ def _grid(xy: np.ndarray, cell: float):
 
 
 @nb.njit(cache=True, fastmath=True)
-def _dot(q: np.ndarray, t: np.ndarray) -> float:
+def _dot(q: np.ndarray, t: np.ndarray) -> np.float32:
     s = np.float32(0.0)
     for d in range(q.shape[0]):
         s += q[d] * t[d]

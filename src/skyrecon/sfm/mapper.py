@@ -15,6 +15,7 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -22,7 +23,7 @@ from skyrecon.core.intrinsics import Intrinsics
 from skyrecon.errors import EstimationError
 from skyrecon.geometry.homography import estimate_homography
 from skyrecon.geometry.sampling import RansacOptions
-from skyrecon.sfm.bundle import BundleOptions, BundleProblem, BundleReport, bundle_adjust
+from skyrecon.sfm.bundle import BundleProblem, BundleReport, BundleSolverOptions, bundle_adjust
 from skyrecon.sfm.matching import PairGeometry
 from skyrecon.sfm.pnp import estimate_absolute_pose
 from skyrecon.sfm.settings import BundleSettings, MapperSettings
@@ -169,7 +170,7 @@ class IncrementalMapper:
                 "distortion refinement skipped for cameras with tangential or k3 coefficients (only k1, k2 are refined)"
             )
         self._update_normalized()
-        self.stats = {
+        self.stats: dict[str, Any] = {
             "pnp_attempts": 0,
             "pnp_failures": 0,
             "local_ba": 0,
@@ -312,8 +313,8 @@ class IncrementalMapper:
         return len(good)
 
     def _tracks_of_images(self, images: Sequence[int] | np.ndarray) -> np.ndarray:
-        t = [self.d.tracks.kp_track[i] for i in images]
-        t = np.concatenate(t) if t else np.zeros(0, np.int64)
+        per_image = [self.d.tracks.kp_track[i] for i in images]
+        t = np.concatenate(per_image) if per_image else np.zeros(0, np.int64)
         return np.unique(t[t >= 0])
 
     # ------------------------------------------------------------------ adjustment
@@ -322,15 +323,17 @@ class IncrementalMapper:
     ) -> None:
         """Fix the similarity gauge of a problem (see the module docstring)."""
         assert self.ref is not None
+        constant_images, constant_pose_coords = prob.constant_images, prob.constant_pose_coords
+        assert constant_images is not None and constant_pose_coords is not None  # BundleProblem fills them
         r0, r1 = self.ref
         var_set = set(int(v) for v in var_images)
         anchor = None
         if r0 in var_set:
-            prob.constant_images[local_index[r0]] = True
+            constant_images[local_index[r0]] = True
             anchor = r0
         elif len(const_images) == 0:
             anchor = int(var_images[0])
-            prob.constant_images[local_index[anchor]] = True
+            constant_images[local_index[anchor]] = True
         elif len(const_images) >= 2:
             return
         else:
@@ -346,7 +349,7 @@ class IncrementalMapper:
         C = self._centers()
         d = self.R[second] @ (C[second] - C[anchor])
         k = int(np.argmax(np.abs(d)))
-        prob.constant_pose_coords[local_index[second], 3 + k] = True
+        constant_pose_coords[local_index[second], 3 + k] = True
 
     def _adjust(
         self,
@@ -383,7 +386,7 @@ class IncrementalMapper:
             constant_images=~var_mask,
         )
         self._gauge(images[var_mask], const_images, prob, local_index)
-        opts = BundleOptions(
+        opts = BundleSolverOptions(
             loss=self.b.loss,
             loss_scale=self.b.loss_scale_px,
             max_iterations=max_iterations,
@@ -545,6 +548,8 @@ class IncrementalMapper:
 
     def _try_init(self, p: PairGeometry) -> str:
         """Initialise from a pair; returns "" on success, else why not (state is reset)."""
+        if p.R is None or p.t is None:
+            return "the pair has no relative pose"
         a, b = p.i, p.j
         self.R[a], self.t[a] = np.eye(3), np.zeros(3)
         self.R[b], self.t[b] = p.R, p.t / np.linalg.norm(p.t)

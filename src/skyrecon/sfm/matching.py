@@ -164,7 +164,7 @@ def verify_matches(
             median_flow_px=flow,
             reason=f"{what} ({n_rot} of {M} matches): no parallax",
         )
-    if n_E < settings.min_inliers or R is None:
+    if n_E < settings.min_inliers or R is None or t is None:
         return _failed(
             i,
             j,

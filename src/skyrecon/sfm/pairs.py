@@ -8,8 +8,10 @@ found with VLAD global descriptors).
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import re
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -17,7 +19,15 @@ from skyrecon.errors import InputError
 from skyrecon.sfm.retrieval import similarity_matrix
 from skyrecon.sfm.settings import PairingSettings, PairMode
 
-__all__ = ["PairSelection", "select_pairs", "exhaustive_pairs", "sequential_pairs", "retrieval_pairs"]
+__all__ = [
+    "PairSelection",
+    "select_pairs",
+    "resolve_pair_mode",
+    "looks_like_sequence",
+    "exhaustive_pairs",
+    "sequential_pairs",
+    "retrieval_pairs",
+]
 
 
 @dataclass
@@ -96,25 +106,66 @@ def retrieval_pairs(
     return np.unique(pairs, axis=0).astype(np.int64) if len(pairs) else np.zeros((0, 2), np.int64)
 
 
+def looks_like_sequence(names: Sequence[str]) -> bool:
+    """The names are numbered frames of one sequence: the same text around one number that grows
+    with the (natural) name order, mostly in equal steps."""
+    if len(names) < 3:
+        return False
+    pattern = re.compile(r"^(.*?)(\d+)(\D*)$")
+    parts = [pattern.match(Path(n).stem) for n in names]
+    matches = [m for m in parts if m is not None]
+    if len(matches) != len(parts):
+        return False
+    if len({(m.group(1), m.group(3)) for m in matches}) != 1:
+        return False
+    nums = np.array([int(m.group(2)) for m in matches])
+    steps = np.diff(nums)
+    if np.any(steps <= 0):
+        return False
+    return bool(np.mean(steps == np.median(steps)) >= 0.8)
+
+
+def resolve_pair_mode(mode: PairMode, names: Sequence[str], settings: PairingSettings) -> PairMode:
+    """The pairing mode for these images: ``mode`` itself unless it is ``"auto"``.
+
+    The ``auto`` rule: exhaustive up to ``settings.exhaustive_max_images`` images; above that
+    sequential when the names are numbered frames of one sequence (:func:`looks_like_sequence`),
+    else retrieval.
+
+    Args:
+        mode: the requested mode.
+        names: the image names, in input (sequence) order.
+        settings: the pairing settings (``exhaustive_max_images``).
+    """
+    if mode != "auto":
+        return mode
+    if len(names) <= settings.exhaustive_max_images:
+        return "exhaustive"
+    return "sequential" if looks_like_sequence(names) else "retrieval"
+
+
 def select_pairs(
     n: int,
     mode: PairMode,
     settings: PairingSettings,
     global_descriptors: Callable[[], np.ndarray] | None = None,
+    names: Sequence[str] | None = None,
 ) -> PairSelection:
     """Pairs to match for ``n`` images.
 
     Args:
         n: number of images (in sequence order for ``"sequential"``).
-        mode: ``"auto"``, ``"exhaustive"``, ``"sequential"`` or ``"retrieval"``.
+        mode: ``"auto"`` (see :func:`resolve_pair_mode`), ``"exhaustive"``, ``"sequential"`` or
+            ``"retrieval"``.
         settings: window sizes, neighbours.
         global_descriptors: computes (n, D) unit global descriptors on demand (retrieval and
             loop detection).
+        names: the image names, for the ``auto`` rule (without them, ``auto`` never chooses
+            sequential).
     """
     if n < 2:
         raise InputError(f"need at least two images to pair, got {n}")
-    if mode == "auto":
-        mode = "exhaustive" if n <= settings.exhaustive_max_images else "retrieval"
+    mode = resolve_pair_mode(mode, names if names is not None else [""] * n, settings)
     if mode == "exhaustive" or (mode == "retrieval" and n <= settings.retrieval_neighbors + 1):
         return PairSelection(exhaustive_pairs(n), "exhaustive")
     if mode == "sequential":

@@ -16,7 +16,9 @@ import os
 import tempfile
 import time
 from collections.abc import Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -25,17 +27,20 @@ from skyrecon.core.reconstruction import Image, Point3D, Reconstruction
 from skyrecon.core.rigid import Rigid3
 from skyrecon.errors import EstimationError, InputError
 from skyrecon.executor import Executor, get_executor
+from skyrecon.features.match import match_descriptors
 from skyrecon.sfm._pool import run_scoped_executor
 from skyrecon.sfm._threads import limited_threads
 from skyrecon.sfm.extract import ExtractedImage, ExtractTask, extract_one, load_features
 from skyrecon.sfm.mapper import IncrementalMapper, MapperInput, MapperOutput
 from skyrecon.sfm.matching import PairGeometry, run_matching
-from skyrecon.sfm.pairs import select_pairs
+from skyrecon.sfm.pairs import PairSelection, resolve_pair_mode, select_pairs
 from skyrecon.sfm.result import ImageStatus, SfMResult
 from skyrecon.sfm.retrieval import vlad_descriptors
-from skyrecon.sfm.settings import SfMSettings
-from skyrecon.sfm.tracks import build_tracks
+from skyrecon.sfm.settings import PairMode, SfMSettings
+from skyrecon.sfm.tracks import Tracks, build_tracks
 from skyrecon.sfm.viewgraph import rotation_inconsistent_pairs
+from skyrecon.twoview.estimate import estimate_two_view_geometry
+from skyrecon.twoview.settings import TwoViewSettings
 
 __all__ = ["run_sfm", "image_names"]
 
@@ -82,20 +87,15 @@ def _camera_ids(cams: list[Intrinsics]) -> tuple[list[Intrinsics], np.ndarray]:
 
 
 def _diagnose_pairs(
-    pairs: list[PairGeometry], x: dict, cams: list[Intrinsics], settings: SfMSettings
+    pairs: list[PairGeometry], x: dict[int, str], cams: list[Intrinsics], settings: SfMSettings
 ) -> list[str]:
     """Run the full two-view diagnostics (E vs F vs H vs rotation) on the pairs with the most
     matches, to explain a failed or partial reconstruction (e.g. a wrong K)."""
-    from skyrecon.twoview.estimate import estimate_two_view_geometry
-    from skyrecon.twoview.settings import TwoViewSettings
-
     out: list[str] = []
     best = sorted(pairs, key=lambda p: -p.num_matches)[:3]
     for p in best:
         fi = load_features(x[p.i], ("keypoints", "descriptors"))
         fj = load_features(x[p.j], ("keypoints", "descriptors"))
-        from skyrecon.features.match import match_descriptors
-
         m = match_descriptors(fi["descriptors"], fj["descriptors"], settings.matching)
         if len(m) < 8:
             continue
@@ -166,67 +166,125 @@ def run_sfm(
         # the configured executor; the local process one is kept alive across the stages
         executor, release = run_scoped_executor(get_executor())
     workers = int(getattr(executor, "workers", 1) or 1)
-    timings: dict[str, float] = {}
-    diagnostics: dict = {}
-    warnings: list[str] = []
     tmp = None
     if workspace is None:
         tmp = tempfile.TemporaryDirectory(prefix="skyrecon-sfm-")
         workspace = tmp.name
     cache_dir = Path(workspace) / "features"
     cache_dir.mkdir(parents=True, exist_ok=True)
+    state = _SfMRun(
+        paths,
+        names,
+        cams_in,
+        settings,
+        executor,
+        workers,
+        seed,
+        cache_dir,
+        resolve_pair_mode(settings.pair_mode, names, settings.pairing),
+        t_total,
+    )
     try:
         with limited_threads(1):
-            return _run(
-                paths,
-                names,
-                cams_in,
-                settings,
-                executor,
-                workers,
-                seed,
-                cache_dir,
-                timings,
-                diagnostics,
-                warnings,
-                t_total,
-            )
+            return _run(state)
     finally:
         release()
         if tmp is not None:
             tmp.cleanup()
 
 
-def _run(
-    paths,
-    names,
-    cams_in,
-    settings,
-    executor,
-    workers,
-    seed,
-    cache_dir,
-    timings,
-    diagnostics,
-    warnings,
-    t_total,
-):
-    n = len(paths)
-    # ----- features ---------------------------------------------------------------------------
+@dataclass
+class _SfMRun:
+    """What the steps of one run share: its inputs, and what each step leaves for the next.
+
+    Image indices are input indices (0..n-1) unless a name says otherwise.
+
+    Attributes:
+        paths, names, cams_in: the input images and their cameras (input size).
+        settings, executor, workers, seed, cache_dir: how the run works.
+        pair_mode: the pairing mode, ``auto`` resolved over all input images.
+        t_total: ``perf_counter`` at the start of :func:`run_sfm`.
+        timings, diagnostics, warnings: the result's, filled step by step.
+        reasons: image -> why it was left out (first reason wins).
+        extracted: per image, what feature extraction found (``features`` step).
+        usable: images still in play, ascending.
+        scale: median working (feature) resolution / input resolution.
+        selection: the pairs to match (``select_pairs`` step).
+        pairs: verified pair geometries, input indices (``match_pairs`` step).
+        keypoints, keypoint_sizes, colors: per image, (M_i, 2) input pixels, (M_i,), (M_i, 3) uint8.
+        tracks: feature tracks over the usable images (``tracks`` step).
+        cameras, camera_of_image: distinct cameras and (n,) index of each image's camera.
+        mapped: the mapper's output (``map`` step).
+    """
+
+    paths: list[Path]
+    names: list[str]
+    cams_in: list[Intrinsics]
+    settings: SfMSettings
+    executor: Executor
+    workers: int
+    seed: int
+    cache_dir: Path
+    pair_mode: PairMode
+    t_total: float
+    timings: dict[str, float] = field(default_factory=dict)
+    diagnostics: dict[str, Any] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+    reasons: dict[int, str] = field(default_factory=dict)
+    extracted: list[ExtractedImage] = field(default_factory=list)
+    usable: list[int] = field(default_factory=list)
+    scale: float = 1.0
+    selection: PairSelection | None = None
+    pairs: list[PairGeometry] = field(default_factory=list)
+    keypoints: list[np.ndarray] = field(default_factory=list)
+    keypoint_sizes: list[np.ndarray] = field(default_factory=list)
+    colors: list[np.ndarray] = field(default_factory=list)
+    tracks: Tracks | None = None
+    cameras: list[Intrinsics] = field(default_factory=list)
+    camera_of_image: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    mapped: MapperOutput | None = None
+
+    @property
+    def n(self) -> int:
+        return len(self.paths)
+
+
+def _run(state: _SfMRun) -> SfMResult:
+    """The steps of :func:`run_sfm`, in order, on one shared state."""
+    _extract_features(state)
+    _leave_out_unusable(state)
+    _select_pairs(state)
+    _match_pairs(state)
+    _leave_out_identical(state)
+    _build_tracks(state)
+    _map(state)
+    _collect_warnings(state)
+    return _result(state)
+
+
+def _extract_features(state: _SfMRun) -> None:
+    """Features of every image (per image on the executor, cached in the workspace)."""
     t0 = time.perf_counter()
-    fs = settings.feature_settings
+    fs = state.settings.feature_settings
     tasks = [
-        ExtractTask(k, str(p), names[k], fs, str(cache_dir), settings.target_features)
-        for k, p in enumerate(paths)
+        ExtractTask(k, str(p), state.names[k], fs, str(state.cache_dir), state.settings.target_features)
+        for k, p in enumerate(state.paths)
     ]
-    ext: list[ExtractedImage] = executor.map(extract_one, tasks, desc="features")
-    timings["features"] = time.perf_counter() - t0
-    diagnostics["features_cached"] = sum(1 for e in ext if e.cached)
-    reasons: dict[int, str] = {}
-    for e in ext:
+    state.extracted = state.executor.map(extract_one, tasks, desc="features")
+    state.timings["features"] = time.perf_counter() - t0
+    state.diagnostics["features_cached"] = sum(1 for e in state.extracted if e.cached)
+    for e in state.extracted:
         if not e.ok:
-            reasons[e.index] = e.reason
-    # size checks against the calibration
+            state.reasons[e.index] = e.reason
+
+
+def _leave_out_unusable(state: _SfMRun) -> None:
+    """Leave out images of another size than their K, duplicate files and texture-poor images.
+
+    Raises:
+        InputError: no image has the size of its K, or fewer than two images are usable.
+    """
+    n, ext, reasons, cams_in, names = state.n, state.extracted, state.reasons, state.cams_in, state.names
     fits = [k for k in range(n) if k not in reasons and (ext[k].width, ext[k].height) == cams_in[k].size]
     if not fits and len(reasons) < n:
         sizes = sorted({f"{e.width}x{e.height}" for e in ext if e.ok})
@@ -250,52 +308,71 @@ def _run(
             reasons[e.index] = f"duplicate: the same file content as {names[seen[e.file_hash]]}"
         else:
             seen[e.file_hash] = e.index
+    min_features = state.settings.min_features
     for e in ext:
-        if e.index not in reasons and e.num_features < settings.min_features:
+        if e.index not in reasons and e.num_features < min_features:
             reasons[e.index] = (
-                f"only {e.num_features} features (at least {settings.min_features} needed): too little texture"
+                f"only {e.num_features} features (at least {min_features} needed): too little texture"
             )
     usable = [k for k in range(n) if k not in reasons]
     if len(usable) < 2:
         detail = "; ".join(f"{names[k]}: {r}" for k, r in sorted(reasons.items())[:10])
         raise InputError(f"fewer than two usable images ({len(usable)} of {n}): {detail}")
-    scale = float(np.median([ext[k].scale for k in usable]))
-    diagnostics["working_scale"] = scale
-    diagnostics["num_features"] = {names[k]: ext[k].num_features for k in range(n)}
-    paths_c = [ext[k].cache_path for k in usable]
-    cams_c = [cams_in[k] for k in usable]
+    state.usable = usable
+    state.scale = float(np.median([ext[k].scale for k in usable]))
+    state.diagnostics["working_scale"] = state.scale
+    state.diagnostics["num_features"] = {names[k]: ext[k].num_features for k in range(n)}
 
-    # ----- pairs ------------------------------------------------------------------------------
+
+def _select_pairs(state: _SfMRun) -> None:
+    """The pairs of usable images to match (exhaustive, sequential or retrieval)."""
     t0 = time.perf_counter()
+    paths_c = [state.extracted[k].cache_path for k in state.usable]
+    pairing = state.settings.pairing
     sel = select_pairs(
-        len(usable),
-        settings.pair_mode,
-        settings.pairing,
-        lambda: vlad_descriptors(paths_c, settings.pairing.retrieval_clusters, seed),
+        len(state.usable),
+        state.pair_mode,
+        pairing,
+        lambda: vlad_descriptors(paths_c, pairing.retrieval_clusters, state.seed),
     )
-    timings["pairs"] = time.perf_counter() - t0
-    diagnostics["pairing"] = {
+    state.selection = sel
+    state.timings["pairs"] = time.perf_counter() - t0
+    state.diagnostics["pairing"] = {
         "mode": sel.mode,
         "num_pairs": int(len(sel.pairs)),
         "num_loop_pairs": sel.num_loop_pairs,
     }
 
-    # ----- matching and verification ------------------------------------------------------------
+
+def _match_pairs(state: _SfMRun) -> None:
+    """Match and verify the selected pairs (per chunk on the executor), then reject pairs whose
+    rotation disagrees with the rotations chained along the strongest pairs."""
+    sel = _required(state.selection, "pair selection")
+    settings, usable = state.settings, state.usable
     t0 = time.perf_counter()
     geo_c = run_matching(
-        sel.pairs, paths_c, cams_c, scale, settings.matching, settings.verification, seed, executor, workers
+        sel.pairs,
+        [state.extracted[k].cache_path for k in usable],
+        [state.cams_in[k] for k in usable],
+        state.scale,
+        settings.matching,
+        settings.verification,
+        state.seed,
+        state.executor,
+        state.workers,
     )
-    timings["matching"] = time.perf_counter() - t0
+    state.timings["matching"] = time.perf_counter() - t0
     pairs: list[PairGeometry] = []
     for g in geo_c:  # back to input indices
         g.i, g.j = usable[g.i], usable[g.j]
         pairs.append(g)
+    state.pairs = pairs
     if settings.verification.max_rotation_inconsistency_deg > 0:
         trusted = None
         if sel.mode == "sequential":  # neighbouring frames: their rotations chain reliably
             trusted = np.array([g.j - g.i <= settings.pairing.window for g in pairs])
         bad, err = rotation_inconsistent_pairs(
-            pairs, n, settings.verification.max_rotation_inconsistency_deg, trusted
+            pairs, state.n, settings.verification.max_rotation_inconsistency_deg, trusted
         )
         for k in bad:
             g = pairs[k]
@@ -304,104 +381,172 @@ def _run(
                 "strongest pairs (repeated structure?)"
             )
             g.status, g.matches, g.R, g.t = "failed", g.matches[:0], None, None
-        diagnostics["pairs_rotation_inconsistent"] = len(bad)
-    diagnostics["pairs_verified"] = sum(1 for g in pairs if g.status == "ok")
-    diagnostics["pairs_no_translation"] = sum(1 for g in pairs if g.status == "no_translation")
-    diagnostics["pairs_failed"] = sum(1 for g in pairs if g.status == "failed")
-    # near-duplicates: identical-looking images
-    usable_set = set(usable)
-    for g in pairs:
+        state.diagnostics["pairs_rotation_inconsistent"] = len(bad)
+    for status, key in (
+        ("ok", "pairs_verified"),
+        ("no_translation", "pairs_no_translation"),
+        ("failed", "pairs_failed"),
+    ):
+        state.diagnostics[key] = sum(1 for g in pairs if g.status == status)
+
+
+def _leave_out_identical(state: _SfMRun) -> None:
+    """Near-duplicates: of two identical-looking images (no parallax), the second is left out."""
+    usable_set = set(state.usable)
+    for g in state.pairs:
         if (
             g.status == "no_translation"
             and "identical" in g.reason
             and g.i in usable_set
             and g.j in usable_set
         ):
-            reasons[g.j] = f"duplicate: looks identical to {names[g.i]} (no parallax between them)"
+            state.reasons[g.j] = (
+                f"duplicate: looks identical to {state.names[g.i]} (no parallax between them)"
+            )
             usable_set.discard(g.j)
-    usable = [k for k in usable if k in usable_set]
+    state.usable = [k for k in state.usable if k in usable_set]
 
-    # ----- tracks -----------------------------------------------------------------------------
+
+def _build_tracks(state: _SfMRun) -> None:
+    """Load keypoints, sizes and colours of every image and join the matches into tracks."""
     t0 = time.perf_counter()
-    kp, sizes, colors = [], [], []
-    for k in range(n):
-        if ext[k].ok and ext[k].cache_path:
-            f = load_features(ext[k].cache_path, ("keypoints", "scales", "colors"))
-            kp.append(f["keypoints"])
-            sizes.append(f["scales"])
-            colors.append(f["colors"])
+    for e in state.extracted:
+        if e.ok and e.cache_path:
+            f = load_features(e.cache_path, ("keypoints", "scales", "colors"))
+            state.keypoints.append(f["keypoints"])
+            state.keypoint_sizes.append(f["scales"])
+            state.colors.append(f["colors"])
         else:
-            kp.append(np.zeros((0, 2)))
-            sizes.append(np.zeros(0, np.float32))
-            colors.append(np.zeros((0, 3), np.uint8))
+            state.keypoints.append(np.zeros((0, 2)))
+            state.keypoint_sizes.append(np.zeros(0, np.float32))
+            state.colors.append(np.zeros((0, 3), np.uint8))
+    usable_set = set(state.usable)
     track_pairs = [
         (g.i, g.j, g.matches)
-        for g in pairs
+        for g in state.pairs
         if g.status != "failed" and g.i in usable_set and g.j in usable_set
     ]
-    tracks = build_tracks([len(k) for k in kp], track_pairs, kp)
-    timings["tracks"] = time.perf_counter() - t0
-    diagnostics["tracks"] = {
+    tracks = build_tracks([len(k) for k in state.keypoints], track_pairs, state.keypoints)
+    state.tracks = tracks
+    state.timings["tracks"] = time.perf_counter() - t0
+    state.diagnostics["tracks"] = {
         "num_tracks": tracks.num_tracks,
         "num_observations": tracks.num_observations,
         "inconsistent_dropped": tracks.num_inconsistent,
         "mean_length": float(tracks.lengths.mean()) if tracks.num_tracks else 0.0,
     }
 
-    # ----- mapping ----------------------------------------------------------------------------
+
+def _map(state: _SfMRun) -> None:
+    """Incremental mapping with bundle adjustment.
+
+    Raises:
+        EstimationError: no initial pair; the message adds the two-view diagnostics of the
+            strongest pairs and the images left out before mapping.
+    """
     t0 = time.perf_counter()
-    cameras, cam_ids = _camera_ids(cams_in)
+    names, n = state.names, state.n
+    state.cameras, state.camera_of_image = _camera_ids(state.cams_in)
     usable_mask = np.zeros(n, bool)
-    usable_mask[usable] = True
-    data = MapperInput(names, kp, sizes, colors, cameras, cam_ids, tracks, pairs, usable_mask, scale)
-    mapper = IncrementalMapper(data, settings.mapper, settings.bundle, seed)
+    usable_mask[state.usable] = True
+    data = MapperInput(
+        names,
+        state.keypoints,
+        state.keypoint_sizes,
+        state.colors,
+        state.cameras,
+        state.camera_of_image,
+        _required(state.tracks, "tracks"),
+        state.pairs,
+        usable_mask,
+        state.scale,
+    )
+    mapper = IncrementalMapper(data, state.settings.mapper, state.settings.bundle, state.seed)
     try:
         out = mapper.run()
     except EstimationError as exc:
-        extra = _diagnose_pairs(
-            [g for g in pairs if g.status != "failed"] or pairs,
-            {k: ext[k].cache_path for k in range(n)},
-            cams_in,
-            settings,
-        )
-        left = "; ".join(f"{names[k]}: {r}" for k, r in sorted(reasons.items())[:10])
+        extra = _diagnose_state(state, [g for g in state.pairs if g.status != "failed"])
+        left = "; ".join(f"{names[k]}: {r}" for k, r in sorted(state.reasons.items())[:10])
         msg = str(exc)
         if extra:
             msg += ". " + " ".join(extra)
         if left:
             msg += f". Images left out before mapping: {left}"
         raise EstimationError(msg) from None
-    timings["mapping"] = time.perf_counter() - t0
-    diagnostics["mapper"] = out.diagnostics
+    state.mapped = out
+    state.timings["mapping"] = time.perf_counter() - t0
+    state.diagnostics["mapper"] = out.diagnostics
     if out.init_pair is not None:
-        diagnostics["mapper"]["init_pair"] = [names[out.init_pair[0]], names[out.init_pair[1]]]
-    diagnostics["mapper"]["registration_order"] = [names[i] for i in out.registration_order]
-    warnings.extend(out.warnings)
+        state.diagnostics["mapper"]["init_pair"] = [names[out.init_pair[0]], names[out.init_pair[1]]]
+    state.diagnostics["mapper"]["registration_order"] = [names[i] for i in out.registration_order]
+    state.warnings.extend(out.warnings)
     for i, why in out.failures.items():
-        reasons.setdefault(i, why)
-    if out.registered.sum() < 0.8 * len(usable):
-        extra = _diagnose_pairs(
-            [g for g in pairs if g.status == "ok"] or pairs,
-            {k: ext[k].cache_path for k in range(n)},
-            cams_in,
-            settings,
-        )
-        warnings.extend(extra)
+        state.reasons.setdefault(i, why)
+
+
+def _diagnose_state(state: _SfMRun, candidates: list[PairGeometry]) -> list[str]:
+    """:func:`_diagnose_pairs` on ``candidates`` (all pairs when there are none)."""
+    return _diagnose_pairs(
+        candidates or state.pairs,
+        {k: state.extracted[k].cache_path for k in range(state.n)},
+        state.cams_in,
+        state.settings,
+    )
+
+
+def _collect_warnings(state: _SfMRun) -> None:
+    """Explain a partial model (two-view diagnostics) and list the left-out images first."""
+    out = _required(state.mapped, "mapping")
+    if out.registered.sum() < 0.8 * len(state.usable):
+        state.warnings.extend(_diagnose_state(state, [g for g in state.pairs if g.status == "ok"]))
+    reasons, names = state.reasons, state.names
     if reasons:
-        warnings.insert(
+        state.warnings.insert(
             0,
-            f"{len(reasons)} of {n} images were left out of the model: "
+            f"{len(reasons)} of {state.n} images were left out of the model: "
             + ", ".join(names[k] for k in sorted(reasons)[:10])
             + (" ..." if len(reasons) > 10 else ""),
         )
-    rec, statuses = _assemble(names, paths, ext, kp, out, tracks, cameras, cam_ids, reasons)
-    timings["total"] = time.perf_counter() - t_total
-    return SfMResult(rec, statuses, diagnostics, timings, warnings, seed)
+
+
+def _result(state: _SfMRun) -> SfMResult:
+    rec, statuses = _assemble(
+        state.names,
+        state.paths,
+        state.extracted,
+        state.keypoints,
+        _required(state.mapped, "mapping"),
+        _required(state.tracks, "tracks"),
+        state.cameras,
+        state.camera_of_image,
+        state.reasons,
+    )
+    state.timings["total"] = time.perf_counter() - state.t_total
+    return SfMResult(rec, statuses, state.diagnostics, state.timings, state.warnings, state.seed)
+
+
+_T = TypeVar("_T")
+
+
+def _required(value: _T | None, step: str) -> _T:
+    """``value``, which an earlier step has set (a programming error otherwise)."""
+    if value is None:
+        raise RuntimeError(f"SfM step order: {step} has not run")
+    return value
 
 
 def _assemble(
-    names, paths, ext, kp, out: MapperOutput, tracks, cameras, cam_ids, reasons
+    names: list[str],
+    paths: list[Path],
+    ext: list[ExtractedImage],
+    kp: list[np.ndarray],
+    out: MapperOutput,
+    tracks: Tracks,
+    cameras: list[Intrinsics],
+    cam_ids: np.ndarray,
+    reasons: dict[int, str],
 ) -> tuple[Reconstruction, list[ImageStatus]]:
+    """The COLMAP-ready model of the mapper's output and one status per input image."""
     n = len(names)
     pt_tracks = np.nonzero(out.has_point)[0]
     pid = np.full(tracks.num_tracks, -1, np.int64)

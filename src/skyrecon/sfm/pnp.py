@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 
 from skyrecon.errors import EstimationError, InputError
-from skyrecon.sfm.bundle import BundleOptions, BundleProblem, bundle_adjust
+from skyrecon.sfm.bundle import BundleProblem, BundleSolverOptions, bundle_adjust
 
 __all__ = ["AbsolutePose", "estimate_absolute_pose", "refine_absolute_pose"]
 
@@ -86,7 +86,9 @@ def refine_absolute_pose(
         sig / focal_px,
         constant_points=np.ones(n, bool),
     )
-    bundle_adjust(prob, BundleOptions(loss="cauchy", loss_scale=loss_scale_px, max_iterations=max_iterations))
+    bundle_adjust(
+        prob, BundleSolverOptions(loss="cauchy", loss_scale=loss_scale_px, max_iterations=max_iterations)
+    )
     return prob.R[0], prob.t[0]
 
 

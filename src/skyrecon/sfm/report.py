@@ -113,7 +113,9 @@ def top_view_png(result: SfMResult, size: int = 900, max_points: int = 60000, se
         uv = np.round(px(p2)).astype(np.int64)
         ok = (uv[:, 0] >= 0) & (uv[:, 0] < size) & (uv[:, 1] >= 0) & (uv[:, 1] < size)
         img[uv[ok, 1], uv[ok, 0]] = rgb[ok]
-        img = cv2.erode(img, np.ones((2, 2), np.uint8))  # 2x2 dots (darker wins over white)
+        img = np.asarray(
+            cv2.erode(img, np.ones((2, 2), np.uint8)), np.uint8
+        )  # 2x2 dots (darker wins over white)
     if len(c2):
         cu = px(c2)
         d2 = Z @ B[:2].T

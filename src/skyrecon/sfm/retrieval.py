@@ -26,7 +26,7 @@ def _sample(
         chosen = np.sort(rng.choice(len(paths), max_images, replace=False))
     parts = []
     for k in chosen:
-        d = load_features(paths[k], ("descriptors",))["descriptors"]
+        d = load_features(paths[int(k)], ("descriptors",))["descriptors"]
         if len(d) == 0:
             continue
         sel = rng.choice(len(d), min(per_image, len(d)), replace=False)

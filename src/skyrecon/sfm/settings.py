@@ -34,7 +34,9 @@ class PairingSettings:
         mode: ``"exhaustive"`` (every pair), ``"sequential"`` (frames of a flight: a window of
             following frames, a few frames further ahead, and loop candidates found by image
             retrieval), ``"retrieval"`` (unordered sets: each image with its most similar images)
-            or ``"auto"`` (exhaustive up to ``exhaustive_max_images`` images, else retrieval).
+            or ``"auto"`` (exhaustive up to ``exhaustive_max_images`` images, else sequential
+            when the image names are numbered frames, else retrieval; see
+            :func:`skyrecon.sfm.pairs.resolve_pair_mode`).
         exhaustive_max_images: the ``auto`` limit for exhaustive matching.
         window: sequential: match each frame with the next ``window`` frames.
         exponential: sequential: also match frames ``2 window, 4 window, ...`` ahead, up to
@@ -189,7 +191,9 @@ class MapperSettings:
 
 @dataclass(frozen=True)
 class BundleSettings:
-    """Bundle adjustment inside the mapper.
+    """Bundle adjustment inside the mapper: the user-facing policy (which loss, how long local and
+    global runs go, which intrinsics to refine). The mapper turns it into the solver's
+    :class:`~skyrecon.sfm.bundle.BundleSolverOptions` for each local or global run.
 
     Attributes:
         loss: robust loss (``"cauchy"``, ``"huber"`` or ``"trivial"``).

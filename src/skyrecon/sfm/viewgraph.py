@@ -43,7 +43,7 @@ def chained_rotations(pairs: Sequence[PairGeometry], n_images: int) -> tuple[np.
     T = minimum_spanning_tree(G)
     T = T + T.T
     n_comp, label = connected_components(T, directed=False)
-    rel = {(p.i, p.j): p.R for p in usable}
+    rel = {(p.i, p.j): p.R for p in usable if p.R is not None}
     for c in range(n_comp):
         members = np.nonzero(label == c)[0]
         root = int(members[0])
