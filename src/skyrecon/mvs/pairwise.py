@@ -174,12 +174,12 @@ def pairwise_depth(
     t1 = time.perf_counter()
     m = create_matcher(matcher, dmax, min_disparity=dmin, **(matcher_settings or {}))
     if swapped:
-        res = m.compute(np.ascontiguousarray(R[:, ::-1]), np.ascontiguousarray(L[:, ::-1]))
-        disp = res.disparity[:, ::-1]
-        measured = res.measured[:, ::-1]
+        matched = m.compute(np.ascontiguousarray(R[:, ::-1]), np.ascontiguousarray(L[:, ::-1]))
+        disp = matched.disparity[:, ::-1]
+        measured = matched.measured[:, ::-1]
     else:
-        res = m.compute(L, R)
-        disp, measured = res.disparity, res.measured
+        matched = m.compute(L, R)
+        disp, measured = matched.disparity, matched.measured
     disp = np.where(measured, disp, np.float32(np.nan))
     t2 = time.perf_counter()
     z_rect = rig.disparity_to_depth(disp)  # same Z in both rectified frames
