@@ -3,6 +3,7 @@
 import json
 import shutil
 
+import cv2
 import numpy as np
 import pytest
 
@@ -119,8 +120,6 @@ def test_extra_image_without_camera_is_named(photos, tmp_path, capsys):
 
 
 def test_image_size_mismatch_is_an_error(photos, tmp_path, capsys):
-    import cv2
-
     images = tmp_path / "images"
     shutil.copytree(photos / "images", images)
     small = cv2.imread(str(images / "orbit_003.png"))
@@ -142,8 +141,6 @@ def test_missing_cameras_and_black_images(photos, tmp_path, capsys):
     images = tmp_path / "black"
     shutil.copytree(photos / "images", images)
     for p in images.iterdir():
-        import cv2
-
         cv2.imwrite(str(p), np.zeros((192, 256, 3), np.uint8))
     assert (
         main(

@@ -6,6 +6,7 @@ import numpy as np
 
 from skyrecon.core import PointCloud
 from skyrecon.mvs.export import encode_mesh_ply
+from skyrecon.mvs.fusion import depth_to_world
 from skyrecon.mvs.mesh import mesh_from_depth_maps, surface_nets
 from tests.mvs.test_fusion import plane_views
 
@@ -34,8 +35,6 @@ def test_mesh_from_depth_maps_of_a_plane() -> None:
     views, depths = plane_views()
     pts = []
     for v, d in zip(views, depths):
-        from skyrecon.mvs.fusion import depth_to_world
-
         pts.append(depth_to_world(v, d)[0])
     P = np.concatenate(pts)
     cloud = PointCloud(P.astype(np.float32), np.full((len(P), 3), 120, np.uint8))

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -9,7 +11,11 @@ from skyrecon.core import DepthMap, Rigid3
 from skyrecon.errors import InputError
 from skyrecon.eval.mvs_metrics import evaluate_cloud, reference_from_depth_maps
 from skyrecon.executor import SerialExecutor
-from skyrecon.mvs import MVSSettings, run_mvs
+from skyrecon.io import read_pfm, read_ply
+from skyrecon.mvs import MVSSettings, run_mvs, save_mvs_result
+from skyrecon.mvs.frames import make_working_view
+from skyrecon.mvs.mesh import mesh_from_depth_maps
+from skyrecon.mvs.pairwise import _rotated_clockwise, pairwise_depth
 from tests.mvs.synthetic import make_ring
 
 
@@ -125,9 +131,6 @@ def test_views_that_see_nothing_in_common(ring) -> None:
 @pytest.mark.parametrize("turn", [0, 1])
 def test_pairwise_depth_matches_ground_truth_on_both_sides(ring, turn: int) -> None:
     """Neighbour on the right, on the left, and (turned cameras) above/below the reference."""
-    from skyrecon.mvs.frames import make_working_view
-    from skyrecon.mvs.pairwise import _rotated_clockwise, pairwise_depth
-
     wv = [make_working_view(v, im, None, None) for v, im in zip(ring.views, ring.images)]
     gts = list(ring.depths)
     if turn:  # cameras rolled by 90 degrees: the ring's baselines become vertical in the images
@@ -143,11 +146,6 @@ def test_pairwise_depth_matches_ground_truth_on_both_sides(ring, turn: int) -> N
 
 
 def test_save_result_writes_cloud_depth_and_summary(default_result, tmp_path) -> None:
-    import json
-
-    from skyrecon.io import read_pfm, read_ply
-    from skyrecon.mvs import save_mvs_result
-
     paths = save_mvs_result(default_result, tmp_path / "out", settings=MVSSettings())
     cloud = read_ply(paths["fused"])
     assert len(cloud) == len(default_result.cloud) and cloud.normals is not None
@@ -158,9 +156,6 @@ def test_save_result_writes_cloud_depth_and_summary(default_result, tmp_path) ->
 
 
 def test_mesh_from_the_ring_depth_maps(ring, default_result) -> None:
-    from skyrecon.mvs.frames import make_working_view
-    from skyrecon.mvs.mesh import mesh_from_depth_maps
-
     wv = [make_working_view(v, im, None, None) for v, im in zip(ring.views, ring.images)]
     depths = [default_result.depth_maps[v.stem].depth_m for v in wv]
     verts, faces, colors = mesh_from_depth_maps(wv, depths, default_result.cloud)

@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from skyrecon.core import DepthMap
 from skyrecon.errors import InputError
-from skyrecon.mvs import neighbors_from_pairs, select_neighbors, topology_pairs
+from skyrecon.mvs import MVSSettings, neighbors_from_pairs, select_neighbors, topology_pairs
 from skyrecon.mvs.frames import make_working_view
 from skyrecon.mvs.topology import angle_weight
 from tests.mvs.synthetic import make_ring
@@ -66,8 +67,6 @@ def test_auto_selection_picks_ring_neighbours() -> None:
     # sparse points: the exact surface seen by view 0 and others, no images needed
     pts = []
     for v, d in zip(ring.views, ring.depths):
-        from skyrecon.core import DepthMap
-
         pts.append(DepthMap(d, v.intrinsics, v.cam_from_world).to_points_world().points[::97])
     P = np.concatenate(pts).astype(np.float64)
     nb, scores = select_neighbors(wv, 4, P, max_angle_deg=65.0)
@@ -82,8 +81,6 @@ def test_auto_selection_picks_ring_neighbours() -> None:
 
 
 def test_settings_from_command_line_names() -> None:
-    from skyrecon.mvs import MVSSettings
-
     s = MVSSettings.from_names()
     assert (s.topology, s.depth_method, s.fusion) == ("auto", "patchmatch", "consistency")
     s = MVSSettings.from_names("adjacent", "concat", mesh=True)

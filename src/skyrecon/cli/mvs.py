@@ -9,12 +9,23 @@ neighbours, depth ranges, timings, warnings), ``mesh.ply`` with ``--mesh``, and 
 from __future__ import annotations
 
 import argparse
+from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from skyrecon.cli.common import add_command, info, output_dir, positive_float, positive_int
+from skyrecon.core import PosedView
 from skyrecon.errors import EstimationError
+from skyrecon.executor import get_executor
+from skyrecon.io.disparity import colorize_depth
+from skyrecon.io.images import write_image
+from skyrecon.mvs import MVSResult, MVSSettings, load_views_and_images, run_mvs, save_mvs_result
+from skyrecon.mvs.preview import render_cloud
+from skyrecon.mvs.settings import DEPTH_METHODS, FUSION_METHODS
+from skyrecon.mvs.topology import TOPOLOGIES
+from skyrecon.report.figures import contact_sheet
 
 EXAMPLES = """  skyrecon mvs fountain/images --cameras fountain/cameras --out fountain_mvs/
   skyrecon mvs temple/ --cameras temple/templeR_par.txt --out temple_mvs/ --max-image-size 640
@@ -24,9 +35,6 @@ EXAMPLES = """  skyrecon mvs fountain/images --cameras fountain/cameras --out fo
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
-    from skyrecon.mvs.settings import DEPTH_METHODS, FUSION_METHODS
-    from skyrecon.mvs.topology import TOPOLOGIES
-
     p = add_command(
         subparsers,
         "mvs",
@@ -94,13 +102,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    from skyrecon.executor import get_executor
-    from skyrecon.mvs import MVSSettings, load_views_and_images, run_mvs, save_mvs_result
-
     views, _ = load_views_and_images(
         args.images_dir, args.cameras, allow_extra_images=args.allow_extra_images
     )
-    changes: dict = dict(max_image_size=args.max_image_size, seed=args.seed)
+    changes: dict[str, Any] = dict(max_image_size=args.max_image_size, seed=args.seed)
     if args.depth_method is not None:
         changes["depth_method"] = args.depth_method
     if args.num_sources is not None:
@@ -140,13 +145,8 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _pictures(result, views, out: Path) -> None:
+def _pictures(result: MVSResult, views: Sequence[PosedView], out: Path) -> None:
     """depth.png: a contact sheet of the depth maps; preview.png: the cloud from up to 3 cameras."""
-    from skyrecon.io.disparity import colorize_depth
-    from skyrecon.io.images import write_image
-    from skyrecon.mvs.preview import render_cloud
-    from skyrecon.report.figures import contact_sheet
-
     stems = list(result.depth_maps)
     if stems:
         finite = np.concatenate(

@@ -25,10 +25,29 @@ from pathlib import Path
 import numpy as np
 
 from skyrecon.cli.common import add_command, info, output_dir, positive_float, positive_int
-from skyrecon.core import Image, Intrinsics, Reconstruction
+from skyrecon.core import DepthMap, Image, Intrinsics, Reconstruction
+from skyrecon.errors import InputError
 from skyrecon.io.atomic import write_text_atomic
+from skyrecon.io.calib import write_K_txt, write_kitti_calib
+from skyrecon.io.colmap import write_colmap_text
+from skyrecon.io.disparity import colorize_disparity
 from skyrecon.io.images import write_image
+from skyrecon.io.pfm import write_pfm
+from skyrecon.io.ply import write_ply
+from skyrecon.io.sequence import write_sequence
 from skyrecon.progress import progress
+from skyrecon.report.figures import contact_sheet, top_down_map
+from skyrecon.sim import (
+    default_rig,
+    flight_poses,
+    generate_city,
+    generate_object_scene,
+    orbit_views,
+    render_stereo,
+    render_views,
+    ring_views,
+    street_view_pose,
+)
 
 EXAMPLES = """  skyrecon render stereo --seed 3 --out scene/
   skyrecon render sequence --frames 60 --out flight/
@@ -65,8 +84,6 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    from skyrecon.errors import InputError
-
     if args.hfov >= 170:
         raise InputError(f"--hfov must be below 170 degrees for a pinhole camera, got {args.hfov}")
     out = output_dir(args.out)
@@ -90,14 +107,6 @@ def run(args: argparse.Namespace) -> int:
 
 # ----- stereo ------------------------------------------------------------------
 def _render_stereo(args, out: Path) -> dict:
-    from skyrecon.core import DepthMap
-    from skyrecon.io.calib import write_K_txt, write_kitti_calib
-    from skyrecon.io.disparity import colorize_disparity
-    from skyrecon.io.pfm import write_pfm
-    from skyrecon.io.ply import write_ply
-    from skyrecon.report.figures import contact_sheet
-    from skyrecon.sim import default_rig, generate_city, render_stereo, street_view_pose
-
     city = generate_city(args.seed, size_m=args.city_size)
     rig = default_rig(args.width, args.height, args.hfov, args.baseline)
     left_from_world = street_view_pose(city, args.seed)
@@ -128,11 +137,6 @@ def _render_stereo(args, out: Path) -> dict:
 
 # ----- sequence ----------------------------------------------------------------
 def _render_sequence(args, out: Path) -> dict:
-    from skyrecon.io.pfm import write_pfm
-    from skyrecon.io.sequence import write_sequence
-    from skyrecon.report.figures import contact_sheet, top_down_map
-    from skyrecon.sim import default_rig, flight_poses, generate_city, render_stereo
-
     city = generate_city(args.seed, size_m=args.city_size)
     rig = default_rig(args.width, args.height, args.hfov, args.baseline)
     world_from_left = flight_poses(city, args.frames, args.seed)
@@ -169,9 +173,6 @@ def _render_sequence(args, out: Path) -> dict:
 
 # ----- ring and images ------------------------------------------------------------
 def _write_views(out: Path, views, results, image_dir: str, model_dir: str, depth_dir: str | None) -> None:
-    from skyrecon.io.colmap import write_colmap_text
-    from skyrecon.io.pfm import write_pfm
-
     rec = Reconstruction(cameras={1: views[0].intrinsics})
     for k, (view, res) in enumerate(zip(views, results), start=1):
         write_image(out / image_dir / view.name, res.image)
@@ -182,8 +183,6 @@ def _write_views(out: Path, views, results, image_dir: str, model_dir: str, dept
 
 
 def _object_scene_views(args, kind: str):
-    from skyrecon.sim import generate_object_scene, orbit_views, render_views, ring_views
-
     scene = generate_object_scene(args.seed)
     cam = Intrinsics.from_fov(args.width, args.height, args.hfov)
     center = np.asarray(scene.center if hasattr(scene, "center") else [0.0, 0.0, 1.0], dtype=np.float64)
@@ -197,9 +196,6 @@ def _object_scene_views(args, kind: str):
 
 
 def _render_ring(args, out: Path) -> dict:
-    from skyrecon.io.calib import write_K_txt
-    from skyrecon.report.figures import contact_sheet
-
     _, cam, views, results = _object_scene_views(args, "ring")
     _write_views(out, views, results, "images", "sparse", "depth")
     write_K_txt(out / "K.txt", cam)
@@ -215,9 +211,6 @@ def _render_ring(args, out: Path) -> dict:
 
 
 def _render_images(args, out: Path) -> dict:
-    from skyrecon.io.calib import write_K_txt
-    from skyrecon.report.figures import contact_sheet
-
     _, cam, views, results = _object_scene_views(args, "images")
     _write_views(out, views, results, "images", "gt_sparse", None)
     write_K_txt(out / "K.txt", cam)

@@ -33,10 +33,12 @@ Numba's cache does not notice when a helper in another file changes, so helpers 
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from numba import njit
 
-_JIT = dict(
+_JIT: dict[str, Any] = dict(
     cache=True,
     nogil=True,
     boundscheck=False,

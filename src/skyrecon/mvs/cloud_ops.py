@@ -7,6 +7,8 @@ and run in chunks so that memory stays bounded for millions of points.
 from __future__ import annotations
 
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 __all__ = [
@@ -93,9 +95,6 @@ def small_component_mask(
     closer than ``radius_m`` metres: detached clusters (floaters, background fragments) fall
     into small components and are dropped.
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
     P = np.asarray(points, np.float64)
     n = len(P)
     if n == 0:

@@ -48,7 +48,8 @@ class WorkingView:
     @property
     def shape(self) -> tuple[int, int]:
         """(H, W) of the working images."""
-        return self.grey.shape  # type: ignore[return-value]
+        h, w = self.grey.shape
+        return h, w
 
     @property
     def stem(self) -> str:

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from skyrecon.core import PointCloud
@@ -109,8 +110,6 @@ def _project(view: WorkingView, X: np.ndarray) -> tuple[np.ndarray, np.ndarray, 
 
 def _drop_edges(depth: np.ndarray, radius: int, rel_jump: float) -> np.ndarray:
     """A copy of ``depth`` (H, W) with NaN within ``radius`` pixels of holes and depth jumps."""
-    import cv2
-
     d = np.asarray(depth, np.float32)
     ok = np.isfinite(d)
     filled = np.where(ok, d, 0.0).astype(np.float32)
@@ -156,13 +155,15 @@ def fuse_consistent(
         depths = [
             None if d is None else _drop_edges(d, settings.edge_px, settings.edge_rel_jump) for d in depths
         ]
-    used = [None if d is None else np.zeros(d.shape, bool) for d in depths]
+    # per view: pixels already emitted as part of another view's point (empty for views without depth)
+    used = [np.zeros((0, 0) if d is None else d.shape, bool) for d in depths]
     pts_out, col_out, vid_out, sup_out = [], [], [], []
     s = settings
     for r in range(n):
-        if depths[r] is None:
+        depth_r = depths[r]
+        if depth_r is None:
             continue
-        X, u, v = depth_to_world(views[r], depths[r], ~used[r])
+        X, u, v = depth_to_world(views[r], depth_r, ~used[r])
         if len(X) == 0:
             continue
         acc = X.copy()

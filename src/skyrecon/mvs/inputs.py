@@ -69,14 +69,14 @@ def load_views_and_images(
     paths: list[Path] = []
     missing: list[str] = []
     for v in views:
-        p = by_name.get(v.name)
-        if p is None:
+        found = by_name.get(v.name)
+        if found is None:
             cands = by_stem.get(Path(v.name).stem, [])
-            p = cands[0] if len(cands) == 1 else None
-        if p is None:
+            found = cands[0] if len(cands) == 1 else None
+        if found is None:
             missing.append(v.name)
         else:
-            paths.append(p)
+            paths.append(found)
     if missing:
         raise InputError(
             f"{len(missing)} of {len(views)} cameras have no image in {images_dir}: {_listing(missing)}; "

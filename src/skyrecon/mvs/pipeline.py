@@ -12,17 +12,19 @@ Steps (each timed in ``MVSResult.timings_s``):
 6. ``cleanup``: statistical outlier removal, normals (PCA, oriented to the cameras), optional
    voxel averaging; optional ``mesh``.
 
-World frame and metres throughout; depth maps are at the working resolution, with the scaled
-intrinsics in each :class:`~skyrecon.core.DepthMap`.
+Each step is a function that reads and fills one typed run state (``_MVSRun``); ``_STEPS``
+lists them in order. World frame and metres throughout; depth maps are at the working
+resolution, with the scaled intrinsics in each :class:`~skyrecon.core.DepthMap`.
 """
 
 from __future__ import annotations
 
 import os
 import time
-from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
-from typing import Any
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -30,23 +32,20 @@ from skyrecon import progress as _progress
 from skyrecon.core import DepthMap, PointCloud, PosedView
 from skyrecon.errors import InputError
 from skyrecon.executor import Executor, get_executor
-from skyrecon.mvs.cloud_ops import (
-    knn_mean_distance_and_normals,
-    orient_normals,
-    small_component_mask,
-    statistical_outlier_mask,
-    voxel_downsample_indices,
-)
+from skyrecon.mvs.cleanup import clean_fused_cloud
+from skyrecon.mvs.depth_tasks import TaskTimings, estimate_depths
 from skyrecon.mvs.frames import WorkingView
 from skyrecon.mvs.fusion import FusedCloud, fuse_concat, fuse_consistent
 from skyrecon.mvs.inputs import ImagesArg, load_working_views
-from skyrecon.mvs.pairwise import pairwise_depth
-from skyrecon.mvs.patchmatch import patchmatch_depth
+from skyrecon.mvs.mesh import mesh_from_depth_maps
 from skyrecon.mvs.settings import MVSSettings
 from skyrecon.mvs.sparse import depth_range_from_points, sparse_scene
 from skyrecon.mvs.topology import neighbors_from_pairs, select_neighbors, topology_pairs
 
 __all__ = ["MVSResult", "run_mvs"]
+
+#: vertices (V, 3) float32 world metres, faces (F, 3) int32, vertex colours (V, 3) uint8 RGB.
+Mesh = tuple[np.ndarray, np.ndarray, np.ndarray]
 
 
 @dataclass
@@ -80,39 +79,61 @@ class MVSResult:
     view_names: list[str]
     depth_ranges: dict[str, tuple[float, float]]
     support: np.ndarray
-    mesh: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+    mesh: Mesh | None = None
     timings_s: dict[str, float] = field(default_factory=dict)
     diagnostics: dict[str, Any] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
 
 
-# ------------------------------------------------------------------------------------------------
-# per-view tasks (module level: picklable for process executors)
-# ------------------------------------------------------------------------------------------------
-def _slim(v: WorkingView) -> WorkingView:
-    """A copy without the colour image (tasks only need grey levels)."""
-    return replace(v, rgb=np.zeros((0, 0, 3), np.uint8))
+def _empty_fused() -> FusedCloud:
+    empty = PointCloud(np.zeros((0, 3), np.float32), np.zeros((0, 3), np.uint8))
+    return FusedCloud(empty, np.zeros(0, np.int32), np.zeros(0, np.int32))
 
 
-def _patchmatch_task(task: tuple) -> tuple[np.ndarray, dict[str, float]]:
-    ref, sources, depth_range, pm_settings, seed = task
-    c0 = time.process_time()
-    res = patchmatch_depth(ref, sources, depth_range, pm_settings, seed)
-    return res.depth, {**res.timings_ms, "cpu": (time.process_time() - c0) * 1e3, "pid": os.getpid()}
+@dataclass
+class _MVSRun:
+    """What the steps of one :func:`run_mvs` call share; each step fills in its part.
 
+    View indices (in ``blank``, ``neighbors``, ``pairs``, ``depths``) refer to ``views``; the
+    world frame and metres throughout.
 
-def _pairwise_task(task: tuple) -> tuple[np.ndarray, dict[str, float]]:
-    ref, src, depth_range, matcher, matcher_settings, points = task
-    c0 = time.process_time()
-    try:
-        res = pairwise_depth(ref, src, depth_range, matcher, matcher_settings, points_world=points)
-    except InputError as exc:  # one unusable pair must not stop the others
-        return np.full(ref.shape, np.nan, np.float32), {
-            "cpu": (time.process_time() - c0) * 1e3,
-            "error": str(exc),
-            "pid": os.getpid(),
-        }
-    return res.depth, {**res.timings_ms, "cpu": (time.process_time() - c0) * 1e3, "pid": os.getpid()}
+    Attributes:
+        inputs: the cameras given; images: their images (see :func:`run_mvs`).
+        settings, executor, progress: as given to :func:`run_mvs`.
+        views: ``load``: the working views (images at the working resolution, scaled intrinsics).
+        blank: ``load``: views whose image has no texture (neither references nor sources).
+        sparse_points: ``sparse``: (N, 3) triangulated feature points, world metres.
+        ranges: ``sparse``: per view the (near, far) depth range, metres, or None if unknown.
+        neighbors: ``select``: per view the source views of its depth.
+        pairs: ``select``: the (reference, source) pairs matched.
+        depths: ``depth``: per view (H, W) float32 depth, metres, NaN invalid, or None.
+        pair_depths: ``depth``: (reference, depth) per task, for ``concat`` fusion.
+        fused: ``fusion``: the fused cloud before cleanup.
+        cloud, support: ``cleanup``: the final cloud and per-point support.
+        mesh: ``mesh``: the surface mesh, when asked for.
+        timings, diagnostics, warnings: see :class:`MVSResult`.
+    """
+
+    inputs: list[PosedView]
+    images: ImagesArg
+    settings: MVSSettings
+    executor: Executor
+    progress: bool
+    views: list[WorkingView] = field(default_factory=list)
+    blank: list[int] = field(default_factory=list)
+    sparse_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    ranges: list[tuple[float, float] | None] = field(default_factory=list)
+    neighbors: list[list[int]] = field(default_factory=list)
+    pairs: list[tuple[int, int]] = field(default_factory=list)
+    depths: list[np.ndarray | None] = field(default_factory=list)
+    pair_depths: list[tuple[int, np.ndarray]] = field(default_factory=list)
+    fused: FusedCloud = field(default_factory=_empty_fused)
+    cloud: PointCloud = field(default_factory=lambda: _empty_fused().cloud)
+    support: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
+    mesh: Mesh | None = None
+    timings: dict[str, float] = field(default_factory=dict)
+    diagnostics: dict[str, Any] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -121,6 +142,20 @@ def _pairwise_task(task: tuple) -> tuple[np.ndarray, dict[str, float]]:
 def _names(views: Sequence[WorkingView], idx: Sequence[int]) -> str:
     names = [views[i].name for i in idx]
     return ", ".join(names[:8]) + (f" and {len(names) - 8} more" if len(names) > 8 else "")
+
+
+def _all_names(views: Sequence[WorkingView]) -> str:
+    return _names(views, range(len(views)))
+
+
+def _check_view_names(views: Sequence[PosedView]) -> None:
+    if len(views) < 2:
+        raise InputError(f"MVS needs at least 2 views, got {len(views)}")
+    seen: set[str] = set()
+    for v in views:
+        if v.name in seen:
+            raise InputError(f"view name {v.name!r} appears twice; view names must be unique")
+        seen.add(v.name)
 
 
 def _blank_views(views: list[WorkingView]) -> list[int]:
@@ -136,7 +171,8 @@ def _depth_ranges(
     views: list[WorkingView], settings: MVSSettings, points: np.ndarray, warnings: list[str]
 ) -> list[tuple[float, float] | None]:
     if settings.depth_range is not None:
-        return [tuple(settings.depth_range)] * len(views)  # type: ignore[list-item]
+        near, far = settings.depth_range
+        return [(near, far)] * len(views)
     ranges = [depth_range_from_points(v, points) for v in views]
     known = [r for r in ranges if r is not None]
     if not known:
@@ -176,51 +212,158 @@ def _choose_pairs(
     return neighbors, [(r, s) for r, nb in enumerate(neighbors) for s in nb]
 
 
-def _executor_threads(executor: Executor) -> int:
-    workers = int(getattr(executor, "workers", 1) or 1)
-    return max(1, (os.cpu_count() or 1) // workers)
-
-
-def _cleanup(
-    fused: FusedCloud, views: list[WorkingView], settings: MVSSettings, diag: dict[str, Any]
-) -> tuple[PointCloud, np.ndarray]:
-    cloud, vid, support = fused.cloud, fused.view_index, fused.support
-    diag["points_fused"] = len(cloud)
-    if len(cloud) == 0:
-        return PointCloud(cloud.points, cloud.colors, np.zeros((0, 3), np.float32)), support
-    mean_d, normals = knn_mean_distance_and_normals(cloud.points, settings.outlier_k)
-    if settings.outlier_std > 0 and len(cloud) > settings.outlier_k:
-        keep = statistical_outlier_mask(mean_d, settings.outlier_std)
-        cloud, vid, support, normals = cloud.select(keep), vid[keep], support[keep], normals[keep]
-    diag["points_after_outlier_removal"] = len(cloud)
-    if settings.component_min_fraction > 0 and len(cloud) > settings.outlier_k:
-        radius = settings.component_radius_factor * float(np.median(mean_d))
-        keep = small_component_mask(cloud.points, radius, settings.component_min_fraction, settings.outlier_k)
-        cloud, vid, support, normals = cloud.select(keep), vid[keep], support[keep], normals[keep]
-        diag["points_after_component_filter"] = len(cloud)
-    centers = np.stack([v.center_world for v in views])
-    normals = orient_normals(cloud.points, normals, centers[vid])
-    if settings.voxel_size_m:
-        inv, counts = voxel_downsample_indices(cloud.points, settings.voxel_size_m)
-        m = len(counts)
-        w = 1.0 / counts[:, None]
-
-        def avg(a: np.ndarray) -> np.ndarray:
-            out = np.zeros((m, a.shape[1]))
-            np.add.at(out, inv, a.astype(np.float64))
-            return out * w
-
-        nrm = avg(normals)
-        nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
-        sup = np.zeros(m, np.int64)
-        np.maximum.at(sup, inv, support)
-        cloud = PointCloud(
-            avg(cloud.points).astype(np.float32), avg(cloud.colors.astype(np.float64)), nrm.astype(np.float32)
+# ------------------------------------------------------------------------------------------------
+# the steps, in order (each reads and fills an _MVSRun)
+# ------------------------------------------------------------------------------------------------
+def _load(run: _MVSRun) -> None:
+    """Images at the working resolution; blank images are left out (all blank: an error)."""
+    run.views = load_working_views(run.inputs, run.images, run.settings.max_image_size)
+    run.blank = _blank_views(run.views)
+    if len(run.blank) == len(run.views):
+        raise InputError(
+            f"every image is blank (no texture): {_names(run.views, run.blank)}; check the images"
         )
-        support = sup.astype(np.int32)
-        diag["points_after_voxel"] = len(cloud)
-        return cloud, support
-    return PointCloud(cloud.points, cloud.colors, normals), support
+    if run.blank:
+        run.warnings.append(f"blank images (no texture, no depth): {_names(run.views, run.blank)}")
+
+
+def _sparse(run: _MVSRun) -> None:
+    """Matched and triangulated features; each view's depth range from them."""
+    sparse = sparse_scene(run.views, max_features=run.settings.sparse_max_features)
+    run.sparse_points = sparse.points
+    run.diagnostics["sparse_points"] = len(sparse.points)
+    run.ranges = _depth_ranges(run.views, run.settings, sparse.points, run.warnings)
+    if all(r is None for r in run.ranges):
+        raise InputError(
+            f"no matched features between any two of the {len(run.views)} views ({_all_names(run.views)}): "
+            "they see nothing in common (or the cameras do not belong to these images); pass depth_range if "
+            "the scene is textureless"
+        )
+
+
+def _select(run: _MVSRun) -> None:
+    """Sources per reference view and the pairs matched; blank views are neither."""
+    neighbors, pairs = _choose_pairs(run.views, run.settings, run.sparse_points, run.ranges)
+    blank = run.blank
+    if blank:
+        neighbors = [
+            [] if r in blank else [s for s in nb if s not in blank] for r, nb in enumerate(neighbors)
+        ]
+        pairs = [(r, s) for r, s in pairs if r not in blank and s not in blank]
+    isolated = [i for i, nb in enumerate(neighbors) if not nb and i not in blank]
+    if len(isolated) + len(blank) >= len(run.views) or not pairs:
+        raise InputError(f"no two views see enough in common to match: {_all_names(run.views)}")
+    if isolated:
+        run.warnings.append(
+            f"views sharing too little with any other view (no depth): {_names(run.views, isolated)}"
+        )
+    run.neighbors, run.pairs = neighbors, pairs
+
+
+def _depth(run: _MVSRun) -> None:
+    """Per-view depth maps, fanned out on the executor."""
+    est = estimate_depths(
+        run.views,
+        run.settings,
+        run.neighbors,
+        run.pairs,
+        run.ranges,
+        run.executor,
+        progress=run.progress,
+        points=run.sparse_points,
+    )
+    run.depths, run.pair_depths = est.depths, est.pair_depths
+    run.diagnostics["depth_task_ms"] = est.task_timings
+    run.warnings.extend(tm["error"] for tm in est.task_timings if "error" in tm)
+    empty = [i for i, d in enumerate(run.depths) if d is not None and not np.isfinite(d).any()]
+    if empty:
+        run.warnings.append(f"no depth could be estimated for {_names(run.views, empty)}")
+
+
+def _fuse(run: _MVSRun) -> None:
+    """One cloud: depths that agree across views, or every pair's cloud concatenated."""
+    if run.settings.fusion == "concat":
+        run.fused = fuse_concat(run.views, run.pair_depths)
+        return
+    checked = [(r, s) for r, nb in enumerate(run.neighbors) for s in nb]
+    fusion_neighbors = neighbors_from_pairs(checked, len(run.views))
+    run.fused = fuse_consistent(run.views, run.depths, fusion_neighbors, run.settings.fusion_settings)
+
+
+def _cleanup(run: _MVSRun) -> None:
+    """Outliers and floaters removed, normals, optional voxel averaging."""
+    clean = clean_fused_cloud(run.fused, run.views, run.settings)
+    run.cloud, run.support = clean.cloud, clean.support
+    run.diagnostics.update(clean.counts)
+    if len(run.cloud) == 0:
+        run.warnings.append(
+            "the fused cloud is empty: no depth was consistent across views (check that the cameras belong "
+            "to the images, or lower fusion_settings.min_consistent)"
+        )
+
+
+def _mesh(run: _MVSRun) -> None:
+    """A surface mesh from the depth maps (TSDF fusion + marching cubes)."""
+    run.mesh = mesh_from_depth_maps(run.views, run.depths, run.cloud, run.settings.mesh_voxel_m)
+
+
+class _Step(NamedTuple):
+    name: str  # the key in MVSResult.timings_s
+    run: Callable[[_MVSRun], None]
+    wanted: Callable[[_MVSRun], bool] = lambda run: True
+
+
+_STEPS: tuple[_Step, ...] = (
+    _Step("load", _load),
+    _Step("sparse", _sparse),
+    _Step("select", _select),
+    _Step("depth", _depth),
+    _Step("fusion", _fuse),
+    _Step("cleanup", _cleanup),
+    _Step("mesh", _mesh, wanted=lambda run: run.settings.mesh and len(run.cloud) > 0),
+)
+
+
+def _result(run: _MVSRun, t_start: float, cpu_start: float) -> MVSResult:
+    """The MVSResult of a finished run, with totals (wall clock, and CPU including worker processes)."""
+    views, depths, diag = run.views, run.depths, run.diagnostics
+    depth_maps = {
+        v.stem: DepthMap(d, v.intrinsics, v.cam_from_world) for v, d in zip(views, depths) if d is not None
+    }
+    diag["valid_fraction"] = {
+        v.stem: float(np.isfinite(d).mean()) for v, d in zip(views, depths) if d is not None
+    }
+    diag["working_size"] = {v.stem: (v.shape[1], v.shape[0]) for v in views}
+    run.timings["total"] = time.perf_counter() - t_start
+    # CPU seconds: this process (all its threads) plus the tasks that ran in worker processes
+    task_timings: list[TaskTimings] = diag.get("depth_task_ms", [])
+    worker_cpu = sum(tm["cpu"] for tm in task_timings if tm.get("pid") != os.getpid()) / 1e3
+    diag["cpu_s"] = time.process_time() - cpu_start + worker_cpu
+    return MVSResult(
+        cloud=run.cloud,
+        depth_maps=depth_maps,
+        neighbors={views[r].name: [views[s].name for s in nb] for r, nb in enumerate(run.neighbors)},
+        pairs=run.pairs,
+        view_names=[v.name for v in views],
+        depth_ranges={v.name: r for v, r in zip(views, run.ranges) if r is not None},
+        support=run.support,
+        mesh=run.mesh,
+        timings_s=run.timings,
+        diagnostics=diag,
+        warnings=run.warnings,
+    )
+
+
+@contextmanager
+def _progress_bars(enabled: bool) -> Iterator[None]:
+    """Progress bars off inside the block unless ``enabled`` (the global setting is restored after)."""
+    previous = _progress._enabled
+    if not enabled:
+        _progress.set_progress_enabled(False)
+    try:
+        yield
+    finally:
+        _progress._enabled = previous
 
 
 # ------------------------------------------------------------------------------------------------
@@ -234,6 +377,8 @@ def run_mvs(
     progress: bool = True,
 ) -> MVSResult:
     """Dense multi-view stereo: per-view depth maps and one fused coloured cloud.
+
+    Runs the steps of the module docstring in order, each timed in ``timings_s``.
 
     Args:
         views: the cameras (intrinsics without distortion, ``cam_from_world`` poses, metres),
@@ -253,182 +398,13 @@ def run_mvs(
     """
     t_start = time.perf_counter()
     cpu_start = time.process_time()
-    timings: dict[str, float] = {}
-    warnings: list[str] = []
-    diag: dict[str, Any] = {}
-    views = list(views)
-    if len(views) < 2:
-        raise InputError(f"MVS needs at least 2 views, got {len(views)}")
-    seen: set[str] = set()
-    for v in views:
-        if v.name in seen:
-            raise InputError(f"view name {v.name!r} appears twice; view names must be unique")
-        seen.add(v.name)
-    previous_progress = _progress._enabled
-    if not progress:
-        _progress.set_progress_enabled(False)
-    try:
-        executor = executor or get_executor()
-
-        t = time.perf_counter()
-        wviews = load_working_views(views, images, settings.max_image_size)
-        timings["load"] = time.perf_counter() - t
-        blank = _blank_views(wviews)
-        if len(blank) == len(wviews):
-            raise InputError(f"every image is blank (no texture): {_names(wviews, blank)}; check the images")
-        if blank:
-            warnings.append(f"blank images (no texture, no depth): {_names(wviews, blank)}")
-
-        t = time.perf_counter()
-        sparse = sparse_scene(wviews, max_features=settings.sparse_max_features)
-        diag["sparse_points"] = len(sparse.points)
-        ranges = _depth_ranges(wviews, settings, sparse.points, warnings)
-        timings["sparse"] = time.perf_counter() - t
-        if all(r is None for r in ranges):
-            raise InputError(
-                f"no matched features between any two of the {len(wviews)} views ({_names(wviews, range(len(wviews)))}): "
-                "they see nothing in common (or the cameras do not belong to these images); pass depth_range if "
-                "the scene is textureless"
-            )
-
-        t = time.perf_counter()
-        neighbors, pairs = _choose_pairs(wviews, settings, sparse.points, ranges)
-        if blank:  # blank views are neither references nor sources
-            neighbors = [
-                [] if r in blank else [s for s in nb if s not in blank] for r, nb in enumerate(neighbors)
-            ]
-            pairs = [(r, s) for r, s in pairs if r not in blank and s not in blank]
-        isolated = [i for i, nb in enumerate(neighbors) if not nb and i not in blank]
-        if len(isolated) + len(blank) >= len(wviews) or not pairs:
-            raise InputError(
-                f"no two views see enough in common to match: {_names(wviews, range(len(wviews)))}"
-            )
-        if isolated:
-            warnings.append(
-                f"views sharing too little with any other view (no depth): {_names(wviews, isolated)}"
-            )
-        timings["select"] = time.perf_counter() - t
-
-        t = time.perf_counter()
-        depths, pair_depths, dtimes = _depth_step(
-            wviews, settings, neighbors, pairs, ranges, blank, executor, progress, sparse.points
-        )
-        timings["depth"] = time.perf_counter() - t
-        diag["depth_task_ms"] = dtimes
-        warnings.extend(tm["error"] for tm in dtimes if "error" in tm)
-        empty = [i for i, d in enumerate(depths) if d is not None and not np.isfinite(d).any()]
-        if empty:
-            warnings.append(f"no depth could be estimated for {_names(wviews, empty)}")
-
-        t = time.perf_counter()
-        if settings.fusion == "concat":
-            fused = fuse_concat(wviews, pair_depths)
-        else:
-            fusion_nb = neighbors_from_pairs(
-                [(r, s) for r, nb in enumerate(neighbors) for s in nb], len(wviews)
-            )
-            fused = fuse_consistent(wviews, depths, fusion_nb, settings.fusion_settings)
-        timings["fusion"] = time.perf_counter() - t
-
-        t = time.perf_counter()
-        cloud, support = _cleanup(fused, wviews, settings, diag)
-        timings["cleanup"] = time.perf_counter() - t
-        if len(cloud) == 0:
-            warnings.append(
-                "the fused cloud is empty: no depth was consistent across views (check that the cameras belong "
-                "to the images, or lower fusion_settings.min_consistent)"
-            )
-
-        mesh = None
-        if settings.mesh and len(cloud):
-            from skyrecon.mvs.mesh import mesh_from_depth_maps
-
-            t = time.perf_counter()
-            mesh = mesh_from_depth_maps(wviews, depths, cloud, settings.mesh_voxel_m)
-            timings["mesh"] = time.perf_counter() - t
-    finally:
-        _progress._enabled = previous_progress
-
-    depth_maps = {
-        v.stem: DepthMap(d, v.intrinsics, v.cam_from_world) for v, d in zip(wviews, depths) if d is not None
-    }
-    diag["valid_fraction"] = {
-        v.stem: float(np.isfinite(d).mean()) for v, d in zip(wviews, depths) if d is not None
-    }
-    diag["working_size"] = {v.stem: (v.shape[1], v.shape[0]) for v in wviews}
-    timings["total"] = time.perf_counter() - t_start
-    # CPU seconds: this process (all its threads) plus the tasks that ran in worker processes
-    worker_cpu = sum(tm["cpu"] for tm in diag.get("depth_task_ms", []) if tm.get("pid") != os.getpid()) / 1e3
-    diag["cpu_s"] = time.process_time() - cpu_start + worker_cpu
-    return MVSResult(
-        cloud=cloud,
-        depth_maps=depth_maps,
-        neighbors={wviews[r].name: [wviews[s].name for s in nb] for r, nb in enumerate(neighbors)},
-        pairs=pairs,
-        view_names=[v.name for v in wviews],
-        depth_ranges={v.name: r for v, r in zip(wviews, ranges) if r is not None},
-        support=support,
-        mesh=mesh,
-        timings_s=timings,
-        diagnostics=diag,
-        warnings=warnings,
-    )
-
-
-def _depth_step(
-    wviews: list[WorkingView],
-    settings: MVSSettings,
-    neighbors: list[list[int]],
-    pairs: list[tuple[int, int]],
-    ranges: list,
-    blank: list[int],
-    executor: Executor,
-    progress: bool,
-    points: np.ndarray | None = None,
-) -> tuple[list[np.ndarray | None], list[tuple[int, np.ndarray]], list[dict[str, float]]]:
-    """Run the per-view (or per-pair) depth tasks; returns per-view depths and per-pair depths."""
-    n = len(wviews)
-    depths: list[np.ndarray | None] = [None] * n
-    pair_depths: list[tuple[int, np.ndarray]] = []
-    slim = [_slim(v) for v in wviews]
-    desc = "MVS depth" if progress else None
-    if settings.depth_method == "patchmatch":
-        pm = (
-            replace(settings.patchmatch, threads=_executor_threads(executor))
-            if settings.patchmatch.threads == 1
-            else settings.patchmatch
-        )
-        refs = [r for r in range(n) if neighbors[r] and r not in blank and ranges[r] is not None]
-        tasks = [
-            (slim[r], [slim[s] for s in neighbors[r]], ranges[r], pm, settings.seed * 1_000_003 + r)
-            for r in refs
-        ]
-        results = executor.map(_patchmatch_task, tasks, desc=desc)
-        for r, (d, _) in zip(refs, results):
-            depths[r] = d
-            pair_depths.append((r, d))
-        return depths, pair_depths, [tm for _, tm in results]
-    todo = [(r, s) for r, s in pairs if r not in blank and s not in blank and ranges[r] is not None]
-
-    def shared(r: int, s: int) -> np.ndarray | None:
-        if points is None or len(points) == 0:
-            return None
-        ok = np.ones(len(points), bool)
-        for v in (wviews[r], wviews[s]):
-            uv, z = v.posed().project(points)
-            ok &= v.intrinsics.in_image(uv) & (z > 0)
-        return points[ok]
-
-    tasks = [
-        (slim[r], slim[s], ranges[r], settings.matcher, dict(settings.matcher_settings), shared(r, s))
-        for r, s in todo
-    ]
-    results = executor.map(_pairwise_task, tasks, desc=desc)
-    for (r, _), (d, _) in zip(todo, results):
-        pair_depths.append((r, d))
-        if depths[r] is None:
-            depths[r] = d.copy()
-        else:  # several pairs for one view: fill the holes of the first
-            hole = ~np.isfinite(depths[r])
-            depths[r][hole] = d[hole]
-    return depths, pair_depths, [tm for _, tm in results]
+    inputs = list(views)
+    _check_view_names(inputs)
+    with _progress_bars(progress):
+        run = _MVSRun(inputs, images, settings, executor or get_executor(), progress)
+        for step in _STEPS:
+            if step.wanted(run):
+                t = time.perf_counter()
+                step.run(run)
+                run.timings[step.name] = time.perf_counter() - t
+    return _result(run, t_start, cpu_start)

@@ -128,7 +128,7 @@ class MVSSettings:
         resolution) is replaced by the range of the sparse points both views see, so that every
         pair searches where its scene actually is.
         """
-        base = dict(
+        base: dict[str, Any] = dict(
             topology="360",
             depth_method="pairwise",
             fusion="concat",

@@ -36,7 +36,7 @@ class SparseScene:
 
 
 def _features(view: WorkingView, max_features: int) -> tuple[np.ndarray, np.ndarray | None]:
-    sift = cv2.SIFT_create(nfeatures=max_features, contrastThreshold=0.02)
+    sift = cv2.SIFT.create(nfeatures=max_features, contrastThreshold=0.02)
     grey = np.clip(view.grey + 0.5, 0, 255).astype(np.uint8)
     # stretch dark images (the rock set is grey levels 0..90): SIFT thresholds are absolute
     hi = float(np.percentile(grey[view.valid], 99.5)) if view.valid.any() else 255.0

@@ -130,8 +130,9 @@ def select_neighbors(
     for r in range(n):
         X = P[vis_sparse[r]] if len(P) else P
         vis = vis_sparse[:, vis_sparse[r]] if len(P) else vis_sparse
-        if len(X) < min_shared and depth_ranges is not None and depth_ranges[r] is not None:
-            X = _frustum_samples(views[r], depth_ranges[r])
+        frustum_range = None if depth_ranges is None else depth_ranges[r]
+        if len(X) < min_shared and frustum_range is not None:
+            X = _frustum_samples(views[r], frustum_range)
             vis = np.stack([visible(v, X) for v in views])
         cand: list[tuple[float, int]] = []
         if len(X):

@@ -32,7 +32,8 @@ def jit():
 
 def num_threads() -> int:
     """Threads used by :func:`run_chunks` (Numba's thread count, itself the CPU count by default)."""
-    return max(1, int(numba.config.NUMBA_NUM_THREADS))
+    # numba.config sets its options at import time from the environment; its stubs do not list them
+    return max(1, int(numba.config.NUMBA_NUM_THREADS))  # type: ignore[attr-defined]  # see above
 
 
 def _get_pool(threads: int) -> ThreadPoolExecutor:

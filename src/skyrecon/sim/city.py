@@ -15,6 +15,7 @@ from skyrecon.errors import InputError
 from skyrecon.sim import raycast as _rc
 from skyrecon.sim._jit import run_chunks
 from skyrecon.sim.accel import UniformGrid, build_grid
+from skyrecon.sim.texture import GROUND_PLAZA, MAT_METAL, MAT_STONE
 
 # Semantic kinds (``City.box_kind`` / ``City.cyl_kind``).
 KIND_BUILDING = 0
@@ -160,8 +161,6 @@ class City:
             extent: (4,) paved area ``[xmin, ymin, xmax, ymax]``; by default the obstacles' footprint
                 plus 20 m (grass beyond).
         """
-        from skyrecon.sim.texture import GROUND_PLAZA, MAT_METAL, MAT_STONE
-
         b = np.asarray(boxes, dtype=np.float64).reshape(-1, 6)
         c = np.zeros((0, 5)) if cylinders is None else np.asarray(cylinders, dtype=np.float64).reshape(-1, 5)
         nb, nc = len(b), len(c)

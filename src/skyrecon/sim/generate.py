@@ -5,6 +5,8 @@ Both are deterministic functions of the seed (``numpy.random.default_rng(seed)``
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from skyrecon.errors import InputError
@@ -152,7 +154,8 @@ def _split_lots(rng: np.random.Generator, x0, y0, x1, y1, out: list, threshold: 
 
 def _divide(rng: np.random.Generator, a: float, b: float) -> list[tuple[float, float]]:
     """Cut [a, b] into pieces 5.5-12 m long (the last one absorbs the remainder); none if shorter than 5 m."""
-    out, pos = [], a
+    out: list[tuple[float, float]] = []
+    pos = a
     if b - a < 5.0:
         return out
     while b - pos > 1e-9:
@@ -227,6 +230,198 @@ def _tree(b: _Builder, rng: np.random.Generator, x: float, y: float, scale: floa
     )
 
 
+@dataclass(frozen=True)
+class _CityStyle:
+    """The knobs of :func:`generate_city` that the per-block steps read (metres, fractions)."""
+
+    half: float
+    sidewalk_m: float
+    max_height_m: float
+    pole_spacing_m: tuple[float, float]
+    low_texture_fraction: float
+    park_fraction: float
+
+
+_TEX_METAL = (3.0, 0.0, 0.5, 0.5, 0.0, 1.0)  # texture parameters of poles, beams and roof units
+
+
+def _rooftop(
+    b: _Builder,
+    rng: np.random.Generator,
+    foot: tuple[float, float, float, float],
+    h: float,
+    facade: tuple,
+    max_height_m: float,
+) -> None:
+    """A tower set back on a tall, wide building, or a few rooftop units (or nothing).
+
+    ``foot`` is the building's footprint ``(x0, y0, x1, y1)`` and ``h`` its height, metres;
+    ``facade`` its ``(material, albedo, accent, params)`` (the tower's too).
+    """
+    fx0, fy0, fx1, fy1 = foot
+    mat, alb, acc, params = facade
+    wx, wy = fx1 - fx0, fy1 - fy0
+    if h > 18.0 and min(wx, wy) > 11.0 and rng.random() < 0.4:
+        inset = rng.uniform(2.0, 3.5, 4)
+        th = min(max_height_m, h + rng.uniform(5.0, 16.0))
+        if th > h + 2.0:
+            b.box(
+                (fx0 + inset[0], fy0 + inset[1], h),
+                (fx1 - inset[2], fy1 - inset[3], th),
+                mat,
+                KIND_BUILDING,
+                alb,
+                acc,
+                params,
+            )
+    elif rng.random() < 0.5 and min(wx, wy) > 7.0:
+        for _ in range(int(rng.integers(1, 4))):
+            uw, ud, uh = rng.uniform(1.5, 3.0), rng.uniform(1.5, 3.0), rng.uniform(1.0, 2.5)
+            ux = rng.uniform(fx0 + 1.0, fx1 - 1.0 - uw)
+            uy = rng.uniform(fy0 + 1.0, fy1 - 1.0 - ud)
+            b.box(
+                (ux, uy, h),
+                (ux + uw, uy + ud, h + uh),
+                MAT_METAL,
+                KIND_ROOF_UNIT,
+                _jitter_color(rng, [(0.7, 0.7, 0.72), (0.55, 0.56, 0.58)]),
+                params=_TEX_METAL,
+            )
+
+
+def _building(
+    b: _Builder,
+    rng: np.random.Generator,
+    lot: tuple[float, float, float, float],
+    closeness: float,
+    style: _CityStyle,
+) -> None:
+    """A box building on a lot (some lots stay empty), taller near the centre, with its rooftop."""
+    lx0, ly0, lx1, ly1 = lot
+    if rng.random() < 0.06:
+        return  # an empty lot
+    setback = rng.uniform(0.0, 1.2, 4) * (rng.random() < 0.6)
+    fx0, fy0, fx1, fy1 = lx0 + setback[0], ly0 + setback[1], lx1 - setback[2], ly1 - setback[3]
+    if fx1 - fx0 < 5.0:
+        fx0, fx1 = lx0, lx1
+    if fy1 - fy0 < 5.0:
+        fy0, fy1 = ly0, ly1
+    max_h = style.max_height_m
+    u = rng.random()
+    h = 6.0 * (max_h / 6.0) ** (u**1.2 * (0.6 + 0.4 * closeness))
+    h = float(np.clip(h, 6.0, min(max_h, 7.0 * min(fx1 - fx0, fy1 - fy0))))
+    mat, alb, acc, params = _building_style(rng, h, style.low_texture_fraction)
+    b.box((fx0, fy0, 0.0), (fx1, fy1, h), mat, KIND_BUILDING, alb, acc, params)
+    _rooftop(b, rng, (fx0, fy0, fx1, fy1), h, (mat, alb, acc, params), max_h)
+
+
+def _block(b: _Builder, rng: np.random.Generator, bx: np.ndarray, by: np.ndarray, style: _CityStyle) -> None:
+    """One block inside its pavement: a park with trees, or lots with buildings."""
+    cx, cy = (bx[0] + bx[1]) / 2, (by[0] + by[1]) / 2
+    closeness = 1.0 - min(1.0, np.hypot(cx, cy) / (style.half * 1.1))
+    sw = style.sidewalk_m
+    x0, y0, x1, y1 = bx[0] + sw, by[0] + sw, bx[1] - sw, by[1] - sw
+    if rng.random() < style.park_fraction:
+        for _ in range(int(rng.integers(4, 9))):
+            _tree(b, rng, rng.uniform(x0 + 2, x1 - 2), rng.uniform(y0 + 2, y1 - 2))
+        return
+    lots: list[tuple[float, float, float, float]] = []
+    # most blocks are lined with narrow lots around a courtyard; some hold a few big buildings
+    layout = rng.random()
+    if layout < 0.6:
+        _perimeter_lots(rng, x0, y0, x1, y1, lots)
+    elif layout < 0.85:
+        _split_lots(rng, x0, y0, x1, y1, lots, 11.2)
+    else:
+        _split_lots(rng, x0, y0, x1, y1, lots, 30.0)
+    for lot in lots:
+        _building(b, rng, lot, float(closeness), style)
+
+
+def _pavement_side(
+    b: _Builder,
+    rng: np.random.Generator,
+    side: tuple[tuple[float, float], tuple[float, float]],
+    block_center: tuple[float, float],
+    pole_spacing_m: tuple[float, float],
+) -> None:
+    """Poles (mostly) and street trees along one kerb line, from ``side[0]`` to ``side[1]``."""
+    (ax, ay), (ex, ey) = side
+    length = np.hypot(ex - ax, ey - ay)
+    pos = rng.uniform(2.0, 6.0)
+    while pos < length - 2.0:
+        px, py = ax + (ex - ax) * pos / length, ay + (ey - ay) * pos / length
+        if rng.random() < 0.8:
+            r = rng.uniform(0.1, 0.16) if rng.random() < 0.7 else rng.uniform(0.16, 0.3)
+            b.cylinder(
+                px,
+                py,
+                r,
+                0.0,
+                rng.uniform(4.0, 10.0),
+                MAT_METAL,
+                KIND_POLE,
+                _jitter_color(rng, [(0.42, 0.44, 0.45), (0.3, 0.32, 0.3), (0.5, 0.42, 0.32)]),
+                params=_TEX_METAL,
+            )
+        else:
+            # a street tree, set back into the pavement
+            nxv, nyv = -(ey - ay) / length, (ex - ax) / length
+            ccx, ccy = block_center
+            sgn = 1.0 if (ccx - px) * nxv + (ccy - py) * nyv > 0 else -1.0
+            _tree(b, rng, px + sgn * nxv * 1.2, py + sgn * nyv * 1.2, 0.85)
+        pos += rng.uniform(*pole_spacing_m)
+
+
+def _pavements(
+    b: _Builder, rng: np.random.Generator, bx: np.ndarray, by: np.ndarray, style: _CityStyle
+) -> None:
+    """Poles and street trees along the four pavements of a block, just inside the kerb."""
+    sides = [
+        ((bx[0], by[0] + 0.6), (bx[1], by[0] + 0.6)),
+        ((bx[0], by[1] - 0.6), (bx[1], by[1] - 0.6)),
+        ((bx[0] + 0.6, by[0]), (bx[0] + 0.6, by[1])),
+        ((bx[1] - 0.6, by[0]), (bx[1] - 0.6, by[1])),
+    ]
+    center = ((bx[0] + bx[1]) / 2, (by[0] + by[1]) / 2)
+    for side in sides:
+        _pavement_side(b, rng, side, center, style.pole_spacing_m)
+
+
+def _beams(
+    b: _Builder,
+    rng: np.random.Generator,
+    blocks_x: np.ndarray,
+    blocks_y: np.ndarray,
+    half: float,
+    n_beams: int,
+) -> None:
+    """Overhead beams across inner streets, each between two new poles (border streets stay clear)."""
+    xs_c = _street_lines(blocks_x, -half, half)
+    ys_c = _street_lines(blocks_y, -half, half)
+    for _ in range(n_beams):
+        along_x = rng.random() < 0.5
+        lines = ys_c if along_x else xs_c
+        (lo, hi) = lines[int(rng.integers(len(lines)))]
+        if lo <= -half + 1e-9 or hi >= half - 1e-9:
+            continue  # keep the border streets clear
+        cross = blocks_x if along_x else blocks_y
+        blk = cross[int(rng.integers(len(cross)))]
+        pos = rng.uniform(blk[0] + 4.0, blk[1] - 4.0)
+        ph = rng.uniform(7.0, 9.5)
+        thick = rng.uniform(0.08, 0.16)
+        a_, b_ = lo - 0.6, hi + 0.6
+        for q in (a_, b_):
+            x, y = (pos, q) if along_x else (q, pos)
+            b.cylinder(x, y, 0.15, 0.0, ph, MAT_METAL, KIND_POLE, (0.35, 0.36, 0.36), params=_TEX_METAL)
+        z0 = ph - 0.35
+        if along_x:
+            lo3, hi3 = (pos - thick / 2, a_, z0), (pos + thick / 2, b_, z0 + thick)
+        else:
+            lo3, hi3 = (a_, pos - thick / 2, z0), (b_, pos + thick / 2, z0 + thick)
+        b.box(lo3, hi3, MAT_METAL, KIND_BEAM, (0.25, 0.25, 0.27), params=_TEX_METAL)
+
+
 def generate_city(
     seed: int,
     size_m: float = 200.0,
@@ -249,6 +444,10 @@ def generate_city(
     thin horizontal beams (overhead wires, sign gantries) across streets below 10 m. Street
     corridors are free above 10 m, so a drone can fly along every street at 10-40 m.
 
+    Steps, in this order (each draws from one generator, so the order is part of the city):
+    the block grid, every block's park or buildings, every block's pavement poles and trees,
+    the overhead beams.
+
     Args:
         seed: the only source of randomness; the same seed gives the same city.
         size_m: side of the square city, metres.
@@ -264,136 +463,17 @@ def generate_city(
         raise InputError(f"size_m must be at least 60 m, got {size_m}")
     rng = np.random.default_rng(seed)
     half = size_m / 2
+    style = _CityStyle(half, sidewalk_m, max_height_m, pole_spacing_m, low_texture_fraction, park_fraction)
     blocks_x = _layout(rng, -half, half, block_m, street_m)
     blocks_y = _layout(rng, -half, half, block_m, street_m)
     b = _Builder()
     for bx in blocks_x:
         for by in blocks_y:
-            cx, cy = (bx[0] + bx[1]) / 2, (by[0] + by[1]) / 2
-            closeness = 1.0 - min(1.0, np.hypot(cx, cy) / (half * 1.1))
-            x0, y0, x1, y1 = bx[0] + sidewalk_m, by[0] + sidewalk_m, bx[1] - sidewalk_m, by[1] - sidewalk_m
-            if rng.random() < park_fraction:
-                for _ in range(int(rng.integers(4, 9))):
-                    _tree(b, rng, rng.uniform(x0 + 2, x1 - 2), rng.uniform(y0 + 2, y1 - 2))
-                continue
-            lots: list = []
-            # most blocks are lined with narrow lots around a courtyard; some hold a few big buildings
-            style = rng.random()
-            if style < 0.6:
-                _perimeter_lots(rng, x0, y0, x1, y1, lots)
-            elif style < 0.85:
-                _split_lots(rng, x0, y0, x1, y1, lots, 11.2)
-            else:
-                _split_lots(rng, x0, y0, x1, y1, lots, 30.0)
-            for lx0, ly0, lx1, ly1 in lots:
-                if rng.random() < 0.06:
-                    continue  # an empty lot
-                s = rng.uniform(0.0, 1.2, 4) * (rng.random() < 0.6)
-                fx0, fy0, fx1, fy1 = lx0 + s[0], ly0 + s[1], lx1 - s[2], ly1 - s[3]
-                if fx1 - fx0 < 5.0:
-                    fx0, fx1 = lx0, lx1
-                if fy1 - fy0 < 5.0:
-                    fy0, fy1 = ly0, ly1
-                u = rng.random()
-                h = 6.0 * (max_height_m / 6.0) ** (u**1.2 * (0.6 + 0.4 * closeness))
-                h = float(np.clip(h, 6.0, min(max_height_m, 7.0 * min(fx1 - fx0, fy1 - fy0))))
-                mat, alb, acc, params = _building_style(rng, h, low_texture_fraction)
-                b.box((fx0, fy0, 0.0), (fx1, fy1, h), mat, KIND_BUILDING, alb, acc, params)
-                wx, wy = fx1 - fx0, fy1 - fy0
-                if h > 18.0 and min(wx, wy) > 11.0 and rng.random() < 0.4:
-                    inset = rng.uniform(2.0, 3.5, 4)
-                    th = min(max_height_m, h + rng.uniform(5.0, 16.0))
-                    if th > h + 2.0:
-                        b.box(
-                            (fx0 + inset[0], fy0 + inset[1], h),
-                            (fx1 - inset[2], fy1 - inset[3], th),
-                            mat,
-                            KIND_BUILDING,
-                            alb,
-                            acc,
-                            params,
-                        )
-                elif rng.random() < 0.5 and min(wx, wy) > 7.0:
-                    for _ in range(int(rng.integers(1, 4))):
-                        uw, ud, uh = rng.uniform(1.5, 3.0), rng.uniform(1.5, 3.0), rng.uniform(1.0, 2.5)
-                        ux = rng.uniform(fx0 + 1.0, fx1 - 1.0 - uw)
-                        uy = rng.uniform(fy0 + 1.0, fy1 - 1.0 - ud)
-                        b.box(
-                            (ux, uy, h),
-                            (ux + uw, uy + ud, h + uh),
-                            MAT_METAL,
-                            KIND_ROOF_UNIT,
-                            _jitter_color(rng, [(0.7, 0.7, 0.72), (0.55, 0.56, 0.58)]),
-                            params=(3.0, 0.0, 0.5, 0.5, 0.0, 1.0),
-                        )
-    # poles and street trees along every pavement, just inside the kerb
+            _block(b, rng, bx, by, style)
     for bx in blocks_x:
         for by in blocks_y:
-            sides = [
-                ((bx[0], by[0] + 0.6), (bx[1], by[0] + 0.6)),
-                ((bx[0], by[1] - 0.6), (bx[1], by[1] - 0.6)),
-                ((bx[0] + 0.6, by[0]), (bx[0] + 0.6, by[1])),
-                ((bx[1] - 0.6, by[0]), (bx[1] - 0.6, by[1])),
-            ]
-            for (ax, ay), (ex, ey) in sides:
-                length = np.hypot(ex - ax, ey - ay)
-                s = rng.uniform(2.0, 6.0)
-                while s < length - 2.0:
-                    px, py = ax + (ex - ax) * s / length, ay + (ey - ay) * s / length
-                    if rng.random() < 0.8:
-                        r = rng.uniform(0.1, 0.16) if rng.random() < 0.7 else rng.uniform(0.16, 0.3)
-                        b.cylinder(
-                            px,
-                            py,
-                            r,
-                            0.0,
-                            rng.uniform(4.0, 10.0),
-                            MAT_METAL,
-                            KIND_POLE,
-                            _jitter_color(rng, [(0.42, 0.44, 0.45), (0.3, 0.32, 0.3), (0.5, 0.42, 0.32)]),
-                            params=(3.0, 0.0, 0.5, 0.5, 0.0, 1.0),
-                        )
-                    else:
-                        # a street tree, set back into the pavement
-                        nxv, nyv = -(ey - ay) / length, (ex - ax) / length
-                        ccx, ccy = (bx[0] + bx[1]) / 2, (by[0] + by[1]) / 2
-                        sgn = 1.0 if (ccx - px) * nxv + (ccy - py) * nyv > 0 else -1.0
-                        _tree(b, rng, px + sgn * nxv * 1.2, py + sgn * nyv * 1.2, 0.85)
-                    s += rng.uniform(*pole_spacing_m)
-    # overhead beams across streets, each between two new poles
-    xs_c = _street_lines(blocks_x, -half, half)
-    ys_c = _street_lines(blocks_y, -half, half)
-    for _ in range(n_beams):
-        along_x = rng.random() < 0.5
-        lines = ys_c if along_x else xs_c
-        (lo, hi) = lines[int(rng.integers(len(lines)))]
-        if lo <= -half + 1e-9 or hi >= half - 1e-9:
-            continue  # keep the border streets clear
-        cross = blocks_x if along_x else blocks_y
-        blk = cross[int(rng.integers(len(cross)))]
-        pos = rng.uniform(blk[0] + 4.0, blk[1] - 4.0)
-        ph = rng.uniform(7.0, 9.5)
-        thick = rng.uniform(0.08, 0.16)
-        a_, b_ = lo - 0.6, hi + 0.6
-        for q in (a_, b_):
-            x, y = (pos, q) if along_x else (q, pos)
-            b.cylinder(
-                x,
-                y,
-                0.15,
-                0.0,
-                ph,
-                MAT_METAL,
-                KIND_POLE,
-                (0.35, 0.36, 0.36),
-                params=(3.0, 0.0, 0.5, 0.5, 0.0, 1.0),
-            )
-        z0 = ph - 0.35
-        if along_x:
-            lo3, hi3 = (pos - thick / 2, a_, z0), (pos + thick / 2, b_, z0 + thick)
-        else:
-            lo3, hi3 = (a_, pos - thick / 2, z0), (b_, pos + thick / 2, z0 + thick)
-        b.box(lo3, hi3, MAT_METAL, KIND_BEAM, (0.25, 0.25, 0.27), params=(3.0, 0.0, 0.5, 0.5, 0.0, 1.0))
+            _pavements(b, rng, bx, by, style)
+    _beams(b, rng, blocks_x, blocks_y, half, n_beams)
     arrays = b.arrays()
     top = float(arrays["boxes"][:, 5].max()) if len(arrays["boxes"]) else 10.0
     return City(

@@ -1,0 +1,56 @@
+"""The cleanup step on hand-made fused clouds: outliers, oriented normals, voxel averaging."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from skyrecon.core import PointCloud
+from skyrecon.mvs.cleanup import clean_fused_cloud
+from skyrecon.mvs.fusion import FusedCloud
+from skyrecon.mvs.settings import MVSSettings
+from tests.mvs.test_fusion import plane_views
+
+
+def grid_on_plane(n: int = 20, spacing: float = 0.05) -> np.ndarray:
+    """(n*n, 3) float32 points on z = 0, world metres."""
+    xs = (np.arange(n) - n / 2) * spacing
+    x, y = np.meshgrid(xs, xs)
+    return np.stack([x.ravel(), y.ravel(), np.zeros(n * n)], axis=1).astype(np.float32)
+
+
+def fused_of(points: np.ndarray) -> FusedCloud:
+    n = len(points)
+    colors = np.full((n, 3), 120, np.uint8)
+    return FusedCloud(PointCloud(points, colors), np.zeros(n, np.int32), np.full(n, 3, np.int32))
+
+
+def test_far_outlier_is_removed_and_normals_face_the_camera() -> None:
+    views, _ = plane_views(1)  # one camera 5 m above the plane z = 0
+    pts = np.concatenate([grid_on_plane(), [[0.0, 0.0, 3.0]]]).astype(np.float32)
+    clean = clean_fused_cloud(fused_of(pts), views, MVSSettings(component_min_fraction=0.0))
+    assert len(clean.cloud) == len(pts) - 1 and np.abs(clean.cloud.points[:, 2]).max() == 0
+    assert clean.counts == {"points_fused": len(pts), "points_after_outlier_removal": len(pts) - 1}
+    normals = clean.cloud.normals
+    assert normals is not None
+    np.testing.assert_allclose(normals[:, 2], 1.0, atol=1e-4)  # up, towards the camera
+    assert len(clean.support) == len(clean.cloud)
+
+
+def test_voxel_averaging_merges_points_and_keeps_the_best_support() -> None:
+    views, _ = plane_views(1)
+    pts = grid_on_plane(10, 0.05) + np.float32([0.275, 0.275, 0.0])  # 0.025, 0.075, ...: 2 x 2 per voxel
+    fused = fused_of(pts)
+    fused.support[0] = 7
+    settings = MVSSettings(outlier_std=0.0, component_min_fraction=0.0, voxel_size_m=0.1)
+    clean = clean_fused_cloud(fused, views, settings)
+    assert clean.counts["points_after_voxel"] == len(clean.cloud) == 25
+    assert clean.support.dtype == np.int32 and clean.support.max() == 7 and clean.support.min() == 3
+    np.testing.assert_allclose(np.linalg.norm(clean.cloud.normals, axis=1), 1.0, atol=1e-5)
+    assert clean.cloud.colors is not None and np.all(clean.cloud.colors == 120)
+
+
+def test_empty_cloud_passes_through() -> None:
+    views, _ = plane_views(1)
+    clean = clean_fused_cloud(fused_of(np.zeros((0, 3), np.float32)), views, MVSSettings())
+    assert len(clean.cloud) == 0 and clean.cloud.normals is not None and clean.cloud.normals.shape == (0, 3)
+    assert clean.counts == {"points_fused": 0}
