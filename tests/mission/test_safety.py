@@ -106,3 +106,15 @@ def test_missions_faster_than_the_rig_supports_keep_the_stopping_rule_every_cycl
     assert m["min_clearance_m"] > cfg.safety_margin_m
     assert max(r.speed_mps for r in result.records) <= rig_supported_speed(cfg) + 1e-6
     assert m["warnings"] and m["loop_ms_p99"] is not None
+
+
+def test_a_stalled_drone_looks_around_the_point_it_must_see():
+    from skyrecon.mission.guidance import scan_look_at
+
+    p, look = np.zeros(3), np.array([2.0, 0.0, 0.0])
+    assert np.array_equal(scan_look_at(look, p, 0.5), look)  # not yet: one second first
+    seen = {tuple(np.round(scan_look_at(look, p, t), 3)) for t in np.arange(1.0, 7.0, 1.0)}
+    assert len(seen) >= 5  # a different view every second
+    for t in np.arange(1.0, 7.0, 0.5):  # always about the same distance away, within 30 degrees
+        q = scan_look_at(look, p, t)
+        assert abs(np.linalg.norm(q[:2]) - 2.0) < 1e-9 and np.degrees(np.arctan2(q[1], q[0])) <= 30.0 + 1e-9

@@ -70,6 +70,23 @@ def guide(
     return Guidance(carrot, limit.value_mps, look, within, to_go, limit)
 
 
+#: Yaw offsets (degrees) and look-at heights (metres) of the scan of a stalled drone, one per second.
+_SCAN = ((30.0, 0.0), (-30.0, 0.0), (0.0, -1.0), (15.0, 1.0), (-15.0, 1.0), (0.0, 0.0))
+
+
+def scan_look_at(look_at: np.ndarray, position: np.ndarray, stalled_s: float) -> np.ndarray:
+    """Where a drone held still by unobserved space just ahead looks: after a second without
+    progress it looks around the point it must see (yaw 30 degrees either way, then up and down),
+    so that the same blind spot of the same view does not hold it forever (a voxel that one
+    view leaves unknown is seen from another). ``look_at``, ``position`` (3,) world metres."""
+    if stalled_s < 1.0:
+        return look_at
+    yaw_deg, dz = _SCAN[int(stalled_s - 1.0) % len(_SCAN)]
+    c, s = math.cos(math.radians(yaw_deg)), math.sin(math.radians(yaw_deg))
+    d = np.asarray(look_at, dtype=np.float64) - position
+    return position + np.array([c * d[0] - s * d[1], s * d[0] + c * d[1], d[2] + dz])
+
+
 def hover(position: np.ndarray, goal: np.ndarray) -> Guidance:
     """No path to follow: stay, and look towards the goal."""
     p = np.asarray(position, dtype=np.float64)

@@ -8,7 +8,9 @@ One cycle per simulated ``1 / cycle_hz`` seconds:
 4. **distance**: the distance field and the planner's grid, where occupied voxels changed;
 5. **check**: the rest of the path against the updated field (``Replanner.check``);
 6. **replan**: from the current position when the path is blocked (or there is none);
-7. **control**: how far ahead the path is observed free, the speed that allows, the pursuit
+7. **control**: how far ahead the path is observed free, the speed that allows (the stopping
+   rule, :mod:`skyrecon.mission.safety`; a drone held still by unobserved space looks around it,
+   :func:`~skyrecon.mission.guidance.scan_look_at`), the pursuit
    and look-at points (:mod:`skyrecon.mission.guidance`), and one step of the vehicle
    (:mod:`skyrecon.mission.vehicle`).
 
@@ -32,7 +34,7 @@ import numpy as np
 
 from skyrecon.mapping import OccupancyMap
 from skyrecon.mission.config import MissionConfig
-from skyrecon.mission.guidance import guide, hover
+from skyrecon.mission.guidance import guide, hover, scan_look_at
 from skyrecon.mission.navigator import Navigator, timed
 from skyrecon.mission.perception import flight_perception, mission_rig
 from skyrecon.mission.scenario import Scenario
@@ -263,6 +265,7 @@ def run_mission(
     reason, success, collisions = "", False, 0
     message = ""
     cycle = 0
+    stalled = 0  # cycles held still by unobserved space ahead (see guidance.scan_look_at)
     while True:
         p = state.position.copy()
         ms: dict[str, float] = {}
@@ -295,6 +298,11 @@ def run_mission(
             g = guide(rest, state, verified, cfg, momentum)
         else:
             verified, g = 0.0, hover(p, scenario.goal)
+        stalled = (
+            stalled + 1 if state.speed < 0.05 and g.limit is not None and g.limit.reason == "path_seen" else 0
+        )
+        if stalled:
+            g.look_at = scan_look_at(g.look_at, p, stalled * cfg.dt)
         brake = g.limit is not None and state.speed > g.limit.stop_mps + 1e-9
         new_state = step(
             state,
