@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 
 from skyrecon.cli.main import main
-from skyrecon.core import PointCloud
-from skyrecon.io import read_ply, read_sequence, write_ply
+from skyrecon.io import read_ply, read_sequence
 from skyrecon.mapping import load_map
 from skyrecon.sim import generate_city
 
@@ -75,19 +74,50 @@ def test_plan_on_map(flight, tmp_path, capsys):
     seg = np.concatenate([np.linspace(a, b, 50) for a, b in zip(waypoints[:-1], waypoints[1:])])
     assert generate_city(3).distance(seg, include_ground=True).min() > 0.5
     assert json.loads((route / "mission.plan").read_text())["fileType"] == "Plan"
-    # no path: exit 2 and one line that says why (the cameras never saw their own positions)
+    # from where the drone has been, without --allow-unknown: the cameras never saw their own
+    # positions, but the flown track is known free (flown_path.json), so the plan joins it
     capsys.readouterr()
-    bad = ["plan", str(out), "--start", *map(str, start), "--goal", *map(str, goal), "--out", str(route)]
-    assert main(bad) == 2
+    plain = ["plan", str(out), "--start", *map(str, start), "--goal", *map(str, goal), "--out", str(route)]
+    assert main(plain) == 0
+    doc = json.loads((route / "path.json").read_text())
+    assert doc["success"] and doc["adjusted"]
+    waypoints = np.array(doc["waypoints"])
+    np.testing.assert_allclose(waypoints[[0, -1]], [start, goal], atol=1e-6)
+    seg = np.concatenate([np.linspace(a, b, 50) for a, b in zip(waypoints[:-1], waypoints[1:])])
+    assert generate_city(3).distance(seg, include_ground=True).min() > 0.35
+    # without the flown track and without snapping: exit 2 and one line that says why
+    (out / "flown_path.json").unlink()
+    capsys.readouterr()
+    assert main([*plain, "--snap-radius", "0"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith("error: no path") and "unknown" in err[0]
+    assert len(err) == 1 and err[0].startswith("error: no path") and "clearance" in err[0]
 
 
-def test_map_bad_inputs(tmp_path, capsys):
-    assert main(["map", str(tmp_path / "nothing"), "--out", str(tmp_path / "m")]) == 2
-    assert "not found" in capsys.readouterr().err
-    ply = tmp_path / "c.ply"
-    write_ply(ply, PointCloud(np.random.default_rng(0).normal(size=(100, 3))))
-    assert main(["map", str(ply), "--out", str(tmp_path / "m")]) == 2
-    assert "--origin" in capsys.readouterr().err
-    assert main(["map", str(ply), "--origin", "0", "0", "10", "--out", str(tmp_path / "m"), "--quiet"]) == 0
+def test_plan_from_every_flown_position_to_every_other(flight, tmp_path):
+    """Issue: after `skyrecon map` on a flight, `skyrecon plan` from a camera position failed
+    ("the start lies in unexplored space") although the drone flew through it."""
+    out = tmp_path / "map"
+    assert main(["map", str(flight), "--out", str(out), "--voxel-size", "0.5", "--quiet"]) == 0
+    track = np.array([p.t for p in read_sequence(flight).world_from_left])
+    occ = load_map(out)
+    assert np.all(occ.state_at(track) == 0)  # the flown positions are known free
+    city = generate_city(3)
+    for i, start in enumerate(track):
+        for j, goal in enumerate(track):
+            if i == j:
+                continue
+            route = tmp_path / f"route_{i}_{j}"
+            args = [
+                "plan",
+                str(out),
+                "--start",
+                *map(str, start),
+                "--goal",
+                *map(str, goal),
+                "--out",
+                str(route),
+            ]
+            assert main([*args, "--quiet"]) == 0, (i, j)
+            w = np.array(json.loads((route / "path.json").read_text())["waypoints"])
+            seg = np.concatenate([np.linspace(a, b, 30) for a, b in zip(w[:-1], w[1:])])
+            assert city.distance(seg, include_ground=True).min() > 0.35, (i, j)

@@ -41,6 +41,7 @@ from skyrecon.mapping import (
     map_depth_sequence,
     map_stereo_sequence,
     save_map,
+    write_flown_path,
     write_map_preview,
     write_octomap_bt,
 )
@@ -85,6 +86,13 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--frames", type=positive_int, help="use only the first N frames")
     p.add_argument(
         "--origin", type=float, nargs=3, metavar=("X", "Y", "Z"), help="sensor position for a .ply source"
+    )
+    p.add_argument(
+        "--vehicle-radius",
+        type=float,
+        default=0.5,
+        help="the camera track is space the vehicle flew through: voxels within this radius of it are "
+        "marked free, metres (default 0.5; 0 marks only the voxels the track crosses)",
     )
     p.add_argument("--bt", action="store_true", help="also write an OctoMap .bt file (map.bt)")
     return p
@@ -155,7 +163,14 @@ def _map_sequence(root: Path, args: argparse.Namespace) -> tuple[OccupancyMap, d
         "depth_from": args.depth or f"stereo ({args.method})",
         **summary,
     }
-    return occ, summary, np.array([p.t for p in poses])
+    track = np.array([p.t for p in poses])
+    if not (np.isfinite(args.vehicle_radius) and args.vehicle_radius >= 0):
+        raise InputError(
+            f"--vehicle-radius must be a non-negative number of metres, got {args.vehicle_radius}"
+        )
+    summary["flown_free_voxels"] = occ.mark_flown_free(track, args.vehicle_radius)
+    summary["vehicle_radius_m"] = args.vehicle_radius
+    return occ, summary, track
 
 
 def _map_cloud(path: Path, args: argparse.Namespace) -> tuple[OccupancyMap, dict[str, Any], None]:
@@ -184,6 +199,8 @@ def _write_map_dir(
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
     try:
         save_map(occ, tmp)
+        if track is not None:
+            write_flown_path(tmp, track, float(summary.get("vehicle_radius_m", 0.0)))
         n_occ = export_occupied_ply(occ, tmp / "occupied.ply")
         if bt:
             write_octomap_bt(occ, tmp / "map.bt")

@@ -3,8 +3,13 @@
 Reads a map written by ``skyrecon map`` and writes ``path.json`` (``{"waypoints": [[x, y, z], ...]}``
 in the world frame, metres, with length and clearance), ``preview.png`` (top view with the path)
 and, with ``--origin LAT LON ALT`` (the world origin's geographic position), a QGroundControl
-mission ``mission.plan``. Unknown space is not flyable unless ``--allow-unknown``. When no path
-exists it says why (start or goal inside or too near an obstacle, enclosed, outside the map).
+mission ``mission.plan``. Unknown space is not flyable unless ``--allow-unknown``. A start or goal
+in unexplored space or within the clearance of an obstacle (where the vehicle was, say) is joined
+to the nearest usable point within ``--snap-radius``; when the map was built by ``skyrecon map`` from
+a flight and no path keeps the clearance, the path retraces the flown track (``flown_path.json``).
+``path.json`` says what was done under ``adjusted``.
+When no path exists it says why (start or goal inside or too near an obstacle, enclosed, outside
+the map).
 """
 
 from __future__ import annotations
@@ -15,8 +20,8 @@ import numpy as np
 
 from skyrecon.cli.common import add_command, info, output_dir
 from skyrecon.errors import EstimationError, InputError
-from skyrecon.mapping import load_map, write_map_preview
-from skyrecon.planning import plan_path, write_path_json, write_qgc_plan
+from skyrecon.mapping import load_map, read_flown_path, write_map_preview
+from skyrecon.planning import plan_with_flown_path, write_path_json, write_qgc_plan
 
 EXAMPLES = """  skyrecon plan flight_map/ --start 0 0 15 --goal 120 80 20 --out route/
   skyrecon plan flight_map/ --start 0 0 15 --goal 120 80 20 --clearance 3 --max-z 40 --out route/
@@ -41,6 +46,13 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument(
         "--clearance", type=float, default=2.0, help="distance to keep from obstacles, metres (default 2)"
     )
+    p.add_argument(
+        "--snap-radius",
+        type=float,
+        default=3.0,
+        help="a start or goal in unexplored space or nearer an obstacle than the clearance is moved to the "
+        "nearest usable point within this radius, and path.json says so (metres, default 3; 0: never)",
+    )
     p.add_argument("--allow-unknown", action="store_true", help="let the path cross unexplored space")
     p.add_argument("--min-z", type=float, default=-np.inf, help="lowest altitude allowed, world z metres")
     p.add_argument("--max-z", type=float, default=np.inf, help="highest altitude allowed, world z metres")
@@ -60,8 +72,16 @@ def run(args: argparse.Namespace) -> int:
         if not np.all(np.isfinite(p)):
             raise InputError(f"{name} must be three finite numbers, got {p.tolist()}")
     occ = load_map(args.map_dir)
-    result = plan_path(
-        occ, start, goal, args.clearance, allow_unknown=args.allow_unknown, min_z=args.min_z, max_z=args.max_z
+    result = plan_with_flown_path(
+        occ,
+        start,
+        goal,
+        args.clearance,
+        read_flown_path(args.map_dir),
+        snap_radius_m=max(0.0, args.snap_radius),
+        allow_unknown=args.allow_unknown,
+        min_z=args.min_z,
+        max_z=args.max_z,
     )
     out = output_dir(args.out)
     write_path_json(out / "path.json", result, start=start, goal=goal)
@@ -78,5 +98,17 @@ def run(args: argparse.Namespace) -> int:
             f"path of {len(result.waypoints)} waypoints, {result.length_m:.1f} m ({result.length_m / max(straight, 1e-9):.3f} x straight line), "
             f"clearance {args.clearance} m, planned in {1000 * result.timings.get('total', float('nan')):.0f} ms"
         )
+        if result.adjusted.get("route") == "flown_path":
+            info(
+                "note: no path keeps the clearance from unexplored space here; this one retraces the path "
+                "flown while mapping (path.json 'adjusted')"
+            )
+        for what, move in result.adjusted.items():
+            if what not in ("start", "goal"):
+                continue
+            info(
+                f"note: the {what} lies in {'unexplored space' if move['reason'].endswith('unknown') else 'the clearance of an obstacle'}; "
+                f"the path joins the nearest usable point {move['distance_m']:.1f} m away in a straight line (see path.json 'adjusted')"
+            )
         info(f"wrote {out}/path.json, preview.png" + (", mission.plan" if args.origin is not None else ""))
     return 0

@@ -33,7 +33,7 @@ from skyrecon.mapping.stereo_sequence import (
     StereoMapSettings,
     map_stereo_sequence,
 )
-from skyrecon.mapping.storage import export_occupied_ply
+from skyrecon.mapping.storage import export_occupied_ply, read_flown_path, write_flown_path
 from skyrecon.perception import stereo_hit_range_m
 
 __all__ = [
@@ -43,6 +43,8 @@ __all__ = [
     "build_map_from_depth_frames",
     "DistanceField",
     "export_occupied_ply",
+    "read_flown_path",
+    "write_flown_path",
     "write_octomap_bt",
     "save_map",
     "load_map",

@@ -38,6 +38,17 @@ from skyrecon.mapping.storage import BLOCKS, read_map_files, write_map_files
 UNKNOWN, FREE, OCCUPIED = -1, 0, 1
 
 
+def _polyline_samples(points: np.ndarray, step: float) -> np.ndarray:
+    """(M, 3) points every ``step`` (or closer) along the polyline through ``points`` (N, 3), ends included."""
+    if len(points) == 1:
+        return points.copy()
+    out = [points[:1]]
+    for a, b in zip(points[:-1], points[1:]):
+        n = max(1, int(np.ceil(np.linalg.norm(b - a) / step)))
+        out.append(a + (b - a) * (np.arange(1, n + 1) / n)[:, None])
+    return np.concatenate(out)
+
+
 @dataclass
 class IntegrationStats:
     """What one integration did.
@@ -416,6 +427,62 @@ class OccupancyMap:
         return IntegrationStats(
             len(uniq), int(counts[:, 0].sum()), int(counts[:, 1].sum()), n_changed, time.perf_counter() - t0
         )
+
+    def mark_flown_free(self, positions: np.ndarray, radius_m: float) -> int:
+        """Mark the space a vehicle flew through as known free.
+
+        The vehicle's body swept every voxel whose centre lies within ``radius_m`` of the flown
+        polyline (plus half a voxel, so that a radius below the voxel size still covers the
+        voxels the path crosses): those voxels are set to the free clamp (``clamp_min``), whatever
+        the cameras said of them (nothing solid can be where the vehicle was; later measurements
+        may still mark a voxel occupied, e.g. when something moves in).
+
+        Args:
+            positions: (N, 3) vehicle positions in flight order, world metres (N >= 1).
+            radius_m: the vehicle's radius, metres (>= 0).
+        Returns:
+            The number of voxels set.
+        """
+        pts = check_points(positions)
+        if not (np.isfinite(radius_m) and radius_m >= 0):
+            raise InputError(f"the vehicle radius must be a non-negative number of metres, got {radius_m}")
+        if len(pts) == 0:
+            return 0
+        v = self.voxel_size
+        reach = float(radius_m) + 0.5 * v
+        samples = _polyline_samples(pts, 0.25 * v)
+        k = int(np.ceil(reach / v)) + 1
+        r = np.arange(-k, k + 1)
+        offs = np.stack(np.meshgrid(r, r, r, indexing="ij"), -1).reshape(-1, 3)
+        base = np.floor(samples / v).astype(np.int64)
+        # each sample proposes the voxels around it whose centre lies within reach of it (a voxel
+        # centre within reach of the polyline lies within reach + v/8 of its nearest sample)
+        cand = (base[:, None, :] + offs[None]).reshape(-1, 3)
+        near = np.linalg.norm((cand + 0.5) * v - np.repeat(samples, len(offs), axis=0), axis=1)
+        cand = np.unique(cand[near <= reach + 0.125 * v], axis=0)
+        keep = np.ones(len(cand), bool)
+        vox = cand[keep]
+        if len(vox) == 0:
+            return 0
+        B = self.block_size
+        blocks, local = np.divmod(vox, B)
+        ids = self.grid.ensure(blocks.astype(np.int32))
+        self._grow_flags()
+        flat = (local[:, 0] * B + local[:, 1]) * B + local[:, 2]
+        data = self.grid.data
+        before = data[ids, flat]
+        lo_min, thr = self._lodds[2], self._lodds[4]
+        data[ids, flat] = lo_min
+        was_unknown = np.isnan(before)
+        was_occupied = ~was_unknown & (before >= thr)
+        changed = np.where(was_occupied, proj.CHANGED_STATE | proj.CHANGED_OCCUPIED, 0).astype(np.uint8)
+        changed[was_unknown] = proj.CHANGED_STATE
+        uniq, inv = np.unique(ids, return_inverse=True)
+        per_block = np.zeros(len(uniq), np.uint8)
+        np.bitwise_or.at(per_block, inv, changed)
+        self._mark(uniq, per_block)
+        self._bounds_cache = None
+        return int(len(vox))
 
     # ----- queries ---------------------------------------------------------------------
     def log_odds_at(self, points: np.ndarray) -> np.ndarray:

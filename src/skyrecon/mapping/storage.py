@@ -159,3 +159,35 @@ def export_occupied_ply(occ_map: HasOccupiedCenters, path: str | Path, colorize:
         colors = np.stack([255 * s, 255 * (1 - np.abs(2 * s - 1)), 255 * (1 - s)], 1)
     write_ply(path, PointCloud(pts, colors))
     return int(len(pts))
+
+
+FLOWN = "flown_path.json"
+
+
+def write_flown_path(directory: str | Path, positions: np.ndarray, vehicle_radius_m: float) -> None:
+    """Write ``flown_path.json`` into a map directory: the track (N, 3) world metres the vehicle
+    flew while mapping (its camera positions, in order) and its radius. The planner may retrace it
+    (:func:`skyrecon.planning.flown.plan_with_flown_path`)."""
+    doc = {
+        "format": "skyrecon.flown_path",
+        "version": 1,
+        "frame": "world",
+        "units": "m",
+        "vehicle_radius_m": float(vehicle_radius_m),
+        "positions": np.asarray(positions, dtype=np.float64).reshape(-1, 3).tolist(),
+    }
+    write_text_atomic(Path(directory) / FLOWN, json.dumps(doc) + "\n")
+
+
+def read_flown_path(directory: str | Path) -> np.ndarray | None:
+    """The flown track (N, 3) world metres of a map directory, or None when it has none."""
+    p = Path(directory) / FLOWN
+    if not p.is_file():
+        return None
+    try:
+        pos = np.asarray(json.loads(p.read_text())["positions"], dtype=np.float64).reshape(-1, 3)
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise InputError(f"unreadable flown path ({e}); delete it or map again", p) from None
+    if not np.all(np.isfinite(pos)):
+        raise InputError("the flown path holds non-finite positions; map again", p)
+    return pos

@@ -265,6 +265,7 @@ def run_mission(
     reason, success, collisions = "", False, 0
     message = ""
     cycle = 0
+    p_prev = scenario.start.copy()
     stalled = 0  # cycles held still by unobserved space ahead (see guidance.scan_look_at)
     while True:
         p = state.position.copy()
@@ -274,7 +275,8 @@ def run_mission(
             render_stereo, scenario.city, rig, cam_from_world.with_frames("left", "world")
         )
         depth, ms["stereo"] = timed(stereo.compute, frame.left, frame.right)
-        _, ms["integrate"] = timed(nav.integrate, depth.depth_m, depth.intrinsics, cam_from_world)
+        _, ms["integrate"] = timed(nav.integrate, depth.depth_m, depth.intrinsics, cam_from_world, p_prev)
+        p_prev = p
         rewritten, ms["distance"] = timed(nav.update_distance)
         outcome, ms["check"] = timed(nav.check, p, rewritten)
         replanned = replan_ok = False

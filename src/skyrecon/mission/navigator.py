@@ -91,9 +91,20 @@ class Navigator:
         self.replanner = Replanner(self.planner, self.goal)
 
     # ----- sensing -----------------------------------------------------------------------
-    def integrate(self, depth_m: np.ndarray, intrinsics: Intrinsics, cam_from_world: Rigid3) -> None:
-        """Integrate one depth image (h, w) float32 metres (NaN invalid, inf beyond range)."""
-        self.map.integrate_depth(depth_m, intrinsics, cam_from_world.inverse().with_frames("world", "cam"))
+    def integrate(
+        self,
+        depth_m: np.ndarray,
+        intrinsics: Intrinsics,
+        cam_from_world: Rigid3,
+        flown_from: np.ndarray | None = None,
+    ) -> None:
+        """Integrate one depth image (h, w) float32 metres (NaN invalid, inf beyond range); with
+        ``flown_from`` (3,) world metres, the segment flown from there to the camera is marked free
+        (the drone's body swept it, ``drone_radius_m``)."""
+        world_from_cam = cam_from_world.inverse().with_frames("world", "cam")
+        self.map.integrate_depth(depth_m, intrinsics, world_from_cam)
+        if flown_from is not None:
+            self.map.mark_flown_free(np.stack([flown_from, world_from_cam.t]), self.cfg.drone_radius_m)
 
     def update_distance(self) -> np.ndarray:
         """Bring the distance field and the planner's grid up to date.
@@ -148,27 +159,7 @@ class Navigator:
         Used when the drone finds itself closer than the clearance to something it has just
         mapped: the planner cannot start there, so it plans from this point instead.
         """
-        p = np.asarray(position, dtype=np.float64)
-        v = self.cfg.voxel_size_m
-        grid = self.planner.grid_for(np.minimum(p, self.goal), np.maximum(p, self.goal))
-        r = np.arange(-radius_m, radius_m + 1e-9, v)
-        offs = np.stack(np.meshgrid(r, r, r, indexing="ij"), -1).reshape(-1, 3)
-        offs = offs[(np.linalg.norm(offs, axis=1) <= radius_m) & (np.linalg.norm(offs, axis=1) > 0)]
-        cand = p + offs
-        d = grid.distance(cand)
-        good = np.flatnonzero(d >= self.planner.threshold + 0.05)
-        if len(good) == 0:
-            return None
-        d0 = float(grid.distance(p[None])[0])
-        # nearest first; among equals, the one closer to the goal
-        order = good[
-            np.lexsort((np.linalg.norm(cand[good] - self.goal, axis=1), np.linalg.norm(offs[good], axis=1)))
-        ]
-        for i in order[:64]:
-            pts, _ = sample_path(np.stack([p, cand[i]]), 0.25 * v, np.inf)
-            if np.all(grid.distance(pts) >= min(d0, self.planner.threshold) - 0.02):
-                return cand[i]
-        return None
+        return self.planner.nearest_clear_point(position, radius_m, toward=self.goal)
 
     def replan(self, position: np.ndarray) -> tuple[PlanResult, str]:
         """Plan from ``position`` (3,) to the goal; on success the new path is followed.

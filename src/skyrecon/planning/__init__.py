@@ -5,6 +5,7 @@ Main entry points: :func:`plan_path` / :class:`Planner` -> :class:`PlanResult`,
 :class:`Replanner`, :func:`write_path_json`, :func:`write_qgc_plan`.
 """
 
+from skyrecon.planning.flown import plan_with_flown_path, route_along_track
 from skyrecon.planning.mission import enu_to_geodetic, qgc_plan, write_path_json, write_qgc_plan
 from skyrecon.planning.planner import Planner, plan_path
 from skyrecon.planning.replan import ReplanDecision, Replanner, remaining_path
@@ -13,6 +14,8 @@ from skyrecon.planning.result import REASONS, PlanResult
 __all__ = [
     "Planner",
     "plan_path",
+    "plan_with_flown_path",
+    "route_along_track",
     "PlanResult",
     "REASONS",
     "Replanner",

@@ -248,9 +248,53 @@ class Planner:
                     break
         return np.array(out_f, np.int64), np.array(out_c, np.float64)
 
-    def plan(self, start: np.ndarray, goal: np.ndarray) -> PlanResult:
+    def nearest_clear_point(
+        self, position: np.ndarray, radius_m: float, toward: np.ndarray | None = None
+    ) -> np.ndarray | None:
+        """The nearest point within ``radius_m`` of ``position`` (3,) world metres where a path
+        may start (at the full clearance, known free unless ``allow_unknown``, within the altitude
+        limits), reachable in a straight line without getting closer to any obstacle; among
+        equally near ones, the one nearest ``toward``. None if there is none.
+
+        Used where a path must start or end at a point the planner cannot use: a drone that finds
+        itself closer than the clearance to something it has just mapped, or a start or goal in
+        space the map has not observed.
+        """
+        p = check_point3(position, "position")
+        v = self.map.voxel_size
+        other = p if toward is None else check_point3(toward, "toward")
+        grid = self.grid_for(np.minimum(p, other), np.maximum(p, other))
+        r = np.arange(-radius_m, radius_m + 1e-9, v)
+        offs = np.stack(np.meshgrid(r, r, r, indexing="ij"), -1).reshape(-1, 3)
+        norm = np.linalg.norm(offs, axis=1)
+        offs = offs[(norm <= radius_m) & (norm > 0)]
+        cand = p + offs
+        d = grid.distance(cand)
+        good = np.flatnonzero(
+            (d >= self.threshold + 0.05) & (cand[:, 2] >= self.min_z) & (cand[:, 2] <= self.max_z)
+        )
+        if len(good) == 0:
+            return None
+        d0 = float(grid.distance(p[None])[0])
+        order = good[
+            np.lexsort((np.linalg.norm(cand[good] - other, axis=1), np.linalg.norm(offs[good], axis=1)))
+        ]
+        for i in order[:64]:
+            n = max(2, int(np.ceil(np.linalg.norm(cand[i] - p) / (0.25 * v))) + 1)
+            pts = p + (cand[i] - p) * np.linspace(0.0, 1.0, n)[:, None]
+            if np.all(grid.distance(pts) >= min(d0, self.threshold) - 0.02):
+                return cand[i]
+        return None
+
+    def plan(self, start: np.ndarray, goal: np.ndarray, snap_radius_m: float = 0.0) -> PlanResult:
         """Plan from ``start`` to ``goal`` ((3,) world points, metres).
 
+        Args:
+            snap_radius_m: when the start or the goal lies in unknown space or closer to an
+                obstacle than the clearance (e.g. a point the vehicle flew through, which the
+                cameras never saw), plan from / to the nearest usable point within this radius
+                (:meth:`nearest_clear_point`) and join it with a straight segment; the result's
+                ``adjusted`` says what was moved, from where, to where and why. 0: never.
         Returns:
             PlanResult (success, waypoints (K, 3) world, length, or the reason of failure).
         Raises:
@@ -263,11 +307,42 @@ class Planner:
         self._check_inside(g, "goal")
         grid = self.grid_for(s, g)
         t_grid = time.perf_counter()
-        for p, what in ((s, "start"), (g, "goal")):
+        moved: dict[str, dict] = {}
+        for p, what, other in ((s, "start", g), (g, "goal", s)):
             bad = self._endpoint_problem(grid, p, what)
+            if (
+                bad is not None
+                and snap_radius_m > 0
+                and bad.reason in (f"{what}_unknown", f"{what}_too_close")
+            ):
+                near = self.nearest_clear_point(p, snap_radius_m, toward=other)
+                if near is not None:
+                    moved[what] = {
+                        "from": p.tolist(),
+                        "to": near.tolist(),
+                        "distance_m": float(np.linalg.norm(near - p)),
+                        "reason": bad.reason,
+                    }
+                    continue
+                bad.message += f"; no usable point within {snap_radius_m:g} m either"
             if bad is not None:
                 bad.timings = {"grid": t_grid - t0, "total": time.perf_counter() - t0}
                 return bad
+        if moved:
+            inner = self.plan(
+                np.asarray(moved.get("start", {}).get("to", s)),
+                np.asarray(moved.get("goal", {}).get("to", g)),
+            )
+            if inner.success:
+                parts = [s[None]] if "start" in moved else []
+                parts.append(inner.waypoints)
+                if "goal" in moved:
+                    parts.append(g[None])
+                inner.waypoints = np.vstack(parts)
+                inner.length_m = float(_geom.polyline_length(inner.waypoints))
+            inner.adjusted = moved
+            inner.timings["total"] = time.perf_counter() - t0
+            return inner
         expansions = 0
         t_search = time.perf_counter()
         raw: np.ndarray | None
@@ -435,6 +510,7 @@ def plan_path(
     start: np.ndarray,
     goal: np.ndarray,
     clearance_m: float = 2.0,
+    snap_radius_m: float = 0.0,
     **options,
 ) -> PlanResult:
     """Plan a collision-free path on a map (see :class:`Planner` for the options).
@@ -446,6 +522,8 @@ def plan_path(
         occ_map: the map (or its distance field).
         start, goal: (3,) world points, metres.
         clearance_m: distance to keep from obstacles, metres.
+        snap_radius_m: start or goal in unknown space or too near an obstacle: plan from / to the
+            nearest usable point within this radius (see :meth:`Planner.plan`).
     Returns:
         PlanResult: waypoints (K, 3) world metres, length, success, and reason on failure.
     Raises:
@@ -461,4 +539,4 @@ def plan_path(
         per_map[key] = (base.version, planner)
     else:
         planner = hit[1]
-    return planner.plan(start, goal)
+    return planner.plan(start, goal, snap_radius_m)

@@ -39,6 +39,8 @@ class PlanResult:
             distance field (voxel-centre distances, interpolated), metres.
         expansions: nodes expanded by the grid search.
         timings: seconds per stage.
+        adjusted: endpoints the planner moved (``{"start"|"goal": {"from", "to", "distance_m",
+            "reason"}}``, see ``Planner.plan(snap_radius_m=...)``); empty when none was.
     """
 
     success: bool
@@ -51,6 +53,7 @@ class PlanResult:
     min_distance_m: float = float("nan")
     expansions: int = 0
     timings: dict = field(default_factory=dict)
+    adjusted: dict = field(default_factory=dict)
 
     @classmethod
     def failure(cls, reason: str, message: str = "", **kw) -> PlanResult:
@@ -72,4 +75,5 @@ class PlanResult:
             "min_distance_m": self.min_distance_m if np.isfinite(self.min_distance_m) else None,
             "expansions": self.expansions,
             "timings_s": self.timings,
+            **({"adjusted": self.adjusted} if self.adjusted else {}),
         }
