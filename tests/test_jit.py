@@ -3,13 +3,21 @@
 from __future__ import annotations
 
 import io
+import os
 import sys
 
 import numba
 import numpy as np
 
 from skyrecon import jit
-from skyrecon.jit import COMPILE_NOTICE, CompileRecorder, install_compile_notice
+from skyrecon.jit import (
+    COMPILE_NOTICE,
+    CompileRecorder,
+    cache_fingerprint,
+    install_compile_notice,
+    mark_warm,
+    read_warm_groups,
+)
 
 
 def _kernel(module: str):
@@ -59,3 +67,26 @@ def test_notice_stays_silent_when_disabled_or_nobody_watches(monkeypatch):
         assert stream.getvalue() == stderr.getvalue() == "" and not jit._notice.printed
     finally:
         install_compile_notice(enabled=False)
+
+
+def test_fingerprint_follows_the_sources(tmp_path):
+    (tmp_path / "sub").mkdir()
+    source = tmp_path / "sub" / "kernels.py"
+    source.write_text("x = 1\n")
+    before = cache_fingerprint(tmp_path)
+    assert cache_fingerprint(tmp_path) == before
+    os.utime(source, ns=(source.stat().st_atime_ns, source.stat().st_mtime_ns + 10**9))
+    assert cache_fingerprint(tmp_path) != before
+
+
+def test_stamp_records_groups_per_fingerprint(tmp_path):
+    stamp = tmp_path / "cache" / "skyrecon-warmup.json"
+    assert read_warm_groups("a", stamp) == set()
+    mark_warm(["render", "stereo"], "a", stamp)
+    mark_warm(["map"], "a", stamp)
+    assert read_warm_groups("a", stamp) == {"render", "stereo", "map"}
+    assert read_warm_groups("b", stamp) == set()  # other sources or CPU: nothing is warm
+    mark_warm(["sfm"], "b", stamp)
+    assert read_warm_groups("b", stamp) == {"sfm"}
+    stamp.write_text("not json")
+    assert read_warm_groups("b", stamp) == set()

@@ -8,17 +8,28 @@ on-disk cache raises none. So a listener sees exactly the kernels a run pays to 
   CPU), so that a slow first run says why.
 * :class:`CompileRecorder` collects the names of the skyrecon kernels compiled while it is active
   (``skyrecon warmup`` reports them, tests check that a warm cache compiles nothing).
+* :func:`read_warm_groups` / :func:`mark_warm`: a stamp in the cache recording which warmup groups
+  were compiled for these sources, this Numba and this CPU, so a second warmup can stop at once.
 
 Where the cache lives is decided in :mod:`skyrecon.numba_cache`, before Numba is imported.
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
 import sys
+from collections.abc import Iterable
+from pathlib import Path
 from types import TracebackType
 from typing import Any, TextIO
 
+import llvmlite.binding as llvm
+import numba
 from numba.core import event
+
+from skyrecon import __version__
+from skyrecon.numba_cache import PACKAGE_DIR
 
 COMPILE_NOTICE = (
     "skyrecon: compiling kernels for this machine (once, up to a minute per command; "
@@ -109,3 +120,51 @@ class CompileRecorder(event.Listener):
         tb: TracebackType | None,
     ) -> None:
         event.unregister("numba:compile", self)
+
+
+def warm_stamp_path() -> Path:
+    """The warmup stamp: in ``$NUMBA_CACHE_DIR``, else in the package's ``__pycache__`` (Numba's default
+    cache location), so that deleting the cache deletes the stamp too."""
+    cache_dir = getattr(numba.config, "CACHE_DIR", "")
+    return (Path(cache_dir) if cache_dir else PACKAGE_DIR / "__pycache__") / "skyrecon-warmup.json"
+
+
+def cache_fingerprint(package_dir: Path = PACKAGE_DIR) -> str:
+    """Hash of what Numba's cache depends on: the sources (path, mtime, size), the versions of
+    skyrecon, Numba and Python, and the CPU the kernels are compiled for."""
+    h = hashlib.sha256()
+    for part in (
+        __version__,
+        numba.__version__,
+        sys.version,
+        llvm.get_process_triple(),
+        llvm.get_host_cpu_name(),
+    ):
+        h.update(part.encode() + b"\0")
+    h.update(llvm.get_host_cpu_features().flatten().encode() + b"\0")
+    for path in sorted(package_dir.rglob("*.py")):
+        st = path.stat()
+        h.update(f"{path.relative_to(package_dir)}:{st.st_mtime_ns}:{st.st_size}\0".encode())
+    return h.hexdigest()
+
+
+def read_warm_groups(fingerprint: str, stamp: Path | None = None) -> set[str]:
+    """The warmup groups recorded as compiled for ``fingerprint`` (empty when the stamp is missing,
+    unreadable or for other sources)."""
+    try:
+        doc = json.loads((stamp or warm_stamp_path()).read_text())
+    except (OSError, ValueError):
+        return set()
+    if not isinstance(doc, dict) or doc.get("fingerprint") != fingerprint:
+        return set()
+    return set(doc.get("groups", []))
+
+
+def mark_warm(groups: Iterable[str], fingerprint: str, stamp: Path | None = None) -> None:
+    """Record ``groups`` as compiled for ``fingerprint`` (added to those already recorded)."""
+    stamp = stamp or warm_stamp_path()
+    done = sorted(read_warm_groups(fingerprint, stamp) | set(groups))
+    stamp.parent.mkdir(parents=True, exist_ok=True)
+    tmp = stamp.with_suffix(".tmp")
+    tmp.write_text(json.dumps({"fingerprint": fingerprint, "groups": done}) + "\n")
+    tmp.replace(stamp)

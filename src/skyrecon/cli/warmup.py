@@ -5,8 +5,11 @@ beside the sources, or ``~/.cache/skyrecon/numba`` for a read-only install). A f
 pay that on the first run of each command. This command renders tiny synthetic inputs and runs
 each command on them in-process (``render``, ``stereo``, ``two-view``, ``sfm``, ``mvs``, ``map``
 and ``plan``), so the kernels are compiled for exactly the argument types the commands use. The
-groups run in ``--jobs`` processes; a second warmup finds everything cached and only reruns the
-tiny inputs (a few seconds).
+groups run in ``--jobs`` processes.
+
+Idempotent: a stamp in the cache (``skyrecon-warmup.json``: the groups done, for which sources,
+Numba and CPU) makes a repeated warmup return at once; with ``--force`` it reruns the tiny inputs,
+finds every kernel cached and compiles nothing (seconds).
 """
 
 from __future__ import annotations
@@ -32,7 +35,14 @@ from skyrecon.core import Intrinsics
 from skyrecon.errors import InputError
 from skyrecon.io import read_sequence, write_image
 from skyrecon.io.calib import write_K_txt
-from skyrecon.jit import CompileRecorder, set_compile_notice_enabled
+from skyrecon.jit import (
+    CompileRecorder,
+    cache_fingerprint,
+    mark_warm,
+    read_warm_groups,
+    set_compile_notice_enabled,
+    warm_stamp_path,
+)
 from skyrecon.sim import generate_object_scene, orbit_views, render_views
 
 EXAMPLES = """  skyrecon warmup                  # after installing: compile everything once (about a minute)
@@ -95,6 +105,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "--only", help=f"comma-separated groups to warm, of {', '.join(GROUPS)} (render always runs)"
     )
     p.add_argument("--list", action="store_true", help="print the groups and their commands, run nothing")
+    p.add_argument(
+        "--force", action="store_true", help="run the groups even if the cache stamp says they are warm"
+    )
     return p
 
 
@@ -105,6 +118,12 @@ def run(args: argparse.Namespace) -> int:
             for line in GROUPS[name]:
                 print(f"{name}: skyrecon {line} --quiet")
         return 0
+    fingerprint = cache_fingerprint()
+    if not args.force and set(groups) <= read_warm_groups(fingerprint):
+        info(
+            f"warmup: already done for these sources and this CPU ({warm_stamp_path()}); --force runs it again"
+        )
+        return 0
     info(f"warming {len(groups)} groups in up to {args.jobs} processes; Numba cache: {cache_location()}")
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="skyrecon-warmup-") as tmp:
@@ -114,6 +133,7 @@ def run(args: argparse.Namespace) -> int:
     info(f"warmup: {len(results)} groups in {time.perf_counter() - t0:.1f} s, {compiled} kernels compiled")
     for r in failed:
         info(f"warning: warmup group {r.name} failed: {r.error}")
+    mark_warm([r.name for r in results if not r.error], fingerprint)
     return 1 if failed else 0
 
 
