@@ -11,12 +11,16 @@ command runs as a subprocess (``python -m skyrecon``, this checkout) three ways:
 Each command gets its own empty cache for the cold run, so shared kernels (map uses stereo's) do
 not make a later command look warm. "compiled" counts the cache files (``*.nbc``, one per
 compiled specialisation) that a run added: 0 after warmup means the warmup compiled everything
-that command needed. Times are wall seconds, including Python start and imports; the machine is
-shared, so expect +-0.3 s noise (``--repeat`` takes the best of several warm runs).
+that command needed. Times are wall seconds, including Python start and imports, and CPU seconds
+of the command process (steadier than wall time on a loaded machine; the CPU of forkserver
+workers, e.g. SfM's feature workers or the warmup's groups, is not included). Warm is the best of
+the reruns (``--repeat`` per cache dir).
 
 Inputs: ``skyrecon render stereo`` (640x480), ``render sequence --frames 10`` (640x480, stereo
 map and plan), and 8 photos on a 100-degree arc around a monument (640x480, SfM; ``render images``
-orbits 360 degrees, too sparse for 8 views).
+orbits 360 degrees, too sparse for 8 views). ``plan`` plans along the flight's own map (a straight
+line); ``plan-wall`` plans around a wall on a known 24 m map (the A* search and smoothing), with a
+query other than the warmup's.
 
 Usage:
   .venv/bin/python benchmarks/cold_start/run.py
@@ -29,6 +33,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import shutil
 import subprocess
 import sys
@@ -41,16 +46,16 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "src"))
 
-from skyrecon.cli.warmup import write_sfm_photos  # noqa: E402
+from skyrecon.cli.warmup import write_sfm_photos, write_wall_map  # noqa: E402
 from skyrecon.io import read_sequence  # noqa: E402
 
-COMMANDS = ["stereo", "sfm", "map", "plan"]
 
-
-def skyrecon(argv: list[str], cache: Path, quiet: bool = True) -> float:
-    """Run ``python -m skyrecon ARGV`` with ``NUMBA_CACHE_DIR=cache``; wall seconds. Fails loudly."""
+def skyrecon(argv: list[str], cache: Path, quiet: bool = True) -> tuple[float, float]:
+    """Run ``python -m skyrecon ARGV`` with ``NUMBA_CACHE_DIR=cache``; (wall, CPU) seconds, the CPU
+    time of the command and the worker processes it waited for. Fails loudly."""
     env = dict(os.environ, NUMBA_CACHE_DIR=str(cache), SKYRECON_PROGRESS="0")
     env["PYTHONPATH"] = os.pathsep.join([str(ROOT / "src"), env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
+    cpu0 = _children_cpu()
     t0 = time.perf_counter()
     proc = subprocess.run(
         [sys.executable, "-m", "skyrecon", *argv, *(["--quiet"] if quiet else [])],
@@ -61,7 +66,12 @@ def skyrecon(argv: list[str], cache: Path, quiet: bool = True) -> float:
     seconds = time.perf_counter() - t0
     if proc.returncode != 0:
         raise SystemExit(f"skyrecon {' '.join(argv)} exited {proc.returncode}:\n{proc.stderr}")
-    return seconds
+    return seconds, _children_cpu() - cpu0
+
+
+def _children_cpu() -> float:
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
 
 
 def compiled_files(cache: Path) -> int:
@@ -75,6 +85,7 @@ def make_inputs(work: Path) -> dict[str, list[str]]:
     skyrecon(["render", "stereo", "--seed", "1", "--out", str(work / "stereo")], setup_cache)
     skyrecon(["render", "sequence", "--frames", "10", "--seed", "3", "--out", str(work / "seq")], setup_cache)
     write_sfm_photos(work / "photos", 640, 480)
+    write_wall_map(work / "wall_map")
     skyrecon(["map", str(work / "seq"), "--out", str(work / "plan_map")], setup_cache)
     track = np.array([p.t for p in read_sequence(work / "seq").world_from_left])
     start, goal = (list(map(str, track[i])) for i in (0, -1))
@@ -84,42 +95,69 @@ def make_inputs(work: Path) -> dict[str, list[str]]:
         "sfm": ["sfm", str(work / "photos" / "images"), "--camera", str(work / "photos" / "K.txt")],
         "map": ["map", str(work / "seq")],
         "plan": ["plan", str(work / "plan_map"), "--start", *start, "--goal", *goal, "--allow-unknown"],
+        "plan-wall": ["plan", str(work / "wall_map"), "--start", "-9", "1", "6", "--goal", "9", "-1", "4"],
     }
 
 
 def measure(work: Path, commands: dict[str, list[str]], repeat: int, jobs: int) -> dict:
-    """Cold, warm and after-warmup seconds per command, and the warmup's own seconds."""
+    """Cold, warm and after-warmup seconds (wall and CPU) per command, and the warmup's own seconds.
+
+    Warm is the best of the runs after the cold one (same cache) and after the first run after
+    warmup (the installed cache), so that a burst of load on the shared machine does not count.
+    """
     rows: dict[str, dict] = {}
+    warm_runs: dict[str, list[tuple[float, float]]] = {}
     for name, argv in commands.items():
         cache = work / f"cache-cold-{name}"
         out = ["--out", str(work / "out" / name)]
-        cold = skyrecon(argv + out, cache)
-        cold_compiled = compiled_files(cache)
-        warm = min(skyrecon(argv + out, cache) for _ in range(repeat))
-        rows[name] = {"cold_s": cold, "warm_s": warm, "cold_compiled": cold_compiled}
-        print(f"  {name}: cold {cold:.1f} s ({cold_compiled} kernels), warm {warm:.1f} s", flush=True)
+        cold, cold_cpu = skyrecon(argv + out, cache)
+        rows[name] = {"cold_s": cold, "cold_cpu_s": cold_cpu, "cold_compiled": compiled_files(cache)}
+        warm_runs[name] = [skyrecon(argv + out, cache) for _ in range(repeat)]
+        print(
+            f"  {name}: cold {cold:.1f} s ({rows[name]['cold_compiled']} kernels), warm", end="", flush=True
+        )
+        print(f" {min(w for w, _ in warm_runs[name]):.1f} s", flush=True)
     installed = work / "cache-installed"
-    warmup_s = skyrecon(["warmup", "--jobs", str(jobs)], installed, quiet=False)
+    warmup_s, warmup_cpu = skyrecon(["warmup", "--jobs", str(jobs)], installed, quiet=False)
     print(f"  warmup --jobs {jobs}: {warmup_s:.1f} s ({compiled_files(installed)} kernels)", flush=True)
-    again_s = skyrecon(["warmup", "--jobs", str(jobs)], installed, quiet=False)
+    again_s, _ = skyrecon(["warmup", "--jobs", str(jobs)], installed, quiet=False)
     print(f"  second warmup: {again_s:.1f} s", flush=True)
     for name, argv in commands.items():
         before = compiled_files(installed)
-        first = skyrecon(argv + ["--out", str(work / "out" / f"{name}-installed")], installed)
-        rows[name]["after_warmup_s"] = first
-        rows[name]["after_warmup_compiled"] = compiled_files(installed) - before
-        rows[name]["after_warmup_minus_warm_s"] = first - rows[name]["warm_s"]
-    return {"commands": rows, "warmup_s": warmup_s, "second_warmup_s": again_s, "warmup_jobs": jobs}
+        out = ["--out", str(work / "out" / f"{name}-installed")]
+        first, first_cpu = skyrecon(argv + out, installed)
+        compiled = compiled_files(installed) - before
+        warm_runs[name] += [skyrecon(argv + out, installed) for _ in range(repeat)]
+        warm, warm_cpu = min(w for w, _ in warm_runs[name]), min(c for _, c in warm_runs[name])
+        rows[name].update(
+            after_warmup_s=first,
+            after_warmup_cpu_s=first_cpu,
+            after_warmup_compiled=compiled,
+            warm_s=warm,
+            warm_cpu_s=warm_cpu,
+            after_warmup_minus_warm_s=first - warm,
+            after_warmup_minus_warm_cpu_s=first_cpu - warm_cpu,
+        )
+    return {
+        "commands": rows,
+        "warmup_s": warmup_s,
+        "warmup_cpu_s": warmup_cpu,
+        "second_warmup_s": again_s,
+        "warmup_jobs": jobs,
+    }
 
 
 def print_table(results: dict) -> None:
     print()
-    print("| command | cold s | after warmup s | warm s | after warmup - warm | compiled after warmup |")
-    print("| --- | ---: | ---: | ---: | ---: | ---: |")
+    print(
+        "| command | cold s | after warmup s | warm s | after warmup - warm | same, CPU s | compiled after warmup |"
+    )
+    print("| --- | ---: | ---: | ---: | ---: | ---: | ---: |")
     for name, r in results["commands"].items():
         print(
             f"| {name} | {r['cold_s']:.1f} | {r['after_warmup_s']:.1f} | {r['warm_s']:.1f} "
-            f"| {r['after_warmup_minus_warm_s']:+.1f} | {r['after_warmup_compiled']} |"
+            f"| {r['after_warmup_minus_warm_s']:+.1f} | {r['after_warmup_minus_warm_cpu_s']:+.1f} "
+            f"| {r['after_warmup_compiled']} |"
         )
     print(
         f"\nskyrecon warmup --jobs {results['warmup_jobs']}: {results['warmup_s']:.1f} s once after installing "
@@ -144,7 +182,7 @@ def main() -> None:
         if not args.keep:
             shutil.rmtree(work, ignore_errors=True)
     results["cpu_count"] = os.cpu_count()
-    results["argv"] = {k: " ".join(v[:1]) for k, v in commands.items()}
+    results["argv"] = {k: " ".join(v).replace(str(work), "WORK") for k, v in commands.items()}
     print_table(results)
     Path(args.out).write_text(json.dumps(results, indent=2) + "\n")
     print(f"wrote {args.out}")

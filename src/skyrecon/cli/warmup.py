@@ -43,6 +43,7 @@ from skyrecon.jit import (
     set_compile_notice_enabled,
     warm_stamp_path,
 )
+from skyrecon.mapping import OccupancyMap, save_map
 from skyrecon.sim import generate_object_scene, orbit_views, render_views
 
 EXAMPLES = """  skyrecon warmup                  # after installing: compile everything once (about a minute)
@@ -54,8 +55,9 @@ EXAMPLES = """  skyrecon warmup                  # after installing: compile eve
 TINY = "--width 256 --height 192"
 """Image size of the rendered inputs: small enough to run in a second once compiled."""
 
-# Each group: the command lines it runs, with {IN} for the rendered inputs and {OUT} for its outputs
-# (every line also gets --quiet). "render" runs first, alone: it writes the inputs the others read.
+# Each group: the command lines it runs, with {IN} for the inputs and {OUT} for its outputs (every
+# line also gets --quiet). "render" runs first, alone: it writes the inputs the others read, with
+# the SfM photos (write_sfm_photos) and a map with a wall to plan around (write_wall_map).
 GROUPS: dict[str, list[str]] = {
     "render": [
         f"render stereo --seed 2 --out {{IN}}/stereo {TINY}",
@@ -76,6 +78,7 @@ GROUPS: dict[str, list[str]] = {
         "map {IN}/sequence --out {OUT}/stereo_map --voxel-size 0.5",
         "map {IN}/sequence --depth depth_2 --out {OUT}/map --voxel-size 0.5",
         "plan {OUT}/map --start {START} --goal {GOAL} --allow-unknown --out {OUT}/route",
+        "plan {IN}/wall_map --start -8 0.3 5 --goal 8 -0.4 5 --clearance 1 --out {OUT}/around_wall",
     ],
 }
 
@@ -159,6 +162,7 @@ def warm_groups(groups: list[str], work: Path, jobs: int) -> list[GroupResult]:
     if results[0].error:
         return results
     write_sfm_photos(work / "in" / "sfm")
+    write_wall_map(work / "in" / "wall_map")
     rest = [g for g in groups if g != "render"]
     if jobs <= 1 or len(rest) <= 1:
         return results + [_report(warm_group(g, work)) for g in rest]
@@ -214,6 +218,18 @@ def write_sfm_photos(out: Path, width: int = 256, height: int = 192) -> None:
     for view, rendered in zip(views, render_views(scene, views)):
         write_image(out / "images" / view.name, rendered.image)
     write_K_txt(out / "K.txt", intrinsics)
+
+
+def write_wall_map(out: Path) -> None:
+    """A known 24 x 24 x 12 m map (0.25 m voxels) with a wall across x = 0, |y| <= 4 m: a plan
+    from x = -8 to x = 8 must search around it (the flight's own map gives a straight line)."""
+    shape, voxel = (96, 96, 48), 0.25
+    origin = np.array([-12.0, -12.0, 0.0])
+    x = origin[0] + (np.arange(shape[0]) + 0.5) * voxel
+    y = origin[1] + (np.arange(shape[1]) + 0.5) * voxel
+    occupied = np.zeros(shape, bool)
+    occupied[np.ix_(np.abs(x) < 0.25, np.abs(y) < 4.0, np.ones(shape[2], bool))] = True
+    save_map(OccupancyMap.from_occupancy_grid(occupied, origin, voxel_size_m=voxel), out)
 
 
 def _longest_first(groups: list[str]) -> list[str]:
