@@ -6,6 +6,9 @@ VENV := .venv
 BIN := $(VENV)/bin
 export NUMBA_CACHE_DIR := $(CURDIR)/.numba_cache
 OUT ?= demo_out
+SOURCES := $(shell find src/skyrecon -name '*.py')
+# Stamp of `skyrecon warmup` (kernels compiled into the cache); in the cache, so `make clean` drops it.
+WARM := $(NUMBA_CACHE_DIR)/.skyrecon-warm
 
 .PHONY: demo test lint bench install clean
 
@@ -23,12 +26,19 @@ $(VENV)/.installed-test: pyproject.toml | $(BIN)/python
 
 install: $(VENV)/.installed
 
-## demo: install, then fly one simulated delivery through a generated city (report.html at the end)
-demo: $(VENV)/.installed
+# Compile every kernel once after installing, and again when a source changes (Numba's cache is
+# keyed on the source files), so that the first real command does not pay for compilation. A failed
+# warmup does not stop the demo or the tests (they compile what is missing, and say what failed).
+$(WARM): $(VENV)/.installed $(SOURCES)
+	@if $(BIN)/skyrecon warmup; then mkdir -p $(@D) && touch $@; \
+	else echo "skyrecon warmup failed: commands will compile their kernels on first use"; fi
+
+## demo: install (and warm up), then fly one simulated delivery through a generated city (report.html at the end)
+demo: $(VENV)/.installed $(WARM)
 	$(BIN)/skyrecon demo --seed 1 --out $(OUT)
 
-## test: install with test extras, then run the whole test suite
-test: $(VENV)/.installed-test
+## test: install with test extras (and warm up), then run the whole test suite
+test: $(VENV)/.installed-test $(WARM)
 	$(BIN)/python -m pytest -n 2 -q
 
 ## lint: the gate CI runs before the tests: ruff (lint), ruff format --check, mypy

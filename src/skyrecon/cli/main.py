@@ -14,10 +14,11 @@ from collections.abc import Sequence
 from skyrecon import __version__
 from skyrecon.cli.common import ExampleFormatter, OneLineParser, add_global_options
 from skyrecon.errors import EstimationError, InputError, SkyreconError
+from skyrecon.jit import install_compile_notice
 from skyrecon.progress import set_progress_enabled
 
 # Command modules, in the order --help lists them. Each has add_parser(subparsers) and run(args) -> int.
-COMMANDS = ["render", "stereo", "two-view", "sfm", "align", "mvs", "map", "plan", "eval", "demo"]
+COMMANDS = ["render", "stereo", "two-view", "sfm", "align", "mvs", "map", "plan", "eval", "demo", "warmup"]
 
 EXAMPLES = """Examples:
   skyrecon render stereo --out scene/        # a synthetic stereo pair with ground truth
@@ -53,6 +54,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             return 0
         if args.quiet:
             set_progress_enabled(False)
+        install_compile_notice(enabled=not args.quiet)
         module = importlib.import_module(f"skyrecon.cli.{args.command.replace('-', '_')}")
         return int(module.run(args) or 0)
     except (InputError, EstimationError) as exc:
