@@ -11,6 +11,7 @@ from skyrecon.core.depth import PointCloud
 from skyrecon.core.intrinsics import Intrinsics
 from skyrecon.core.rigid import Rigid3
 from skyrecon.geometry.rectification import Rectification
+from skyrecon.io.jsonio import to_jsonable
 
 __all__ = ["Status", "TwoViewGeometry", "DenseResult", "TwoViewResult"]
 
@@ -180,23 +181,20 @@ class TwoViewResult:
         so ``json.dumps(..., allow_nan=False)`` works.
         """
 
-        def m(a: np.ndarray | None) -> Any:
-            return None if a is None else np.asarray(a, dtype=float).tolist()
-
-        return {
-            "R": m(self.R),
-            "t": m(self.t),
-            "F": m(self.F),
-            "E": m(self.E),
-            "num_matches": self.num_matches,
-            "num_inliers": self.num_inliers,
-            "status": self.status,
-            "warnings": list(self.warnings),
-            "num_sparse_points": len(self.sparse),
-            "num_dense_points": 0 if self.dense is None else len(self.dense.cloud),
-            "baseline_m": self.baseline_m,
-            "diagnostics": {
-                k: (float(v) if np.isfinite(v) else None) for k, v in self.geometry.diagnostics.items()
-            },
-            "timings_s": {k: float(v) for k, v in self.timings.items()},
-        }
+        return to_jsonable(
+            {
+                "R": self.R,
+                "t": self.t,
+                "F": self.F,
+                "E": self.E,
+                "num_matches": self.num_matches,
+                "num_inliers": self.num_inliers,
+                "status": self.status,
+                "warnings": list(self.warnings),
+                "num_sparse_points": len(self.sparse),
+                "num_dense_points": 0 if self.dense is None else len(self.dense.cloud),
+                "baseline_m": self.baseline_m,
+                "diagnostics": dict(self.geometry.diagnostics),
+                "timings_s": dict(self.timings),
+            }
+        )
