@@ -60,6 +60,7 @@ def test_configure_sets_the_environment_and_a_live_numba_config(tmp_path, monkey
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
     monkeypatch.setattr(numba.config, "CACHE_DIR", numba.config.CACHE_DIR)
     monkeypatch.setattr(numba_cache, "package_is_writable", lambda package_dir: False)
+    monkeypatch.setattr(numba_cache, "checkout_cache_dir", lambda package_dir: None)
     chosen = configure_numba_cache()
     assert chosen == tmp_path / "xdg" / "skyrecon" / "numba"
     assert os.environ["NUMBA_CACHE_DIR"] == str(chosen) == numba.config.CACHE_DIR
@@ -71,3 +72,14 @@ def test_configure_leaves_an_explicit_choice_alone(tmp_path, monkeypatch):
     monkeypatch.setattr(numba_cache, "package_is_writable", lambda package_dir: False)
     assert configure_numba_cache() is None
     assert os.environ["NUMBA_CACHE_DIR"] == str(tmp_path)
+
+
+def test_a_checkout_warmed_by_make_uses_its_cache(tmp_path):
+    from skyrecon.numba_cache import choose_cache_dir
+
+    pkg = tmp_path / "src" / "skyrecon"
+    pkg.mkdir(parents=True)
+    assert choose_cache_dir({}, pkg) is None  # writable, not warmed: Numba's own choice
+    (tmp_path / ".numba_cache").mkdir()
+    assert choose_cache_dir({}, pkg) == tmp_path / ".numba_cache"
+    assert choose_cache_dir({"NUMBA_CACHE_DIR": "/elsewhere"}, pkg) is None

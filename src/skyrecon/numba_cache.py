@@ -35,15 +35,29 @@ def package_is_writable(package_dir: Path) -> bool:
     return not pycache.exists() or os.access(pycache, os.W_OK | os.X_OK)
 
 
+def checkout_cache_dir(package_dir: Path) -> Path | None:
+    """``<checkout>/.numba_cache`` when the package runs from a source checkout (``src/skyrecon``)
+    whose cache ``make`` has warmed (``skyrecon warmup``), else None."""
+    if package_dir.parent.name != "src":
+        return None
+    cache = package_dir.parent.parent / ".numba_cache"
+    return cache if cache.is_dir() else None
+
+
 def choose_cache_dir(environ: Mapping[str, str], package_dir: Path = PACKAGE_DIR) -> Path | None:
     """The directory to give Numba as ``NUMBA_CACHE_DIR``, or None to leave Numba's choice alone.
 
-    None when ``NUMBA_CACHE_DIR`` is already set (the user's or the Makefile's choice wins) or when
-    the package directory is writable (Numba's default ``__pycache__`` works); otherwise the
-    per-user directory of :func:`user_cache_dir`.
+    None when ``NUMBA_CACHE_DIR`` is already set (the user's or the Makefile's choice wins). In a
+    source checkout whose ``.numba_cache`` the Makefile warmed, that one (so that ``.venv/bin/skyrecon``
+    run by hand after ``make demo`` finds the kernels compiled). Else None when the package directory
+    is writable (Numba's default ``__pycache__`` works); otherwise the per-user directory of
+    :func:`user_cache_dir`.
     """
     if environ.get("NUMBA_CACHE_DIR"):
         return None
+    checkout = checkout_cache_dir(package_dir)
+    if checkout is not None:
+        return checkout
     if package_is_writable(package_dir):
         return None
     return user_cache_dir(environ)
