@@ -6,9 +6,10 @@ For each seed ``skyrecon demo`` flies one mission (a city it has never seen, sta
   success, collisions (against the TRUE geometry), min clearance (true, metres; target above
   the safety margin), length ratio (flown / shortest feasible path in the true city at the same
   clearance; target <= 1.3), loop Hz (median, rendering excluded; target >= 10 on 2 cores),
-  replans, and the per-stage median milliseconds.
+  replans, and the per-stage median milliseconds; in summary, the worst mission's p99 loop latency.
 
-Targets: 20 of 20 delivered, 0 collisions, min clearance > margin, ratio <= 1.3, loop >= 10 Hz.
+Targets: 20 of 20 delivered, 0 collisions, min clearance > margin, ratio <= 1.3, loop >= 10 Hz,
+loop p99 <= 50 ms on 2 cores (issue "Hold up on scenes we have not seen").
 
 Usage:
   .venv/bin/python benchmarks/mission/run.py                      # seeds 0..19, one at a time
@@ -155,6 +156,8 @@ def main() -> int:
         print(
             f"  loop rate        median of medians {totals['loop_hz_median']:.1f} Hz, slowest mission {totals['loop_hz_min']:.1f} Hz  (target >= 10)"
         )
+    if totals.get("loop_ms_p99_max") is not None:
+        print(f"  loop p99         worst mission {totals['loop_ms_p99_max']:.1f} ms  (target <= 50)")
     print(f"  wall time        {time.perf_counter() - t0:.0f} s for {len(todo)} missions flown now")
     write_text_atomic(
         out / "summary.json", json.dumps({"totals": totals, "missions": ordered}, indent=2) + "\n"
@@ -175,6 +178,7 @@ def main() -> int:
                     "min_clearance_m",
                     "length_ratio",
                     "loop_hz",
+                    "loop_ms_p99",
                     "replans",
                     "reason",
                 )

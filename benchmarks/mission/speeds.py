@@ -11,8 +11,13 @@ speed; at least 19 of 20 delivered at 12 m/s; mean speed at least 70 % of 12 m/s
 50 ms. The rig (0.3 m baseline, depth trusted to 20 m) and the braking limit (5 m/s^2) support
 about 12.6 m/s: at 15 m/s the drone warns and flies at most that.
 
+What a wider rig buys (``--baseline``, as ``skyrecon demo --baseline``): the trusted range grows
+as the square root of the baseline (same depth error at its end), and with it the speed the
+drone can stop from; the table at the start lists it for 0.3, 0.45 and 0.6 m.
+
 Usage:
   .venv/bin/python benchmarks/mission/speeds.py                        # seeds 0..19, 4 speeds
+  .venv/bin/python benchmarks/mission/speeds.py --speeds 15 --baseline 0.6   # a 0.6 m rig at 15 m/s
   .venv/bin/python benchmarks/mission/speeds.py --seeds 5 --first-seed 100 --speeds 10 12
 Resumable: a mission whose folder has a mission.json is read back (``--fresh`` flies it again).
 Writes OUT/speeds.json and benchmarks/mission/results_speeds.json (for the default run).
@@ -91,9 +96,18 @@ def main() -> int:
     ap.add_argument("--parallel", type=int, default=2, help="missions at once (default 2)")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "mission" / "out_speeds"))
     ap.add_argument("--fresh", action="store_true")
+    ap.add_argument("--baseline", type=float, help="stereo baseline, metres (default 0.3, the product's rig)")
     args = ap.parse_args()
 
     base = MissionConfig()
+    print("baseline m  trusted range m  rig supports m/s")
+    for b in (0.3, 0.45, 0.6):
+        c = base.with_baseline(b)
+        print(f"{b:>10g} {c.max_range_m:>16.1f} {rig_supported_speed(c):>17.1f}")
+    if args.baseline is not None:
+        base = base.with_baseline(args.baseline)
+        if args.out == ap.get_default("out"):
+            args.out += f"_baseline_{args.baseline:g}"
     out = Path(args.out)
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     jobs, folders = [], {}
@@ -131,11 +145,17 @@ def main() -> int:
             + (f"   {'; '.join(r['failures'])}" if r["failures"] else "")
         )
     print(f"\nwall time {time.perf_counter() - t0:.0f} s for {len(jobs)} missions flown now")
-    doc = json.dumps({"cpu_count": os.cpu_count(), "seeds": seeds, "speeds": results}, indent=2) + "\n"
+    rig = {"baseline_m": base.baseline_m, "max_range_m": round(base.max_range_m, 2)}
+    doc = json.dumps({"cpu_count": os.cpu_count(), "rig": rig, "seeds": seeds, "speeds": results}, indent=2)
     out.mkdir(parents=True, exist_ok=True)
-    write_text_atomic(out / "speeds.json", doc)
+    write_text_atomic(out / "speeds.json", doc + "\n")
     if args.seeds == 20 and args.first_seed == 0:
-        write_text_atomic(ROOT / "benchmarks" / "mission" / "results_speeds.json", doc)
+        name = (
+            "results_speeds.json"
+            if args.baseline is None
+            else f"results_speeds_baseline_{args.baseline:g}.json"
+        )
+        write_text_atomic(ROOT / "benchmarks" / "mission" / name, doc + "\n")
     return 0
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import io
 import json
@@ -10,6 +11,7 @@ import re
 import numpy as np
 import pytest
 
+from skyrecon.cli import demo as demo_cli
 from skyrecon.cli.main import main
 from skyrecon.io import read_ply
 from skyrecon.mapping import load_map
@@ -136,6 +138,19 @@ def test_bad_options_give_one_error_line(tmp_path, argv, text):
     assert code == 2
     lines = [line for line in stderr.splitlines() if line.strip()]
     assert len(lines) == 1 and lines[0].startswith("error:") and text in lines[0]
+
+
+def test_baseline_option_sets_the_rig_and_its_trusted_range():
+    def config(*argv):
+        parser = argparse.ArgumentParser()
+        demo_cli.add_parser(parser.add_subparsers())
+        return demo_cli._config(parser.parse_args(["demo", *argv]))
+
+    cfg = config("--baseline", "0.6", "--speed", "15")
+    assert (
+        cfg.baseline_m == 0.6 and cfg.max_range_m == pytest.approx(20.0 * 2**0.5) and cfg.max_disparity == 128
+    )
+    assert config("--baseline", "0.6", "--max-range", "22").max_range_m == 22.0
 
 
 def test_help_has_an_example():

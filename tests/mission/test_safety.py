@@ -8,7 +8,9 @@ import math
 import numpy as np
 import pytest
 
+from skyrecon.errors import InputError
 from skyrecon.mission import MissionConfig, make_scenario, run_mission
+from skyrecon.mission.guidance import guide, unobserved_binds
 from skyrecon.mission.metrics import mission_metrics, stop_rule_holds
 from skyrecon.mission.safety import (
     rig_supported_speed,
@@ -74,6 +76,19 @@ def test_a_cruise_speed_the_rig_cannot_stop_from_is_warned_about():
     assert rig_supported_speed(MissionConfig(max_accel_mps2=8.0)) > v
 
 
+def test_a_longer_baseline_trusts_depth_farther_and_supports_more_speed():
+    base = MissionConfig()
+    wide = base.with_baseline(0.6)
+    # same depth error at the end of the range: Z^2 / B constant; same nearest depth searched
+    assert wide.max_range_m**2 / wide.baseline_m == pytest.approx(base.max_range_m**2 / base.baseline_m)
+    assert wide.min_depth_m <= base.min_depth_m + 1e-9 and wide.max_disparity % 16 == 0
+    assert rig_supported_speed(wide) > 15.0 > rig_supported_speed(base)
+    assert speed_warning(wide.with_overrides(cruise_speed_mps=15.0)) == ""
+    assert base.with_baseline(0.6, keep_range=True).max_range_m == base.max_range_m
+    with pytest.raises(InputError):
+        base.with_baseline(0.0)
+
+
 def test_turn_speed_falls_with_the_angle_and_grows_with_the_braking_limit():
     cfg = MissionConfig()
     speeds = [turn_speed(math.radians(a), cfg) for a in (0, 15, 30, 60, 90, 150)]
@@ -118,3 +133,37 @@ def test_a_stalled_drone_looks_around_the_point_it_must_see():
     for t in np.arange(1.0, 7.0, 0.5):  # always about the same distance away, within 30 degrees
         q = scan_look_at(look, p, t)
         assert abs(np.linalg.norm(q[:2]) - 2.0) < 1e-9 and np.degrees(np.arctan2(q[1], q[0])) <= 30.0 + 1e-9
+
+
+def _guided_steps(rest, yaw_deg, verified_m, cfg, cycles=20):
+    state = DroneState(rest[0].copy(), np.zeros(3), math.radians(yaw_deg), 0.0)
+    for _ in range(cycles):
+        g = guide(rest - rest[0] + state.position, state, verified_m, cfg)
+        state = step(
+            state, g.carrot, g.speed_limit, cfg, look_at=g.look_at, look_within_rad=g.look_within_rad
+        )
+    return state, g
+
+
+def test_an_unobserved_point_that_costs_no_speed_does_not_hold_the_drone_still():
+    # Seen at 15 m/s (seed 10): the path bends left, the first unobserved point lies 19.75 m along
+    # it, 49 degrees off the direction of motion, and the turns set the limit. Looking straight
+    # at that point turned the camera beyond max_heading_error_deg and the drone stood still.
+    cfg = MissionConfig().with_overrides(cruise_speed_mps=15.0)
+    rest = np.array(
+        [[0, 0, 15], [3.93, 2.17, 15.1], [4.43, 4.9, 15.6], [4.43, 11.9, 15.9], [4.0, 16.5, 16.7]]
+    )
+    rest = np.vstack([rest, [[-27.4, 38.2, 14.4]]]).astype(float)
+    g = guide(rest, DroneState(rest[0].copy(), np.zeros(3), math.radians(78.0), 0.0), 19.75, cfg)
+    assert g.limit is not None and not unobserved_binds(g.limit, cfg)
+    assert g.look_within_rad is not None  # the look is kept within reach of the motion
+    state, _ = _guided_steps(rest, 78.0, 19.75, cfg)
+    assert state.speed > 1.0 and np.linalg.norm(state.position - rest[0]) > 2.0
+
+
+def test_an_unobserved_point_that_sets_the_speed_is_looked_at_freely():
+    cfg = MissionConfig()
+    rest = np.array([[0.0, 0, 15], [5.0, 0, 15], [5.0, 30.0, 15]])
+    g = guide(rest, DroneState(rest[0].copy(), np.zeros(3), 0.0, 0.0), 6.0, cfg)
+    assert g.limit is not None and g.limit.reason == "path_seen" and unobserved_binds(g.limit, cfg)
+    assert g.look_within_rad is None and np.allclose(g.look_at, [5.0, 1.0, 15.0])

@@ -36,6 +36,7 @@ EXAMPLES = """  skyrecon demo                                  # one delivery, s
   skyrecon demo --start -57 -15 15 --goal 53 58 15 --out custom/
   skyrecon demo --missions 20 --out many/        # seeds 0..19 in parallel, summary.html
   skyrecon demo --width 320 --height 240 --city-size 100 --out quick/
+  skyrecon demo --speed 15 --baseline 0.6 --out fast/   # a wider rig trusts depth farther: 15 m/s
 """
 
 
@@ -75,6 +76,12 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         type=positive_float,
         help="the vehicle's acceleration and braking limit, m/s^2 (default 5); with the rig's trusted "
         "range it sets the highest speed the drone can stop from (a faster --speed is capped, with a warning)",
+    )
+    p.add_argument(
+        "--baseline",
+        type=positive_float,
+        help="stereo baseline, metres (default 0.3); a longer one trusts depth farther (as the square root "
+        "of the baseline, unless --max-range is given) and so supports a higher speed",
     )
     p.add_argument(
         "--max-range",
@@ -123,9 +130,12 @@ def _config(args):
         w = changes.get("width") or cfg.width
         changes["max_disparity"] = max(16, int(round(cfg.max_disparity * w / cfg.width / 16)) * 16)
     try:
-        return cfg.with_overrides(**changes)
+        cfg = cfg.with_overrides(**changes)
     except TypeError as e:  # pragma: no cover - field names are fixed above
         raise InputError(str(e)) from None
+    if args.baseline is not None:
+        cfg = cfg.with_baseline(args.baseline, keep_range=args.max_range is not None)
+    return cfg
 
 
 class _Progress:

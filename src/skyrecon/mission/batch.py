@@ -149,12 +149,14 @@ def fly_job(job: MissionJob) -> dict:
 
 
 def summarize(rows: Sequence[dict]) -> dict:
-    """Totals over missions: counts, worst clearance and ratio, loop-rate median and minimum."""
+    """Totals over missions: counts, worst clearance and ratio, loop-rate median and minimum, and the
+    loop's worst per-mission p99 latency (milliseconds, rendering excluded)."""
     n = len(rows)
     ok = [r for r in rows if r.get("success")]
     ratios = [r["length_ratio"] for r in rows if r.get("length_ratio") is not None]
     hz = [r["loop_hz"] for r in rows if r.get("loop_hz")]
     clr = [r["min_clearance_m"] for r in rows if r.get("min_clearance_m") is not None]
+    p99 = [r["loop_ms_p99"] for r in rows if r.get("loop_ms_p99") is not None]
     return {
         "missions": n,
         "succeeded": len(ok),
@@ -164,6 +166,7 @@ def summarize(rows: Sequence[dict]) -> dict:
         "length_ratio_max": max(ratios) if ratios else None,
         "loop_hz_median": float(np.median(hz)) if hz else None,
         "loop_hz_min": min(hz) if hz else None,
+        "loop_ms_p99_max": max(p99) if p99 else None,
     }
 
 
@@ -197,7 +200,7 @@ def summary_markdown(rows: Sequence[dict], totals: dict) -> str:
         f"{totals['succeeded']} of {totals['missions']} delivered, {totals['collisions']} collisions, "
         f"min clearance {f(totals['min_clearance_m'])} m, length ratio median {f(totals['length_ratio_median'], '{:.3f}')} "
         f"(worst {f(totals['length_ratio_max'], '{:.3f}')}), loop median {f(totals['loop_hz_median'], '{:.1f}')} Hz "
-        f"(slowest {f(totals['loop_hz_min'], '{:.1f}')} Hz)"
+        f"(slowest {f(totals['loop_hz_min'], '{:.1f}')} Hz), loop p99 at most {f(totals.get('loop_ms_p99_max'), '{:.1f}')} ms"
     )
     return "\n".join(lines) + "\n"
 

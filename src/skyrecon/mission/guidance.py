@@ -9,9 +9,14 @@ observed free (:meth:`~skyrecon.mission.navigator.Navigator.verified_distance`):
   velocity (the stopping rule), the speed from which it can stop at the goal, and the speed
   allowed by the turns ahead (:func:`~skyrecon.mission.vehicle.corner_speed_limit`);
 * **pursuit point** (carrot): on the path 1 to 2.5 m ahead (further when faster);
-* **look-at point**: the first unobserved point when there is one within the horizon (the drone
-  turns to look at it, and stops if it must), else the path point ``verify_horizon_m`` ahead,
-  kept within half ``max_heading_error_deg`` of the direction of motion.
+* **look-at point**: the first unobserved point when there is one within the horizon and it
+  (nearly) sets the speed limit (the drone turns to look at it, and stops if it must); an
+  unobserved point that costs no speed (beyond the trusted range's own limit, or behind a tighter
+  turn) is looked at only as far as the direction of motion allows: kept within half
+  ``max_heading_error_deg`` of it, as the path point ``verify_horizon_m`` ahead is when the whole
+  horizon is observed. (Looking unclamped at a point that costs no speed could turn the camera
+  more than ``max_heading_error_deg`` from the motion and hold the drone still for good: seen at
+  15 m/s with the turns setting the limit.)
 
 World frame, metres, m/s, radians.
 """
@@ -24,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from skyrecon.mission.config import MissionConfig
-from skyrecon.mission.safety import SpeedLimit, speed_limit
+from skyrecon.mission.safety import SpeedLimit, speed_limit, stoppable_speed_mps
 from skyrecon.mission.vehicle import DroneState, corner_speed_limit, point_along
 
 
@@ -63,11 +68,26 @@ def guide(
     to_go = float(np.linalg.norm(np.diff(rest, axis=0), axis=1).sum())
     limit = speed_limit(cfg, verified_m, momentum_room_m, to_go, corner_speed_limit(rest, cfg, horizon))
     carrot = point_along(rest, max(1.0, min(2.5, 0.4 * state.speed + 1.0)))
+    clamp = 0.5 * math.radians(cfg.max_heading_error_deg)
     if verified_m < horizon:
-        look, within = point_along(rest, verified_m), None
+        look = point_along(rest, verified_m)
+        within = None if unobserved_binds(limit, cfg) else clamp
     else:
-        look, within = point_along(rest, min(horizon, to_go)), 0.5 * math.radians(cfg.max_heading_error_deg)
+        look, within = point_along(rest, min(horizon, to_go)), clamp
     return Guidance(carrot, limit.value_mps, look, within, to_go, limit)
+
+
+#: How close (m/s) the speed an unobserved point allows must come to the limit for the drone to
+#: turn freely to look at it.
+UNOBSERVED_BINDS_MPS = 1.0
+
+
+def unobserved_binds(limit: SpeedLimit, cfg: MissionConfig) -> bool:
+    """Whether the first unobserved point of the path (nearly) sets the speed limit: the speed
+    from which the drone stops before it (``limit.path_room_m``) is within
+    :data:`UNOBSERVED_BINDS_MPS` of the limit."""
+    path_mps = stoppable_speed_mps(limit.path_room_m, cfg.max_accel_mps2, cfg.reaction_s)
+    return path_mps <= limit.value_mps + UNOBSERVED_BINDS_MPS
 
 
 #: Yaw offsets (degrees) and look-at heights (metres) of the scan of a stalled drone, one per second.

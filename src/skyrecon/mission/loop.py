@@ -266,7 +266,7 @@ def run_mission(
     message = ""
     cycle = 0
     p_prev = scenario.start.copy()
-    stalled = 0  # cycles held still by unobserved space ahead (see guidance.scan_look_at)
+    stalled = 0  # cycles held still while following a path (see guidance.scan_look_at)
     while True:
         p = state.position.copy()
         ms: dict[str, float] = {}
@@ -300,9 +300,7 @@ def run_mission(
             g = guide(rest, state, verified, cfg, momentum)
         else:
             verified, g = 0.0, hover(p, scenario.goal)
-        stalled = (
-            stalled + 1 if state.speed < 0.05 and g.limit is not None and g.limit.reason == "path_seen" else 0
-        )
+        stalled = stalled + 1 if state.speed < 0.05 and g.limit is not None else 0
         if stalled:
             g.look_at = scan_look_at(g.look_at, p, stalled * cfg.dt)
         brake = g.limit is not None and state.speed > g.limit.stop_mps + 1e-9
