@@ -1,9 +1,12 @@
 """Stereo benchmark: skyrecon's matcher (default and fast) against OpenCV SGBM, side by side.
 
-    python benchmarks/stereo/run.py [--runs 9] [--no-sim] [--threads N]
+    python benchmarks/stereo/run.py [--runs 9] [--no-sim] [--pairs cones,flying] [--threads N]
 
 Pairs: Middlebury 2003 Cones and KITTI 2015 000046 (from $SKYRECON_DATA, default
-../shared/data) and three synthetic-city street views with exact ground truth. OpenCV SGBM runs
+../shared/data), three synthetic-city street views with exact ground truth, and two styles
+not used for tuning: street views of a city with mostly plain facades (``city-plain-*``,
+``low_texture_fraction=0.8``) and FlyingThings-style pairs of random textured objects at
+random depths (``flying-*``, skyrecon.sim.flying, 480x360, exact occlusions). OpenCV SGBM runs
 with the reference configuration: mode SGBM_3WAY, block size 5, P1 = 8*3*5^2, P2 = 32*3*5^2,
 uniqueness 10, speckle window 100, speckle range 2, disp12MaxDiff 1, colour input,
 numDisparities = the scene's largest ground-truth disparity rounded up to 16 (KITTI is also
@@ -92,6 +95,7 @@ def load_pairs(use_sim: bool) -> list[tuple[str, np.ndarray, np.ndarray, np.ndar
     if use_sim:
         try:
             from skyrecon.sim import default_rig, generate_city, render_stereo, street_view_pose
+            from skyrecon.sim.flying import render_flying_pair
         except ImportError:
             print("(skyrecon.sim not available; synthetic pairs skipped)")
         else:
@@ -101,6 +105,15 @@ def load_pairs(use_sim: bool) -> list[tuple[str, np.ndarray, np.ndarray, np.ndar
                 f = render_stereo(city, rig, street_view_pose(city, seed))
                 gt = f.disparity_left_px
                 pairs.append((f"city-{seed}", f.left, f.right, gt, round16(np.nanmax(gt)), "bad1"))
+            # held-out styles (not used for tuning): plain facades, and random textured objects
+            for seed in (4, 5):
+                city = generate_city(seed, low_texture_fraction=0.8)
+                f = render_stereo(city, rig, street_view_pose(city, seed))
+                gt = f.disparity_left_px
+                pairs.append((f"city-plain-{seed}", f.left, f.right, gt, round16(np.nanmax(gt)), "bad1"))
+            for seed in (1, 2, 3):
+                left, right, gt = render_flying_pair(seed)
+                pairs.append((f"flying-{seed}", left, right, gt, round16(np.nanmax(gt)), "bad1"))
     return pairs
 
 
@@ -128,6 +141,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--runs", type=int, default=9, help="timed runs per method and pair (median reported)")
     ap.add_argument("--no-sim", action="store_true", help="skip the synthetic-city pairs")
+    ap.add_argument("--pairs", default="", help="comma-separated name prefixes of the pairs to run")
     ap.add_argument("--threads", type=int, default=None, help="skyrecon worker threads (default: all cores)")
     args = ap.parse_args()
 
@@ -138,6 +152,8 @@ def main() -> None:
         f"load average: {os.getloadavg()[0]:.2f}"
     )
     pairs = load_pairs(not args.no_sim)
+    if args.pairs:
+        pairs = [p for p in pairs if any(p[0].startswith(k) for k in args.pairs.split(","))]
     header = (
         f"{'pair':20s} {'D':>4s} {'method':14s} {'metric':6s} {'error %':>8s} {'density %':>9s} "
         f"{'ms':>8s} {'err/ocv':>8s} {'time/ocv':>8s}"
@@ -161,8 +177,10 @@ def main() -> None:
 
     # the fast setting at 640x480 with 128 disparities
     rng = np.random.default_rng(0)
-    if any(p[0].startswith("city") for p in pairs):
-        left, right = next((p[1], p[2]) for p in pairs if p[0].startswith("city"))
+    if any(p[0].startswith("city-") and p[1].shape[:2] == (480, 640) for p in pairs):
+        left, right = next(
+            (p[1], p[2]) for p in pairs if p[0].startswith("city-") and p[1].shape[:2] == (480, 640)
+        )
     else:
         left = rng.integers(0, 255, (480, 640, 3), dtype=np.uint8)
         right = np.roll(left, -20, axis=1)
