@@ -161,6 +161,18 @@ def test_an_unobserved_point_that_costs_no_speed_does_not_hold_the_drone_still()
     assert state.speed > 1.0 and np.linalg.norm(state.position - rest[0]) > 2.0
 
 
+def test_an_unobserved_point_beyond_the_trusted_range_never_binds():
+    # Seen at 15 m/s (seed 1): the first unobserved point 21.5 m along the path, beyond the 20 m
+    # the rig trusts, so no look can verify it; the turns set the limit just below the rig's.
+    cfg = MissionConfig().with_overrides(cruise_speed_mps=15.0)
+    room = cfg.max_range_m - cfg.verify_buffer_m
+    limit = speed_limit(cfg, 21.5, math.inf, 60.0, 12.44)
+    assert limit.reason == "turns" and limit.path_room_m == pytest.approx(room)
+    assert not unobserved_binds(limit, cfg)
+    near = speed_limit(cfg, 12.0, math.inf, 60.0, 12.44)  # within range and setting the limit
+    assert near.reason == "path_seen" and unobserved_binds(near, cfg)
+
+
 def test_an_unobserved_point_that_sets_the_speed_is_looked_at_freely():
     cfg = MissionConfig()
     rest = np.array([[0.0, 0, 15], [5.0, 0, 15], [5.0, 30.0, 15]])

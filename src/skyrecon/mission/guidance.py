@@ -11,12 +11,12 @@ observed free (:meth:`~skyrecon.mission.navigator.Navigator.verified_distance`):
 * **pursuit point** (carrot): on the path 1 to 2.5 m ahead (further when faster);
 * **look-at point**: the first unobserved point when there is one within the horizon and it
   (nearly) sets the speed limit (the drone turns to look at it, and stops if it must); an
-  unobserved point that costs no speed (beyond the trusted range's own limit, or behind a tighter
-  turn) is looked at only as far as the direction of motion allows: kept within half
-  ``max_heading_error_deg`` of it, as the path point ``verify_horizon_m`` ahead is when the whole
-  horizon is observed. (Looking unclamped at a point that costs no speed could turn the camera
-  more than ``max_heading_error_deg`` from the motion and hold the drone still for good: seen at
-  15 m/s with the turns setting the limit.)
+  unobserved point that costs no speed (beyond the trusted range, where no look can verify it,
+  or behind a tighter turn) is looked at only as far as the direction of motion allows: kept
+  within half ``max_heading_error_deg`` of it, as the path point ``verify_horizon_m`` ahead is
+  when the whole horizon is observed. (Looking unclamped at a point that costs no speed could
+  turn the camera more than ``max_heading_error_deg`` from the motion and hold the drone still
+  for good: seen at 12 and 15 m/s with the turns setting the limit.)
 
 World frame, metres, m/s, radians.
 """
@@ -83,9 +83,12 @@ UNOBSERVED_BINDS_MPS = 1.0
 
 
 def unobserved_binds(limit: SpeedLimit, cfg: MissionConfig) -> bool:
-    """Whether the first unobserved point of the path (nearly) sets the speed limit: the speed
-    from which the drone stops before it (``limit.path_room_m``) is within
+    """Whether the first unobserved point of the path (nearly) sets the speed limit: it lies
+    within the trusted range (beyond it no look can verify it, and the rig's own limit is what
+    binds), and the speed from which the drone stops before it (``limit.path_room_m``) is within
     :data:`UNOBSERVED_BINDS_MPS` of the limit."""
+    if limit.path_room_m >= cfg.max_range_m - cfg.verify_buffer_m - 1e-9:
+        return False
     path_mps = stoppable_speed_mps(limit.path_room_m, cfg.max_accel_mps2, cfg.reaction_s)
     return path_mps <= limit.value_mps + UNOBSERVED_BINDS_MPS
 
