@@ -190,6 +190,7 @@ class IncrementalMapper:
         }
         self.last_global_images = 0
         self.last_global_points = 0
+        self.last_loop_rank = -(1 << 30)  # registration rank of the last loop handled
 
     # ------------------------------------------------------------------ camera model
     def _update_normalized(self) -> None:
@@ -702,10 +703,11 @@ class IncrementalMapper:
     # ------------------------------------------------------------------ loops
     def _loop_tracks(self, image: int) -> np.ndarray:
         """Points ``image`` sees that had not been seen for at least ``loop_min_gap`` registrations
-        before (a revisit: the track's registration ranks jump by the gap or more)."""
+        before (a revisit: the track's registration ranks jump by the gap or more). At most one
+        loop is handled per ``loop_min_gap`` registrations."""
         gap = self.s.loop_min_gap
-        if gap <= 0 or len(self.order) <= gap:
-            return np.zeros(0, np.int64)
+        if gap <= 0 or len(self.order) <= gap or self.rank[image] - self.last_loop_rank < gap:
+            return np.zeros(0, np.int64)  # too early, or a loop was handled less than a gap ago
         kt = self.d.tracks.kp_track[image]
         obs_mine = self.d.tracks.kp_obs[image][kt >= 0]
         tracks = self.obs_track[obs_mine[self.active[obs_mine]]]
@@ -735,6 +737,7 @@ class IncrementalMapper:
         loop do not fit much worse; otherwise restore the model, drop the loop's observations in
         ``image`` and say so (``stats["loops"]``, a warning)."""
         self.stats["loops_detected"] += 1
+        self.last_loop_rank = int(self.rank[image])
         snapshot = (
             self.R.copy(),
             self.t.copy(),
