@@ -142,6 +142,8 @@ class IncrementalMapper:
         self.X = np.full((self.n_tracks, 3), np.nan)
         self.has_pt = np.zeros(self.n_tracks, bool)
         self.active = np.zeros(len(self.obs_img), bool)
+        self.blocked = np.zeros(len(self.obs_img), bool)  # observations a failed loop step dropped
+        self.rank = np.full(n, -1, np.int64)  # position of each image in the registration order
         self.tri_failed_at = np.zeros(self.n_tracks, np.int64)  # registered observations at the last failure
         self.trials = np.zeros(n, np.int64)
         self.tried_at = np.full(n, -1, np.int64)
@@ -181,9 +183,14 @@ class IncrementalMapper:
             "pnp_s": 0.0,
             "filtered_observations": 0,
             "init_trials": 0,
+            "loops_detected": 0,
+            "loop_global_ba": 0,
+            "loop_fallbacks": 0,
+            "loops": [],
         }
         self.last_global_images = 0
         self.last_global_points = 0
+        self.last_loop_rank = -(1 << 30)  # registration rank of the last loop handled
 
     # ------------------------------------------------------------------ camera model
     def _update_normalized(self) -> None:
@@ -267,7 +274,7 @@ class IncrementalMapper:
             return 0
         obs = _ranges(self.ptr, tracks)
         seg = np.repeat(np.arange(len(tracks)), self.ptr[tracks + 1] - self.ptr[tracks])
-        keep = self.reg[self.obs_img[obs]]
+        keep = self.reg[self.obs_img[obs]] & ~self.blocked[obs]
         obs, seg = obs[keep], seg[keep]
         counts = np.bincount(seg, minlength=len(tracks))
         # skip tracks that failed before with the same registered observations
@@ -303,7 +310,7 @@ class IncrementalMapper:
         if len(tracks) == 0:
             return 0
         obs = _ranges(self.ptr, tracks)
-        obs = obs[~self.active[obs] & self.reg[self.obs_img[obs]]]
+        obs = obs[~self.active[obs] & ~self.blocked[obs] & self.reg[self.obs_img[obs]]]
         if len(obs) == 0:
             return 0
         e = self._obs_errors(obs)
@@ -554,6 +561,7 @@ class IncrementalMapper:
         self.R[a], self.t[a] = np.eye(3), np.zeros(3)
         self.R[b], self.t[b] = p.R, p.t / np.linalg.norm(p.t)
         self.reg[[a, b]] = True
+        self.rank[[a, b]] = [0, 1]
         self.ref = (a, b)
         tracks = self._tracks_of_images([a, b])
         n_tri = self._triangulate(tracks)
@@ -651,6 +659,7 @@ class IncrementalMapper:
         self.reg[image] = True
         self.active[obs[pose.inliers]] = True
         self.failures.pop(image, None)
+        self.rank[image] = len(self.order)
         self.order.append(image)
         self.stats["pnp_s"] += time.perf_counter() - t0
         return True
@@ -679,6 +688,10 @@ class IncrementalMapper:
         self._complete(tracks)
         self._triangulate(tracks)
         self._local_ba(image)
+        loop_tracks = self._loop_tracks(image)
+        if len(loop_tracks) >= self.s.loop_min_points:
+            self._close_loop(image, loop_tracks)
+            return
         n_reg = int(self.reg.sum())
         n_pts = int(self.has_pt.sum())
         if (
@@ -686,6 +699,84 @@ class IncrementalMapper:
             or n_pts >= self.s.global_ba_ratio** 2 * max(1, self.last_global_points)
         ):
             self._global_ba(rounds=1, max_iterations=min(self.b.global_max_iterations, 30))
+
+    # ------------------------------------------------------------------ loops
+    def _loop_tracks(self, image: int) -> np.ndarray:
+        """Points ``image`` sees that had not been seen for at least ``loop_min_gap`` registrations
+        before (a revisit: the track's registration ranks jump by the gap or more). At most one
+        loop is handled per ``loop_min_gap`` registrations."""
+        gap = self.s.loop_min_gap
+        if gap <= 0 or len(self.order) <= gap or self.rank[image] - self.last_loop_rank < gap:
+            return np.zeros(0, np.int64)  # too early, or a loop was handled less than a gap ago
+        kt = self.d.tracks.kp_track[image]
+        obs_mine = self.d.tracks.kp_obs[image][kt >= 0]
+        tracks = self.obs_track[obs_mine[self.active[obs_mine]]]
+        tracks = np.unique(tracks[self.has_pt[tracks]])
+        if len(tracks) < self.s.loop_min_points:
+            return np.zeros(0, np.int64)
+        obs = _ranges(self.ptr, tracks)
+        obs = obs[self.active[obs]]
+        rank = self.rank[self.obs_img[obs]]
+        seg = np.searchsorted(tracks, self.obs_track[obs])
+        order = np.lexsort((rank, seg))
+        r, sg = rank[order], seg[order]
+        jump = (sg[1:] == sg[:-1]) & (np.diff(r) >= gap)
+        return tracks[np.unique(sg[1:][jump])]
+
+    def _robust_rms(self, obs: np.ndarray) -> float:
+        """RMS reprojection error of ``obs`` (input pixels), each clipped at the triangulation
+        threshold (observations of removed points count as clipped)."""
+        if len(obs) == 0:
+            return 0.0
+        e = np.minimum(self._obs_errors(obs), self.s.triangulation_max_error_px * self.px)
+        return float(np.sqrt(np.mean(e * e)))
+
+    def _close_loop(self, image: int, loop_tracks: np.ndarray) -> None:
+        """A loop closed at ``image``: adjust the whole model at once (so the correction spreads
+        over the loop) and keep the result only if the observations the model had before the
+        loop do not fit much worse; otherwise restore the model, drop the loop's observations in
+        ``image`` and say so (``stats["loops"]``, a warning)."""
+        self.stats["loops_detected"] += 1
+        self.last_loop_rank = int(self.rank[image])
+        snapshot = (
+            self.R.copy(),
+            self.t.copy(),
+            self.X.copy(),
+            self.has_pt.copy(),
+            self.active.copy(),
+            self.tri_failed_at.copy(),
+        )
+        cameras = list(self.cameras)
+        old = np.nonzero(self.active & (self.obs_img != image))[0]
+        rms_before = self._robust_rms(old)
+        self._global_ba(rounds=1, max_iterations=self.b.global_max_iterations)
+        self.stats["loop_global_ba"] += 1
+        rms_after = self._robust_rms(old)
+        accepted = rms_after <= self.s.loop_max_error_ratio * rms_before + 1e-9
+        self.stats["loops"].append(
+            {
+                "image": self.d.names[image],
+                "points": int(len(loop_tracks)),
+                "rms_before_px": rms_before,
+                "rms_after_px": rms_after,
+                "accepted": bool(accepted),
+            }
+        )
+        if accepted:
+            return
+        self.R, self.t, self.X, self.has_pt, self.active, self.tri_failed_at = snapshot
+        if cameras != self.cameras:
+            self.cameras = cameras
+            self._update_normalized()
+        obs = _ranges(self.ptr, loop_tracks)
+        drop = obs[self.obs_img[obs] == image]
+        self.active[drop] = False
+        self.blocked[drop] = True
+        self.stats["loop_fallbacks"] += 1
+        self.warnings.append(
+            f"loop closure at {self.d.names[image]} undone: the adjustment raised the reprojection error "
+            f"from {rms_before:.2f} to {rms_after:.2f} px; its {len(loop_tracks)} loop points were dropped"
+        )
 
     def register_all(self) -> None:
         """Register images until none more can be."""

@@ -158,6 +158,13 @@ class MapperSettings:
         focal_check_tolerance: when the focal length is held fixed, a trial adjustment with it
             free runs at the end; a best-fit focal length off by more than this fraction gives a
             warning (K seems wrong). 0 disables the check.
+        loop_min_gap: a registered image closes a loop when it sees at least ``loop_min_points``
+            points also seen by images registered at least this many registrations earlier
+            (and none of the images in between); 0 disables loop handling.
+        loop_min_points: points shared with the far past that make a loop.
+        loop_max_error_ratio: the global adjustment run on a loop is undone (and the loop's new
+            observations dropped) when it raises the RMS reprojection error of the observations
+            the model had before the loop by more than this factor.
     """
 
     init_min_inliers: int = 100
@@ -171,12 +178,15 @@ class MapperSettings:
     max_registration_trials: int = 3
     triangulation_max_error_px: float = 4.0
     triangulation_min_angle_deg: float = 1.5
-    filter_max_error_px: float = 2.0
+    filter_max_error_px: float = 1.5
     filter_min_angle_deg: float = 1.5
     local_ba_images: int = 6
     global_ba_ratio: float = 1.1
     final_refinements: int = 3
     focal_check_tolerance: float = 0.03
+    loop_min_gap: int = 50
+    loop_min_points: int = 30
+    loop_max_error_ratio: float = 1.25
 
     def __post_init__(self) -> None:
         if self.init_min_inliers < 8 or self.pnp_min_inliers < 4 or self.init_min_points < 8:
@@ -187,6 +197,10 @@ class MapperSettings:
             raise InputError(f"mapper: global_ba_ratio must be > 1, got {self.global_ba_ratio}")
         if self.local_ba_images < 1:
             raise InputError("mapper: local_ba_images must be >= 1")
+        if self.loop_min_gap < 0 or self.loop_min_points < 1 or not self.loop_max_error_ratio >= 1.0:
+            raise InputError(
+                "mapper: loop_min_gap >= 0, loop_min_points >= 1 and loop_max_error_ratio >= 1 are needed"
+            )
 
 
 @dataclass(frozen=True)
