@@ -39,19 +39,9 @@ from skyrecon.eval.stereo_metrics import evaluate_disparity  # noqa: E402
 from skyrecon.io.disparity import read_kitti_disparity_png, read_middlebury_disparity_pgm  # noqa: E402
 from skyrecon.io.images import read_image  # noqa: E402
 from skyrecon.stereo import create_matcher  # noqa: E402
+from skyrecon.stereo.opencv_matchers import SGBM_REFERENCE as OPENCV_REFERENCE  # noqa: E402
 from skyrecon.stereo.sgm import available_cores  # noqa: E402
 
-OPENCV_REFERENCE = dict(
-    mode="sgbm_3way",
-    block_size=5,
-    P1=8 * 3 * 5**2,
-    P2=32 * 3 * 5**2,
-    uniqueness_ratio=10,
-    speckle_window_size=100,
-    speckle_range=2,
-    disp12_max_diff=1,
-    use_colour=True,
-)
 METHODS = ("opencv-sgbm", "skyrecon", "skyrecon-fast")
 
 

@@ -9,19 +9,7 @@ from skyrecon.errors import InputError
 from skyrecon.eval.stereo_metrics import evaluate_disparity
 from skyrecon.sim.flying import render_flying_pair
 from skyrecon.stereo import create_matcher
-
-# the benchmark's OpenCV reference configuration (benchmarks/stereo/run.py)
-OPENCV_REFERENCE = dict(
-    mode="sgbm_3way",
-    block_size=5,
-    P1=8 * 3 * 5**2,
-    P2=32 * 3 * 5**2,
-    uniqueness_ratio=10,
-    speckle_window_size=100,
-    speckle_range=2,
-    disp12_max_diff=1,
-    use_colour=True,
-)
+from skyrecon.stereo.opencv_matchers import SGBM_REFERENCE as OPENCV_REFERENCE
 
 
 @pytest.fixture(scope="module")

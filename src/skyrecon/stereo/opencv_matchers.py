@@ -38,6 +38,22 @@ _BM_PREFILTERS = {
 }
 
 
+#: The reference OpenCV SGBM configuration our stereo error ratios are measured against
+#: (``create_matcher("opencv-sgbm", D, **SGBM_REFERENCE)``): SGBM_3WAY, block 5,
+#: P1 = 8*3*5^2, P2 = 32*3*5^2, uniqueness 10, speckle window 100 / range 2, disp12MaxDiff 1, colour.
+SGBM_REFERENCE: dict[str, object] = dict(
+    mode="sgbm_3way",
+    block_size=5,
+    P1=8 * 3 * 5**2,
+    P2=32 * 3 * 5**2,
+    uniqueness_ratio=10,
+    speckle_window_size=100,
+    speckle_range=2,
+    disp12_max_diff=1,
+    use_colour=True,
+)
+
+
 def num_disparities_for(min_disparity: int, max_disparity: int) -> int:
     """OpenCV's ``numDisparities``: the range ``max - min`` rounded up to a multiple of 16."""
     n = max_disparity - min_disparity
