@@ -155,7 +155,7 @@ def test_an_unobserved_point_that_costs_no_speed_does_not_hold_the_drone_still()
     )
     rest = np.vstack([rest, [[-27.4, 38.2, 14.4]]]).astype(float)
     g = guide(rest, DroneState(rest[0].copy(), np.zeros(3), math.radians(78.0), 0.0), 19.75, cfg)
-    assert g.limit is not None and not unobserved_binds(g.limit, cfg)
+    assert g.limit is not None and not unobserved_binds(g.limit)
     assert g.look_within_rad is not None  # the look is kept within reach of the motion
     state, _ = _guided_steps(rest, 78.0, 19.75, cfg)
     assert state.speed > 1.0 and np.linalg.norm(state.position - rest[0]) > 2.0
@@ -168,14 +168,14 @@ def test_an_unobserved_point_beyond_the_trusted_range_never_binds():
     room = cfg.max_range_m - cfg.verify_buffer_m
     limit = speed_limit(cfg, 21.5, math.inf, 60.0, 12.44)
     assert limit.reason == "turns" and limit.path_room_m == pytest.approx(room)
-    assert not unobserved_binds(limit, cfg)
+    assert not unobserved_binds(limit)
     near = speed_limit(cfg, 12.0, math.inf, 60.0, 12.44)  # within range and setting the limit
-    assert near.reason == "path_seen" and unobserved_binds(near, cfg)
+    assert near.reason == "path_seen" and unobserved_binds(near)
 
 
 def test_an_unobserved_point_that_sets_the_speed_is_looked_at_freely():
     cfg = MissionConfig()
     rest = np.array([[0.0, 0, 15], [5.0, 0, 15], [5.0, 30.0, 15]])
     g = guide(rest, DroneState(rest[0].copy(), np.zeros(3), 0.0, 0.0), 6.0, cfg)
-    assert g.limit is not None and g.limit.reason == "path_seen" and unobserved_binds(g.limit, cfg)
+    assert g.limit is not None and g.limit.reason == "path_seen" and unobserved_binds(g.limit)
     assert g.look_within_rad is None and np.allclose(g.look_at, [5.0, 1.0, 15.0])

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from skyrecon.mission.config import MissionConfig
-from skyrecon.mission.safety import SpeedLimit, speed_limit, stoppable_speed_mps
+from skyrecon.mission.safety import SpeedLimit, speed_limit
 from skyrecon.mission.vehicle import DroneState, corner_speed_limit, point_along
 
 
@@ -71,7 +71,7 @@ def guide(
     clamp = 0.5 * math.radians(cfg.max_heading_error_deg)
     if verified_m < horizon:
         look = point_along(rest, verified_m)
-        within = None if unobserved_binds(limit, cfg) else clamp
+        within = None if unobserved_binds(limit) else clamp
     else:
         look, within = point_along(rest, min(horizon, to_go)), clamp
     return Guidance(carrot, limit.value_mps, look, within, to_go, limit)
@@ -82,15 +82,12 @@ def guide(
 UNOBSERVED_BINDS_MPS = 1.0
 
 
-def unobserved_binds(limit: SpeedLimit, cfg: MissionConfig) -> bool:
+def unobserved_binds(limit: SpeedLimit) -> bool:
     """Whether the first unobserved point of the path (nearly) sets the speed limit: it lies
     within the trusted range (beyond it no look can verify it, and the rig's own limit is what
-    binds), and the speed from which the drone stops before it (``limit.path_room_m``) is within
+    binds), and the speed from which the drone stops before it (``limit.path_mps``) is within
     :data:`UNOBSERVED_BINDS_MPS` of the limit."""
-    if limit.path_room_m >= cfg.max_range_m - cfg.verify_buffer_m - 1e-9:
-        return False
-    path_mps = stoppable_speed_mps(limit.path_room_m, cfg.max_accel_mps2, cfg.reaction_s)
-    return path_mps <= limit.value_mps + UNOBSERVED_BINDS_MPS
+    return limit.unobserved_in_range and limit.path_mps <= limit.value_mps + UNOBSERVED_BINDS_MPS
 
 
 #: Yaw offsets (degrees) and look-at heights (metres) of the scan of a stalled drone, one per second.

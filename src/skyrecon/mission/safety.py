@@ -74,6 +74,9 @@ class SpeedLimit:
         reason: what bound it: "cruise", "rig", "path_seen", "momentum", "goal" or "turns".
         path_room_m: observed-free room along the path ahead (capped at the trusted range), metres.
         momentum_room_m: known-free room along the current velocity, metres (inf when hovering).
+        path_mps: the speed from which the drone stops within ``path_room_m``, m/s.
+        unobserved_in_range: the path's first unobserved point lies within the trusted range (so
+            it, not the range, bounds ``path_room_m``, and a look can verify it).
     """
 
     value_mps: float
@@ -81,6 +84,8 @@ class SpeedLimit:
     reason: str
     path_room_m: float
     momentum_room_m: float
+    path_mps: float = math.inf
+    unobserved_in_range: bool = False
 
     @property
     def stop_limited(self) -> bool:
@@ -118,4 +123,12 @@ def speed_limit(
     }
     reason = min(candidates, key=lambda k: candidates[k])
     stop = min(candidates["path_seen"], candidates["momentum"], candidates["rig"])
-    return SpeedLimit(float(candidates[reason]), float(stop), reason, path_room, mom_room)
+    return SpeedLimit(
+        float(candidates[reason]),
+        float(stop),
+        reason,
+        path_room,
+        mom_room,
+        float(candidates["path_seen"]),
+        verified_m < cfg.max_range_m - 1e-9,
+    )
