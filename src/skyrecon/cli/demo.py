@@ -98,6 +98,13 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "lower makes the drone go round more buildings instead of over them)",
     )
     p.add_argument(
+        "--pose-source",
+        choices=("truth",),
+        default="truth",
+        help="where the drone's pose comes from: its own stereo visual odometry (default), the "
+        "simulator's exact pose, or the odometry anchored by a simulated urban-canyon GPS",
+    )
+    p.add_argument(
         "--time-limit",
         type=positive_float,
         help="simulated seconds before giving up (default: from the distance)",
@@ -116,6 +123,7 @@ def _config(args):
         clearance_m=args.clearance,
         time_limit_s=args.time_limit,
         max_altitude_m=args.max_altitude,
+        pose_source=args.pose_source,
     )
     if args.city_size is not None:
         scale = min(1.0, args.city_size / cfg.city_size_m)

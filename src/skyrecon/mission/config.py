@@ -61,6 +61,14 @@ class MissionConfig:
             and that close the tube lies outside the camera's field of view).
         arrival_tolerance_m: the mission succeeds within this distance of the goal, metres.
         time_limit_s: simulated time limit; None: ``60 s + 4 x straight distance / cruise speed``.
+    Pose (:mod:`skyrecon.mission.pose_source`):
+        pose_source: where the drone's pose comes from: "truth" (the simulator's exact pose),
+            "odometry" (stereo visual odometry on its own frames) or "gps+odometry".
+        degraded_speed_mps: speed cap while the pose estimate is degraded, m/s (the drone
+            hovers, without mapping, while it is lost).
+        delivery_tolerance_m: the drone ends the mission where it BELIEVES it is within
+            ``arrival_tolerance_m`` of the goal; the delivery counts when it truly is within
+            ``arrival_tolerance_m + delivery_tolerance_m`` (room for the odometry's drift), metres.
     Scenario:
         city_size_m: side of the generated city, metres.
         cruise_altitude_m: altitude of the start and the goal picked from a seed, metres.
@@ -97,6 +105,9 @@ class MissionConfig:
     verify_skip_m: float = 1.5
     arrival_tolerance_m: float = 1.0
     time_limit_s: float | None = None
+    pose_source: str = "truth"
+    degraded_speed_mps: float = 2.0
+    delivery_tolerance_m: float = 1.0
     city_size_m: float = 200.0
     cruise_altitude_m: float = 15.0
     min_goal_distance_m: float = 100.0
@@ -149,6 +160,10 @@ class MissionConfig:
             raise InputError("need 0 < min_goal_distance_m <= max_goal_distance_m")
         if not self.latency_budget_s >= 0:
             raise InputError(f"latency_budget_s must be at least 0, got {self.latency_budget_s}")
+        if self.pose_source not in ("odometry", "truth", "gps+odometry"):
+            raise InputError(f"pose_source must be odometry, truth or gps+odometry, got {self.pose_source!r}")
+        if not (self.degraded_speed_mps >= 0 and self.delivery_tolerance_m >= 0):
+            raise InputError("degraded_speed_mps and delivery_tolerance_m must be at least 0")
         if self.time_limit_s is not None and not self.time_limit_s > 0:
             raise InputError(f"time_limit_s must be positive, got {self.time_limit_s}")
 

@@ -2,9 +2,13 @@
 
 One cycle per simulated ``1 / cycle_hz`` seconds:
 
-1. **render** (the simulator, timed apart): the stereo pair from the drone's current pose;
+1. **render** (the simulator, timed apart): the stereo pair from the drone's current TRUE pose;
 2. **stereo**: disparity with the fast matcher, measured pixels to depth;
-3. **integrate**: the depth into the occupancy map;
+   **pose**: where the drone believes it is (:mod:`skyrecon.mission.pose_source`: the exact
+   pose, or stereo visual odometry on the same frame reusing its disparity); everything below
+   (map, plan, guidance) lives in that believed world;
+3. **integrate**: the depth into the occupancy map at the believed pose (skipped while the pose
+   is lost);
 4. **distance**: the distance field and the planner's grid, where occupied voxels changed;
 5. **check**: the rest of the path against the updated field (``Replanner.check``);
 6. **replan**: from the current position when the path is blocked (or there is none);
@@ -12,12 +16,15 @@ One cycle per simulated ``1 / cycle_hz`` seconds:
    rule, :mod:`skyrecon.mission.safety`; a drone held still by unobserved space looks around it,
    :func:`~skyrecon.mission.guidance.scan_look_at`), the pursuit
    and look-at points (:mod:`skyrecon.mission.guidance`), and one step of the vehicle
-   (:mod:`skyrecon.mission.vehicle`).
+   (:mod:`skyrecon.mission.vehicle`), carried back to the true world
+   (:func:`~skyrecon.mission.pose_source.true_step`). A degraded pose caps the speed at
+   ``degraded_speed_mps``; a lost one makes the drone hover.
 
 Then the simulator checks the move against the TRUE geometry (``City.distance`` along the
 segment flown, ground included): below ``drone_radius_m`` is a collision and ends the mission.
-The mission also ends on arrival (within ``arrival_tolerance_m`` of the goal) or at the time
-limit. Stages 2-7 are "the loop" whose rate is reported (rendering excluded).
+The mission also ends on arrival (the drone believes it is within ``arrival_tolerance_m`` of the
+goal; the delivery counts when it truly is within ``arrival_tolerance_m + delivery_tolerance_m``)
+or at the time limit. Stages 2-7 are "the loop" whose rate is reported (rendering excluded).
 
 Everything is deterministic in the scenario: the simulated clock advances by a fixed step, so
 the flown path does not depend on how fast the machine is.
@@ -37,13 +44,21 @@ from skyrecon.mission.config import MissionConfig
 from skyrecon.mission.guidance import guide, hover, scan_look_at
 from skyrecon.mission.navigator import Navigator, timed
 from skyrecon.mission.perception import flight_perception, mission_rig
+from skyrecon.mission.pose_source import (
+    PoseSource,
+    believed_state,
+    est_from_true,
+    make_pose_source,
+    true_step,
+)
 from skyrecon.mission.scenario import Scenario
 from skyrecon.mission.vehicle import DroneState, step
+from skyrecon.odometry.types import TrackingState
 from skyrecon.perception import StereoDepth
 from skyrecon.sim import render_stereo
 
 #: Stages of the loop proper (rendering is the simulator's and is reported apart).
-LOOP_STAGES = ("stereo", "integrate", "distance", "check", "replan", "control")
+LOOP_STAGES = ("stereo", "pose", "integrate", "distance", "check", "replan", "control")
 STAGES = ("render",) + LOOP_STAGES
 
 
@@ -67,6 +82,8 @@ class CycleRecord:
         speed_limit_mps: the cycle's speed limit; stop_limit_mps: the stopping rule's part of it
             (:mod:`skyrecon.mission.safety`); limit_reason: what set the limit.
         momentum_room_m: known-free room along the velocity at the start of the cycle, metres.
+        est_position: (3,) where the drone believed it was, metres (None: same as ``position``);
+        pose_state: ``ok``, ``degraded`` or ``lost``; pose_reason: why not ok.
     """
 
     cycle: int
@@ -87,6 +104,16 @@ class CycleRecord:
     stop_limit_mps: float = 0.0
     limit_reason: str = "hover"
     momentum_room_m: float = math.inf
+    est_position: np.ndarray | None = None
+    pose_state: str = "ok"
+    pose_reason: str = ""
+
+    @property
+    def pose_error_m(self) -> float:
+        """Distance between the believed and the true position, metres."""
+        if self.est_position is None:
+            return 0.0
+        return float(np.linalg.norm(self.est_position - self.position))
 
     @property
     def stop_limited(self) -> bool:
@@ -121,6 +148,12 @@ class CycleRecord:
             "momentum_room_m": round(self.momentum_room_m, 2)
             if math.isfinite(self.momentum_room_m)
             else None,
+            "est_position": None
+            if self.est_position is None
+            else [round(float(v), 4) for v in self.est_position],
+            "pose_error_m": round(self.pose_error_m, 4),
+            "pose_state": self.pose_state,
+            "pose_reason": self.pose_reason,
         }
 
 
@@ -153,13 +186,16 @@ class MissionResult:
 
     Attributes:
         scenario, config: what was flown, with which settings.
-        success: arrived without collision.
-        reason: '' on success, else why it ended: "collision", "timeout", "no_path".
+        success: arrived without collision (truly within the delivery tolerance of the goal).
+        reason: '' on success, else why it ended: "collision", "timeout", "no_path",
+            "missed_goal" (it believed it had arrived but was farther from the goal than the
+            delivery tolerance: the pose estimate drifted).
         collisions: collisions with the true geometry (0 or 1: a collision ends the mission).
         records: one :class:`CycleRecord` per cycle.
         plans: every path followed (:class:`PlanEvent`).
         frames: a few camera frames (:class:`FrameSample`).
-        final_position: (3,) world metres where the drone ended.
+        final_position: (3,) world metres where the drone truly ended.
+        final_est_position: (3,) where it believed it ended (the estimated world), metres.
         occ_map: the drone's map at the end.
         wall_s: wall-clock seconds of the whole mission (rendering and set-up included).
         setup_s: wall-clock seconds of set-up (map allocation, matcher warm-up).
@@ -178,6 +214,7 @@ class MissionResult:
     wall_s: float = 0.0
     setup_s: float = 0.0
     message: str = ""
+    final_est_position: np.ndarray | None = None
 
     def flown_path(self) -> np.ndarray:
         """(N + 1, 3) positions of the drone, world metres: one per cycle, then the final one."""
@@ -234,6 +271,7 @@ def run_mission(
     cfg: MissionConfig,
     on_cycle: Callable[[CycleRecord, Navigator], None] | None = None,
     keep_frames: int = 4,
+    pose_source: PoseSource | None = None,
 ) -> MissionResult:
     """Fly one mission in closed loop (see the module docstring).
 
@@ -242,6 +280,7 @@ def run_mission(
         cfg: the mission settings.
         on_cycle: called after every cycle with its record and the navigator (progress display).
         keep_frames: how many evenly spread camera frames to keep for the report.
+        pose_source: where the drone's pose comes from (None: ``cfg.pose_source``).
     Returns:
         MissionResult (never raises for a failed flight: ``success`` and ``reason`` say how it ended).
     """
@@ -267,16 +306,40 @@ def run_mission(
     cycle = 0
     p_prev = scenario.start.copy()
     stalled = 0  # cycles held still while following a path (see guidance.scan_look_at)
+    if pose_source is None:
+        pose_source = make_pose_source(
+            cfg.pose_source, rig, state.cam_from_world().inverse().with_frames("world", "left"), scenario.seed
+        )
+    truth = pose_source.name == "truth"
+    believed = state
     while True:
-        p = state.position.copy()
+        true_p = state.position.copy()
         ms: dict[str, float] = {}
-        cam_from_world = state.cam_from_world()
+        true_cam_from_world = state.cam_from_world()
         frame, ms["render"] = timed(
-            render_stereo, scenario.city, rig, cam_from_world.with_frames("left", "world")
+            render_stereo, scenario.city, rig, true_cam_from_world.with_frames("left", "world")
         )
         depth, ms["stereo"] = timed(stereo.compute, frame.left, frame.right)
-        _, ms["integrate"] = timed(nav.integrate, depth.depth_m, depth.intrinsics, cam_from_world, p_prev)
-        p_prev = p
+        reading = pose_source.read(
+            frame.left,
+            frame.right,
+            state.time_s,
+            depth.disparity,
+            true_cam_from_world.inverse().with_frames("world", "left"),
+        )
+        ms["pose"] = reading.ms
+        est_from_world = est_from_true(
+            reading.world_from_left, true_cam_from_world.inverse().with_frames("world", "left")
+        )
+        believed = state if truth else believed_state(state, est_from_world)
+        lost = reading.state == TrackingState.LOST
+        p = believed.position.copy()
+        cam_from_world = reading.world_from_left.inverse().with_frames("cam", "world")
+        if lost:
+            ms["integrate"] = 0.0  # no map update from a pose that cannot be trusted
+        else:
+            _, ms["integrate"] = timed(nav.integrate, depth.depth_m, depth.intrinsics, cam_from_world, p_prev)
+            p_prev = p
         rewritten, ms["distance"] = timed(nav.update_distance)
         outcome, ms["check"] = timed(nav.check, p, rewritten)
         replanned = replan_ok = False
@@ -294,18 +357,20 @@ def run_mission(
         # control: how far the path is seen free, how fast we may go, where we look
         t0 = time.perf_counter()
         rest = nav.rest(p) if len(nav.waypoints) else np.zeros((0, 3))
-        momentum = nav.free_along(p, state.velocity, cfg.verify_horizon_m)
-        if len(rest) >= 2 and (outcome.clear or replan_ok):
+        momentum = nav.free_along(p, believed.velocity, cfg.verify_horizon_m)
+        if len(rest) >= 2 and (outcome.clear or replan_ok) and not lost:
             verified = nav.verified_distance(rest, cfg.verify_horizon_m, cfg.verify_skip_m)
-            g = guide(rest, state, verified, cfg, momentum)
+            g = guide(rest, believed, verified, cfg, momentum)
+            if reading.state == TrackingState.DEGRADED and g.speed_limit > cfg.degraded_speed_mps:
+                g.speed_limit = cfg.degraded_speed_mps
         else:
             verified, g = 0.0, hover(p, scenario.goal)
-        stalled = stalled + 1 if state.speed < 0.05 and g.limit is not None else 0
+        stalled = stalled + 1 if believed.speed < 0.05 and g.limit is not None else 0
         if stalled:
             g.look_at = scan_look_at(g.look_at, p, stalled * cfg.dt)
-        brake = g.limit is not None and state.speed > g.limit.stop_mps + 1e-9
-        new_state = step(
-            state,
+        brake = g.limit is not None and believed.speed > g.limit.stop_mps + 1e-9
+        new_believed = step(
+            believed,
             g.carrot,
             g.speed_limit,
             cfg,
@@ -313,12 +378,13 @@ def run_mission(
             look_within_rad=g.look_within_rad,
             brake=brake,
         )
+        new_state = new_believed if truth else true_step(state, believed, new_believed, est_from_world)
         ms["control"] = 1e3 * (time.perf_counter() - t0)
-        clearance = _truth_clearance(scenario, p, new_state.position)
+        clearance = _truth_clearance(scenario, true_p, new_state.position)
         rec = CycleRecord(
             cycle,
             state.time_s,
-            p,
+            true_p,
             state.yaw,
             state.pitch_down,
             new_state.speed,
@@ -334,13 +400,16 @@ def run_mission(
             g.limit.stop_mps if g.limit is not None else 0.0,
             g.limit.reason if g.limit is not None else "hover",
             momentum,
+            None if truth else p,
+            reading.state.value,
+            reading.reason,
         )
         records.append(rec)
         keeper.offer(cycle, frame.left, depth.disparity, replanned)
         last_frame = FrameSample(cycle, frame.left, depth.disparity)
         if on_cycle is not None:
             on_cycle(rec, nav)
-        state = new_state
+        state, believed = new_state, new_believed
         cycle += 1
         if clearance < cfg.drone_radius_m:
             collisions, reason = 1, "collision"
@@ -349,8 +418,16 @@ def run_mission(
                 f"{clearance:.2f} m from an obstacle (drone radius {cfg.drone_radius_m:g} m)"
             )
             break
-        if np.linalg.norm(state.position - scenario.goal) <= cfg.arrival_tolerance_m:
-            success, message = True, f"arrived in {state.time_s:.1f} s"
+        if np.linalg.norm(believed.position - scenario.goal) <= cfg.arrival_tolerance_m:
+            miss = float(np.linalg.norm(state.position - scenario.goal))
+            if miss <= cfg.arrival_tolerance_m + cfg.delivery_tolerance_m:
+                success, message = True, f"arrived in {state.time_s:.1f} s"
+            else:
+                reason = "missed_goal"
+                message = (
+                    f"believed it had arrived at t = {state.time_s:.1f} s but was {miss:.1f} m from the goal "
+                    f"(pose drift; tolerance {cfg.arrival_tolerance_m + cfg.delivery_tolerance_m:g} m)"
+                )
             break
         if state.time_s >= limit_s:
             reason = "timeout"
@@ -373,4 +450,5 @@ def run_mission(
         time.perf_counter() - t_start,
         setup_s,
         message,
+        believed.position.copy(),
     )

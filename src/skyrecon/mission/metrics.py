@@ -17,6 +17,10 @@
   cycles whose speed limit the stopping rule set), ``braking_cycles`` (cycles braking at full
   deceleration because the limit fell below the speed) and ``stop_rule_ok`` (every cycle was
   within the stopping rule's limit or braking at full deceleration along a line checked free);
+* the pose (:mod:`skyrecon.mission.pose_source`): ``pose_source``; ``drift_m``: distance between
+  where the drone believed it was and where it truly was at the end; ``ate_m``: RMS of that
+  distance over every cycle (the estimated and the true world share the take-off pose, so no
+  alignment); ``pose_degraded_cycles``, ``pose_lost_cycles`` and ``pose_reasons`` (count per reason);
 * ``stage_ms``: per stage (render, stereo, integrate, distance, check, replan, control, loop)
   the median, 95th percentile and mean in milliseconds.
 """
@@ -66,6 +70,26 @@ def _percentiles(loop_ms: np.ndarray) -> dict:
         return dict.fromkeys(keys)
     vals = [*np.percentile(loop_ms, [50, 95, 99]), loop_ms.max()]
     return {k: round(float(v), 2) for k, v in zip(keys, vals)}
+
+
+def pose_metrics(result: MissionResult) -> dict:
+    """``pose_source``, ``drift_m``, ``ate_m`` and the degraded and lost cycles of a mission."""
+    recs = result.records
+    err = np.array([r.pose_error_m for r in recs]) if recs else np.zeros(0)
+    end_est = result.final_est_position
+    drift = 0.0 if end_est is None else float(np.linalg.norm(end_est - result.final_position))
+    reasons: dict[str, int] = {}
+    for r in recs:
+        if r.pose_state != "ok":
+            reasons[r.pose_reason or r.pose_state] = reasons.get(r.pose_reason or r.pose_state, 0) + 1
+    return {
+        "pose_source": result.config.pose_source,
+        "drift_m": round(drift, 3),
+        "ate_m": round(float(np.sqrt(np.mean(err**2))), 3) if err.size else None,
+        "pose_degraded_cycles": int(sum(r.pose_state == "degraded" for r in recs)),
+        "pose_lost_cycles": int(sum(r.pose_state == "lost" for r in recs)),
+        "pose_reasons": reasons,
+    }
 
 
 def mission_metrics(result: MissionResult) -> dict:
@@ -118,6 +142,7 @@ def mission_metrics(result: MissionResult) -> dict:
         "setup_s": round(result.setup_s, 2),
         "seed": int(sc.seed),
         "map_voxels": result.occ_map.counts(),
+        **pose_metrics(result),
     }
     if not result.success and not m["reason"]:
         m["reason"] = "unknown"

@@ -12,14 +12,14 @@ frame (OpenCV axes). Units: metres, seconds, pixels, milliseconds for timings.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from enum import Enum
+from enum import StrEnum
 
 import numpy as np
 
 from skyrecon.core.rigid import Rigid3
 
 
-class TrackingState(str, Enum):
+class TrackingState(StrEnum):
     """How far a frame's pose can be trusted.
 
     * ``ok``: tracked with enough well-spread inliers.

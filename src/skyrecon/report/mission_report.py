@@ -31,6 +31,7 @@ RED = (220, 40, 40)
 GREEN = (20, 150, 60)
 BLUE = (70, 120, 230)
 ORANGE = (245, 140, 20)
+PURPLE = (150, 60, 200)
 
 _CSS = """
 body { font-family: -apple-system, 'Segoe UI', Helvetica, Arial, sans-serif; margin: 24px auto; max-width: 1100px;
@@ -82,6 +83,7 @@ def overview_image(
     goal: np.ndarray | None = None,
     min_z: float = 1.0,
     max_px: int = 900,
+    estimated: np.ndarray | None = None,
 ) -> np.ndarray:
     """The plan view of a mission (see the module docstring).
 
@@ -92,7 +94,9 @@ def overview_image(
             those below ``min_z`` (the ground) are left out.
         planned: paths the drone planned, each (K, 3) world metres.
         shortest: (K, 3) shortest feasible path in the true city.
-        flown: (N, 3) the flown track.
+        flown: (N, 3) the flown (true) track.
+        estimated: (N, 3) where the drone believed it was (its map and plans live in that
+            estimated world), or None when it flew on the true pose.
         start, goal: (3,) world metres.
     Returns:
         (H, W, 3) uint8 RGB.
@@ -125,6 +129,8 @@ def overview_image(
         poly(path, BLUE, 1)
     if shortest is not None:
         poly(shortest, GREEN, 2)
+    if estimated is not None:
+        poly(estimated, PURPLE, 1)
     if flown is not None:
         poly(flown, RED, 2)
     if start is not None:
@@ -244,9 +250,10 @@ def _page(title: str, body: str) -> str:
     )
 
 
-def _legend() -> str:
+def _legend(estimated: bool = False) -> str:
     items = [
         (RED, "flown track"),
+        *([(PURPLE, "estimated track (the drone's belief)")] if estimated else []),
         (BLUE, "planned paths (each replan)"),
         (GREEN, "shortest feasible path (true city)"),
         (ORANGE, "drone's map: occupied voxels"),
@@ -303,6 +310,13 @@ def render_mission_report(result, metrics: dict, extra_notes: Sequence[str] = ()
     box = sc.box
     extent = (box.origin[0], box.origin[1], box.upper[0], box.upper[1])
     flown = result.flown_path()
+    recs = result.records
+    estimated = None
+    if recs and recs[0].est_position is not None:
+        est_end = (
+            result.final_est_position if result.final_est_position is not None else result.final_position
+        )
+        estimated = np.vstack([np.array([r.est_position for r in recs]), est_end[None]])
     over = overview_image(
         sc.city,
         extent,
@@ -312,8 +326,8 @@ def render_mission_report(result, metrics: dict, extra_notes: Sequence[str] = ()
         flown,
         sc.start,
         sc.goal,
+        estimated=estimated,
     )
-    recs = result.records
     t = np.array([r.time_s for r in recs])
     loop_img = series_plot(
         t,
@@ -337,6 +351,22 @@ def render_mission_report(result, metrics: dict, extra_notes: Sequence[str] = ()
         [(f"safety margin {cfg.safety_margin_m:g} m", cfg.safety_margin_m, (200, 40, 40))],
         y_max=max(10.0, cfg.cruise_speed_mps * 1.2),
     )
+    pose_img = None
+    if estimated is not None:
+        pose_img = series_plot(
+            t,
+            [
+                ("pose error (m)", np.array([r.pose_error_m for r in recs]), PURPLE),
+                (
+                    "lost (1) / degraded (0.5)",
+                    np.array([{"lost": 1.0, "degraded": 0.5}.get(r.pose_state, 0.0) for r in recs]),
+                    RED,
+                ),
+            ],
+            "distance between the believed and the true position vs. simulated time (s)",
+            [],
+            y_max=max(1.0, 1.2 * float(max(r.pose_error_m for r in recs))),
+        )
     frames, labels = [], []
     for f in result.frames:
         finite = f.disparity[np.isfinite(f.disparity)]
@@ -379,6 +409,14 @@ def render_mission_report(result, metrics: dict, extra_notes: Sequence[str] = ()
         ("flight time (s)", m["flight_time_s"], "simulated"),
         ("cycles", m["cycles"], f"{cfg.cycle_hz:g} per simulated second"),
         ("measured pixels", m["mean_measured_fraction"], "mean share with a stereo match"),
+        ("pose source", m.get("pose_source", "truth"), "where the drone's pose came from"),
+        ("drift at the end (m)", m.get("drift_m"), "believed vs true position"),
+        ("pose ATE (m)", m.get("ate_m"), "RMS over the flight of believed vs true position"),
+        (
+            "pose degraded / lost cycles",
+            f"{m.get('pose_degraded_cycles', 0)} / {m.get('pose_lost_cycles', 0)}",
+            "slows down when degraded, hovers without mapping when lost",
+        ),
         ("seed", m["seed"], ""),
         ("wall time (s)", m["wall_s"], "rendering and set-up included"),
     ]
@@ -400,7 +438,7 @@ def render_mission_report(result, metrics: dict, extra_notes: Sequence[str] = ()
         f"<div class='verdict {'ok' if ok else 'bad'}'>{verdict}</div>",
         notes,
         "<h2>Where it flew</h2>",
-        _legend(),
+        _legend(estimated is not None),
         _img(over, "plan view of the mission"),
         "<h2>Metrics</h2>",
         _table(rows),
@@ -408,6 +446,7 @@ def render_mission_report(result, metrics: dict, extra_notes: Sequence[str] = ()
         _timing_table(m["stage_ms"], m["loop_stages"]),
         _img(loop_img, "loop time per cycle"),
         _img(clr_img, "clearance and speed"),
+        *(["<h2>Pose estimate</h2>", _img(pose_img, "pose error")] if pose_img is not None else []),
         "<h2>What the camera saw</h2>",
         _img(sheet, "camera frames and disparity") if sheet is not None else "<p>No frames.</p>",
         "<h2>Settings</h2>",

@@ -1,0 +1,174 @@
+"""Where the drone believes it is: the pose source of the delivery loop.
+
+A real drone in a street canyon does not know its exact pose; it estimates it from its cameras
+(visual odometry), optionally anchored by a GPS with urban-canyon errors. The loop flies on that
+belief: the map is built, the path planned and the vehicle steered in the drone's *estimated*
+world, while the simulator renders and judges collisions at the TRUE pose.
+
+The two worlds differ by ``est_from_true`` (a rigid transform, frames ``("est", "world")``): the
+estimated camera pose is ``est_world_from_left = est_from_true @ true_world_from_left``. Each cycle
+the loop reads a pose (:meth:`PoseSource.read`), turns the true state into the believed one
+(:func:`believed_state`), plans and steps the vehicle in the believed world, and carries the step
+back to the true world (:func:`true_step`): the displacement, velocity and turn the controller
+commanded happen physically, wherever the drone really is.
+
+Sources (``MissionConfig.pose_source``, ``skyrecon demo --pose-source``):
+
+* ``truth``: the simulator's exact pose (what the first wave flew on);
+* ``odometry``: :class:`skyrecon.odometry.StereoOdometry` on the loop's stereo frames, reusing the
+  loop's dense disparity for the features' depth; the first pose is the true start (the drone
+  knows where it takes off);
+* ``gps+odometry``: the odometry anchored by a simulated urban-canyon GPS
+  (:mod:`skyrecon.odometry.gps`).
+
+Every reading carries a :class:`~skyrecon.odometry.TrackingState`; the loop slows down when the
+pose is degraded and hovers (without mapping) while it is lost.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, replace
+from typing import Protocol
+
+import numpy as np
+
+from skyrecon.core import Rigid3, StereoRig
+from skyrecon.mission.vehicle import DroneState, wrap_angle
+from skyrecon.odometry.types import TrackingState
+
+POSE_SOURCES = ("odometry", "truth", "gps+odometry")
+
+
+@dataclass
+class PoseReading:
+    """What a pose source says about one frame.
+
+    Attributes:
+        world_from_left: estimated pose of the left camera, frames ``("world", "left")``, metres
+            (the estimated world).
+        state: how far it can be trusted (:class:`~skyrecon.odometry.TrackingState`).
+        reason: why it is not ``ok`` ("" when it is).
+        ms: wall-clock milliseconds the estimate took.
+    """
+
+    world_from_left: Rigid3
+    state: TrackingState
+    reason: str = ""
+    ms: float = 0.0
+
+
+class PoseSource(Protocol):
+    """A pose source of the loop (see the module docstring)."""
+
+    name: str
+
+    def read(
+        self,
+        left: np.ndarray,
+        right: np.ndarray,
+        time_s: float,
+        disparity_px: np.ndarray | None,
+        true_world_from_left: Rigid3,
+    ) -> PoseReading:
+        """The pose of this frame.
+
+        Args:
+            left, right: (H, W, 3) uint8 RGB rectified stereo frame.
+            time_s: simulated time of the frame, seconds.
+            disparity_px: (H, W) float32 left disparity the loop computed, pixels, NaN invalid.
+            true_world_from_left: the exact pose: used by ``truth`` and by the simulated GPS
+                only, never by the odometry.
+        """
+        ...
+
+
+class TruthPose:
+    """The simulator's exact pose."""
+
+    name = "truth"
+
+    def read(self, left, right, time_s, disparity_px, true_world_from_left) -> PoseReading:
+        return PoseReading(true_world_from_left.with_frames("world", "left"), TrackingState.OK)
+
+
+class OdometryPose:
+    """Stereo visual odometry on the loop's frames.
+
+    Args:
+        rig: the loop's rectified rig.
+        init_world_from_left: the pose at take-off (the first frame), frames ``("world", "left")``.
+        settings: odometry settings (None: the defaults).
+    """
+
+    name = "odometry"
+
+    def __init__(self, rig: StereoRig, init_world_from_left: Rigid3, settings=None) -> None:
+        from skyrecon.odometry.engine import OdometrySettings, StereoOdometry  # type: ignore[import-untyped,unused-ignore]
+
+        self.odometry = StereoOdometry(rig, settings or OdometrySettings(), init_world_from_left)
+
+    def read(self, left, right, time_s, disparity_px, true_world_from_left) -> PoseReading:
+        t0 = time.perf_counter()
+        est = self.odometry.track(left, right, time_s, disparity_px)
+        ms = 1e3 * (time.perf_counter() - t0)
+        return PoseReading(est.world_from_left.with_frames("world", "left"), est.state, est.reason, ms)
+
+
+def yaw_of(R: np.ndarray) -> float:
+    """The heading part of a rotation of the z-up world (radians from +x towards +y)."""
+    return math.atan2(float(R[1, 0]), float(R[0, 0]))
+
+
+def est_from_true(est_world_from_left: Rigid3, true_world_from_left: Rigid3) -> Rigid3:
+    """The transform from the true world to the estimated one, frames ``("est", "world")``."""
+    return (
+        est_world_from_left.with_frames("est", "left")
+        @ true_world_from_left.with_frames("world", "left").inverse()
+    ).with_frames("est", "world")
+
+
+def believed_state(true_state: DroneState, est_from_world: Rigid3) -> DroneState:
+    """The drone's state as it believes it to be: the true state seen in the estimated world.
+
+    Args:
+        true_state: the simulator's state (world frame).
+        est_from_world: :func:`est_from_true` of the current frame.
+    """
+    R = est_from_world.R
+    return DroneState(
+        est_from_world.apply(true_state.position[None])[0],
+        R @ true_state.velocity,
+        wrap_angle(true_state.yaw + yaw_of(R)),
+        true_state.pitch_down,
+        true_state.time_s,
+    )
+
+
+def true_step(
+    true_state: DroneState, believed: DroneState, believed_next: DroneState, est_from_world: Rigid3
+) -> DroneState:
+    """Carry a step the controller made in the believed world back to the true world.
+
+    The commanded displacement and velocity (rotated from the estimated into the true world),
+    the turn and the camera pitch happen physically from the true state.
+    """
+    Rt = est_from_world.R.T
+    return replace(
+        true_state,
+        position=true_state.position + Rt @ (believed_next.position - believed.position),
+        velocity=Rt @ believed_next.velocity,
+        yaw=wrap_angle(true_state.yaw + wrap_angle(believed_next.yaw - believed.yaw)),
+        pitch_down=believed_next.pitch_down,
+        time_s=believed_next.time_s,
+    )
+
+
+def make_pose_source(name: str, rig: StereoRig, init_world_from_left: Rigid3, seed: int = 0) -> PoseSource:
+    """The pose source called ``name`` (one of :data:`POSE_SOURCES`)."""
+    if name == "truth":
+        return TruthPose()
+    if name == "odometry":
+        return OdometryPose(rig, init_world_from_left)
+    raise ValueError(f"unknown pose source {name!r}; expected one of {', '.join(POSE_SOURCES)}")
