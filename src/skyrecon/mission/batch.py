@@ -49,6 +49,10 @@ SUMMARY_KEYS = (
     "stop_limited_fraction",
     "stop_rule_ok",
     "wall_s",
+    "pose_source",
+    "drift_m",
+    "ate_m",
+    "pose_lost_cycles",
 )
 
 
@@ -157,6 +161,8 @@ def summarize(rows: Sequence[dict]) -> dict:
     hz = [r["loop_hz"] for r in rows if r.get("loop_hz")]
     clr = [r["min_clearance_m"] for r in rows if r.get("min_clearance_m") is not None]
     p99 = [r["loop_ms_p99"] for r in rows if r.get("loop_ms_p99") is not None]
+    drift = [r["drift_m"] for r in rows if r.get("drift_m") is not None]
+    ate = [r["ate_m"] for r in rows if r.get("ate_m") is not None]
     return {
         "missions": n,
         "succeeded": len(ok),
@@ -167,6 +173,8 @@ def summarize(rows: Sequence[dict]) -> dict:
         "loop_hz_median": float(np.median(hz)) if hz else None,
         "loop_hz_min": min(hz) if hz else None,
         "loop_ms_p99_max": max(p99) if p99 else None,
+        "drift_m_max": max(drift) if drift else None,
+        "ate_m_max": max(ate) if ate else None,
     }
 
 
