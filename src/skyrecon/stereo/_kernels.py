@@ -858,64 +858,113 @@ def from_fixed(fixed, keep, inv_scale, out, y0, y1):
             dst[x] = np.float32(v) * inv_scale if ok else np.float32(np.nan)
 
 
-@njit(**_JIT)
-def fill_background_fixed(disp, out, y0, y1):
-    """Fill INVALID16 runs of each row of an int16 map with the smaller (farther) of the two
-    bounding values; rows without any valid pixel stay invalid."""
+FILL_SPAN = 48  # pixels of a row's valid side used to fit the line a fill continues
+FILL_MAX_SLOPE = 0.3  # steepest continued slope, pixels of disparity per pixel
+
+
+@njit(inline="always")
+def _fill_rows(disp, out, y0, y1, invalid, unit, lo, span, max_slope, rounded):
+    """Fill the invalid runs of rows ``y0 .. y1 - 1`` of ``disp`` into ``out`` (same dtype).
+
+    A run takes the surface of its farther (smaller) bounding value, continued into the run:
+    occlusions belong to the background, and the background is often slanted. The line is a
+    least-squares fit to the valid pixels among the ``span`` pixels beyond the run on that
+    side (stopping at the first value farther than ``2 + j / 4`` px from the bounding one,
+    j pixels away; at least ``span // 2`` pixels needed, else the bounding value is kept),
+    its slope clipped to ``max_slope`` px per px; the fill never rises above the nearer
+    bounding value nor falls below ``lo``. Runs at a row end use their only neighbour. Pixels
+    are invalid where NaN or equal to ``invalid``; ``unit`` is the value of one pixel of
+    disparity (the fixed-point scale); ``rounded`` rounds the fill to integers (fixed point).
+    Rows without any valid pixel stay invalid.
+    """
     W = disp.shape[1]
     for y in range(y0, y1):
         src = disp[y]
         dst = out[y]
-        last = np.int16(INVALID16)
         x = 0
         while x < W:
             v = src[x]
-            if v != INVALID16:
+            if v == v and v != invalid:
                 dst[x] = v
-                last = v
                 x += 1
                 continue
             x0 = x
-            while x < W and src[x] == INVALID16:
+            while x < W and not (src[x] == src[x] and src[x] != invalid):
                 x += 1
-            right = src[x] if x < W else np.int16(INVALID16)
-            if last != INVALID16 and right != INVALID16:
-                f = min(last, right)
-            elif last != INVALID16:
-                f = last
+            has_a = x0 > 0
+            has_b = x < W
+            if not (has_a or has_b):
+                for xx in range(x0, x):
+                    dst[xx] = invalid
+                continue
+            a = np.float32(src[x0 - 1]) if has_a else np.float32(0.0)
+            b = np.float32(src[x]) if has_b else np.float32(0.0)
+            if has_a and (not has_b or a <= b):
+                side, bx, base = -1, x0 - 1, a
             else:
-                f = right
+                side, bx, base = 1, x, b
+            lim = max(a, b) if (has_a and has_b) else np.float32(np.inf)
+            slope = np.float32(0.0)
+            icpt = base
+            sx = sy = sxx = sxy = np.float32(0.0)
+            cnt = 0
+            for j in range(span):
+                xx = bx + side * j
+                if xx < 0 or xx >= W:
+                    break
+                vv = src[xx]
+                if not (vv == vv and vv != invalid):
+                    continue
+                fv = np.float32(vv)
+                if abs(fv - base) > (np.float32(2.0) + np.float32(0.25) * j) * unit:
+                    break
+                fj = np.float32(j)
+                sx += fj
+                sy += fv
+                sxx += fj * fj
+                sxy += fj * fv
+                cnt += 1
+            if cnt >= span // 2:
+                den = cnt * sxx - sx * sx
+                if den > 0:
+                    sl = (cnt * sxy - sx * sy) / den  # change per pixel away from the run
+                    icpt = (sy - sl * sx) / cnt
+                    slope = min(max(-sl, -max_slope), max_slope)
             for xx in range(x0, x):
-                dst[xx] = f
+                f = min(max(icpt + slope * np.float32(abs(xx - bx)), lo), lim)
+                dst[xx] = np.floor(f + np.float32(0.5)) if rounded else f
 
 
 @njit(**_JIT)
-def fill_background(disp, out, y0, y1):
-    """Fill NaN runs of each row with the smaller (farther) of the two bounding disparities.
+def fill_background_fixed(disp, out, y0, y1, unit, lo, span, max_slope):
+    """:func:`_fill_rows` on an int16 fixed-point map (INVALID16 invalid, ``unit`` = scale,
+    ``lo`` the smallest fill value in fixed point)."""
+    _fill_rows(
+        disp,
+        out,
+        y0,
+        y1,
+        np.int16(INVALID16),
+        np.float32(unit),
+        np.float32(lo),
+        span,
+        np.float32(max_slope),
+        True,
+    )
 
-    Occlusions sit beside a depth edge on the side of the background, so the farther
-    neighbour is the better guess. Rows without any valid pixel stay NaN.
-    """
-    H, W = disp.shape
-    for y in range(y0, y1):
-        last = np.float32(np.nan)
-        x = 0
-        while x < W:
-            v = disp[y, x]
-            if v == v:
-                out[y, x] = v
-                last = v
-                x += 1
-                continue
-            x0 = x
-            while x < W and not (disp[y, x] == disp[y, x]):
-                x += 1
-            right = disp[y, x] if x < W else np.float32(np.nan)
-            if last == last and right == right:
-                f = min(last, right)
-            elif last == last:
-                f = last
-            else:
-                f = right
-            for xx in range(x0, x):
-                out[y, xx] = f
+
+@njit(**_JIT)
+def fill_background(disp, out, y0, y1, lo, span, max_slope):
+    """:func:`_fill_rows` on a float32 map (NaN invalid, ``lo`` the smallest fill value)."""
+    _fill_rows(
+        disp,
+        out,
+        y0,
+        y1,
+        np.float32(np.nan),
+        np.float32(1.0),
+        np.float32(lo),
+        span,
+        np.float32(max_slope),
+        False,
+    )

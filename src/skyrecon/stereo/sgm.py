@@ -14,8 +14,9 @@ Pipeline (grey images, see :func:`~skyrecon.stereo.base.prepare_pair`):
    processed on separate threads (paths start ``band_margin`` rows outside each band);
 4. winner-takes-all with equiangular (or parabola) sub-pixel refinement, optional
    uniqueness test, left-right consistency check;
-5. speckle removal, occlusion-aware filling (invalid runs take the farther of their two
-   row neighbours: occlusions belong to the background) and a 5x5 median filter.
+5. speckle removal, occlusion-aware filling (invalid runs of a row continue the surface of
+   the farther of their two neighbours, a line fitted to the valid pixels beyond it:
+   occlusions belong to the background, which may be slanted) and a 5x5 median filter.
 
 The ``fast`` setting runs the same at half resolution and upsamples (for obstacle detection
 at video rate). The matcher keeps its buffers between frames; the Numba kernels are compiled
@@ -79,7 +80,11 @@ class SkyreconSettings:
         speckle_size: connected regions smaller than this many pixels (at full resolution)
             whose disparity differs from their surroundings are removed; 0 disables.
         speckle_range: largest disparity step inside one connected region, pixels.
-        fill: fill rejected pixels (the ``filled`` mask of the result marks them).
+        fill: fill rejected pixels (the ``filled`` mask of the result marks them): each invalid
+            run of a row continues the surface of its farther side (a line fitted to up to
+            ``fill_span`` valid pixels beyond it), see :func:`fill_invalid`.
+        fill_span: pixels (at full resolution) fitted beyond an invalid run; 0 fills with the
+            farther neighbour's value.
         median: median filter size after filling: 0 (off), 3 or 5.
         band_margin: warm-up rows outside each thread's band of rows.
         threads: worker threads; None uses every core this process may run on.
@@ -99,6 +104,7 @@ class SkyreconSettings:
     speckle_size: int = 50
     speckle_range: float = 2.0
     fill: bool = True
+    fill_span: int = K.FILL_SPAN
     median: int = 5
     band_margin: int = 32
     threads: int | None = None
@@ -141,6 +147,8 @@ class SkyreconSettings:
             raise InputError("settings speckle_size and speckle_range must be >= 0")
         if self.median not in (0, 1, 3, 5):
             raise InputError(f"setting median must be 0, 3 or 5, got {self.median!r}")
+        if self.fill_span < 0:
+            raise InputError(f"setting fill_span must be >= 0, got {self.fill_span}")
         if self.band_margin < 0:
             raise InputError(f"setting band_margin must be >= 0, got {self.band_margin}")
         if self.threads is not None and self.threads < 1:
@@ -222,26 +230,36 @@ def remove_speckles(disparity: np.ndarray, max_size: int, max_step_px: float) ->
     return disparity
 
 
-def fill_invalid(disparity: np.ndarray, threads: int = 1) -> np.ndarray:
-    """Fill NaN pixels from their row neighbours, taking the farther (smaller) disparity.
+def fill_invalid(disparity: np.ndarray, threads: int = 1, span: int = K.FILL_SPAN) -> np.ndarray:
+    """Fill NaN pixels from their row neighbours, continuing the farther (smaller) side.
 
     Invalid runs next to a depth edge are occlusions of the background, so the farther side
-    is the better guess. Rows with no valid pixel are then filled the same way along columns.
+    is the better guess; its surface is continued into the run along a line fitted to up to
+    ``span`` valid pixels beyond it (slanted backgrounds), never rising above the nearer
+    side nor falling below the smallest valid disparity (see ``_kernels._fill_rows``). Rows
+    with no valid pixel are then filled the same way along columns.
 
     Args:
         disparity: (H, W) float32, NaN invalid.
+        threads: worker threads.
+        span: pixels fitted beyond a run (0: constant fill with the farther neighbour).
     Returns:
         (H, W) float32 filled copy (NaN only if the whole map is invalid).
     """
     disp = np.ascontiguousarray(disparity, dtype=np.float32)
     out = np.empty_like(disp)
+    if not np.isfinite(disp).any():
+        out[:] = np.nan
+        return out
+    lo = float(np.nanmin(disp))
     H = disp.shape[0]
     parts = max(1, min(threads, H // 64))
-    _run_all([partial(K.fill_background, disp, out, a, b) for a, b in _bands(H, parts)])
+    fill = partial(K.fill_background, lo=lo, span=int(span), max_slope=K.FILL_MAX_SLOPE)
+    _run_all([partial(fill, disp, out, a, b) for a, b in _bands(H, parts)])
     if np.isnan(out).any():
         t = np.ascontiguousarray(out.T)
         t2 = np.empty_like(t)
-        K.fill_background(t, t2, 0, t.shape[0])
+        fill(t, t2, 0, t.shape[0])
         out = np.ascontiguousarray(t2.T)
     return out
 
@@ -361,6 +379,8 @@ class SkyreconMatcher:
         fixed = self._buf("fixed", (H, W), np.int16)
         filled = self._buf("filled", (H, W), np.int16)
         do_fill = fs is not None and (s.fill or s.median > 1)
+        span = int(s.fill_span) // scale
+        fill_args = (float(fs or 1.0), float(dmin * (fs or 1.0)), span, K.FILL_MAX_SLOPE)
         task_ms: list[dict[str, float]] = [{} for _ in bands]
         n16, nu16, n8 = K.band_workspace_sizes(D, wp, len(self._offsets))
 
@@ -417,7 +437,7 @@ class SkyreconMatcher:
                 if speckle > 0:
                     cv2.filterSpeckles(fixed[a:b], K.INVALID16, speckle, speckle_step)
                 if do_fill:
-                    K.fill_background_fixed(fixed, filled, a, b)
+                    K.fill_background_fixed(fixed, filled, a, b, *fill_args)
             t3 = time.perf_counter()
             task_ms[i].update(census=(t1 - t0) * 1e3, sgm=(t2 - t1) * 1e3, post=(t3 - t2) * 1e3)
 
@@ -433,7 +453,7 @@ class SkyreconMatcher:
             measured = np.isfinite(work)
             out = work
             if (s.fill or s.median > 1) and measured.any():
-                f = fill_invalid(work, nthreads)
+                f = fill_invalid(work, nthreads, span)
                 if s.median > 1:
                     f = cv2.medianBlur(f, int(s.median))
                 out = f if s.fill else np.where(measured, f, np.float32(np.nan))
@@ -448,7 +468,7 @@ class SkyreconMatcher:
             if (filled == K.INVALID16).any():  # rows without any match: fill along columns
                 t = np.ascontiguousarray(filled.T)
                 t2 = np.empty_like(t)
-                K.fill_background_fixed(t, t2, 0, t.shape[0])
+                K.fill_background_fixed(t, t2, 0, t.shape[0], *fill_args)
                 result = np.ascontiguousarray(t2.T)
             if s.median > 1:
                 result = cv2.medianBlur(result, int(s.median))
