@@ -968,3 +968,209 @@ def fill_background(disp, out, y0, y1, lo, span, max_slope):
         np.float32(max_slope),
         False,
     )
+
+
+# --------------------------------------------------------------------------------------------
+# guided fill: the invalid pixels between the two sides of a depth edge
+# --------------------------------------------------------------------------------------------
+# A row fill (fill_background_fixed) can only guess "the farther side" for an invalid run
+# between two depths, which fails when both sides are foreground (a background strip
+# occluded between two objects) or the farther side is an outlier. The guided fill refills
+# such pixels from the first valid pixel in each of 8 directions, weighted by how much its
+# (smoothed) left-image colour resembles the pixel's and by its distance: a weighted median,
+# without candidates nearer than the row fill (occluded pixels belong to the background).
+# Three steps: guided_fill_targets, guided_fill_candidates (per direction), guided_fill_median.
+
+# search directions of the guided fill: (dy, dx) towards the 8 neighbours
+GUIDE_DY = np.array([0, 0, 1, -1, 1, 1, -1, -1], np.int64)
+GUIDE_DX = np.array([1, -1, 0, 0, 1, -1, 1, -1], np.int64)
+
+
+@njit(**_JIT)
+def guided_fill_targets(measured, row_filled, out, unit, gate, rowptr):
+    """First step of the guided fill: ``out`` = the measured map with the row fill in its
+    holes; returns the (G,) int64 flat indices of the invalid pixels whose row neighbours (the
+    nearest valid pixels left and right) differ by more than ``gate`` pixels (a depth edge).
+
+    Args:
+        measured: (H, W) int16 fixed-point disparity, INVALID16 where rejected.
+        row_filled: (H, W) int16 the row fill of ``measured`` (:func:`fill_background_fixed`).
+        out: (H, W) int16 result.
+        unit: fixed-point value of one pixel of disparity; gate: pixels.
+        rowptr: (H + 1,) int64 result: the targets of row y are ``rowptr[y] .. rowptr[y + 1] - 1``.
+    """
+    H, W = measured.shape
+    gate_f = np.float32(gate * unit)
+    left_v = np.empty(W, np.int16)
+    idx = np.empty(H * W, np.int64)
+    G = 0
+    for y in range(H):
+        rowptr[y] = G
+        src = measured[y]
+        rf = row_filled[y]
+        dst = out[y]
+        last = np.int16(INVALID16)
+        for x in range(W):
+            v = src[x]
+            dst[x] = v if v != INVALID16 else rf[x]
+            if v != INVALID16:
+                last = v
+            left_v[x] = last
+        right = np.int16(INVALID16)
+        for x in range(W - 1, -1, -1):
+            v = src[x]
+            if v != INVALID16:
+                right = v
+                continue
+            a = left_v[x]
+            if a == INVALID16 or right == INVALID16 or rf[x] == INVALID16:
+                continue
+            if abs(np.float32(a) - np.float32(right)) > gate_f:
+                idx[G] = y * W + x
+                G += 1
+    rowptr[H] = G
+    return idx[:G].copy()
+
+
+@njit(inline="always")
+def _guided_row_candidates(
+    measured, row_filled, guide, targets, rowptr, y, k, one, max_steps, w_guide, w_steps, nsteps, cv, cw
+):
+    """Candidate k of the targets of row y (see :func:`guided_fill_candidates`)."""
+    W = measured.shape[1]
+    C = guide.shape[2]
+    dy = GUIDE_DY[k]
+    dx = GUIDE_DX[k]
+    ns = nsteps[y]
+    vk = cv[k]
+    wk = cw[k]
+    for g in range(rowptr[y], rowptr[y + 1]):
+        x = targets[g] - y * W
+        vk[g] = np.float32(0.0)
+        wk[g] = np.float32(0.0)
+        st = np.int64(ns[x])
+        if st > max_steps:
+            continue
+        fy = y + dy * st
+        fx = x + dx * st
+        u = np.float32(measured[fy, fx])
+        if u > np.float32(row_filled[y, x]) + one:
+            continue
+        c = 0
+        for ch in range(C):
+            c += abs(np.int32(guide[y, x, ch]) - np.int32(guide[fy, fx, ch]))
+        vk[g] = u
+        wk[g] = w_guide[c] * w_steps[st]
+
+
+@njit(**_JIT)
+def guided_fill_candidates(
+    measured, row_filled, guide, targets, rowptr, k0, k1, unit, sigma, decay, max_steps, nsteps, cv, cw
+):
+    """Second step of the guided fill, directions ``k0 .. k1 - 1`` (threads take disjoint
+    ranges): for each target pixel, the first valid pixel along direction k (at most
+    ``max_steps`` steps) is candidate k, with weight ``exp(-|guide difference| / sigma -
+    decay * steps)`` (colour differences summed over channels, grey ones counted three
+    times), unless it is nearer than the row fill by more than one pixel (weight 0).
+
+    Args:
+        measured, row_filled: (H, W) int16 (see :func:`guided_fill_targets`).
+        guide: (H, W, C) uint8 left image (C = 1 or 3), lightly smoothed.
+        targets, rowptr: the pixels to refill (:func:`guided_fill_targets`).
+        nsteps: (H, W) int16 scratch (one per thread).
+        cv, cw: (8, G) float32 candidate values and weights (rows k0 .. k1 - 1 written).
+    """
+    H, W = measured.shape
+    C = guide.shape[2]
+    cscale = np.float32(3.0 / C) / np.float32(sigma)
+    one = np.float32(unit)
+    # weight look-up tables: guide difference (integer levels) and steps
+    w_guide = np.exp(-np.arange(255 * C + 1).astype(np.float32) * cscale).astype(np.float32)
+    w_steps = np.exp(-np.arange(max_steps + 2).astype(np.float32) * np.float32(decay)).astype(np.float32)
+    far = np.int16(max_steps + 1)  # "no valid pixel within max_steps"
+    for k in range(k0, k1):
+        dy = GUIDE_DY[k]
+        dx = GUIDE_DX[k]
+        # nsteps[y, x]: the smallest s >= 1 with (y + s dy, x + s dx) valid, or max_steps + 1.
+        # Rows are done in the order the recurrence needs, and each row's targets are
+        # evaluated while it is in cache.
+        for i in range(H):
+            y = i if dy <= 0 else H - 1 - i
+            ns = nsteps[y]
+            if dy == 0:  # along the row (dx = +-1): a scan
+                src = measured[y]
+                last = -(1 << 20)
+                for j in range(W):
+                    x = j if dx < 0 else W - 1 - j
+                    ns[x] = np.int16(min(abs(x - last), max_steps + 1))
+                    if src[x] != INVALID16:
+                        last = x
+            else:
+                yy = y + dy
+                if yy < 0 or yy >= H:
+                    ns[:] = far
+                else:
+                    xa = max(0, -dx)
+                    xb = min(W, W - dx)
+                    ns[:xa] = far
+                    ns[xb:] = far
+                    src_s = measured[yy, xa + dx : xb + dx]
+                    np_s = nsteps[yy, xa + dx : xb + dx]
+                    ns_s = ns[xa:xb]
+                    for x in range(xb - xa):
+                        st = np.int16(1) if src_s[x] != INVALID16 else np.int16(np_s[x] + np.int16(1))
+                        ns_s[x] = min(st, far)
+            _guided_row_candidates(
+                measured,
+                row_filled,
+                guide,
+                targets,
+                rowptr,
+                y,
+                k,
+                one,
+                max_steps,
+                w_guide,
+                w_steps,
+                nsteps,
+                cv,
+                cw,
+            )
+
+
+@njit(**_JIT)
+def guided_fill_median(targets, cv, cw, out, g0, g1):
+    """Last step of the guided fill: each target pixel of ``out`` (H, W) int16 takes the
+    weighted median of its candidates ``cv``, ``cw`` (8, G) (kept as is when it has none);
+    targets ``g0 .. g1 - 1`` (threads take disjoint ranges)."""
+    W = out.shape[1]
+    n = cv.shape[0]
+    vals = np.empty(n, np.float32)
+    ws = np.empty(n, np.float32)
+    for g in range(g0, g1):
+        m = 0
+        tot = np.float32(0.0)
+        for k in range(n):
+            w = cw[k, g]
+            if w <= 0:
+                continue
+            u = cv[k, g]
+            i = m
+            while i > 0 and vals[i - 1] > u:
+                vals[i] = vals[i - 1]
+                ws[i] = ws[i - 1]
+                i -= 1
+            vals[i] = u
+            ws[i] = w
+            m += 1
+            tot += w
+        if m == 0:
+            continue
+        acc = np.float32(0.0)
+        for i in range(m):
+            acc += ws[i]
+            if acc >= np.float32(0.5) * tot:
+                t = targets[g]
+                y = t // W
+                out[y, t - y * W] = np.int16(vals[i])
+                break

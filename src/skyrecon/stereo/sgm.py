@@ -16,7 +16,9 @@ Pipeline (grey images, see :func:`~skyrecon.stereo.base.prepare_pair`):
    uniqueness test, left-right consistency check;
 5. speckle removal, occlusion-aware filling (invalid runs of a row continue the surface of
    the farther of their two neighbours, a line fitted to the valid pixels beyond it:
-   occlusions belong to the background, which may be slanted) and a 5x5 median filter.
+   occlusions belong to the background, which may be slanted; then the pixels between the
+   two sides of a depth edge take a colour-guided weighted median of the valid pixels
+   around them, never nearer than that) and a 5x5 median filter.
 
 The ``fast`` setting runs the same at half resolution and upsamples (for obstacle detection
 at video rate). The matcher keeps its buffers between frames; the Numba kernels are compiled
@@ -52,6 +54,13 @@ from skyrecon.stereo.base import (
 _PATH_OFFSETS = {2: (0,), 4: (0, -1), 6: (0, -1, 1)}
 _MAX_BAND_BYTES = 256 << 20  # cost buffer of the bands in flight at once (one per thread)
 _SUBPIXEL = {"none": 0, "parabola": 1, "equiangular": 2}
+# guided fill (see _kernels.guided_fill_candidates), at full resolution: depth-edge gate (pixels),
+# guide-difference scale (8-bit levels, summed over colour channels), weight decay per
+# step, and the longest search per direction (pixels)
+_GUIDE_GATE = 3.0
+_GUIDE_SIGMA = 20.0
+_GUIDE_DECAY = 0.02
+_GUIDE_STEPS = 100
 
 
 @dataclass(frozen=True)
@@ -85,6 +94,11 @@ class SkyreconSettings:
             ``fill_span`` valid pixels beyond it), see :func:`fill_invalid`.
         fill_span: pixels (at full resolution) fitted beyond an invalid run; 0 fills with the
             farther neighbour's value.
+        guided_fill: refill the invalid pixels between the two sides of a depth edge (row
+            neighbours more than 3 px apart) from the first valid pixel in each of 8
+            directions, weighted by colour likeness in the left image and distance (a
+            weighted median, never nearer than the row fill); None: on unless ``fast``.
+            Needs a disparity range that fits 16-bit fixed point (all but huge ranges).
         median: median filter size after filling: 0 (off), 3 or 5.
         band_margin: warm-up rows outside each thread's band of rows.
         threads: worker threads; None uses every core this process may run on.
@@ -105,6 +119,7 @@ class SkyreconSettings:
     speckle_range: float = 2.0
     fill: bool = True
     fill_span: int = K.FILL_SPAN
+    guided_fill: bool | None = None
     median: int = 5
     band_margin: int = 32
     threads: int | None = None
@@ -318,6 +333,7 @@ class SkyreconMatcher:
         s = self.settings
         self._offsets = tuple(int(o) for o in _PATH_OFFSETS[s.paths])
         self._up_offsets = tuple(-o for o in self._offsets)
+        self._guided = bool(s.guided_fill if s.guided_fill is not None else not s.fast)
         self._ooi_cost = int(s.out_of_image_cost if s.out_of_image_cost is not None else s.census_bits // 3)
 
     # ----- buffers -------------------------------------------------------------------------
@@ -336,6 +352,7 @@ class SkyreconMatcher:
         self,
         gl: np.ndarray,
         gr: np.ndarray,
+        guide: np.ndarray | None,
         dmin: int,
         dmax: int,
         scale: int,
@@ -465,8 +482,10 @@ class SkyreconMatcher:
         result = fixed
         if do_fill and measured.any():
             result = filled
-            if (filled == K.INVALID16).any():  # rows without any match: fill along columns
-                t = np.ascontiguousarray(filled.T)
+            if guide is not None:
+                result = self._guided_fill(fixed, filled, guide, fs, scale, nthreads)
+            if (result == K.INVALID16).any():  # rows without any match: fill along columns
+                t = np.ascontiguousarray(result.T)
                 t2 = np.empty_like(t)
                 K.fill_background_fixed(t, t2, 0, t.shape[0], *fill_args)
                 result = np.ascontiguousarray(t2.T)
@@ -477,6 +496,46 @@ class SkyreconMatcher:
         K.from_fixed(result, keep, np.float32(1.0 / fs), out, 0, H)
         sw.lap("postprocess")
         return out, measured
+
+    def _guided_fill(
+        self, fixed: np.ndarray, filled: np.ndarray, guide: np.ndarray, fs: float, scale: int, nthreads: int
+    ) -> np.ndarray:
+        """The guided refill of the pixels between depth edges (see
+        ``_kernels.guided_fill_candidates``) of an (H, W) int16 fixed-point map (``fs`` per
+        pixel of disparity) at 1/``scale`` resolution; the 8 search directions, then the
+        target pixels, are shared among the threads."""
+        H, W = fixed.shape
+        out = self._buf("guided", (H, W), np.int16)
+        rowptr = self._buf("rowptr", (H + 1,), np.int64)
+        targets = K.guided_fill_targets(fixed, filled, out, fs, _GUIDE_GATE / scale, rowptr)
+        if targets.size == 0:
+            return out
+        nd = len(K.GUIDE_DY)
+        cv = np.empty((nd, targets.size), np.float32)
+        cw = np.empty((nd, targets.size), np.float32)
+        parts = max(1, min(nthreads, nd))
+        args = (fs, _GUIDE_SIGMA, _GUIDE_DECAY * scale, _GUIDE_STEPS // scale)
+        tasks: list[Callable[[], Any]] = [
+            partial(
+                K.guided_fill_candidates,
+                fixed,
+                filled,
+                guide,
+                targets,
+                rowptr,
+                k0,
+                k1,
+                *args,
+                self._buf(f"nsteps@{i}", (H, W), np.int16),
+                cv,
+                cw,
+            )
+            for i, (k0, k1) in enumerate(_bands(nd, parts))
+        ]
+        _run_all(tasks)
+        G = targets.size
+        _run_all([partial(K.guided_fill_median, targets, cv, cw, out, a, b) for a, b in _bands(G, parts)])
+        return out
 
     def compute(self, left: np.ndarray, right: np.ndarray) -> DisparityResult:
         """Disparity of a rectified pair.
@@ -513,7 +572,13 @@ class SkyreconMatcher:
                 dmax = dmin + w2 - 1
         sw.lap("prepare")
 
-        out, measured = self._match(gl, gr, dmin, dmax, scale, sw, diag)
+        guide = None
+        if self._guided:  # the left image (colour when given), smoothed, at matching resolution
+            guide = pair.left_rgb if pair.left_rgb is not None else pair.left_grey
+            if scale != 1:
+                guide = cv2.resize(guide, (gl.shape[1], gl.shape[0]), interpolation=cv2.INTER_AREA)
+            guide = cv2.blur(guide, (3, 3)).reshape(gl.shape[0], gl.shape[1], -1)
+        out, measured = self._match(gl, gr, guide, dmin, dmax, scale, sw, diag)
         if scale != 1:
             out = _upsample2(out, (W, H))
             measured = cv2.resize(measured.view(np.uint8), (W, H), interpolation=cv2.INTER_NEAREST).astype(
@@ -535,6 +600,13 @@ class SkyreconMatcher:
         img = rng.integers(0, 255, (48, 64), dtype=np.uint8)
         m = SkyreconMatcher(16, settings=replace(self.settings, fast=False))
         m.compute(img, np.roll(img, -3, axis=1))
+        if m._guided:  # a tiny pair may have no depth edge: run the guided fill on its own
+            fixed = np.full((8, 16), K.INVALID16, np.int16)
+            fixed[:, :4] = 320
+            fixed[:, 12:] = 64
+            filled = np.empty_like(fixed)
+            K.fill_background_fixed(fixed, filled, 0, 8, 32.0, 0.0, 8, K.FILL_MAX_SLOPE)
+            m._guided_fill(fixed, filled, np.zeros((8, 16, 1), np.uint8), 32.0, 1, 1)
 
 
 def _factory(fast: bool) -> Callable[..., SkyreconMatcher]:
