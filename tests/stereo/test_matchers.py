@@ -146,6 +146,7 @@ def test_sequence_reuses_buffers_without_recompiling(slanted_pair, fronto_pair):
         K.guided_fill_targets,
         K.guided_fill_candidates,
         K.guided_fill_median,
+        K.guided_fill_spread,
     )
     before = [len(k.signatures) for k in kernels]
     buffers = {k: id(v) for k, v in m._buffers.items()}

@@ -989,47 +989,59 @@ GUIDE_DX = np.array([1, -1, 0, 0, 1, -1, 1, -1], np.int64)
 @njit(**_JIT)
 def guided_fill_targets(measured, row_filled, out, unit, gate, rowptr):
     """First step of the guided fill: ``out`` = the measured map with the row fill in its
-    holes; returns the (G,) int64 flat indices of the invalid pixels whose row neighbours (the
-    nearest valid pixels left and right) differ by more than ``gate`` pixels (a depth edge).
+    holes; finds the invalid pixels whose row neighbours (the nearest valid pixels left and
+    right) differ by more than ``gate`` pixels (a depth edge).
+
+    Half of them, a checkerboard (``x + y`` even), are refilled from their candidates; the
+    others then take the smallest refilled 4-neighbour (:func:`guided_fill_spread`).
 
     Args:
         measured: (H, W) int16 fixed-point disparity, INVALID16 where rejected.
         row_filled: (H, W) int16 the row fill of ``measured`` (:func:`fill_background_fixed`).
         out: (H, W) int16 result.
         unit: fixed-point value of one pixel of disparity; gate: pixels.
-        rowptr: (H + 1,) int64 result: the targets of row y are ``rowptr[y] .. rowptr[y + 1] - 1``.
+        rowptr: (H + 1,) int64 result: the computed targets of row y are
+            ``rowptr[y] .. rowptr[y + 1] - 1``.
+    Returns:
+        ((G,) int64 flat indices of the computed targets, ascending;
+        (G2,) int64 flat indices of the other targets).
     """
     H, W = measured.shape
     gate_f = np.float32(gate * unit)
-    left_v = np.empty(W, np.int16)
+    right_v = np.empty(W, np.int16)
     idx = np.empty(H * W, np.int64)
+    odd = np.empty(H * W, np.int64)
     G = 0
+    G2 = 0
     for y in range(H):
         rowptr[y] = G
         src = measured[y]
         rf = row_filled[y]
         dst = out[y]
         last = np.int16(INVALID16)
+        for x in range(W - 1, -1, -1):
+            if src[x] != INVALID16:
+                last = src[x]
+            right_v[x] = last
+        left = np.int16(INVALID16)
         for x in range(W):
             v = src[x]
             dst[x] = v if v != INVALID16 else rf[x]
             if v != INVALID16:
-                last = v
-            left_v[x] = last
-        right = np.int16(INVALID16)
-        for x in range(W - 1, -1, -1):
-            v = src[x]
-            if v != INVALID16:
-                right = v
+                left = v
                 continue
-            a = left_v[x]
-            if a == INVALID16 or right == INVALID16 or rf[x] == INVALID16:
+            b = right_v[x]
+            if left == INVALID16 or b == INVALID16 or rf[x] == INVALID16:
                 continue
-            if abs(np.float32(a) - np.float32(right)) > gate_f:
-                idx[G] = y * W + x
-                G += 1
+            if abs(np.float32(left) - np.float32(b)) > gate_f:
+                if (x + y) % 2 == 0:
+                    idx[G] = y * W + x
+                    G += 1
+                else:
+                    odd[G2] = y * W + x
+                    G2 += 1
     rowptr[H] = G
-    return idx[:G].copy()
+    return idx[:G].copy(), odd[:G2].copy()
 
 
 @njit(inline="always")
@@ -1136,6 +1148,33 @@ def guided_fill_candidates(
                 cv,
                 cw,
             )
+
+
+@njit(**_JIT)
+def guided_fill_spread(targets, done, out):
+    """Last step of the guided fill: each of the other targets (not computed, see
+    :func:`guided_fill_targets`) takes the smallest value among its 4-neighbours that were
+    computed (``done`` 1), if any (the farther surface: the background).
+
+    Args:
+        targets: (G2,) flat indices of the pixels to set; done: (H, W) uint8; out: (H, W) int16.
+    """
+    H, W = out.shape
+    for g in range(targets.shape[0]):
+        t = targets[g]
+        y = t // W
+        x = t - y * W
+        best = np.int32(1 << 20)
+        if x > 0 and done[y, x - 1]:
+            best = min(best, np.int32(out[y, x - 1]))
+        if x + 1 < W and done[y, x + 1]:
+            best = min(best, np.int32(out[y, x + 1]))
+        if y > 0 and done[y - 1, x]:
+            best = min(best, np.int32(out[y - 1, x]))
+        if y + 1 < H and done[y + 1, x]:
+            best = min(best, np.int32(out[y + 1, x]))
+        if best < (1 << 20):
+            out[y, x] = np.int16(best)
 
 
 @njit(**_JIT)

@@ -503,11 +503,12 @@ class SkyreconMatcher:
         """The guided refill of the pixels between depth edges (see
         ``_kernels.guided_fill_candidates``) of an (H, W) int16 fixed-point map (``fs`` per
         pixel of disparity) at 1/``scale`` resolution; the 8 search directions, then the
-        target pixels, are shared among the threads."""
+        target pixels, are shared among the threads. Half of the targets (a checkerboard)
+        are computed, the others take their smallest computed neighbour."""
         H, W = fixed.shape
         out = self._buf("guided", (H, W), np.int16)
         rowptr = self._buf("rowptr", (H + 1,), np.int64)
-        targets = K.guided_fill_targets(fixed, filled, out, fs, _GUIDE_GATE / scale, rowptr)
+        targets, others = K.guided_fill_targets(fixed, filled, out, fs, _GUIDE_GATE / scale, rowptr)
         if targets.size == 0:
             return out
         nd = len(K.GUIDE_DY)
@@ -535,6 +536,10 @@ class SkyreconMatcher:
         _run_all(tasks)
         G = targets.size
         _run_all([partial(K.guided_fill_median, targets, cv, cw, out, a, b) for a, b in _bands(G, parts)])
+        done = self._buf("guided_done", (H, W), np.uint8)
+        done[:] = 0
+        done.reshape(-1)[targets] = 1
+        K.guided_fill_spread(others, done, out)
         return out
 
     def compute(self, left: np.ndarray, right: np.ndarray) -> DisparityResult:
