@@ -92,3 +92,20 @@ def test_guided_fill_setting(slanted_pair):
     for m in (on, off, SkyreconMatcher(32, fast=True, guided_fill=True)):
         r = m.compute(left, right)
         assert np.all(np.isfinite(r.disparity))
+
+
+def test_warmup_compiles_the_guided_fill_kernels():
+    SkyreconMatcher(32).warmup()
+    for k in (K.guided_fill_targets, K.guided_fill_candidates, K.guided_fill_median, K.guided_fill_spread):
+        assert len(k.signatures) >= 1
+
+
+def test_guided_fill_same_result_on_one_or_two_threads(monkeypatch):
+    from skyrecon.stereo import sgm
+
+    monkeypatch.setattr(sgm, "_GUIDE_TARGETS_PER_THREAD", 1)
+    fixed, filled, guide = _occluded_strip()
+    m = SkyreconMatcher(64)
+    one = m._guided_fill(fixed, filled, guide, 32.0, 1, 1).copy()
+    two = m._guided_fill(fixed, filled, guide, 32.0, 1, 2).copy()
+    np.testing.assert_array_equal(one, two)

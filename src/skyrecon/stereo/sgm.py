@@ -61,6 +61,7 @@ _GUIDE_GATE = 3.0
 _GUIDE_SIGMA = 20.0
 _GUIDE_DECAY = 0.02
 _GUIDE_STEPS = 100
+_GUIDE_TARGETS_PER_THREAD = 16384
 
 
 @dataclass(frozen=True)
@@ -514,7 +515,9 @@ class SkyreconMatcher:
         nd = len(K.GUIDE_DY)
         cv = np.empty((nd, targets.size), np.float32)
         cw = np.empty((nd, targets.size), np.float32)
-        parts = max(1, min(nthreads, nd))
+        # threads only pay off for many targets (handing work to the pool costs more than a
+        # few thousand targets under load)
+        parts = max(1, min(nthreads, nd, targets.size // _GUIDE_TARGETS_PER_THREAD))
         args = (fs, _GUIDE_SIGMA, _GUIDE_DECAY * scale, _GUIDE_STEPS // scale)
         tasks: list[Callable[[], Any]] = [
             partial(
