@@ -137,7 +137,17 @@ def test_sequence_reuses_buffers_without_recompiling(slanted_pair, fronto_pair):
     m = SkyreconMatcher(32)
     frames = [slanted_pair[:2], fronto_pair[:2], slanted_pair[:2]]
     m.compute(*frames[0])
-    kernels = (K.sgm_band, K.census_transform, K.to_fixed, K.from_fixed, K.fill_background_fixed)
+    kernels = (
+        K.sgm_band,
+        K.census_transform,
+        K.to_fixed,
+        K.from_fixed,
+        K.fill_background_fixed,
+        K.guided_fill_targets,
+        K.guided_fill_candidates,
+        K.guided_fill_median,
+        K.guided_fill_spread,
+    )
     before = [len(k.signatures) for k in kernels]
     buffers = {k: id(v) for k, v in m._buffers.items()}
     results = [m.compute(*f) for f in frames]

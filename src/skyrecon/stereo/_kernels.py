@@ -858,64 +858,358 @@ def from_fixed(fixed, keep, inv_scale, out, y0, y1):
             dst[x] = np.float32(v) * inv_scale if ok else np.float32(np.nan)
 
 
-@njit(**_JIT)
-def fill_background_fixed(disp, out, y0, y1):
-    """Fill INVALID16 runs of each row of an int16 map with the smaller (farther) of the two
-    bounding values; rows without any valid pixel stay invalid."""
+FILL_SPAN = 48  # pixels of a row's valid side used to fit the line a fill continues
+FILL_MAX_SLOPE = 0.3  # steepest continued slope, pixels of disparity per pixel
+
+
+@njit(inline="always")
+def _fill_rows(disp, out, y0, y1, invalid, unit, lo, span, max_slope, rounded):
+    """Fill the invalid runs of rows ``y0 .. y1 - 1`` of ``disp`` into ``out`` (same dtype).
+
+    A run takes the surface of its farther (smaller) bounding value, continued into the run:
+    occlusions belong to the background, and the background is often slanted. The line is a
+    least-squares fit to the valid pixels among the ``span`` pixels beyond the run on that
+    side (stopping at the first value farther than ``2 + j / 4`` px from the bounding one,
+    j pixels away; at least ``span // 2`` pixels needed, else the bounding value is kept),
+    its slope clipped to ``max_slope`` px per px; the fill never rises above the nearer
+    bounding value nor falls below ``lo``. Runs at a row end use their only neighbour. Pixels
+    are invalid where NaN or equal to ``invalid``; ``unit`` is the value of one pixel of
+    disparity (the fixed-point scale); ``rounded`` rounds the fill to integers (fixed point).
+    Rows without any valid pixel stay invalid.
+    """
     W = disp.shape[1]
     for y in range(y0, y1):
         src = disp[y]
         dst = out[y]
-        last = np.int16(INVALID16)
         x = 0
         while x < W:
             v = src[x]
-            if v != INVALID16:
+            if v == v and v != invalid:
                 dst[x] = v
-                last = v
                 x += 1
                 continue
             x0 = x
-            while x < W and src[x] == INVALID16:
+            while x < W and not (src[x] == src[x] and src[x] != invalid):
                 x += 1
-            right = src[x] if x < W else np.int16(INVALID16)
-            if last != INVALID16 and right != INVALID16:
-                f = min(last, right)
-            elif last != INVALID16:
-                f = last
+            has_a = x0 > 0
+            has_b = x < W
+            if not (has_a or has_b):
+                for xx in range(x0, x):
+                    dst[xx] = invalid
+                continue
+            a = np.float32(src[x0 - 1]) if has_a else np.float32(0.0)
+            b = np.float32(src[x]) if has_b else np.float32(0.0)
+            if has_a and (not has_b or a <= b):
+                side, bx, base = -1, x0 - 1, a
             else:
-                f = right
+                side, bx, base = 1, x, b
+            lim = max(a, b) if (has_a and has_b) else np.float32(np.inf)
+            slope = np.float32(0.0)
+            icpt = base
+            sx = sy = sxx = sxy = np.float32(0.0)
+            cnt = 0
+            for j in range(span):
+                xx = bx + side * j
+                if xx < 0 or xx >= W:
+                    break
+                vv = src[xx]
+                if not (vv == vv and vv != invalid):
+                    continue
+                fv = np.float32(vv)
+                if abs(fv - base) > (np.float32(2.0) + np.float32(0.25) * j) * unit:
+                    break
+                fj = np.float32(j)
+                sx += fj
+                sy += fv
+                sxx += fj * fj
+                sxy += fj * fv
+                cnt += 1
+            if cnt >= span // 2:
+                den = cnt * sxx - sx * sx
+                if den > 0:
+                    sl = (cnt * sxy - sx * sy) / den  # change per pixel away from the run
+                    icpt = (sy - sl * sx) / cnt
+                    slope = min(max(-sl, -max_slope), max_slope)
             for xx in range(x0, x):
-                dst[xx] = f
+                f = min(max(icpt + slope * np.float32(abs(xx - bx)), lo), lim)
+                dst[xx] = np.floor(f + np.float32(0.5)) if rounded else f
 
 
 @njit(**_JIT)
-def fill_background(disp, out, y0, y1):
-    """Fill NaN runs of each row with the smaller (farther) of the two bounding disparities.
+def fill_background_fixed(disp, out, y0, y1, unit, lo, span, max_slope):
+    """:func:`_fill_rows` on an int16 fixed-point map (INVALID16 invalid, ``unit`` = scale,
+    ``lo`` the smallest fill value in fixed point)."""
+    _fill_rows(
+        disp,
+        out,
+        y0,
+        y1,
+        np.int16(INVALID16),
+        np.float32(unit),
+        np.float32(lo),
+        span,
+        np.float32(max_slope),
+        True,
+    )
 
-    Occlusions sit beside a depth edge on the side of the background, so the farther
-    neighbour is the better guess. Rows without any valid pixel stay NaN.
+
+@njit(**_JIT)
+def fill_background(disp, out, y0, y1, lo, span, max_slope):
+    """:func:`_fill_rows` on a float32 map (NaN invalid, ``lo`` the smallest fill value)."""
+    _fill_rows(
+        disp,
+        out,
+        y0,
+        y1,
+        np.float32(np.nan),
+        np.float32(1.0),
+        np.float32(lo),
+        span,
+        np.float32(max_slope),
+        False,
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# guided fill: the invalid pixels between the two sides of a depth edge
+# --------------------------------------------------------------------------------------------
+# A row fill (fill_background_fixed) can only guess "the farther side" for an invalid run
+# between two depths, which fails when both sides are foreground (a background strip
+# occluded between two objects) or the farther side is an outlier. The guided fill refills
+# such pixels from the first valid pixel in each of 8 directions, weighted by how much its
+# (smoothed) left-image colour resembles the pixel's and by its distance: a weighted median,
+# without candidates nearer than the row fill (occluded pixels belong to the background).
+# Three steps: guided_fill_targets, guided_fill_candidates (per direction), guided_fill_median.
+
+# search directions of the guided fill: (dy, dx) towards the 8 neighbours
+GUIDE_DY = np.array([0, 0, 1, -1, 1, 1, -1, -1], np.int64)
+GUIDE_DX = np.array([1, -1, 0, 0, 1, -1, 1, -1], np.int64)
+
+
+@njit(**_JIT)
+def guided_fill_targets(measured, row_filled, out, unit, gate, rowptr):
+    """First step of the guided fill: ``out`` = the measured map with the row fill in its
+    holes; finds the invalid pixels whose row neighbours (the nearest valid pixels left and
+    right) differ by more than ``gate`` pixels (a depth edge).
+
+    Half of them, a checkerboard (``x + y`` even), are refilled from their candidates; the
+    others then take the smallest refilled 4-neighbour (:func:`guided_fill_spread`).
+
+    Args:
+        measured: (H, W) int16 fixed-point disparity, INVALID16 where rejected.
+        row_filled: (H, W) int16 the row fill of ``measured`` (:func:`fill_background_fixed`).
+        out: (H, W) int16 result.
+        unit: fixed-point value of one pixel of disparity; gate: pixels.
+        rowptr: (H + 1,) int64 result: the computed targets of row y are
+            ``rowptr[y] .. rowptr[y + 1] - 1``.
+    Returns:
+        ((G,) int64 flat indices of the computed targets, ascending;
+        (G2,) int64 flat indices of the other targets).
     """
-    H, W = disp.shape
-    for y in range(y0, y1):
-        last = np.float32(np.nan)
-        x = 0
-        while x < W:
-            v = disp[y, x]
-            if v == v:
-                out[y, x] = v
-                last = v
-                x += 1
+    H, W = measured.shape
+    gate_f = np.float32(gate * unit)
+    right_v = np.empty(W, np.int16)
+    idx = np.empty(H * W, np.int64)
+    odd = np.empty(H * W, np.int64)
+    G = 0
+    G2 = 0
+    for y in range(H):
+        rowptr[y] = G
+        src = measured[y]
+        rf = row_filled[y]
+        dst = out[y]
+        last = np.int16(INVALID16)
+        for x in range(W - 1, -1, -1):
+            if src[x] != INVALID16:
+                last = src[x]
+            right_v[x] = last
+        left = np.int16(INVALID16)
+        for x in range(W):
+            v = src[x]
+            dst[x] = v if v != INVALID16 else rf[x]
+            if v != INVALID16:
+                left = v
                 continue
-            x0 = x
-            while x < W and not (disp[y, x] == disp[y, x]):
-                x += 1
-            right = disp[y, x] if x < W else np.float32(np.nan)
-            if last == last and right == right:
-                f = min(last, right)
-            elif last == last:
-                f = last
+            b = right_v[x]
+            if left == INVALID16 or b == INVALID16 or rf[x] == INVALID16:
+                continue
+            if abs(np.float32(left) - np.float32(b)) > gate_f:
+                if (x + y) % 2 == 0:
+                    idx[G] = y * W + x
+                    G += 1
+                else:
+                    odd[G2] = y * W + x
+                    G2 += 1
+    rowptr[H] = G
+    return idx[:G].copy(), odd[:G2].copy()
+
+
+@njit(inline="always")
+def _guided_row_candidates(
+    measured, row_filled, guide, targets, rowptr, y, k, one, max_steps, w_guide, w_steps, nsteps, cv, cw
+):
+    """Candidate k of the targets of row y (see :func:`guided_fill_candidates`)."""
+    W = measured.shape[1]
+    C = guide.shape[2]
+    dy = GUIDE_DY[k]
+    dx = GUIDE_DX[k]
+    ns = nsteps[y]
+    vk = cv[k]
+    wk = cw[k]
+    for g in range(rowptr[y], rowptr[y + 1]):
+        x = targets[g] - y * W
+        vk[g] = np.float32(0.0)
+        wk[g] = np.float32(0.0)
+        st = np.int64(ns[x])
+        if st > max_steps:
+            continue
+        fy = y + dy * st
+        fx = x + dx * st
+        u = np.float32(measured[fy, fx])
+        if u > np.float32(row_filled[y, x]) + one:
+            continue
+        c = 0
+        for ch in range(C):
+            c += abs(np.int32(guide[y, x, ch]) - np.int32(guide[fy, fx, ch]))
+        vk[g] = u
+        wk[g] = w_guide[c] * w_steps[st]
+
+
+@njit(**_JIT)
+def guided_fill_candidates(
+    measured, row_filled, guide, targets, rowptr, k0, k1, unit, sigma, decay, max_steps, nsteps, cv, cw
+):
+    """Second step of the guided fill, directions ``k0 .. k1 - 1`` (threads take disjoint
+    ranges): for each target pixel, the first valid pixel along direction k (at most
+    ``max_steps`` steps) is candidate k, with weight ``exp(-|guide difference| / sigma -
+    decay * steps)`` (colour differences summed over channels, grey ones counted three
+    times), unless it is nearer than the row fill by more than one pixel (weight 0).
+
+    Args:
+        measured, row_filled: (H, W) int16 (see :func:`guided_fill_targets`).
+        guide: (H, W, C) uint8 left image (C = 1 or 3), lightly smoothed.
+        targets, rowptr: the pixels to refill (:func:`guided_fill_targets`).
+        nsteps: (H, W) int16 scratch (one per thread).
+        cv, cw: (8, G) float32 candidate values and weights (rows k0 .. k1 - 1 written).
+    """
+    H, W = measured.shape
+    C = guide.shape[2]
+    cscale = np.float32(3.0 / C) / np.float32(sigma)
+    one = np.float32(unit)
+    # weight look-up tables: guide difference (integer levels) and steps
+    w_guide = np.exp(-np.arange(255 * C + 1).astype(np.float32) * cscale).astype(np.float32)
+    w_steps = np.exp(-np.arange(max_steps + 2).astype(np.float32) * np.float32(decay)).astype(np.float32)
+    far = np.int16(max_steps + 1)  # "no valid pixel within max_steps"
+    for k in range(k0, k1):
+        dy = GUIDE_DY[k]
+        dx = GUIDE_DX[k]
+        # nsteps[y, x]: the smallest s >= 1 with (y + s dy, x + s dx) valid, or max_steps + 1.
+        # Rows are done in the order the recurrence needs, and each row's targets are
+        # evaluated while it is in cache.
+        for i in range(H):
+            y = i if dy <= 0 else H - 1 - i
+            ns = nsteps[y]
+            if dy == 0:  # along the row (dx = +-1): a scan
+                src = measured[y]
+                last = -(1 << 20)
+                for j in range(W):
+                    x = j if dx < 0 else W - 1 - j
+                    ns[x] = np.int16(min(abs(x - last), max_steps + 1))
+                    if src[x] != INVALID16:
+                        last = x
             else:
-                f = right
-            for xx in range(x0, x):
-                out[y, xx] = f
+                yy = y + dy
+                if yy < 0 or yy >= H:
+                    ns[:] = far
+                else:
+                    xa = max(0, -dx)
+                    xb = min(W, W - dx)
+                    ns[:xa] = far
+                    ns[xb:] = far
+                    src_s = measured[yy, xa + dx : xb + dx]
+                    np_s = nsteps[yy, xa + dx : xb + dx]
+                    ns_s = ns[xa:xb]
+                    for x in range(xb - xa):
+                        st = np.int16(1) if src_s[x] != INVALID16 else np.int16(np_s[x] + np.int16(1))
+                        ns_s[x] = min(st, far)
+            _guided_row_candidates(
+                measured,
+                row_filled,
+                guide,
+                targets,
+                rowptr,
+                y,
+                k,
+                one,
+                max_steps,
+                w_guide,
+                w_steps,
+                nsteps,
+                cv,
+                cw,
+            )
+
+
+@njit(**_JIT)
+def guided_fill_spread(targets, done, out):
+    """Last step of the guided fill: each of the other targets (not computed, see
+    :func:`guided_fill_targets`) takes the smallest value among its 4-neighbours that were
+    computed (``done`` 1), if any (the farther surface: the background).
+
+    Args:
+        targets: (G2,) flat indices of the pixels to set; done: (H, W) uint8; out: (H, W) int16.
+    """
+    H, W = out.shape
+    for g in range(targets.shape[0]):
+        t = targets[g]
+        y = t // W
+        x = t - y * W
+        best = np.int32(1 << 20)
+        if x > 0 and done[y, x - 1]:
+            best = min(best, np.int32(out[y, x - 1]))
+        if x + 1 < W and done[y, x + 1]:
+            best = min(best, np.int32(out[y, x + 1]))
+        if y > 0 and done[y - 1, x]:
+            best = min(best, np.int32(out[y - 1, x]))
+        if y + 1 < H and done[y + 1, x]:
+            best = min(best, np.int32(out[y + 1, x]))
+        if best < (1 << 20):
+            out[y, x] = np.int16(best)
+
+
+@njit(**_JIT)
+def guided_fill_median(targets, cv, cw, out, g0, g1):
+    """Last step of the guided fill: each target pixel of ``out`` (H, W) int16 takes the
+    weighted median of its candidates ``cv``, ``cw`` (8, G) (kept as is when it has none);
+    targets ``g0 .. g1 - 1`` (threads take disjoint ranges)."""
+    W = out.shape[1]
+    n = cv.shape[0]
+    vals = np.empty(n, np.float32)
+    ws = np.empty(n, np.float32)
+    for g in range(g0, g1):
+        m = 0
+        tot = np.float32(0.0)
+        for k in range(n):
+            w = cw[k, g]
+            if w <= 0:
+                continue
+            u = cv[k, g]
+            i = m
+            while i > 0 and vals[i - 1] > u:
+                vals[i] = vals[i - 1]
+                ws[i] = ws[i - 1]
+                i -= 1
+            vals[i] = u
+            ws[i] = w
+            m += 1
+            tot += w
+        if m == 0:
+            continue
+        acc = np.float32(0.0)
+        for i in range(m):
+            acc += ws[i]
+            if acc >= np.float32(0.5) * tot:
+                t = targets[g]
+                y = t // W
+                out[y, t - y * W] = np.int16(vals[i])
+                break

@@ -14,8 +14,11 @@ Pipeline (grey images, see :func:`~skyrecon.stereo.base.prepare_pair`):
    processed on separate threads (paths start ``band_margin`` rows outside each band);
 4. winner-takes-all with equiangular (or parabola) sub-pixel refinement, optional
    uniqueness test, left-right consistency check;
-5. speckle removal, occlusion-aware filling (invalid runs take the farther of their two
-   row neighbours: occlusions belong to the background) and a 5x5 median filter.
+5. speckle removal, occlusion-aware filling (invalid runs of a row continue the surface of
+   the farther of their two neighbours, a line fitted to the valid pixels beyond it:
+   occlusions belong to the background, which may be slanted; then the pixels between the
+   two sides of a depth edge take a colour-guided weighted median of the valid pixels
+   around them, never nearer than that) and a 5x5 median filter.
 
 The ``fast`` setting runs the same at half resolution and upsamples (for obstacle detection
 at video rate). The matcher keeps its buffers between frames; the Numba kernels are compiled
@@ -51,6 +54,14 @@ from skyrecon.stereo.base import (
 _PATH_OFFSETS = {2: (0,), 4: (0, -1), 6: (0, -1, 1)}
 _MAX_BAND_BYTES = 256 << 20  # cost buffer of the bands in flight at once (one per thread)
 _SUBPIXEL = {"none": 0, "parabola": 1, "equiangular": 2}
+# guided fill (see _kernels.guided_fill_candidates), at full resolution: depth-edge gate (pixels),
+# guide-difference scale (8-bit levels, summed over colour channels), weight decay per
+# step, and the longest search per direction (pixels)
+_GUIDE_GATE = 3.0
+_GUIDE_SIGMA = 20.0
+_GUIDE_DECAY = 0.02
+_GUIDE_STEPS = 100
+_GUIDE_TARGETS_PER_THREAD = 16384
 
 
 @dataclass(frozen=True)
@@ -79,7 +90,16 @@ class SkyreconSettings:
         speckle_size: connected regions smaller than this many pixels (at full resolution)
             whose disparity differs from their surroundings are removed; 0 disables.
         speckle_range: largest disparity step inside one connected region, pixels.
-        fill: fill rejected pixels (the ``filled`` mask of the result marks them).
+        fill: fill rejected pixels (the ``filled`` mask of the result marks them): each invalid
+            run of a row continues the surface of its farther side (a line fitted to up to
+            ``fill_span`` valid pixels beyond it), see :func:`fill_invalid`.
+        fill_span: pixels (at full resolution) fitted beyond an invalid run; 0 fills with the
+            farther neighbour's value.
+        guided_fill: refill the invalid pixels between the two sides of a depth edge (row
+            neighbours more than 3 px apart) from the first valid pixel in each of 8
+            directions, weighted by colour likeness in the left image and distance (a
+            weighted median, never nearer than the row fill); None: on unless ``fast``.
+            Needs a disparity range that fits 16-bit fixed point (all but huge ranges).
         median: median filter size after filling: 0 (off), 3 or 5.
         band_margin: warm-up rows outside each thread's band of rows.
         threads: worker threads; None uses every core this process may run on.
@@ -99,6 +119,8 @@ class SkyreconSettings:
     speckle_size: int = 50
     speckle_range: float = 2.0
     fill: bool = True
+    fill_span: int = K.FILL_SPAN
+    guided_fill: bool | None = None
     median: int = 5
     band_margin: int = 32
     threads: int | None = None
@@ -141,6 +163,8 @@ class SkyreconSettings:
             raise InputError("settings speckle_size and speckle_range must be >= 0")
         if self.median not in (0, 1, 3, 5):
             raise InputError(f"setting median must be 0, 3 or 5, got {self.median!r}")
+        if self.fill_span < 0:
+            raise InputError(f"setting fill_span must be >= 0, got {self.fill_span}")
         if self.band_margin < 0:
             raise InputError(f"setting band_margin must be >= 0, got {self.band_margin}")
         if self.threads is not None and self.threads < 1:
@@ -222,26 +246,36 @@ def remove_speckles(disparity: np.ndarray, max_size: int, max_step_px: float) ->
     return disparity
 
 
-def fill_invalid(disparity: np.ndarray, threads: int = 1) -> np.ndarray:
-    """Fill NaN pixels from their row neighbours, taking the farther (smaller) disparity.
+def fill_invalid(disparity: np.ndarray, threads: int = 1, span: int = K.FILL_SPAN) -> np.ndarray:
+    """Fill NaN pixels from their row neighbours, continuing the farther (smaller) side.
 
     Invalid runs next to a depth edge are occlusions of the background, so the farther side
-    is the better guess. Rows with no valid pixel are then filled the same way along columns.
+    is the better guess; its surface is continued into the run along a line fitted to up to
+    ``span`` valid pixels beyond it (slanted backgrounds), never rising above the nearer
+    side nor falling below the smallest valid disparity (see ``_kernels._fill_rows``). Rows
+    with no valid pixel are then filled the same way along columns.
 
     Args:
         disparity: (H, W) float32, NaN invalid.
+        threads: worker threads.
+        span: pixels fitted beyond a run (0: constant fill with the farther neighbour).
     Returns:
         (H, W) float32 filled copy (NaN only if the whole map is invalid).
     """
     disp = np.ascontiguousarray(disparity, dtype=np.float32)
     out = np.empty_like(disp)
+    if not np.isfinite(disp).any():
+        out[:] = np.nan
+        return out
+    lo = float(np.nanmin(disp))
     H = disp.shape[0]
     parts = max(1, min(threads, H // 64))
-    _run_all([partial(K.fill_background, disp, out, a, b) for a, b in _bands(H, parts)])
+    fill = partial(K.fill_background, lo=lo, span=int(span), max_slope=K.FILL_MAX_SLOPE)
+    _run_all([partial(fill, disp, out, a, b) for a, b in _bands(H, parts)])
     if np.isnan(out).any():
         t = np.ascontiguousarray(out.T)
         t2 = np.empty_like(t)
-        K.fill_background(t, t2, 0, t.shape[0])
+        fill(t, t2, 0, t.shape[0])
         out = np.ascontiguousarray(t2.T)
     return out
 
@@ -300,6 +334,7 @@ class SkyreconMatcher:
         s = self.settings
         self._offsets = tuple(int(o) for o in _PATH_OFFSETS[s.paths])
         self._up_offsets = tuple(-o for o in self._offsets)
+        self._guided = bool(s.guided_fill if s.guided_fill is not None else not s.fast)
         self._ooi_cost = int(s.out_of_image_cost if s.out_of_image_cost is not None else s.census_bits // 3)
 
     # ----- buffers -------------------------------------------------------------------------
@@ -318,6 +353,7 @@ class SkyreconMatcher:
         self,
         gl: np.ndarray,
         gr: np.ndarray,
+        guide: np.ndarray | None,
         dmin: int,
         dmax: int,
         scale: int,
@@ -361,6 +397,8 @@ class SkyreconMatcher:
         fixed = self._buf("fixed", (H, W), np.int16)
         filled = self._buf("filled", (H, W), np.int16)
         do_fill = fs is not None and (s.fill or s.median > 1)
+        span = int(s.fill_span) // scale
+        fill_args = (float(fs or 1.0), float(dmin * (fs or 1.0)), span, K.FILL_MAX_SLOPE)
         task_ms: list[dict[str, float]] = [{} for _ in bands]
         n16, nu16, n8 = K.band_workspace_sizes(D, wp, len(self._offsets))
 
@@ -417,7 +455,7 @@ class SkyreconMatcher:
                 if speckle > 0:
                     cv2.filterSpeckles(fixed[a:b], K.INVALID16, speckle, speckle_step)
                 if do_fill:
-                    K.fill_background_fixed(fixed, filled, a, b)
+                    K.fill_background_fixed(fixed, filled, a, b, *fill_args)
             t3 = time.perf_counter()
             task_ms[i].update(census=(t1 - t0) * 1e3, sgm=(t2 - t1) * 1e3, post=(t3 - t2) * 1e3)
 
@@ -433,7 +471,7 @@ class SkyreconMatcher:
             measured = np.isfinite(work)
             out = work
             if (s.fill or s.median > 1) and measured.any():
-                f = fill_invalid(work, nthreads)
+                f = fill_invalid(work, nthreads, span)
                 if s.median > 1:
                     f = cv2.medianBlur(f, int(s.median))
                 out = f if s.fill else np.where(measured, f, np.float32(np.nan))
@@ -445,10 +483,12 @@ class SkyreconMatcher:
         result = fixed
         if do_fill and measured.any():
             result = filled
-            if (filled == K.INVALID16).any():  # rows without any match: fill along columns
-                t = np.ascontiguousarray(filled.T)
+            if guide is not None:
+                result = self._guided_fill(fixed, filled, guide, fs, scale, nthreads)
+            if (result == K.INVALID16).any():  # rows without any match: fill along columns
+                t = np.ascontiguousarray(result.T)
                 t2 = np.empty_like(t)
-                K.fill_background_fixed(t, t2, 0, t.shape[0])
+                K.fill_background_fixed(t, t2, 0, t.shape[0], *fill_args)
                 result = np.ascontiguousarray(t2.T)
             if s.median > 1:
                 result = cv2.medianBlur(result, int(s.median))
@@ -457,6 +497,53 @@ class SkyreconMatcher:
         K.from_fixed(result, keep, np.float32(1.0 / fs), out, 0, H)
         sw.lap("postprocess")
         return out, measured
+
+    def _guided_fill(
+        self, fixed: np.ndarray, filled: np.ndarray, guide: np.ndarray, fs: float, scale: int, nthreads: int
+    ) -> np.ndarray:
+        """The guided refill of the pixels between depth edges (see
+        ``_kernels.guided_fill_candidates``) of an (H, W) int16 fixed-point map (``fs`` per
+        pixel of disparity) at 1/``scale`` resolution; the 8 search directions, then the
+        target pixels, are shared among the threads. Half of the targets (a checkerboard)
+        are computed, the others take their smallest computed neighbour."""
+        H, W = fixed.shape
+        out = self._buf("guided", (H, W), np.int16)
+        rowptr = self._buf("rowptr", (H + 1,), np.int64)
+        targets, others = K.guided_fill_targets(fixed, filled, out, fs, _GUIDE_GATE / scale, rowptr)
+        if targets.size == 0:
+            return out
+        nd = len(K.GUIDE_DY)
+        cv = np.empty((nd, targets.size), np.float32)
+        cw = np.empty((nd, targets.size), np.float32)
+        # threads only pay off for many targets (handing work to the pool costs more than a
+        # few thousand targets under load)
+        parts = max(1, min(nthreads, nd, targets.size // _GUIDE_TARGETS_PER_THREAD))
+        args = (fs, _GUIDE_SIGMA, _GUIDE_DECAY * scale, _GUIDE_STEPS // scale)
+        tasks: list[Callable[[], Any]] = [
+            partial(
+                K.guided_fill_candidates,
+                fixed,
+                filled,
+                guide,
+                targets,
+                rowptr,
+                k0,
+                k1,
+                *args,
+                self._buf(f"nsteps@{i}", (H, W), np.int16),
+                cv,
+                cw,
+            )
+            for i, (k0, k1) in enumerate(_bands(nd, parts))
+        ]
+        _run_all(tasks)
+        G = targets.size
+        _run_all([partial(K.guided_fill_median, targets, cv, cw, out, a, b) for a, b in _bands(G, parts)])
+        done = self._buf("guided_done", (H, W), np.uint8)
+        done[:] = 0
+        done.reshape(-1)[targets] = 1
+        K.guided_fill_spread(others, done, out)
+        return out
 
     def compute(self, left: np.ndarray, right: np.ndarray) -> DisparityResult:
         """Disparity of a rectified pair.
@@ -493,7 +580,13 @@ class SkyreconMatcher:
                 dmax = dmin + w2 - 1
         sw.lap("prepare")
 
-        out, measured = self._match(gl, gr, dmin, dmax, scale, sw, diag)
+        guide = None
+        if self._guided:  # the left image (colour when given), smoothed, at matching resolution
+            guide = pair.left_rgb if pair.left_rgb is not None else pair.left_grey
+            if scale != 1:
+                guide = cv2.resize(guide, (gl.shape[1], gl.shape[0]), interpolation=cv2.INTER_AREA)
+            guide = cv2.blur(guide, (3, 3)).reshape(gl.shape[0], gl.shape[1], -1)
+        out, measured = self._match(gl, gr, guide, dmin, dmax, scale, sw, diag)
         if scale != 1:
             out = _upsample2(out, (W, H))
             measured = cv2.resize(measured.view(np.uint8), (W, H), interpolation=cv2.INTER_NEAREST).astype(
@@ -515,6 +608,13 @@ class SkyreconMatcher:
         img = rng.integers(0, 255, (48, 64), dtype=np.uint8)
         m = SkyreconMatcher(16, settings=replace(self.settings, fast=False))
         m.compute(img, np.roll(img, -3, axis=1))
+        if m._guided:  # a tiny pair may have no depth edge: run the guided fill on its own
+            fixed = np.full((8, 16), K.INVALID16, np.int16)
+            fixed[:, :4] = 320
+            fixed[:, 12:] = 64
+            filled = np.empty_like(fixed)
+            K.fill_background_fixed(fixed, filled, 0, 8, 32.0, 0.0, 8, K.FILL_MAX_SLOPE)
+            m._guided_fill(fixed, filled, np.zeros((8, 16, 1), np.uint8), 32.0, 1, 1)
 
 
 def _factory(fast: bool) -> Callable[..., SkyreconMatcher]:
