@@ -51,6 +51,7 @@ from skyrecon.core.stereo_rig import StereoRig
 from skyrecon.errors import InputError
 from skyrecon.mapping.config import MapConfig
 from skyrecon.mapping.depth_sequence import FrameTimings
+from skyrecon.mapping.frame_support import FrameSupport
 from skyrecon.mapping.occupancy import IntegrationStats, OccupancyMap
 from skyrecon.perception import PerceptionSettings, StereoDepth
 from skyrecon.stereo import Matcher
@@ -70,6 +71,10 @@ class StereoMapSettings:
         perception: the stereo-to-depth rules (matcher, measured pixels, discontinuity filter,
             resolution, trusted range); default :meth:`PerceptionSettings.mapping`.
         prob_hit, prob_miss: the map's sensor model (see :class:`MapConfig`).
+        guess_min_frames: with ``perception.guesses``, the matcher's untrusted values (filled,
+            or smoothed over plain surfaces) become hits, never free space, in the voxels that
+            the guesses of at least this many frames fall into (:class:`FrameSupport`);
+            0: not used.
     """
 
     voxel_size_m: float = 0.2
@@ -77,12 +82,15 @@ class StereoMapSettings:
     perception: PerceptionSettings = field(default_factory=PerceptionSettings.mapping)
     prob_hit: float = 0.6
     prob_miss: float = 0.35
+    guess_min_frames: int = 3
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.voxel_size_m) and self.voxel_size_m > 0):
             raise InputError(f"voxel size must be positive, got {self.voxel_size_m} m")
         if not (np.isfinite(self.max_range_m) and self.max_range_m > 0):
             raise InputError(f"max range must be positive, got {self.max_range_m} m")
+        if self.guess_min_frames != 0 and self.guess_min_frames < 2:
+            raise InputError(f"guess_min_frames must be 0 (off) or at least 2, got {self.guess_min_frames}")
 
     def with_overrides(self, **overrides: Any) -> StereoMapSettings:
         """A copy with fields replaced; names of :class:`PerceptionSettings` fields (e.g.
@@ -130,6 +138,7 @@ class StereoMapper:
     Attributes:
         map: the :class:`OccupancyMap` being built (range = :meth:`StereoMapSettings.hit_range_m`).
         stereo: the :class:`StereoDepth` stage.
+        support: the :class:`FrameSupport` of the guesses, or None.
         timings: per-frame wall times.
     """
 
@@ -158,6 +167,11 @@ class StereoMapper:
             prob_miss=s.prob_miss,
         )
         self.map = OccupancyMap(MapConfig.from_dict(base))
+        self.support = (
+            FrameSupport(self.map, s.guess_min_frames, self.hit_range_m)
+            if s.guess_min_frames and s.perception.guesses
+            else None
+        )
         self.timings = FrameTimings()
 
     @property
@@ -179,9 +193,12 @@ class StereoMapper:
     ) -> StereoFrameResult:
         """Stereo depth of one rectified pair, integrated at pose ``world_from_left`` (world metres)."""
         t0 = time.perf_counter()
-        depth = self.depth(left, right)
+        frame = self.stereo.compute(left, right)
+        depth = frame.depth_m
         t1 = time.perf_counter()
         stats = self.map.integrate_depth(depth, self.stereo.intrinsics, world_from_left)
+        if self.support is not None and frame.guess_depth_m is not None:
+            self.support.add(frame.guess_depth_m, self.stereo.intrinsics, world_from_left)
         t2 = time.perf_counter()
         self.timings.depth_s.append(t1 - t0)
         self.timings.integrate_s.append(t2 - t1)

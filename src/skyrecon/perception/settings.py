@@ -57,6 +57,8 @@ class PerceptionSettings:
             (bounded by foreground and background) or the sky above a roof line does not.
         plane_tolerance_px: inlier band of the plane fit, pixels of disparity.
         plane_min_inlier_fraction: share of the bordering measured pixels that must be inliers.
+        guesses: also return the depth of the matcher's values that are not kept (see
+            :attr:`DepthFrame.guess_depth_m`), for evidence that needs several frames.
     """
 
     method: str = "skyrecon"
@@ -74,6 +76,7 @@ class PerceptionSettings:
     plane_fill: bool = False
     plane_tolerance_px: float = 0.3
     plane_min_inlier_fraction: float = 0.7
+    guesses: bool = False
 
     def __post_init__(self) -> None:
         if not int(self.max_disparity) > 0:
@@ -108,7 +111,7 @@ class PerceptionSettings:
         >= 1 over 7x7), plain segments bounded by one measured plane filled with it
         (``plane_fill``), sky dropped, obstacles within the trusted range of 2 voxels of depth
         error. Keyword overrides on top."""
-        return replace(cls(min_texture=0.5, plane_fill=True), **overrides)
+        return replace(cls(min_texture=0.5, plane_fill=True, guesses=True), **overrides)
 
     @classmethod
     def flight(cls, **overrides: Any) -> PerceptionSettings:

@@ -67,17 +67,21 @@ def texture_masks(
         min_gradient: grey levels per pixel (0-255 scale).
         window_px: side of the averaging window, pixels.
     Returns:
-        ``(matchable, edges)``, (H, W) bool: the mean absolute horizontal grey-level gradient over
-        the window is at least ``min_gradient`` (texture along the epipolar lines: a horizontal
-        edge alone, such as the top of a wall against the sky, matches anywhere along a row);
-        the mean of the horizontal plus vertical one is (any edge).
+        ``(matchable, edges, on_edge)``, (H, W) bool: the mean absolute horizontal grey-level
+        gradient over the window is at least ``min_gradient`` (texture along the epipolar lines:
+        a horizontal edge alone, such as the top of a wall against the sky, matches anywhere
+        along a row); the mean of the horizontal plus vertical one is (any edge); the pixel's
+        own horizontal gradient is at least ``window_px * min_gradient`` (the pixel is on the
+        texture, not beside it: a window with a single edge gives the pixels around the edge
+        the edge's disparity).
     """
     g = to_grey(np.asarray(image)).astype(np.float32)
     k = (int(window_px), int(window_px))
-    gx = cv2.boxFilter(np.abs(cv2.Sobel(g, cv2.CV_32F, 1, 0, ksize=1)), -1, k)
+    ax = np.abs(cv2.Sobel(g, cv2.CV_32F, 1, 0, ksize=1))
+    gx = cv2.boxFilter(ax, -1, k)
     gy = cv2.boxFilter(np.abs(cv2.Sobel(g, cv2.CV_32F, 0, 1, ksize=1)), -1, k)
     t = np.float32(2.0 * min_gradient)  # a ksize=1 Sobel is twice the central difference per pixel
-    return gx >= t, gx + gy >= t
+    return gx >= t, gx + gy >= t, ax >= t * np.float32(window_px)
 
 
 @dataclass(eq=False)
@@ -93,6 +97,9 @@ class DepthFrame:
         measured_fraction: share of pixels with a measured disparity.
         stereo_ms: wall-clock milliseconds of matching and conversion.
         plane_fraction: share of pixels that got a plane-supported disparity (``plane_fill``).
+        guess_depth_m: with ``guesses``, (h, w) float32 depth of the matcher's values that
+            ``depth_m`` does not keep (filled, or measured on no texture), away from depth
+            edges, metres; NaN elsewhere. Evidence of a surface, but not of free space.
     """
 
     depth_m: np.ndarray
@@ -101,6 +108,7 @@ class DepthFrame:
     measured_fraction: float
     stereo_ms: float
     plane_fraction: float = 0.0
+    guess_depth_m: np.ndarray | None = None
 
 
 class StereoDepth:
@@ -144,11 +152,13 @@ class StereoDepth:
         measured = result.measured
         textured = None
         if s.min_texture is not None:
-            matchable, textured = texture_masks(left, s.min_texture, s.texture_window_px)
+            matchable, textured, _ = texture_masks(left, s.min_texture, s.texture_window_px)
             measured = measured & matchable
         keep = result.valid if s.use_filled else measured
+        edge = None
         if s.max_disparity_step_px is not None:
-            keep = keep & ~disparity_discontinuities(result.disparity, s.max_disparity_step_px)
+            edge = disparity_discontinuities(result.disparity, s.max_disparity_step_px)
+            keep = keep & ~edge
         disp = result.disparity
         plane = 0.0
         if s.plane_fill and not s.use_filled:
@@ -156,6 +166,8 @@ class StereoDepth:
                 disp,
                 measured,
                 boundary=textured,
+                left=to_grey(np.asarray(left)),
+                right=to_grey(np.asarray(right)),
                 tolerance_px=s.plane_tolerance_px,
                 min_inlier_fraction=s.plane_min_inlier_fraction,
                 max_step_px=s.max_disparity_step_px or 1.0,
@@ -164,16 +176,23 @@ class StereoDepth:
             keep = keep | accepted
             plane = float(accepted.mean())
         k = self.stride
-        disp = disp[::k, ::k]
-        keep = keep[::k, ::k]
-        # disparities stay in full-resolution pixels, so the full rig converts them
-        depth = self.rig.disparity_to_depth(np.where(keep, disp, np.float32(np.nan)))
-        if s.sky_is_free:
-            with np.errstate(invalid="ignore"):
-                depth[keep & (disp + self.rig.doffs_px <= 0)] = np.inf
-        depth = np.ascontiguousarray(depth, dtype=np.float32)
+        guess = None
+        if s.guesses:
+            # the matcher's other values (filled, or smoothed over plain surfaces): not depth edges
+            g = result.valid & ~keep if edge is None else result.valid & ~keep & ~edge
+            guess = self._depth(np.where(g, disp, np.float32(np.nan))[::k, ::k], False)
+        depth = self._depth(np.where(keep, disp, np.float32(np.nan))[::k, ::k], s.sky_is_free)
         ms = 1e3 * (time.perf_counter() - t0)
-        return DepthFrame(depth, self.intrinsics, result.disparity, float(measured.mean()), ms, plane)
+        return DepthFrame(depth, self.intrinsics, result.disparity, float(measured.mean()), ms, plane, guess)
+
+    def _depth(self, disp: np.ndarray, sky_is_free: bool) -> np.ndarray:
+        """(h, w) float32 depth of full-resolution disparities (NaN kept), metres; with
+        ``sky_is_free``, +inf where ``d + doffs <= 0``."""
+        depth = self.rig.disparity_to_depth(disp)
+        if sky_is_free:
+            with np.errstate(invalid="ignore"):
+                depth[np.isfinite(disp) & (disp + self.rig.doffs_px <= 0)] = np.inf
+        return np.ascontiguousarray(depth, dtype=np.float32)
 
     def depth(self, left: np.ndarray, right: np.ndarray) -> np.ndarray:
         """(h, w) float32 depth of one pair, metres (see :meth:`compute`)."""

@@ -92,9 +92,13 @@ def _border_pairs(disparity, trusted, labels, radius):  # pragma: no cover - com
 
 
 @njit(cache=True)
-def _solve_plane(S, Bv, lab, min_spread, coef):  # pragma: no cover - compiled
+def _solve_plane(S, Bv, lab, min_spread, span_u, span_v, max_slope, coef):  # pragma: no cover - compiled
     """Least-squares plane of segment ``lab`` from its sums into ``coef[lab]``; False when its
-    support is not spread in two directions (smallest std of (u, v) below ``min_spread``)."""
+    support is not spread in two directions (smallest std of (u, v) along any direction below
+    ``min_spread`` or below the smaller of ``span_u`` and ``span_v``: one edge, even a diagonal
+    one, does not fix a plane) or
+    does not span the segment (std of u below ``span_u``, of v below ``span_v``, pixels), or
+    when the plane's disparity changes along rows by more than ``max_slope`` pixels per pixel."""
     k = S[lab, 5]
     mu = S[lab, 3] / k
     mv = S[lab, 4] / k
@@ -103,7 +107,8 @@ def _solve_plane(S, Bv, lab, min_spread, coef):  # pragma: no cover - compiled
     cvv = S[lab, 2] / k - mv * mv
     half = 0.5 * (cuu + cvv)
     lam = half - np.sqrt(max(half * half - (cuu * cvv - cuv * cuv), 0.0))
-    if lam < min_spread * min_spread:
+    spread = max(min_spread, min(span_u, span_v))
+    if lam < spread * spread or cuu < span_u * span_u or cvv < span_v * span_v:
         return False
     A = np.empty((3, 3))
     A[0, 0] = S[lab, 0]
@@ -116,7 +121,60 @@ def _solve_plane(S, Bv, lab, min_spread, coef):  # pragma: no cover - compiled
     A[2, 1] = S[lab, 4]
     A[2, 2] = k
     coef[lab] = np.linalg.solve(A, Bv[lab])
-    return True
+    return abs(coef[lab, 0]) <= max_slope
+
+
+@njit(cache=True)
+def _ransac_planes(
+    pu, pv, pd, pl, n, tolerance, tolerance_rel, min_support, trials, max_eval
+):  # pragma: no cover
+    """Per segment: the plane through 3 of its border pairs that most others agree with
+    (``trials`` deterministic samples, each scored on at most ``max_eval`` pairs); (n, 3)
+    coefficients and (n,) found."""
+    order = np.argsort(pl, kind="mergesort")
+    coef = np.zeros((n, 3))
+    found = np.zeros(n, np.bool_)
+    npair = pl.shape[0]
+    start = 0
+    state = np.uint64(88172645463325252)
+    while start < npair:
+        lab = pl[order[start]]
+        stop = start
+        while stop < npair and pl[order[stop]] == lab:
+            stop += 1
+        m = stop - start
+        if m >= min_support:
+            step = max(1, m // max_eval)
+            best = -1
+            for _ in range(trials):
+                idx = np.empty(3, np.int64)
+                for q in range(3):  # xorshift64: deterministic samples
+                    state ^= state << np.uint64(13)
+                    state ^= state >> np.uint64(7)
+                    state ^= state << np.uint64(17)
+                    idx[q] = order[start + int(state % np.uint64(m))]
+                u0, v0, d0 = pu[idx[0]], pv[idx[0]], pd[idx[0]]
+                u1, v1, d1 = pu[idx[1]] - u0, pv[idx[1]] - v0, pd[idx[1]] - d0
+                u2, v2, d2 = pu[idx[2]] - u0, pv[idx[2]] - v0, pd[idx[2]] - d0
+                det = u1 * v2 - u2 * v1
+                if abs(det) < 25.0:  # (nearly) collinear, or too close together
+                    continue
+                a = (d1 * v2 - d2 * v1) / det
+                b = (u1 * d2 - u2 * d1) / det
+                c = d0 - a * u0 - b * v0
+                score = 0
+                for k in range(start, stop, step):
+                    j = order[k]
+                    if abs(a * pu[j] + b * pv[j] + c - pd[j]) <= tolerance + tolerance_rel * abs(pd[j]):
+                        score += 1
+                if score > best:
+                    best = score
+                    coef[lab, 0] = a
+                    coef[lab, 1] = b
+                    coef[lab, 2] = c
+                    found[lab] = True
+        start = stop
+    return coef, found
 
 
 @njit(cache=True)
@@ -129,20 +187,24 @@ def _segment_planes(
     cu,
     cv,
     open_sides,
+    span_u,
+    span_v,
     tolerance,
     tolerance_rel,
     min_support,
     min_inliers,
     min_side,
     min_spread,
+    max_slope,
     n_iter,
+    coef,
+    ok,
 ):  # pragma: no cover - compiled
-    """Per segment (label 1..n-1): a plane ``d = a u + b v + c`` fitted to its border pairs,
-    refitted on the inliers of a band narrowing to ``tolerance + tolerance_rel * d``; (n, 3) coefficients and (n,)
-    accepted. ``open_sides`` (n, 4) bool: the segment reaches the image border on that side
-    (left, right, top, bottom), which then needs no support."""
-    coef = np.zeros((n, 3))
-    ok = np.zeros(n, np.bool_)
+    """Per segment (label 1..n-1) with a first plane ``d = a u + b v + c`` in ``coef`` (``ok``):
+    refit it by least squares on the border pairs within a band narrowing to ``tolerance +
+    tolerance_rel * d`` (2^(n_iter - 1) times that, ..., once), and decide; returns (n, 3)
+    coefficients and (n,) accepted. ``open_sides`` (n, 4) bool: the segment reaches the image
+    border on that side (left, right, top, bottom), which then needs no support."""
     total = np.zeros(n)
     for k in range(pl.shape[0]):
         total[pl[k]] += 1.0
@@ -158,12 +220,11 @@ def _segment_planes(
             u = pu[k]
             v = pv[k]
             d = pd[k]
-            if it > 0:
-                band = scale * (tolerance + tolerance_rel * abs(d))
-                if not ok[lab] or abs(coef[lab, 0] * u + coef[lab, 1] * v + coef[lab, 2] - d) > band:
-                    continue
-                side[lab, 0 if u < cu[lab] else 1] += 1.0
-                side[lab, 2 if v < cv[lab] else 3] += 1.0
+            band = scale * (tolerance + tolerance_rel * abs(d))
+            if not ok[lab] or abs(coef[lab, 0] * u + coef[lab, 1] * v + coef[lab, 2] - d) > band:
+                continue
+            side[lab, 0 if u < cu[lab] else 1] += 1.0
+            side[lab, 2 if v < cv[lab] else 3] += 1.0
             S[lab, 0] += u * u
             S[lab, 1] += u * v
             S[lab, 2] += v * v
@@ -174,10 +235,12 @@ def _segment_planes(
             Bv[lab, 1] += v * d
             Bv[lab, 2] += d
         for lab in range(1, n):
-            if it > 0 and not ok[lab]:
+            if not ok[lab]:
                 continue  # no fit to refine
             k = S[lab, 5]
-            ok[lab] = k >= min_support and _solve_plane(S, Bv, lab, min_spread, coef)
+            ok[lab] = k >= min_support and _solve_plane(
+                S, Bv, lab, min_spread, span_u[lab], span_v[lab], max_slope, coef
+            )
             if ok[lab] and it == last:
                 bounded = True
                 for q in range(4):
@@ -185,6 +248,54 @@ def _segment_planes(
                         bounded = False
                 ok[lab] = bounded and k >= min_inliers * total[lab]
     return coef, ok
+
+
+@njit(cache=True)
+def _photo_check(labels, ok, coef, left, right, max_diff, max_bad, min_count):  # pragma: no cover
+    """Refuse (in ``ok``) the planes that do not map their segment onto the right image.
+
+    Per row run of a segment, from each of its two ends walk outwards (at most 8 pixels) over
+    pixels of the end's grey level (within 3): the plain surface reaches there, to about a
+    pixel from its edge. The pixel one step back in from the farthest is looked up in the right
+    image at ``u - d`` (the plane's disparity, linear interpolation): with the right plane it
+    shows the same surface, with a plane off by more than about 2 pixels of disparity it shows
+    what lies beyond the edge. A plane is refused when more than ``max_bad`` of its (at least
+    ``min_count``) run ends differ by more than ``max_diff`` grey levels.
+    """
+    H, W = labels.shape
+    n = ok.shape[0]
+    bad = np.zeros(n)
+    cnt = np.zeros(n)
+    for r in range(H):
+        for c in range(W):
+            lab = labels[r, c]
+            if lab <= 0 or not ok[lab]:
+                continue
+            for step in (-1, 1):
+                nxt = c + step
+                if 0 <= nxt < W and labels[r, nxt] == lab:
+                    continue  # not an end of the run on this side
+                g = left[r, c]
+                far = c
+                for k in range(1, 9):
+                    x = c + step * k
+                    if x < 0 or x >= W or abs(left[r, x] - g) > 3.0:
+                        break
+                    far = x
+                test = far - step if far != c else c
+                q = test - (coef[lab, 0] * test + coef[lab, 1] * r + coef[lab, 2])
+                if q < 0.0 or q > W - 1:
+                    continue
+                q0 = int(q)
+                t = q - q0
+                q1 = min(q0 + 1, W - 1)
+                val = (1.0 - t) * right[r, q0] + t * right[r, q1]
+                cnt[lab] += 1.0
+                if abs(val - left[r, test]) > max_diff:
+                    bad[lab] += 1.0
+    for lab in range(1, n):
+        if ok[lab] and cnt[lab] >= min_count and bad[lab] > max_bad * cnt[lab]:
+            ok[lab] = False
 
 
 @njit(cache=True)
@@ -205,6 +316,9 @@ def plane_supported_fill(
     measured: np.ndarray,
     *,
     boundary: np.ndarray | None = None,
+    support: np.ndarray | None = None,
+    left: np.ndarray | None = None,
+    right: np.ndarray | None = None,
     tolerance_px: float = 0.3,
     tolerance_rel: float = 0.03,
     max_step_px: float = 1.0,
@@ -214,6 +328,8 @@ def plane_supported_fill(
     min_inlier_fraction: float = 0.7,
     min_side_fraction: float = 0.1,
     min_spread_px: float = 3.0,
+    min_span_fraction: float = 0.15,
+    max_slope: float = 0.5,
     open_borders: bool = True,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Disparity of unmeasured segments whose measured border is one plane.
@@ -229,7 +345,15 @@ def plane_supported_fill(
     least ``min_inlier_fraction`` of them are inliers (a border that mixes a foreground and a
     background, as around an occluded strip, is not one plane), the inliers are spread in two
     directions (smallest standard deviation of their pixel coordinates at least
-    ``min_spread_px``: a single edge does not fix a plane) and they lie on all four sides of the
+    ``min_spread_px`` and ``min_span_fraction`` of the segment's smaller side, along any
+    direction: a single edge, even a diagonal one, does not fix a plane) and span the segment
+    (standard deviation of their columns at least ``min_span_fraction`` of the segment's width,
+    of their rows of its height: a plane is interpolated, not extrapolated far from its
+    support), and
+    the plane's disparity changes along rows by at most ``max_slope`` pixels per pixel (a
+    surface seen by both cameras changes by less than 1; a "plane" joining a background to a
+    foreground across the strip the right camera cannot see changes by about 1), and they lie
+    on all four sides of the
     segment's centroid (each side at least ``min_side_fraction`` of them: a region the border
     bounds on one side only, like the sky above a roof line, is not bounded). With
     ``open_borders``, a side where the segment runs into the left, right or bottom image border
@@ -247,6 +371,12 @@ def plane_supported_fill(
         measured: (H, W) bool, True where the disparity is measured.
         boundary: optional (H, W) bool, more pixels that separate segments (e.g. textured
             pixels of the image, measured or not).
+        support: optional (H, W) bool, the measured pixels that may support a plane (e.g. those
+            right on an image edge, whose disparity is their own and not that of an edge
+            nearby); None: all trusted ones.
+        left, right: optional (H, W) grey images of the rectified pair (0-255): then a plane
+            must also map its segment onto the right image, edge to edge (a plain roof whose
+            border took the disparity of the textured street beyond it is refused).
     Returns:
         ``(filled, accepted)``: (H, W) float32 disparity, pixels, equal to ``disparity`` on the
         measured pixels, the plane's disparity on the accepted ones and NaN elsewhere; (H, W)
@@ -269,6 +399,8 @@ def plane_supported_fill(
     if n <= 1:
         return out, accepted
     trusted = _trusted(d, m, np.float32(max_step_px))
+    if support is not None:
+        trusted &= np.asarray(support, dtype=np.bool_)
     pu, pv, pd, pl = _border_pairs(d, trusted, labels, int(radius_px) + int(seal_px))
     H, W = d.shape
     x0, y0, w, h = (stats[:, i] for i in range(4))
@@ -278,6 +410,9 @@ def plane_supported_fill(
         open_sides[:, 0] = x0 <= reach
         open_sides[:, 1] = x0 + w >= W - reach
         open_sides[:, 3] = y0 + h >= H - reach  # never the top: an open top is likely sky
+    coef, ok = _ransac_planes(
+        pu, pv, pd, pl, n, float(tolerance_px), float(tolerance_rel), float(min_support), 64, 256
+    )
     coef, ok = _segment_planes(
         pu,
         pv,
@@ -287,13 +422,24 @@ def plane_supported_fill(
         np.ascontiguousarray(centroids[:, 0]),
         np.ascontiguousarray(centroids[:, 1]),
         open_sides,
+        min_span_fraction * w.astype(np.float64),
+        min_span_fraction * h.astype(np.float64),
         float(tolerance_px),
         float(tolerance_rel),
         float(min_support),
         float(min_inlier_fraction),
         float(min_side_fraction),
         float(min_spread_px),
-        3,
+        float(max_slope),
+        2,
+        coef,
+        ok,
     )
+    if left is not None and right is not None:
+        gl = np.ascontiguousarray(left, dtype=np.float32)
+        gr = np.ascontiguousarray(right, dtype=np.float32)
+        if gl.shape != d.shape or gr.shape != d.shape:
+            raise InputError(f"grey images must be {d.shape}, got {gl.shape} and {gr.shape}")
+        _photo_check(labels, ok, coef, gl, gr, 8.0, 0.25, 10.0)
     _paint_planes(labels, coef, ok, out, accepted)
     return out, accepted
