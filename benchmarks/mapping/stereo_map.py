@@ -315,7 +315,7 @@ def main() -> None:
     ap.add_argument(
         "--baseline-settings",
         action="store_true",
-        help="also run skyrecon with the settings before plane filling (min_texture none, plane_fill off)",
+        help="also run skyrecon with the settings before this change (no texture rule, plane fill or guesses)",
     )
     ap.add_argument(
         "--set", action="append", default=[], metavar="NAME=VALUE", help="override a skyrecon map setting"
@@ -337,7 +337,7 @@ def main() -> None:
     plain_seeds = list(args.plain_seeds) or ([3, 7, 11] if args.plain else [])
     variants = {"skyrecon": dict(parse_setting(t) for t in args.set)}
     if args.baseline_settings:
-        variants["skyrecon-before"] = {"min_texture": None, "plane_fill": False}
+        variants["skyrecon-before"] = {"min_texture": None, "plane_fill": False, "guess_min_frames": 0}
     cases = ([] if args.no_textured else [(args.seed, False)]) + [(s, True) for s in plain_seeds]
     print(
         f"voxel {args.voxel} m, max range {args.max_range} m, baseline {args.baseline} m; "

@@ -103,3 +103,27 @@ def test_bad_input():
         plane_supported_fill(d, np.ones((10, 10), bool), boundary=np.ones((9, 10), bool))
     out, accepted = plane_supported_fill(d, np.ones((10, 10), bool))
     assert not accepted.any() and (out == 0).all()
+
+
+def test_a_plane_that_does_not_map_onto_the_right_image_is_refused():
+    # a plain square (disparity 12) in front of a textured wall (disparity 4); the matcher
+    # measured only the texture, and the pixels at the square's border took the wall's
+    # disparity (the only texture in their window): the border says "wall plane", wrongly
+    rng = np.random.default_rng(1)
+    wall = rng.uniform(40, 220, (H, W + 40)).astype(np.float32)
+    r0, r1, c0, c1, d_sq, d_wall = 30, 90, 60, 120, 12, 4
+    left = wall[:, 20 : 20 + W].copy()
+    right = wall[:, 20 + d_wall : 20 + d_wall + W].copy()  # x_right = x_left - d
+    left[r0:r1, c0:c1] = 128.0
+    right[r0:r1, c0 - d_sq : c1 - d_sq] = 128.0
+    disp = np.full((H, W), float(d_wall), np.float32)
+    measured = _hole(r0, r1, c0, c1)
+    _, wrong = plane_supported_fill(disp, measured)
+    assert wrong[r0 + 3 : r1 - 3, c0 + 3 : c1 - 3].all()  # geometry alone cannot tell
+    _, accepted = plane_supported_fill(disp, measured, left=left, right=right)
+    assert not accepted.any()
+    # the right plane (the square's border measured at its own disparity) passes the check
+    disp[~measured] = np.nan
+    disp[r0 - 3 : r1 + 3, c0 - 3 : c1 + 3][measured[r0 - 3 : r1 + 3, c0 - 3 : c1 + 3]] = float(d_sq)
+    _, right_plane = plane_supported_fill(disp, measured, left=left, right=right)
+    assert right_plane[r0 + 3 : r1 - 3, c0 + 3 : c1 - 3].all()
