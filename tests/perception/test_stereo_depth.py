@@ -50,7 +50,7 @@ def test_mapping_preset_keeps_textured_measurements_and_plane_supported_segments
     rig, f = pair
     frame = StereoDepth(rig, PerceptionSettings.mapping()).compute(f.left, f.right)
     result = create_matcher("skyrecon", 128, uniqueness=0.05).compute(f.left, f.right)
-    matchable, edges, _ = texture_masks(f.left, 0.5)
+    matchable, edges = texture_masks(f.left, 0.5)
     measured = result.measured & matchable
     edge = disparity_discontinuities(result.disparity, 1.0)
     keep = measured & ~edge

@@ -67,21 +67,17 @@ def texture_masks(
         min_gradient: grey levels per pixel (0-255 scale).
         window_px: side of the averaging window, pixels.
     Returns:
-        ``(matchable, edges, on_edge)``, (H, W) bool: the mean absolute horizontal grey-level
-        gradient over the window is at least ``min_gradient`` (texture along the epipolar lines:
-        a horizontal edge alone, such as the top of a wall against the sky, matches anywhere
-        along a row); the mean of the horizontal plus vertical one is (any edge); the pixel's
-        own horizontal gradient is at least ``window_px * min_gradient`` (the pixel is on the
-        texture, not beside it: a window with a single edge gives the pixels around the edge
-        the edge's disparity).
+        ``(matchable, edges)``, (H, W) bool: the mean absolute horizontal grey-level gradient over
+        the window is at least ``min_gradient`` (texture along the epipolar lines: a horizontal
+        edge alone, such as the top of a wall against the sky, matches anywhere along a row);
+        the mean of the horizontal plus vertical one is (any edge).
     """
     g = to_grey(np.asarray(image)).astype(np.float32)
     k = (int(window_px), int(window_px))
-    ax = np.abs(cv2.Sobel(g, cv2.CV_32F, 1, 0, ksize=1))
-    gx = cv2.boxFilter(ax, -1, k)
+    gx = cv2.boxFilter(np.abs(cv2.Sobel(g, cv2.CV_32F, 1, 0, ksize=1)), -1, k)
     gy = cv2.boxFilter(np.abs(cv2.Sobel(g, cv2.CV_32F, 0, 1, ksize=1)), -1, k)
     t = np.float32(2.0 * min_gradient)  # a ksize=1 Sobel is twice the central difference per pixel
-    return gx >= t, gx + gy >= t, ax >= t * np.float32(window_px)
+    return gx >= t, gx + gy >= t
 
 
 @dataclass(eq=False)
@@ -152,7 +148,7 @@ class StereoDepth:
         measured = result.measured
         textured = None
         if s.min_texture is not None:
-            matchable, textured, _ = texture_masks(left, s.min_texture, s.texture_window_px)
+            matchable, textured = texture_masks(left, s.min_texture, s.texture_window_px)
             measured = measured & matchable
         keep = result.valid if s.use_filled else measured
         edge = None

@@ -316,7 +316,6 @@ def plane_supported_fill(
     measured: np.ndarray,
     *,
     boundary: np.ndarray | None = None,
-    support: np.ndarray | None = None,
     left: np.ndarray | None = None,
     right: np.ndarray | None = None,
     tolerance_px: float = 0.3,
@@ -371,9 +370,6 @@ def plane_supported_fill(
         measured: (H, W) bool, True where the disparity is measured.
         boundary: optional (H, W) bool, more pixels that separate segments (e.g. textured
             pixels of the image, measured or not).
-        support: optional (H, W) bool, the measured pixels that may support a plane (e.g. those
-            right on an image edge, whose disparity is their own and not that of an edge
-            nearby); None: all trusted ones.
         left, right: optional (H, W) grey images of the rectified pair (0-255): then a plane
             must also map its segment onto the right image, edge to edge (a plain roof whose
             border took the disparity of the textured street beyond it is refused).
@@ -391,16 +387,14 @@ def plane_supported_fill(
     accepted = np.zeros(d.shape, np.bool_)
     # measured (and boundary) pixels, thickened by ``seal_px`` on each side, separate the
     # segments: a gap of up to 2 seal_px pixels in an outline does not join a wall to the sky
-    sep = m if boundary is None else m | np.asarray(boundary, dtype=np.bool_)
-    sep = np.ascontiguousarray(sep).view(np.uint8)
+    walls = m if boundary is None else m | np.asarray(boundary, dtype=np.bool_)
+    sep: np.ndarray = np.ascontiguousarray(walls).view(np.uint8)
     if seal_px > 0:
         sep = cv2.dilate(sep, np.ones((2 * seal_px + 1, 2 * seal_px + 1), np.uint8))
     n, labels, stats, centroids = cv2.connectedComponentsWithStats(1 - sep, connectivity=4, ltype=cv2.CV_32S)
     if n <= 1:
         return out, accepted
     trusted = _trusted(d, m, np.float32(max_step_px))
-    if support is not None:
-        trusted &= np.asarray(support, dtype=np.bool_)
     pu, pv, pd, pl = _border_pairs(d, trusted, labels, int(radius_px) + int(seal_px))
     H, W = d.shape
     x0, y0, w, h = (stats[:, i] for i in range(4))
