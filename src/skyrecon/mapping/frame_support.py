@@ -6,7 +6,8 @@ wall's edges), and it says nothing about the space in front of it, so it may nev
 space. But where the guesses of several frames, seen from different places, fall into the same
 voxel, a surface there is likely. :class:`FrameSupport` counts, per voxel, the frames whose
 guesses hit it; once ``min_frames`` frames have, each further guess is a hit (without rays) in
-the map, unless the map already knows the voxel as free (trusted rays passed through it).
+the map, unless the map already knows the voxel as free (trusted rays passed through it) or
+(``next_to_occupied``) none of its neighbours is occupied.
 
 Frames and units: depth (H, W) float32 metres along the camera's optical axis; poses
 ``world_from_cam`` (world frame, z up, metres); voxel indices ``floor(p / voxel_size)``.
@@ -20,9 +21,12 @@ from skyrecon.core.intrinsics import Intrinsics
 from skyrecon.core.rigid import Rigid3
 from skyrecon.errors import InputError
 from skyrecon.mapping.inputs import as_world_from_cam
-from skyrecon.mapping.occupancy import FREE, OccupancyMap
+from skyrecon.mapping.occupancy import FREE, OCCUPIED, OccupancyMap
 
 _OFF = 1 << 20  # voxel indices within +-2^20 pack into 21 bits per axis
+_NEIGHBOURS = np.array(
+    [(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1) if (i, j, k) != (0, 0, 0)], float
+)
 
 
 def _pack(vox: np.ndarray) -> np.ndarray:
@@ -45,15 +49,26 @@ class FrameSupport:
         max_range_m: guesses farther than this from the camera are ignored, metres.
         pixel_step: use every ``pixel_step``-th pixel of each row and column (the voxels are
             much larger than a pixel's footprint within the range).
+        next_to_occupied: a supported voxel also needs an occupied neighbour (of its 26) in the
+            map: guesses fill the holes of a surface that trusted depth has found and extend
+            it, but do not start an obstacle in the air on their own.
     """
 
-    def __init__(self, occupancy: OccupancyMap, min_frames: int, max_range_m: float, pixel_step: int = 2):
+    def __init__(
+        self,
+        occupancy: OccupancyMap,
+        min_frames: int,
+        max_range_m: float,
+        pixel_step: int = 2,
+        next_to_occupied: bool = True,
+    ):
         if int(min_frames) < 2:
             raise InputError(f"multi-frame support needs at least 2 frames, got {min_frames}")
         self.map = occupancy
         self.min_frames = int(min_frames)
         self.max_range_m = float(max_range_m)
         self.step = max(1, int(pixel_step))
+        self.next_to_occupied = bool(next_to_occupied)
         self._keys = np.zeros(0, np.int64)  # sorted packed voxel indices
         self._frames = np.zeros(0, np.int32)  # frames that hit each
         self._rays: dict[tuple, np.ndarray] = {}
@@ -107,5 +122,12 @@ class FrameSupport:
         supported = _unpack(keys[count >= self.min_frames])
         if len(supported) == 0:
             return 0
-        state = self.map.state_at((supported + 0.5) * self.map.voxel_size)
-        return self.map.add_hits(supported[state != FREE])
+        centres = (supported + 0.5) * self.map.voxel_size
+        keep = self.map.state_at(centres) != FREE
+        if self.next_to_occupied:
+            v = self.map.voxel_size
+            near = np.zeros(len(supported), bool)
+            for off in _NEIGHBOURS:
+                near |= self.map.state_at(centres + off * v) == OCCUPIED
+            keep &= near
+        return self.map.add_hits(supported[keep])
