@@ -40,7 +40,7 @@ def test_add_hits_marks_occupied_without_carving():
 
 def test_guesses_count_only_when_enough_frames_agree():
     m = OccupancyMap(voxel_size_m=0.5, max_range_m=20.0)
-    support = FrameSupport(m, min_frames=3, max_range_m=20.0)
+    support = FrameSupport(m, min_frames=3, max_range_m=20.0, next_to_occupied=False)
     assert support.add(_wall_depth(0.0), CAM, _pose(0.0)) == 0
     assert support.add(_wall_depth(0.3), CAM, _pose(0.3)) == 0
     assert m.counts()["occupied"] == 0
@@ -50,7 +50,7 @@ def test_guesses_count_only_when_enough_frames_agree():
     assert np.all(np.abs(occ[:, 1] - 6.25) < 1e-6)  # the voxel layer holding the wall (y in [6, 6.5))
     # guesses that disagree (a wall at another depth in every frame) never reach 3 frames
     other = OccupancyMap(voxel_size_m=0.5, max_range_m=20.0)
-    s2 = FrameSupport(other, min_frames=3, max_range_m=20.0)
+    s2 = FrameSupport(other, min_frames=3, max_range_m=20.0, next_to_occupied=False)
     for y in (5.0, 7.0, 9.0, 11.0):
         s2.add(_wall_depth(0.0, y), CAM, _pose(0.0))
     assert other.counts()["occupied"] == 0
@@ -68,9 +68,26 @@ def test_guesses_do_not_override_known_free_space_or_exceed_the_range():
         support.add(_wall_depth(x), CAM, _pose(x))
     assert m.state_at(np.array([[0.25, 6.25, 2.25]]))[0] == FREE
     near = OccupancyMap(voxel_size_m=0.5, max_range_m=20.0)
-    short = FrameSupport(near, min_frames=2, max_range_m=5.0)
+    short = FrameSupport(near, min_frames=2, max_range_m=5.0, next_to_occupied=False)
     for x in (0.0, 0.3, 0.6):
         short.add(_wall_depth(x), CAM, _pose(x))
     assert near.counts()["occupied"] == 0
     with pytest.raises(InputError):
         FrameSupport(m, min_frames=1, max_range_m=5.0)
+
+
+def test_guesses_extend_a_surface_but_start_none_in_the_air():
+    lone = OccupancyMap(voxel_size_m=0.5, max_range_m=20.0)
+    support = FrameSupport(lone, min_frames=2, max_range_m=20.0)
+    for x in (0.0, 0.3, 0.6):
+        support.add(_wall_depth(x), CAM, _pose(x))
+    assert lone.counts()["occupied"] == 0  # no trusted surface next to them
+    m = OccupancyMap(voxel_size_m=0.5, max_range_m=20.0)
+    trusted = _wall_depth(0.0)
+    trusted[:, 40:] = np.nan  # trusted depth of the left half of the wall only
+    m.integrate_depth(trusted, CAM, _pose(0.0))
+    before = m.counts()["occupied"]
+    support = FrameSupport(m, min_frames=2, max_range_m=20.0)
+    for x in (0.0, 0.3, 0.6):
+        support.add(_wall_depth(x), CAM, _pose(x))
+    assert m.counts()["occupied"] > before  # the guesses grew the wall from its measured half

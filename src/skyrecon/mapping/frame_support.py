@@ -21,11 +21,12 @@ from skyrecon.core.intrinsics import Intrinsics
 from skyrecon.core.rigid import Rigid3
 from skyrecon.errors import InputError
 from skyrecon.mapping.inputs import as_world_from_cam
-from skyrecon.mapping.occupancy import FREE, OCCUPIED, OccupancyMap
+from skyrecon.mapping.occupancy import OccupancyMap
 
 _OFF = 1 << 20  # voxel indices within +-2^20 pack into 21 bits per axis
 _NEIGHBOURS = np.array(
-    [(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1) if (i, j, k) != (0, 0, 0)], float
+    [(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1) if (i, j, k) != (0, 0, 0)],
+    np.int64,
 )
 
 
@@ -59,7 +60,7 @@ class FrameSupport:
         occupancy: OccupancyMap,
         min_frames: int,
         max_range_m: float,
-        pixel_step: int = 2,
+        pixel_step: int = 3,
         next_to_occupied: bool = True,
     ):
         if int(min_frames) < 2:
@@ -122,12 +123,19 @@ class FrameSupport:
         supported = _unpack(keys[count >= self.min_frames])
         if len(supported) == 0:
             return 0
-        centres = (supported + 0.5) * self.map.voxel_size
-        keep = self.map.state_at(centres) != FREE
+        # the map around them, as one dense box of log-odds (NaN unknown)
+        lo = supported.min(axis=0) - 1
+        shape = supported.max(axis=0) - lo + 2
+        dense = self.map.dense_log_odds(lo, (int(shape[0]), int(shape[1]), int(shape[2])))
+        with np.errstate(invalid="ignore"):
+            occupied = dense >= self.map.config.log_odds[4]
+        rel = supported - lo
+        here = dense[rel[:, 0], rel[:, 1], rel[:, 2]]
+        keep = np.isnan(here) | occupied[rel[:, 0], rel[:, 1], rel[:, 2]]  # not known free
         if self.next_to_occupied:
-            v = self.map.voxel_size
             near = np.zeros(len(supported), bool)
             for off in _NEIGHBOURS:
-                near |= self.map.state_at(centres + off * v) == OCCUPIED
+                q = rel + off
+                near |= occupied[q[:, 0], q[:, 1], q[:, 2]]
             keep &= near
         return self.map.add_hits(supported[keep])
