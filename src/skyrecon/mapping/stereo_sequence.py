@@ -18,6 +18,10 @@ rules by default). Per frame:
    lies on one plane of disparity, all around it, takes that plane (``plane_fill``, see
    :func:`skyrecon.stereo.plane_supported_fill`): the plain wall gets hits instead of a hole,
    while an occluded strip or the sky above a roof line stays unknown;
+3b. the matcher's other values (filled, or smoothed over plain surfaces) are guesses: they never
+   carve free space, and they become hits only in voxels that the guesses of
+   ``guess_min_frames`` frames fall into, next to an occupied voxel and not known free
+   (:class:`~skyrecon.mapping.frame_support.FrameSupport`);
 4. depth ``Z = f B / (d + doffs)`` and projective integration into an :class:`OccupancyMap`
    whose range is limited to the *trusted range* of the rig (:func:`stereo_hit_range_m`):
    a disparity error of ``disparity_error_px`` moves depth by at most ``max_depth_error_m``
