@@ -1,14 +1,22 @@
 """Mapping from stereo images: ``skyrecon map`` vs OpenCV SGBM depth fed to OctoMap (octomap-python).
 
-Scene: ``generate_city(seed, 200 m)``, a drone flight (``flight_poses``, 40 frames at 10 frames/s
-by default), a rectified stereo rig of 640x480 pixels, 90 degree field of view and 0.3 m baseline
-(what ``skyrecon render sequence`` writes), rendered in memory by ``render_stereo``.
+Scenes: ``generate_city(seed, 200 m)`` (the textured city, --seed) and, with --plain or
+--plain-seeds, ``generate_city(seed, 200 m, plain=True)`` (issue #13: 60 % of the buildings with
+plain facades, 20 % glass, plain grey streets and pavements; what ``skyrecon render sequence
+--plain`` writes); each a drone flight (``flight_poses``, 40 frames at 10 frames/s by default), a
+rectified stereo rig of 640x480 pixels, 90 degree field of view and 0.3 m baseline, rendered in
+memory by ``render_stereo``. The summary gives the worst case over the seeds of each kind.
 
 Methods (same frames, same voxel size 0.5 m, same maximum range --max-range, one process):
   skyrecon        exactly what ``skyrecon map SEQUENCE --voxel-size 0.5`` runs on the sequence:
                   :class:`skyrecon.mapping.StereoMapper` (default settings: the ``skyrecon``
-                  matcher, measured pixels only, obstacles only within the rig's trusted range,
-                  projective integration of the full 640x480 depth).
+                  matcher, measured pixels on texture only, plain segments bounded by one
+                  measured plane filled with it, the matcher's other values as hits where 3
+                  frames agree next to a found surface, obstacles only within the rig's trusted
+                  range, projective integration of the full 640x480 depth).
+  skyrecon-before (--baseline-settings) the same without the texture rule, the plane fill and
+                  the multi-frame guesses: ``skyrecon map`` before issue #13.
+  LABEL           (--variant LABEL:NAME=VALUE,...) skyrecon with other settings.
   octomap+sgbm    ``create_matcher("opencv-sgbm")`` (cv2.StereoSGBM, 5x5 blocks, 3-way, LR check
                   1 px, uniqueness 10, speckle filter 100 px / 2), depth from every valid disparity,
                   back-projected to world points and inserted with ``OcTree.insertPointCloud(points,
@@ -23,6 +31,8 @@ occupied when it overlaps an obstacle), over one voxel box holding both maps:
                   rendered depth of the left camera: the voxel holding the true surface point of a
                   pixel (pushed 1 mm into the surface) whose Euclidean distance from the camera is
                   at most 20 m;
+  recall@trusted  the same within our trusted range (19.6 m here): the shell between it and 20 m
+                  is one our map never marks (ground seen obliquely lies there);
   recall          the same for surface points within --max-range (the far ones are what stereo
                   cannot resolve: ours deliberately leaves them unknown);
   precision@surface  occupied voxels whose centre lies within one voxel of a true surface
@@ -42,9 +52,18 @@ inside of buildings as occupied, and most of the peer's far-range noise lands be
 inside them (its precision beyond 20 m is higher than within 20 m). Its phantom obstacles are
 near-range voxels in the air, where ours are fewer (see "precision near").
 
+Issue #13 (plain surfaces) asks for the same targets on the plain city. Which precision: the
+stricter ``precision@surface`` (a voxel is right only when it lies on a true surface, so phantom
+obstacles in the air and noise buried behind facades both count as wrong). ``precision`` counts
+the inside of buildings as right, which rewards depth that is too far: on a plain wall the
+matcher's smoothed values often land behind the facade, and their rays carve the facade itself
+free (see free-in-obst.); a map that stops doing that loses ``precision`` while it gains on the
+surface. Both are reported.
+
 Usage:
   .venv/bin/python benchmarks/mapping/stereo_map.py
   .venv/bin/python benchmarks/mapping/stereo_map.py --frames 20 --seed 3
+  .venv/bin/python benchmarks/mapping/stereo_map.py --plain --baseline-settings
 Writes benchmarks/mapping/results_stereo.json.
 """
 
@@ -63,6 +82,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "src"))
 
+from skyrecon.io.atomic import write_text_atomic  # noqa: E402
 from skyrecon.mapping import OccupancyMap, StereoMapper, StereoMapSettings  # noqa: E402
 from skyrecon.sim import default_rig, flight_poses, generate_city, render_stereo  # noqa: E402
 from skyrecon.stereo import create_matcher, disparity_to_depth  # noqa: E402
@@ -73,9 +93,9 @@ except ImportError:  # pragma: no cover - optional peer
     octomap = None
 
 
-def flight(seed: int, frames: int, width: int, height: int, baseline: float):
+def flight(seed: int, frames: int, width: int, height: int, baseline: float, plain: bool = False):
     """City, rig, poses (world_from_left) and rendered stereo frames of a flight."""
-    city = generate_city(seed, 200.0)
+    city = generate_city(seed, 200.0, plain=plain)
     rig = default_rig(width, height, 90.0, baseline)
     poses = flight_poses(city, frames, seed)
     return city, rig, poses, [render_stereo(city, rig, p.inverse()) for p in poses]
@@ -173,7 +193,13 @@ class Scorer:
         return out
 
     def score(
-        self, occ: np.ndarray, free: np.ndarray, near: float, max_range: float, cameras: np.ndarray
+        self,
+        occ: np.ndarray,
+        free: np.ndarray,
+        near: float,
+        max_range: float,
+        cameras: np.ndarray,
+        trusted: float | None = None,
     ) -> dict:
         fo, ff = self._flat(occ), self._flat(free)
         inside = fo >= 0
@@ -198,15 +224,140 @@ class Scorer:
             "occupied_far": int((~is_near).sum()),
             "recall_near": float(np.isin(near_keys, fo).mean()) if len(near_keys) else float("nan"),
             "recall": float(np.isin(all_keys, fo).mean()) if len(all_keys) else float("nan"),
+            "recall_trusted": float(np.isin(self.seen(trusted), fo).mean()) if trusted else float("nan"),
             "free_in_obstacle": float(self.gt[ff].mean()) if len(ff) else float("nan"),
             "surface_voxels_near": int(len(near_keys)),
             "surface_voxels": int(len(all_keys)),
         }
 
 
+def parse_setting(text: str) -> tuple[str, object]:
+    """``name=value`` of ``--set``: a number, true/false/none, or a string."""
+    name, _, value = text.partition("=")
+    low = value.strip().lower()
+    if low in ("true", "false"):
+        return name, low == "true"
+    if low == "none":
+        return name, None
+    for cast in (int, float):
+        try:
+            return name, cast(value)
+        except ValueError:
+            pass
+    return name, value
+
+
+def run_case(args, seed: int, plain: bool, variants: dict[str, dict]) -> dict:
+    """One flight: our variants and the peer on the same frames; rows, ratios and target of each."""
+    t0 = time.perf_counter()
+    city, rig, poses, frames = flight(seed, args.frames, args.width, args.height, args.baseline, plain)
+    kind = "plain" if plain else "textured"
+    print(
+        f"\n== {kind} city, seed {seed}: {len(frames)} stereo frames {args.width}x{args.height}, rendered in "
+        f"{time.perf_counter() - t0:.1f} s; load average {os.getloadavg()[0]:.1f}"
+    )
+    runs = {}
+    for name, overrides in variants.items():
+        mapper, d, i = run_ours(
+            rig, poses, frames, args.voxel, args.max_range, args.max_disparity, **overrides
+        )
+        runs[name] = (mapper, d, i, ours_labels(mapper.map))
+    tree, p_depth, p_integ, npts = run_peer(
+        rig, poses, frames, args.voxel, args.max_range, args.max_disparity
+    )
+    peer_labels = octomap_labels(tree, args.voxel)
+    allv = np.concatenate([np.concatenate(v[3]) for v in runs.values()] + [np.concatenate(peer_labels)])
+    lo, hi = allv.min(axis=0), allv.max(axis=0) + 1
+    scorer = Scorer(city, rig, poses, frames, args.voxel, lo, hi)
+    cams = np.array([p.t for p in poses])
+
+    trusted = next(iter(runs.values()))[0].hit_range_m
+
+    def row(name, d, i, labels):
+        s = scorer.score(*labels, args.near, args.max_range, cams, trusted)
+        return {
+            "method": name,
+            "frames": len(d),
+            "ms_depth": 1000 * float(d.mean()),
+            "ms_integration": 1000 * float(i.mean()),
+            "ms_total": 1000 * float((d + i).mean()),
+            **s,
+        }
+
+    peer = row("octomap+sgbm", p_depth, p_integ, peer_labels)
+    rows = [row(name, d, i, lab) for name, (_m, d, i, lab) in runs.items()] + [peer]
+    out = {"seed": seed, "plain": plain, "results": rows, "ratios": {}, "target": {}}
+    for r in rows[:-1]:
+        ratios = {
+            k: r[k] / peer[k]
+            for k in ("precision", "precision_surface", "recall_near", "recall_trusted", "recall")
+        } | {
+            "time_depth": r["ms_depth"] / peer["ms_depth"],
+            "time_integration": r["ms_integration"] / peer["ms_integration"],
+            "time_total": r["ms_total"] / peer["ms_total"],
+        }
+        out["ratios"][r["method"]] = ratios
+        out["target"][r["method"]] = {
+            "precision_ratio>=2": ratios["precision"] >= 2.0,
+            "precision_surface_ratio>=2": ratios["precision_surface"] >= 2.0,
+            "recall_near>=peer": r["recall_near"] >= peer["recall_near"],
+            "time_ratio<=0.2": ratios["time_total"] <= 0.2,
+        }
+    print_table(args, rows, out["ratios"])
+    m0 = next(iter(runs.values()))[0]
+    print(
+        f"skyrecon obstacles within {m0.hit_range_m:.1f} m (trusted range of the rig); surface voxels "
+        f"observed: {peer['surface_voxels_near']} within {args.near:g} m, {peer['surface_voxels']} within "
+        f"{args.max_range:g} m; peer points inserted per frame: {npts / len(frames):.0f}"
+    )
+    out["hit_range_m"] = m0.hit_range_m
+    out["skyrecon_settings"] = {name: asdict(m.settings) for name, (m, *_r) in runs.items()}
+    return out
+
+
+def print_table(args, rows: list[dict], ratios: dict[str, dict]) -> None:
+    near = f"recall@{args.near:g}m"
+    print(
+        f"{'method':<18}{'precision':>10}{'@surface':>9}{'near/far':>13}{near:>12}{'@trusted':>9}{'recall':>8}{'free-in-obst':>14}"
+        f"{'occupied':>10}{'ms depth':>10}{'ms integr.':>11}{'ms total':>10}"
+    )
+    for r in rows:
+        print(
+            f"{r['method']:<18}{r['precision']:>10.3f}{r['precision_surface']:>9.3f}{r['precision_near']:>7.3f}/{r['precision_far']:<5.3f}"
+            f"{r['recall_near']:>12.3f}{r['recall_trusted']:>9.3f}{r['recall']:>8.3f}{r['free_in_obstacle']:>14.5f}{r['occupied']:>10d}"
+            f"{r['ms_depth']:>10.1f}{r['ms_integration']:>11.1f}{r['ms_total']:>10.1f}"
+        )
+    for name, q in ratios.items():
+        label = f"{name}/peer"
+        print(
+            f"{label:<18}{q['precision']:>10.2f}{q['precision_surface']:>9.2f}{'':>13}{q['recall_near']:>12.3f}{q['recall_trusted']:>9.3f}{q['recall']:>8.3f}"
+            f"{'':>14}{'':>10}{q['time_depth']:>10.3f}{q['time_integration']:>11.3f}{q['time_total']:>10.3f}"
+        )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--seed", type=int, default=7)
+    ap.add_argument("--seed", type=int, default=7, help="seed of the textured city (default 7)")
+    ap.add_argument(
+        "--plain-seeds", type=int, nargs="*", default=[], help="also fly plain cities of these seeds"
+    )
+    ap.add_argument("--plain", action="store_true", help="shorthand for --plain-seeds 3 7 11")
+    ap.add_argument("--no-textured", action="store_true", help="skip the textured city")
+    ap.add_argument(
+        "--baseline-settings",
+        action="store_true",
+        help="also run skyrecon with the settings before this change (no texture rule, plane fill or guesses)",
+    )
+    ap.add_argument(
+        "--set", action="append", default=[], metavar="NAME=VALUE", help="override a skyrecon map setting"
+    )
+    ap.add_argument(
+        "--variant",
+        action="append",
+        default=[],
+        metavar="LABEL:NAME=VALUE,...",
+        help="also run skyrecon with these overrides, e.g. range2.5:max_depth_error_voxels=2.5",
+    )
     ap.add_argument("--frames", type=int, default=40)
     ap.add_argument("--width", type=int, default=640)
     ap.add_argument("--height", type=int, default=480)
@@ -221,102 +372,55 @@ def main() -> None:
         sys.exit(
             "octomap-python is not installed (pip install octomap-python); it is the peer of this benchmark"
         )
-
-    t0 = time.perf_counter()
-    city, rig, poses, frames = flight(args.seed, args.frames, args.width, args.height, args.baseline)
-    load = os.getloadavg()[0]
+    plain_seeds = list(args.plain_seeds) or ([3, 7, 11] if args.plain else [])
+    variants = {"skyrecon": dict(parse_setting(t) for t in args.set)}
+    for text in args.variant:
+        label, _, spec = text.partition(":")
+        variants[label] = dict(parse_setting(t) for t in spec.split(",") if t)
+    if args.baseline_settings:
+        variants["skyrecon-before"] = {"min_texture": None, "plane_fill": False, "guess_min_frames": 0}
+    cases = ([] if args.no_textured else [(args.seed, False)]) + [(s, True) for s in plain_seeds]
     print(
-        f"scene: seed {args.seed}, {len(frames)} stereo frames {args.width}x{args.height}, baseline "
-        f"{args.baseline} m, rendered in {time.perf_counter() - t0:.1f} s; voxel {args.voxel} m, max range "
-        f"{args.max_range} m; {os.cpu_count()} CPUs, load average {load:.1f}"
+        f"voxel {args.voxel} m, max range {args.max_range} m, baseline {args.baseline} m; "
+        f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}"
     )
+    results = [run_case(args, seed, plain, variants) for seed, plain in cases]
 
-    mapper, o_depth, o_integ = run_ours(rig, poses, frames, args.voxel, args.max_range, args.max_disparity)
-    tree, p_depth, p_integ, npts = run_peer(
-        rig, poses, frames, args.voxel, args.max_range, args.max_disparity
-    )
-
-    labels = {"skyrecon": ours_labels(mapper.map), "octomap+sgbm": octomap_labels(tree, args.voxel)}
-    allv = np.concatenate([np.concatenate(v) for v in labels.values()])
-    lo, hi = allv.min(axis=0), allv.max(axis=0) + 1
-    scorer = Scorer(city, rig, poses, frames, args.voxel, lo, hi)
-    rows = []
-    for name, d, i in (("skyrecon", o_depth, o_integ), ("octomap+sgbm", p_depth, p_integ)):
-        s = scorer.score(*labels[name], args.near, args.max_range, np.array([p.t for p in poses]))
-        rows.append(
-            {
-                "method": name,
-                "frames": len(d),
-                "ms_depth": 1000 * float(d.mean()),
-                "ms_integration": 1000 * float(i.mean()),
-                "ms_total": 1000 * float((d + i).mean()),
-                **s,
-            }
-        )
-    ours, peer = rows
-    ratios = {
-        "precision": ours["precision"] / peer["precision"],
-        "precision_surface": ours["precision_surface"] / peer["precision_surface"],
-        "recall_near": ours["recall_near"] / peer["recall_near"],
-        "recall": ours["recall"] / peer["recall"],
-        "time_depth": ours["ms_depth"] / peer["ms_depth"],
-        "time_integration": ours["ms_integration"] / peer["ms_integration"],
-        "time_total": ours["ms_total"] / peer["ms_total"],
-    }
-    target = {
-        "precision_ratio>=2": ratios["precision"] >= 2.0,
-        "recall_near>=peer": ours["recall_near"] >= peer["recall_near"],
-        "time_ratio<=0.2": ratios["time_total"] <= 0.2,
-    }
-
-    near = f"recall@{args.near:g}m"
-    print(
-        f"\n{'method':<14}{'precision':>10}{'@surface':>9}{'near/far':>13}{near:>12}{'recall':>8}{'free-in-obst':>14}"
-        f"{'occupied':>10}{'ms depth':>10}{'ms integr.':>11}{'ms total':>10}"
-    )
-    for r in rows:
+    # summary: per kind of city, the worst case of each figure (ours relative to the peer)
+    print("\n== summary (skyrecon / peer; worst case over the seeds of each kind)")
+    summary = {}
+    for kind in ("textured", "plain"):
+        sel = [r for r in results if r["plain"] == (kind == "plain")]
+        if not sel:
+            continue
+        q = [r["ratios"]["skyrecon"] for r in sel]
+        worst = {
+            "precision_ratio": min(x["precision"] for x in q),
+            "precision_surface_ratio": min(x["precision_surface"] for x in q),
+            "recall_near_ratio": min(x["recall_near"] for x in q),
+            "time_ratio": max(x["time_total"] for x in q),
+            "seeds": [r["seed"] for r in sel],
+        }
+        summary[kind] = worst
         print(
-            f"{r['method']:<14}{r['precision']:>10.3f}{r['precision_surface']:>9.3f}{r['precision_near']:>7.3f}/{r['precision_far']:<5.3f}"
-            f"{r['recall_near']:>12.3f}{r['recall']:>8.3f}{r['free_in_obstacle']:>14.5f}{r['occupied']:>10d}"
-            f"{r['ms_depth']:>10.1f}{r['ms_integration']:>11.1f}{r['ms_total']:>10.1f}"
+            f"{kind:<9} seeds {worst['seeds']}: precision >= {worst['precision_ratio']:.2f}x, "
+            f"precision@surface >= {worst['precision_surface_ratio']:.2f}x, recall@{args.near:g}m >= "
+            f"{worst['recall_near_ratio']:.3f}x, time <= {worst['time_ratio']:.3f}x"
         )
-    print(
-        f"{'ours/peer':<14}{ratios['precision']:>10.2f}{ratios['precision_surface']:>9.2f}{'':>13}{ratios['recall_near']:>12.3f}{ratios['recall']:>8.3f}"
-        f"{'':>14}{'':>10}{ratios['time_depth']:>10.3f}{ratios['time_integration']:>11.3f}{ratios['time_total']:>10.3f}"
-    )
-    print(
-        f"skyrecon obstacles within {mapper.hit_range_m:.1f} m (trusted range of the rig); surface voxels "
-        f"observed: {ours['surface_voxels_near']} within {args.near:g} m, {ours['surface_voxels']} within "
-        f"{args.max_range:g} m; peer points inserted per frame: {npts / len(frames):.0f}"
-    )
-    print(
-        "target (precision >= 2x, recall@near >= peer, time <= 1/5): "
-        + ", ".join(f"{k} {'met' if v else 'MISSED'}" for k, v in target.items())
-    )
-    args.out.write_text(
-        json.dumps(
-            {
-                "seed": args.seed,
-                "frames": args.frames,
-                "size": [args.width, args.height],
-                "baseline_m": args.baseline,
-                "voxel_m": args.voxel,
-                "max_range_m": args.max_range,
-                "near_m": args.near,
-                "max_disparity": args.max_disparity,
-                "hit_range_m": mapper.hit_range_m,
-                "skyrecon_settings": asdict(mapper.settings),
-                "cpus": os.cpu_count(),
-                "load_average": load,
-                "results": rows,
-                "ratios": ratios,
-                "target": target,
-            },
-            indent=2,
-            default=str,
-        )
-        + "\n"
-    )
+    payload = {
+        "frames": args.frames,
+        "size": [args.width, args.height],
+        "baseline_m": args.baseline,
+        "voxel_m": args.voxel,
+        "max_range_m": args.max_range,
+        "near_m": args.near,
+        "max_disparity": args.max_disparity,
+        "cpus": os.cpu_count(),
+        "load_average": os.getloadavg()[0],
+        "cases": results,
+        "summary": summary,
+    }
+    write_text_atomic(args.out, json.dumps(payload, indent=2, default=str) + "\n")
     print(f"\nwrote {args.out}")
 
 

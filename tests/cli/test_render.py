@@ -56,3 +56,16 @@ def test_render_views_read_back_as_cameras(tmp_path, kind, model):
         assert z[0] > 0 and v.intrinsics.in_image(uv)[0]
     if kind == "ring":
         assert read_pfm(out / "depth" / (views[0].name.rsplit(".", 1)[0] + ".pfm")).shape == (120, 160)
+
+
+def test_render_plain_city(tmp_path, capsys):
+    out = tmp_path / "plain"
+    assert main(["render", "sequence", "--plain", "--out", str(out), "--frames", "2", *SMALL]) == 0
+    assert json.loads((out / "scene.json").read_text())["plain"] is True
+    assert len(read_sequence(out)) == 2
+    plain = read_image(out / "image_2" / "000000.png")
+    textured = tmp_path / "textured"
+    assert main(["render", "sequence", "--out", str(textured), "--frames", "2", *SMALL]) == 0
+    assert not np.array_equal(plain, read_image(textured / "image_2" / "000000.png"))
+    assert main(["render", "ring", "--plain", "--out", str(tmp_path / "ring"), "--quiet"]) == 2
+    assert "--plain" in capsys.readouterr().err

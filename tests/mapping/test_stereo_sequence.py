@@ -70,7 +70,7 @@ def test_stereo_map_is_accurate_and_stops_at_the_trusted_range(flight):
 
 def test_only_measured_pixels_away_from_discontinuities_are_used(flight):
     _, rig, _, frames = flight
-    mapper = StereoMapper(rig, voxel_size_m=VOXEL)
+    mapper = StereoMapper(rig, voxel_size_m=VOXEL, plane_fill=False)
     f = frames[0]
     depth = mapper.depth(f.left, f.right)
     result = mapper.matcher.compute(f.left, f.right)

@@ -14,9 +14,10 @@ from skyrecon.perception import (
     disparity_discontinuities,
     stereo_hit_range_m,
     strided_intrinsics,
+    texture_masks,
 )
 from skyrecon.sim import default_rig, flight_poses, generate_city, render_stereo
-from skyrecon.stereo import create_matcher, disparity_to_depth
+from skyrecon.stereo import create_matcher, disparity_to_depth, plane_supported_fill, to_grey
 
 
 @pytest.fixture(scope="module")
@@ -30,7 +31,8 @@ def pair():
 
 def test_mapping_preset_keeps_measured_pixels_away_from_discontinuities(pair):
     rig, f = pair
-    stage = StereoDepth(rig, PerceptionSettings.mapping())
+    # without the texture rule and the plane fill (both on in the preset, tested below)
+    stage = StereoDepth(rig, PerceptionSettings.mapping(min_texture=None, plane_fill=False))
     frame = stage.compute(f.left, f.right)
     # the rule of StereoMapper before the layer existed
     result = create_matcher("skyrecon", 128, uniqueness=0.05).compute(f.left, f.right)
@@ -42,6 +44,33 @@ def test_mapping_preset_keeps_measured_pixels_away_from_discontinuities(pair):
     ok = np.isfinite(frame.depth_m)
     near = ok & np.isfinite(f.depth_left_m) & (frame.depth_m < 20.0)
     assert ok.mean() > 0.5 and np.median(np.abs(frame.depth_m[near] - f.depth_left_m[near])) < 0.3
+
+
+def test_mapping_preset_keeps_textured_measurements_and_plane_supported_segments(pair):
+    rig, f = pair
+    frame = StereoDepth(rig, PerceptionSettings.mapping()).compute(f.left, f.right)
+    result = create_matcher("skyrecon", 128, uniqueness=0.05).compute(f.left, f.right)
+    matchable, edges = texture_masks(f.left, 0.5)
+    measured = result.measured & matchable
+    edge = disparity_discontinuities(result.disparity, 1.0)
+    keep = measured & ~edge
+    planar, accepted = plane_supported_fill(
+        result.disparity, measured, boundary=edges, left=to_grey(f.left), right=to_grey(f.right)
+    )
+    assert accepted.any() and not (accepted & measured).any()
+    disp = np.where(accepted, planar, result.disparity)
+    expected = disparity_to_depth(np.where(keep | accepted, disp, np.float32(np.nan)), rig)
+    np.testing.assert_array_equal(frame.depth_m, expected)
+    assert frame.plane_fraction == pytest.approx(accepted.mean())
+    near = accepted & np.isfinite(f.depth_left_m) & (frame.depth_m < 20.0)
+    assert near.sum() > 100
+    assert np.median(np.abs(frame.depth_m[near] - f.depth_left_m[near])) < 0.3
+    # the guesses: every other value of the matcher away from depth edges, and nothing else
+    guess = result.valid & ~(keep | accepted) & ~edge
+    assert frame.guess_depth_m is not None
+    has_guess = np.isfinite(frame.guess_depth_m)
+    assert not (has_guess & ~guess).any() and has_guess[guess & (result.disparity > 0.5)].all()
+    assert StereoDepth(rig, PerceptionSettings.flight()).compute(f.left, f.right).guess_depth_m is None
 
 
 def test_flight_preset_subsamples_and_carves_sky(pair):

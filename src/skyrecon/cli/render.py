@@ -51,6 +51,7 @@ from skyrecon.sim import (
 
 EXAMPLES = """  skyrecon render stereo --seed 3 --out scene/
   skyrecon render sequence --frames 60 --out flight/
+  skyrecon render sequence --plain --seed 3 --out plain_flight/
   skyrecon render ring --views 12 --out ring/
   skyrecon render images --views 10 --out photos/
 """
@@ -80,12 +81,19 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument(
         "--city-size", type=positive_float, default=200.0, help="city side length, metres (default 200)"
     )
+    p.add_argument(
+        "--plain",
+        action="store_true",
+        help="stereo/sequence: a city of plain surfaces (plain and glass facades, plain grey ground)",
+    )
     return p
 
 
 def run(args: argparse.Namespace) -> int:
     if args.hfov >= 170:
         raise InputError(f"--hfov must be below 170 degrees for a pinhole camera, got {args.hfov}")
+    if args.plain and args.kind not in ("stereo", "sequence"):
+        raise InputError(f"--plain applies to the city (stereo, sequence), not to {args.kind}")
     out = output_dir(args.out)
     t0 = time.perf_counter()
     summary = {
@@ -107,7 +115,7 @@ def run(args: argparse.Namespace) -> int:
 
 # ----- stereo ------------------------------------------------------------------
 def _render_stereo(args, out: Path) -> dict:
-    city = generate_city(args.seed, size_m=args.city_size)
+    city = generate_city(args.seed, size_m=args.city_size, plain=args.plain)
     rig = default_rig(args.width, args.height, args.hfov, args.baseline)
     left_from_world = street_view_pose(city, args.seed)
     frame = render_stereo(city, rig, left_from_world)
@@ -137,7 +145,7 @@ def _render_stereo(args, out: Path) -> dict:
 
 # ----- sequence ----------------------------------------------------------------
 def _render_sequence(args, out: Path) -> dict:
-    city = generate_city(args.seed, size_m=args.city_size)
+    city = generate_city(args.seed, size_m=args.city_size, plain=args.plain)
     rig = default_rig(args.width, args.height, args.hfov, args.baseline)
     world_from_left = flight_poses(city, args.frames, args.seed)
     samples: list[np.ndarray] = []

@@ -484,6 +484,41 @@ class OccupancyMap:
         self._bounds_cache = None
         return int(len(vox))
 
+    def add_hits(self, voxels: np.ndarray) -> int:
+        """Add one hit (``prob_hit``, clamped) to each of the given voxels, without casting rays:
+        no voxel is carved free. For evidence that places a surface but cannot vouch for the
+        space in front of it (see :class:`skyrecon.mapping.StereoMapper`'s multi-frame support).
+
+        Args:
+            voxels: (N, 3) integer voxel indices (``floor(p / voxel_size)``); repeats count once.
+        Returns:
+            The number of distinct voxels updated.
+        """
+        vox = np.unique(np.asarray(voxels, dtype=np.int64).reshape(-1, 3), axis=0)
+        if len(vox) == 0:
+            return 0
+        B = self.block_size
+        blocks, local = np.divmod(vox, B)
+        ids = self.grid.ensure(blocks.astype(np.int32))
+        self._grow_flags()
+        flat = (local[:, 0] * B + local[:, 1]) * B + local[:, 2]
+        data = self.grid.data
+        before = data[ids, flat]
+        l_hit, _, _, lo_max, thr = self._lodds
+        after = np.minimum(np.nan_to_num(before, nan=0.0) + l_hit, lo_max).astype(np.float32)
+        data[ids, flat] = after
+        was_unknown = np.isnan(before)
+        was_occupied = ~was_unknown & (before >= thr)
+        became = after >= thr
+        changed = np.where(was_unknown | (was_occupied != became), proj.CHANGED_STATE, 0).astype(np.uint8)
+        changed[was_occupied != became] |= proj.CHANGED_OCCUPIED
+        uniq, inv = np.unique(ids, return_inverse=True)
+        per_block = np.zeros(len(uniq), np.uint8)
+        np.bitwise_or.at(per_block, inv, changed)
+        self._mark(uniq, per_block)
+        self._bounds_cache = None
+        return int(len(vox))
+
     # ----- queries ---------------------------------------------------------------------
     def log_odds_at(self, points: np.ndarray) -> np.ndarray:
         """(N,) float32 log-odds of the voxels holding world points (N, 3); NaN where unknown."""

@@ -11,6 +11,7 @@ from skyrecon.perception.stereo_depth import (
     StereoDepth,
     disparity_discontinuities,
     strided_intrinsics,
+    texture_masks,
 )
 
 __all__ = [
@@ -20,4 +21,5 @@ __all__ = [
     "disparity_discontinuities",
     "stereo_hit_range_m",
     "strided_intrinsics",
+    "texture_masks",
 ]

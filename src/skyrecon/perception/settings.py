@@ -43,6 +43,22 @@ class PerceptionSettings:
         max_depth_error_voxels: the same bound in voxels of the map (used when
             ``max_depth_error_m`` is None); None with ``max_depth_error_m`` None: no trusted-range limit.
         disparity_error_px: the disparity error assumed for the trusted range, pixels.
+        min_texture: a measured pixel counts as measured only where the left image's mean
+            absolute horizontal grey-level gradient over its ``texture_window_px`` window is at
+            least this (grey levels per pixel, 0-255 scale; see
+            :func:`~skyrecon.perception.stereo_depth.texture_masks`); elsewhere (plain walls,
+            roads, sky, horizontal edges) the matcher's value comes from smoothing along its
+            paths, not from the image, and the pixel is treated as unmeasured. None: every
+            measured pixel counts.
+        texture_window_px: side of that window, pixels (odd).
+        plane_fill: give an unmeasured segment the disparity of the plane that the measured
+            pixels all around it lie on (see :func:`skyrecon.stereo.plane_supported_fill`):
+            a plain wall or road bounded by measured edges gets depth, an occluded strip
+            (bounded by foreground and background) or the sky above a roof line does not.
+        plane_tolerance_px: inlier band of the plane fit, pixels of disparity.
+        plane_min_inlier_fraction: share of the bordering measured pixels that must be inliers.
+        guesses: also return the depth of the matcher's values that are not kept (see
+            :attr:`DepthFrame.guess_depth_m`), for evidence that needs several frames.
     """
 
     method: str = "skyrecon"
@@ -55,6 +71,12 @@ class PerceptionSettings:
     max_depth_error_m: float | None = None
     max_depth_error_voxels: float | None = 2.0
     disparity_error_px: float = 0.25
+    min_texture: float | None = None
+    texture_window_px: int = 7
+    plane_fill: bool = False
+    plane_tolerance_px: float = 0.3
+    plane_min_inlier_fraction: float = 0.7
+    guesses: bool = False
 
     def __post_init__(self) -> None:
         if not int(self.max_disparity) > 0:
@@ -69,13 +91,27 @@ class PerceptionSettings:
             raise InputError(f"disparity error must be positive, got {self.disparity_error_px} px")
         if self.max_disparity_step_px is not None and not self.max_disparity_step_px > 0:
             raise InputError(f"max disparity step must be positive, got {self.max_disparity_step_px} px")
+        if self.min_texture is not None and not self.min_texture >= 0:
+            raise InputError(
+                f"min texture must be a non-negative grey-level deviation, got {self.min_texture}"
+            )
+        if not (int(self.texture_window_px) == self.texture_window_px and self.texture_window_px % 2 == 1):
+            raise InputError(f"texture window must be an odd number of pixels, got {self.texture_window_px}")
+        if not self.plane_tolerance_px > 0:
+            raise InputError(f"plane tolerance must be positive, got {self.plane_tolerance_px} px")
+        if not 0 < self.plane_min_inlier_fraction <= 1:
+            raise InputError(
+                f"plane inlier fraction must lie in (0, 1], got {self.plane_min_inlier_fraction}"
+            )
 
     @classmethod
     def mapping(cls, **overrides: Any) -> PerceptionSettings:
         """What ``skyrecon map`` uses: full-resolution ``skyrecon`` matcher with a uniqueness
-        test, measured pixels away from discontinuities, sky dropped, obstacles within the
-        trusted range of 2 voxels of depth error. Keyword overrides on top."""
-        return replace(cls(), **overrides)
+        test, measured pixels away from discontinuities and on texture (grey-level deviation
+        >= 1 over 7x7), plain segments bounded by one measured plane filled with it
+        (``plane_fill``), sky dropped, obstacles within the trusted range of 2 voxels of depth
+        error. Keyword overrides on top."""
+        return replace(cls(min_texture=0.5, plane_fill=True, guesses=True), **overrides)
 
     @classmethod
     def flight(cls, **overrides: Any) -> PerceptionSettings:

@@ -5,8 +5,11 @@ delivery loop); the rules are a :class:`~skyrecon.perception.settings.Perception
 Per pair:
 
 1. disparity with the stereo matcher (built once, warmed up, kept between pairs);
-2. only *measured* disparities are kept (unless ``use_filled``), and, with
-   ``max_disparity_step_px``, none at a disparity discontinuity (full resolution);
+2. only *measured* disparities are kept (unless ``use_filled``), with ``min_texture`` only
+   those on image texture, and, with ``max_disparity_step_px``, none at a disparity
+   discontinuity (full resolution);
+2b. with ``plane_fill``, unmeasured segments bounded all around by one measured plane get that
+   plane's disparity (:func:`skyrecon.stereo.plane_supported_fill`);
 3. the disparity and the mask are subsampled by ``depth_stride`` and converted with the full
    rig (disparities stay in full-resolution pixels): ``Z = f B / (d + doffs)``;
 4. matches at ``d + doffs <= 0`` become +inf (``sky_is_free``) or NaN.
@@ -27,7 +30,7 @@ from skyrecon.core.intrinsics import Intrinsics
 from skyrecon.core.stereo_rig import StereoRig
 from skyrecon.errors import InputError
 from skyrecon.perception.settings import PerceptionSettings
-from skyrecon.stereo import Matcher, create_matcher
+from skyrecon.stereo import Matcher, create_matcher, plane_supported_fill, to_grey
 
 
 def strided_intrinsics(cam: Intrinsics, stride: int) -> Intrinsics:
@@ -54,6 +57,29 @@ def disparity_discontinuities(disparity: np.ndarray, max_step_px: float) -> np.n
     return (cv2.dilate(d, k) - cv2.erode(d, k)) > max_step_px
 
 
+def texture_masks(
+    image: np.ndarray, min_gradient: float, window_px: int = 7
+) -> tuple[np.ndarray, np.ndarray]:
+    """Where the image has texture a row-wise stereo match can use, and where it has edges.
+
+    Args:
+        image: (H, W, 3) uint8 RGB or (H, W) grey.
+        min_gradient: grey levels per pixel (0-255 scale).
+        window_px: side of the averaging window, pixels.
+    Returns:
+        ``(matchable, edges)``, (H, W) bool: the mean absolute horizontal grey-level gradient over
+        the window is at least ``min_gradient`` (texture along the epipolar lines: a horizontal
+        edge alone, such as the top of a wall against the sky, matches anywhere along a row);
+        the mean of the horizontal plus vertical one is (any edge).
+    """
+    g = to_grey(np.asarray(image)).astype(np.float32)
+    k = (int(window_px), int(window_px))
+    gx = cv2.boxFilter(np.abs(cv2.Sobel(g, cv2.CV_32F, 1, 0, ksize=1)), -1, k)
+    gy = cv2.boxFilter(np.abs(cv2.Sobel(g, cv2.CV_32F, 0, 1, ksize=1)), -1, k)
+    t = np.float32(2.0 * min_gradient)  # a ksize=1 Sobel is twice the central difference per pixel
+    return gx >= t, gx + gy >= t
+
+
 @dataclass(eq=False)
 class DepthFrame:
     """The depth of one stereo pair, ready for the map.
@@ -66,6 +92,10 @@ class DepthFrame:
         disparity: (H, W) float32 full-resolution disparity of the matcher, pixels, NaN invalid.
         measured_fraction: share of pixels with a measured disparity.
         stereo_ms: wall-clock milliseconds of matching and conversion.
+        plane_fraction: share of pixels that got a plane-supported disparity (``plane_fill``).
+        guess_depth_m: with ``guesses``, (h, w) float32 depth of the matcher's values that
+            ``depth_m`` does not keep (filled, or measured on no texture), away from depth
+            edges, metres; NaN elsewhere. Evidence of a surface, but not of free space.
     """
 
     depth_m: np.ndarray
@@ -73,6 +103,8 @@ class DepthFrame:
     disparity: np.ndarray
     measured_fraction: float
     stereo_ms: float
+    plane_fraction: float = 0.0
+    guess_depth_m: np.ndarray | None = None
 
 
 class StereoDepth:
@@ -113,20 +145,50 @@ class StereoDepth:
         self.rig.left.check_image(np.asarray(left), "left image")
         result = self.matcher.compute(left, right)
         s = self.settings
-        keep = result.valid if s.use_filled else result.measured
+        measured = result.measured
+        textured = None
+        if s.min_texture is not None:
+            matchable, textured = texture_masks(left, s.min_texture, s.texture_window_px)
+            measured = measured & matchable
+        keep = result.valid if s.use_filled else measured
+        edge = None
         if s.max_disparity_step_px is not None:
-            keep = keep & ~disparity_discontinuities(result.disparity, s.max_disparity_step_px)
+            edge = disparity_discontinuities(result.disparity, s.max_disparity_step_px)
+            keep = keep & ~edge
+        disp = result.disparity
+        plane = 0.0
+        if s.plane_fill and not s.use_filled:
+            planar, accepted = plane_supported_fill(
+                disp,
+                measured,
+                boundary=textured,
+                left=to_grey(np.asarray(left)),
+                right=to_grey(np.asarray(right)),
+                tolerance_px=s.plane_tolerance_px,
+                min_inlier_fraction=s.plane_min_inlier_fraction,
+                max_step_px=s.max_disparity_step_px or 1.0,
+            )
+            disp = np.where(accepted, planar, disp)
+            keep = keep | accepted
+            plane = float(accepted.mean())
         k = self.stride
-        disp = result.disparity[::k, ::k]
-        keep = keep[::k, ::k]
-        # disparities stay in full-resolution pixels, so the full rig converts them
-        depth = self.rig.disparity_to_depth(np.where(keep, disp, np.float32(np.nan)))
-        if s.sky_is_free:
-            with np.errstate(invalid="ignore"):
-                depth[keep & (disp + self.rig.doffs_px <= 0)] = np.inf
-        depth = np.ascontiguousarray(depth, dtype=np.float32)
+        guess = None
+        if s.guesses:
+            # the matcher's other values (filled, or smoothed over plain surfaces): not depth edges
+            g = result.valid & ~keep if edge is None else result.valid & ~keep & ~edge
+            guess = self._depth(np.where(g, disp, np.float32(np.nan))[::k, ::k], False)
+        depth = self._depth(np.where(keep, disp, np.float32(np.nan))[::k, ::k], s.sky_is_free)
         ms = 1e3 * (time.perf_counter() - t0)
-        return DepthFrame(depth, self.intrinsics, result.disparity, float(result.measured.mean()), ms)
+        return DepthFrame(depth, self.intrinsics, result.disparity, float(measured.mean()), ms, plane, guess)
+
+    def _depth(self, disp: np.ndarray, sky_is_free: bool) -> np.ndarray:
+        """(h, w) float32 depth of full-resolution disparities (NaN kept), metres; with
+        ``sky_is_free``, +inf where ``d + doffs <= 0``."""
+        depth = self.rig.disparity_to_depth(disp)
+        if sky_is_free:
+            with np.errstate(invalid="ignore"):
+                depth[np.isfinite(disp) & (disp + self.rig.doffs_px <= 0)] = np.inf
+        return np.ascontiguousarray(depth, dtype=np.float32)
 
     def depth(self, left: np.ndarray, right: np.ndarray) -> np.ndarray:
         """(h, w) float32 depth of one pair, metres (see :meth:`compute`)."""

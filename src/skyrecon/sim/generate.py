@@ -23,6 +23,7 @@ from skyrecon.sim.city import (
 )
 from skyrecon.sim.texture import (
     GROUND_CITY,
+    GROUND_PLAIN,
     GROUND_PLAZA,
     MAT_BARK,
     MAT_BRICK,
@@ -50,6 +51,9 @@ _PLAIN = [
     (0.62, 0.72, 0.6),
     (0.9, 0.8, 0.55),
 ]
+# ``generate_city(..., plain=True)``: shares of buildings with plain facades and with glass
+PLAIN_FACADE_FRACTION = 0.6
+PLAIN_GLASS_FRACTION = 0.2
 _ACCENT = [(0.9, 0.9, 0.88), (0.3, 0.3, 0.32), (0.55, 0.55, 0.58), (0.8, 0.78, 0.7)]
 
 
@@ -183,10 +187,14 @@ def _perimeter_lots(rng: np.random.Generator, x0, y0, x1, y1, out: list) -> None
         out.append((x1 - depth, a, x1, b))
 
 
-def _building_style(rng: np.random.Generator, height: float, low_texture_fraction: float):
+def _building_style(
+    rng: np.random.Generator, height: float, low_texture_fraction: float, glass_fraction: float = 0.0
+):
     u = rng.random()
     if u < low_texture_fraction:
         mat, alb = MAT_PLAIN, _jitter_color(rng, _PLAIN)
+    elif u < low_texture_fraction + glass_fraction:
+        mat, alb = MAT_GLASS, _jitter_color(rng, _GLASS)
     elif height > 20 and rng.random() < 0.6:
         mat, alb = MAT_GLASS, _jitter_color(rng, _GLASS)
     elif rng.random() < 0.5:
@@ -240,6 +248,7 @@ class _CityStyle:
     pole_spacing_m: tuple[float, float]
     low_texture_fraction: float
     park_fraction: float
+    glass_fraction: float = 0.0
 
 
 _TEX_METAL = (3.0, 0.0, 0.5, 0.5, 0.0, 1.0)  # texture parameters of poles, beams and roof units
@@ -310,7 +319,7 @@ def _building(
     u = rng.random()
     h = 6.0 * (max_h / 6.0) ** (u**1.2 * (0.6 + 0.4 * closeness))
     h = float(np.clip(h, 6.0, min(max_h, 7.0 * min(fx1 - fx0, fy1 - fy0))))
-    mat, alb, acc, params = _building_style(rng, h, style.low_texture_fraction)
+    mat, alb, acc, params = _building_style(rng, h, style.low_texture_fraction, style.glass_fraction)
     b.box((fx0, fy0, 0.0), (fx1, fy1, h), mat, KIND_BUILDING, alb, acc, params)
     _rooftop(b, rng, (fx0, fy0, fx1, fy1), h, (mat, alb, acc, params), max_h)
 
@@ -434,6 +443,7 @@ def generate_city(
     n_beams: int = 6,
     low_texture_fraction: float = 0.12,
     park_fraction: float = 0.08,
+    plain: bool = False,
 ) -> City:
     """Generate a city on the square ``[-size_m/2, size_m/2]^2`` (world frame, z up, metres).
 
@@ -458,12 +468,26 @@ def generate_city(
         n_beams: number of overhead beams across streets.
         low_texture_fraction: share of buildings with plain, almost textureless facades.
         park_fraction: share of blocks that are parks.
+        plain: a city of plain surfaces: ``PLAIN_FACADE_FRACTION`` of the buildings get plain
+            facades (one colour, faint shading, no windows; this replaces
+            ``low_texture_fraction``), ``PLAIN_GLASS_FRACTION`` glass curtain walls, the rest
+            brick or concrete; streets, pavements and courtyards are plain greys without
+            markings, paving or grain. The layout is drawn by the same steps (but not the same
+            city as ``plain=False`` with that seed: the facade draws differ).
     """
     if not np.isfinite(size_m) or size_m < 60.0:
         raise InputError(f"size_m must be at least 60 m, got {size_m}")
     rng = np.random.default_rng(seed)
     half = size_m / 2
-    style = _CityStyle(half, sidewalk_m, max_height_m, pole_spacing_m, low_texture_fraction, park_fraction)
+    style = _CityStyle(
+        half,
+        sidewalk_m,
+        max_height_m,
+        pole_spacing_m,
+        PLAIN_FACADE_FRACTION if plain else low_texture_fraction,
+        park_fraction,
+        PLAIN_GLASS_FRACTION if plain else 0.0,
+    )
     blocks_x = _layout(rng, -half, half, block_m, street_m)
     blocks_y = _layout(rng, -half, half, block_m, street_m)
     b = _Builder()
@@ -482,7 +506,7 @@ def generate_city(
         blocks_x=blocks_x,
         blocks_y=blocks_y,
         sidewalk_m=float(sidewalk_m),
-        ground_style=GROUND_CITY,
+        ground_style=GROUND_PLAIN if plain else GROUND_CITY,
         center=np.array([0.0, 0.0, top / 3]),
         view_radius_m=size_m / 3,
         **arrays,

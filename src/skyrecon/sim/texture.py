@@ -56,6 +56,7 @@ WINDOWS_RIBBON = 2
 # Ground styles (``City.ground_style``).
 GROUND_CITY = 0
 GROUND_PLAZA = 1
+GROUND_PLAIN = 2  # the city's streets and blocks in plain greys: no markings, paving or grain
 
 # Noise octaves fade from full weight at a wavelength of AA_FULL footprints to zero at AA_ZERO.
 AA_ZERO = 2.0
@@ -373,6 +374,19 @@ def _surface(mat, face, u, v, fp, seed, ar, ag, ab, cr, cg, cb, floor_h, col_p, 
 
 
 @jit()
+def _ground_plain(x, y, inside, blocks_x, blocks_y):
+    """``GROUND_PLAIN``: plain greys with faint shading of 9 m wavelength (asphalt, blocks, verge)."""
+    if not inside:
+        return 0.4, 0.41, 0.39, 9.0, 2, 0.02, 0.0, 0.0, 0.0, 0.0, 0.0
+    for i in range(blocks_x.shape[0]):
+        if x >= blocks_x[i, 0] and x < blocks_x[i, 1]:
+            for k in range(blocks_y.shape[0]):
+                if y >= blocks_y[k, 0] and y < blocks_y[k, 1]:
+                    return 0.55, 0.55, 0.53, 9.0, 2, 0.02, 0.0, 0.0, 0.0, 0.0, 0.0
+    return 0.36, 0.36, 0.37, 9.0, 2, 0.02, 0.0, 0.0, 0.0, 0.0, 0.0
+
+
+@jit()
 def _ground(x, y, fp, style, seed, blocks_x, blocks_y, extent, sidewalk):
     """Pattern colour and noise layers of the ground at world (x, y), metres (same tuple as ``_surface``)."""
     w = AA_TENT * fp
@@ -386,6 +400,8 @@ def _ground(x, y, fp, style, seed, blocks_x, blocks_y, extent, sidewalk):
         grout = fb * grout + (1.0 - fb) * (1.0 - (1.0 - 0.02 / t) ** 2)
         k = (0.8 + 0.4 * _cellval(x, y, t, t, w, seed + 31, 1.0)) * (1.0 - 0.35 * grout)
         return 0.62 * k, 0.58 * k, 0.52 * k, 0.8, 8, 0.22, 3.0, 0.08, 0.3, 0.1, -0.2
+    if style == GROUND_PLAIN:
+        return _ground_plain(x, y, inside, blocks_x, blocks_y)
     if not inside:
         return 0.3, 0.42, 0.2, 6.0, 9, 0.3, 25.0, 0.1, 0.3, 0.0, -0.2
     # which block column / row are we in (or which street)?

@@ -27,6 +27,7 @@ from skyrecon.stereo.opencv_matchers import (
     OpenCVSGBMMatcher,
     OpenCVSGBMSettings,
 )
+from skyrecon.stereo.plane_fill import plane_supported_fill
 from skyrecon.stereo.rectify import RigRectification, rectify_rig
 from skyrecon.stereo.reproject import (
     depth_error_bound,
@@ -59,6 +60,7 @@ __all__ = [
     "SkyreconMatcher",
     "SkyreconSettings",
     "fill_invalid",
+    "plane_supported_fill",
     "remove_speckles",
     "RigRectification",
     "rectify_rig",

@@ -1,0 +1,129 @@
+"""Plane-supported filling: an unmeasured segment takes the plane its measured border lies on, all
+around it; an occluded strip, the sky above a roof line, a region between two planes or one
+bounded by a single edge stays unfilled."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from skyrecon.errors import InputError
+from skyrecon.stereo import plane_supported_fill
+
+H, W = 120, 160
+
+
+def _plane(a: float, b: float, c: float) -> np.ndarray:
+    v, u = np.mgrid[0:H, 0:W].astype(np.float64)
+    return (a * u + b * v + c).astype(np.float32)
+
+
+def _hole(r0: int, r1: int, c0: int, c1: int) -> np.ndarray:
+    """(H, W) measured mask: everything but the rectangle [r0, r1) x [c0, c1)."""
+    m = np.ones((H, W), bool)
+    m[r0:r1, c0:c1] = False
+    return m
+
+
+def test_a_slanted_plain_wall_bounded_all_around_takes_its_plane():
+    rng = np.random.default_rng(0)
+    truth = _plane(0.03, -0.02, 12.0)  # a wall seen at an angle: disparity affine in (u, v)
+    measured = _hole(20, 100, 30, 130)
+    disp = truth + rng.normal(0.0, 0.05, truth.shape).astype(np.float32)  # measurement noise
+    # the matcher's own fill would be background-favouring along rows: here, garbage
+    disp[~measured] = 3.0
+    out, accepted = plane_supported_fill(disp, measured)
+    inner = np.zeros((H, W), bool)
+    inner[22:98, 32:128] = True  # all but the pixel next to the measured border (the seal)
+    assert accepted[inner].all() and not (accepted & measured).any()
+    assert np.abs(out[accepted] - truth[accepted]).max() < 0.05
+    np.testing.assert_array_equal(out[measured], disp[measured])
+    assert np.isnan(out[~measured & ~accepted]).all()
+
+
+def test_an_occluded_strip_between_background_and_foreground_is_refused():
+    # its border is background on the left and foreground on the right: the only plane through
+    # both rises by about 1 px of disparity per pixel, a surface the right camera could not see
+    disp = np.full((H, W), 10.0, np.float32)  # background
+    disp[20:100, 70:110] = 20.0  # a foreground object
+    measured = _hole(20, 100, 58, 70)  # the strip left of it that the right camera cannot see
+    out, accepted = plane_supported_fill(disp, measured)
+    assert not accepted.any() and np.isnan(out[~measured]).all()
+    # the same strip with the object at the background's depth is a plain patch of one plane
+    flat = np.full((H, W), 10.0, np.float32)
+    assert plane_supported_fill(flat, measured)[1][22:98, 60:68].all()
+
+
+def test_the_sky_above_a_roof_line_is_refused():
+    disp = _plane(0.0, 0.01, 8.0)
+    measured = np.ones((H, W), bool)
+    measured[:40] = False  # the sky: unmeasured, open to the top of the image
+    _, accepted = plane_supported_fill(disp, measured)
+    assert not accepted.any()
+    # a road cut by the bottom of the image is bounded by the frame there and is filled
+    road = np.ones((H, W), bool)
+    road[70:, 40:120] = False
+    _, accepted = plane_supported_fill(disp, road)
+    assert accepted[75:, 45:115].all()
+
+
+def test_a_region_between_two_planes_is_refused():
+    left = _plane(0.08, 0.0, 4.0)
+    right = _plane(-0.08, 0.0, 4.0 + 0.16 * 80)  # meets the left wall at u = 80: a concave corner
+    disp = np.where(np.arange(W)[None, :] < 80, left, right).astype(np.float32)
+    measured = _hole(20, 100, 30, 130)
+    _, accepted = plane_supported_fill(disp, measured)
+    assert not accepted.any()
+
+
+def test_a_region_bounded_by_a_single_edge_or_cut_by_a_boundary():
+    disp = _plane(0.02, 0.01, 9.0)
+    # a measured vertical line alone does not fix a plane: its slope across is unknown
+    measured = np.zeros((H, W), bool)
+    measured[:, 78:81] = True
+    assert not plane_supported_fill(disp, measured)[1].any()
+    # an unmeasured image edge (boundary) splits a hole: the right part, bounded by the edge
+    # and not by measured pixels on its left, is refused; the left part is filled
+    m = _hole(20, 100, 30, 130)
+    edge = np.zeros((H, W), bool)
+    edge[:, 90:93] = True
+    m[:, 90:93] = False  # an edge the matcher could not measure (e.g. horizontal texture)
+    m[20:100, 93:130] = True  # and the region right of it measured
+    m[20:100, 93:130] = False
+    m[:20, 90:93] = m[100:, 90:93] = True
+    _, accepted = plane_supported_fill(disp, m, boundary=edge)
+    assert accepted[25:95, 35:85].all() and not accepted[:, 89:94].any()
+
+
+def test_bad_input():
+    d = np.zeros((10, 10), np.float32)
+    with pytest.raises(InputError):
+        plane_supported_fill(d, np.ones((10, 11), bool))
+    with pytest.raises(InputError):
+        plane_supported_fill(d, np.ones((10, 10), bool), boundary=np.ones((9, 10), bool))
+    out, accepted = plane_supported_fill(d, np.ones((10, 10), bool))
+    assert not accepted.any() and (out == 0).all()
+
+
+def test_a_plane_that_does_not_map_onto_the_right_image_is_refused():
+    # a plain square (disparity 12) in front of a textured wall (disparity 4); the matcher
+    # measured only the texture, and the pixels at the square's border took the wall's
+    # disparity (the only texture in their window): the border says "wall plane", wrongly
+    rng = np.random.default_rng(1)
+    wall = rng.uniform(40, 220, (H, W + 40)).astype(np.float32)
+    r0, r1, c0, c1, d_sq, d_wall = 30, 90, 60, 120, 12, 4
+    left = wall[:, 20 : 20 + W].copy()
+    right = wall[:, 20 + d_wall : 20 + d_wall + W].copy()  # x_right = x_left - d
+    left[r0:r1, c0:c1] = 128.0
+    right[r0:r1, c0 - d_sq : c1 - d_sq] = 128.0
+    disp = np.full((H, W), float(d_wall), np.float32)
+    measured = _hole(r0, r1, c0, c1)
+    _, wrong = plane_supported_fill(disp, measured)
+    assert wrong[r0 + 3 : r1 - 3, c0 + 3 : c1 - 3].all()  # geometry alone cannot tell
+    _, accepted = plane_supported_fill(disp, measured, left=left, right=right)
+    assert not accepted.any()
+    # the right plane (the square's border measured at its own disparity) passes the check
+    disp[~measured] = np.nan
+    disp[r0 - 3 : r1 + 3, c0 - 3 : c1 + 3][measured[r0 - 3 : r1 + 3, c0 - 3 : c1 + 3]] = float(d_sq)
+    _, right_plane = plane_supported_fill(disp, measured, left=left, right=right)
+    assert right_plane[r0 + 3 : r1 - 3, c0 + 3 : c1 - 3].all()
