@@ -46,7 +46,9 @@ def test_ate_measures_known_noise_and_sim3_recovers_scale():
     est = [Rigid3(p.R, p.t + e, "world", "left") for p, e in zip(gt, noise)]
     rmse, _, _ = ate_rmse(est, gt)
     # the alignment can absorb a little of the noise, never add to it
-    assert 0.8 * np.sqrt(np.mean(np.sum(noise**2, axis=1))) < rmse <= np.sqrt(np.mean(np.sum(noise**2, axis=1)))
+    assert (
+        0.8 * np.sqrt(np.mean(np.sum(noise**2, axis=1))) < rmse <= np.sqrt(np.mean(np.sum(noise**2, axis=1)))
+    )
     scaled = [Rigid3(p.R, 0.5 * p.t, "world", "left") for p in gt]
     assert ate_rmse(scaled, gt)[0] > 5.0
     rmse_s, _, T = ate_rmse(scaled, gt, with_scale=True)

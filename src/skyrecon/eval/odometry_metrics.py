@@ -270,7 +270,14 @@ def evaluate_odometry(
     rpe_s = (
         relative_pose_error(est, gt, 1.0, "s", timestamps_s)
         if timestamps_s is not None
-        else {"delta": 1.0, "unit": "s", "pairs": 0, "trans_rmse_m": None, "trans_mean_m": None, "rot_mean_deg": None}
+        else {
+            "delta": 1.0,
+            "unit": "s",
+            "pairs": 0,
+            "trans_rmse_m": None,
+            "trans_mean_m": None,
+            "rot_mean_deg": None,
+        }
     )
     return OdometryMetrics(
         frames=len(est),
