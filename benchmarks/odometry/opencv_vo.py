@@ -67,7 +67,9 @@ class OpenCVStereoVO:
     def _gray(image: np.ndarray) -> np.ndarray:
         return image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
 
-    def _features_3d(self, left: np.ndarray, right: np.ndarray, gray: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _features_3d(
+        self, left: np.ndarray, right: np.ndarray, gray: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
         disp = self.sgbm.compute(left, right).astype(np.float32) / 16.0
         pts = cv2.goodFeaturesToTrack(gray, self.max_corners, 0.01, 7, blockSize=7)
         if pts is None:
@@ -82,7 +84,9 @@ class OpenCVStereoVO:
         y = (pts[ok, 1] - self.rig.left.cy) * z / self.rig.left.fy
         return pts[ok].astype(np.float32), np.stack([x, y, z], axis=1)
 
-    def track(self, left: np.ndarray, right: np.ndarray, timestamp_s: float, disparity_px=None) -> FrameEstimate:
+    def track(
+        self, left: np.ndarray, right: np.ndarray, timestamp_s: float, disparity_px=None
+    ) -> FrameEstimate:
         t0 = time.perf_counter()
         gray = self._gray(left)
         index = len(self.estimates)
@@ -91,7 +95,9 @@ class OpenCVStereoVO:
             p1, st, _ = cv2.calcOpticalFlowPyrLK(
                 self._prev_gray, gray, self._prev_pts.reshape(-1, 1, 2), None, winSize=(21, 21), maxLevel=4
             )
-            p0b, st_b, _ = cv2.calcOpticalFlowPyrLK(gray, self._prev_gray, p1, None, winSize=(21, 21), maxLevel=4)
+            p0b, st_b, _ = cv2.calcOpticalFlowPyrLK(
+                gray, self._prev_gray, p1, None, winSize=(21, 21), maxLevel=4
+            )
             fb = np.linalg.norm(p0b.reshape(-1, 2) - self._prev_pts, axis=1)
             good = (st.ravel() == 1) & (st_b.ravel() == 1) & (fb < 1.0)
             n_tracked = int(good.sum())
@@ -100,8 +106,14 @@ class OpenCVStereoVO:
                 obj = self._prev_xyz[good].astype(np.float64)
                 img = p1.reshape(-1, 2)[good].astype(np.float64)
                 ok, rvec, tvec, inl = cv2.solvePnPRansac(
-                    obj, img, self.K, None, iterationsCount=300, reprojectionError=1.5,
-                    confidence=0.999, flags=cv2.SOLVEPNP_EPNP,
+                    obj,
+                    img,
+                    self.K,
+                    None,
+                    iterationsCount=300,
+                    reprojectionError=1.5,
+                    confidence=0.999,
+                    flags=cv2.SOLVEPNP_EPNP,
                 )
                 if ok and inl is not None and len(inl) >= self.min_inliers:
                     inl = inl.ravel()
