@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -128,7 +129,7 @@ def relative_pose_error(
     delta: float,
     unit: str = "m",
     timestamps_s: np.ndarray | None = None,
-) -> dict[str, float | int | None]:
+) -> dict[str, Any]:
     """Relative pose error over steps of ``delta`` metres of true path (``unit="m"``) or seconds
     (``unit="s"``, needs ``timestamps_s`` (N,)).
 
@@ -150,7 +151,7 @@ def relative_pose_error(
     else:
         raise InputError(f"unit must be 'm' or 's', got {unit!r}")
     i, j = _pairs(axis, delta)
-    out: dict[str, float | int | None] = {"delta": float(delta), "unit": unit, "pairs": int(len(i))}
+    out: dict[str, Any] = {"delta": float(delta), "unit": unit, "pairs": int(len(i))}
     if len(i) == 0:
         out.update(trans_rmse_m=None, trans_mean_m=None, rot_mean_deg=None)
         return out

@@ -357,7 +357,7 @@ def read_euroc(path: str | Path, groundtruth: str | Path | None = None) -> Euroc
         body_from_left=body_from_left.with_frames("body", "left"),
         cam0=cam0,
         cam1=cam1,
-        maps=maps,  # type: ignore[arg-type]
+        maps=maps,
     )
     gt_path = Path(groundtruth) if groundtruth is not None else root / GROUNDTRUTH
     if groundtruth is not None or gt_path.is_file():

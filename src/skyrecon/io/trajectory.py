@@ -98,7 +98,7 @@ class TimedTrajectory:
         return idx, out
 
 
-def format_tum(timestamps_s: Sequence[float], world_from_cam: Sequence[Rigid3]) -> str:
+def format_tum(timestamps_s: Sequence[float] | np.ndarray, world_from_cam: Sequence[Rigid3]) -> str:
     """TUM text: ``timestamp tx ty tz qx qy qz qw`` per pose (``world_from_cam``), full precision."""
     if len(timestamps_s) != len(world_from_cam):
         raise InputError(f"{len(timestamps_s)} timestamps for {len(world_from_cam)} poses")
@@ -110,7 +110,9 @@ def format_tum(timestamps_s: Sequence[float], world_from_cam: Sequence[Rigid3]) 
     return "".join(lines)
 
 
-def write_tum(path: str | Path, timestamps_s: Sequence[float], world_from_cam: Sequence[Rigid3]) -> None:
+def write_tum(
+    path: str | Path, timestamps_s: Sequence[float] | np.ndarray, world_from_cam: Sequence[Rigid3]
+) -> None:
     """Write a TUM trajectory atomically (see :func:`format_tum`)."""
     write_text_atomic(path, format_tum(timestamps_s, world_from_cam))
 
@@ -145,7 +147,7 @@ def _tum_lines(text: str, path: Path) -> TimedTrajectory:
             )
         v = parse_numbers(words, path, lineno, "the pose")
         try:
-            R = quaternion_to_matrix([v[7], v[4], v[5], v[6]])
+            R = quaternion_to_matrix(np.array([v[7], v[4], v[5], v[6]]))
         except InputError as exc:
             raise InputError(f"line {lineno}: {exc.reason}", path) from None
         ts.append(v[0])

@@ -90,11 +90,15 @@ class GpsFusion:
             the flight spans ``min_span_m`` when ``estimate_rotation``.
         estimate_rotation: fit the rotation too (else translation only: the odometry's world is
             already level and oriented, e.g. started with the true initial pose).
+        rotation_known: ``world_from_odom``'s rotation is already about right (e.g. the odometry
+            started from a given world pose): fixes are gated from the first one and the rotation
+            is only refined (rate limited), not found from scratch.
     """
 
     settings: GpsFusionSettings = field(default_factory=GpsFusionSettings)
     world_from_odom: Rigid3 = field(default_factory=lambda: Rigid3.identity("world", "odom"))
     estimate_rotation: bool = True
+    rotation_known: bool = False
     updates: list[GpsUpdate] = field(default_factory=list)
 
     def __post_init__(self) -> None:
@@ -104,7 +108,7 @@ class GpsFusion:
         self._p_prev: np.ndarray | None = None
         self._since_accept_m = 0.0
         self._has_translation = False
-        self._has_rotation = not self.estimate_rotation
+        self._has_rotation = self.rotation_known or not self.estimate_rotation
 
     # ----- the public step ------------------------------------------------------------------
     @property

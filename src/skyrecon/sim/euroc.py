@@ -147,9 +147,14 @@ def write_synthetic_euroc(
         np.array([-0.16, 0.03, -0.0008, 0.0011]),
     )
     body_from_cam0 = Rigid3(
-        rotvec_to_matrix([0.01, -0.02, 0.015]) @ _BODY_FROM_CAM_AXES, [0.02, 0.06, -0.01], "body", "cam"
+        rotvec_to_matrix(np.array([0.01, -0.02, 0.015])) @ _BODY_FROM_CAM_AXES,
+        np.array([0.02, 0.06, -0.01]),
+        "body",
+        "cam",
     )
-    cam0_from_cam1 = Rigid3(rotvec_to_matrix([0.006, -0.012, 0.009]), [0.11, 0.002, -0.0015], "cam", "cam")
+    cam0_from_cam1 = Rigid3(
+        rotvec_to_matrix(np.array([0.006, -0.012, 0.009])), np.array([0.11, 0.002, -0.0015]), "cam", "cam"
+    )
     body_from_cam1 = (body_from_cam0 @ cam0_from_cam1.with_frames("cam", None)).with_frames("body", "cam")
     cam0_from_body = body_from_cam0.inverse()
 

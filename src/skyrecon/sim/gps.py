@@ -101,7 +101,7 @@ class UrbanCanyonGps:
         length = s.jump_m * self._rng.uniform(0.7, 1.3)
         duration = self._rng.uniform(*s.jump_duration_s)
         if time_s >= self._jump_until and b > s.multipath_at and u < s.jump_rate_hz * dt * (1 + 4 * b):
-            direction = side / max(np.linalg.norm(side), 1e-9)
+            direction = side / max(float(np.linalg.norm(side)), 1e-9)
             self._jump = np.array([direction[0], direction[1], 0.0]) * length
             self._jump_until = time_s + duration
         in_jump = time_s < self._jump_until
