@@ -176,3 +176,25 @@ def test_real_engine_on_a_rendered_flight(kitti_seq, tmp_path):
     doc = json.loads((out / "odometry.json").read_text())
     assert doc["summary"]["lost"] == 0
     assert doc["metrics"]["ate_rmse_m"] < 0.3  # a 5.5 m flight
+
+
+def test_map_with_poses_from_odometry(kitti_seq, replay, tmp_path, capsys):
+    import shutil
+
+    root, truth = kitti_seq
+    seq = tmp_path / "no_poses"
+    shutil.copytree(root, seq)
+    (seq / "poses.txt").unlink()
+    assert main(["map", str(seq), "--out", str(tmp_path / "m0")]) == 2
+    assert "--poses odometry" in capsys.readouterr().err
+    out = tmp_path / "map"
+    assert main(["map", str(seq), "--out", str(out), "--poses", "odometry", "--voxel-size", "0.5"]) == 0
+    summary = json.loads((out / "map_summary.json").read_text())
+    assert summary["poses_from"] == "odometry" and summary["odometry"]["lost"] == 1
+    assert summary["voxels"]["occupied"] > 0
+    # with poses.txt the odometry starts from its first pose: the same world as the true map
+    out2 = tmp_path / "map2"
+    assert main(["map", str(root), "--out", str(out2), "--poses", "odometry", "--voxel-size", "0.5"]) == 0
+    flown = np.array(json.loads((out2 / "map_summary.json").read_text())["odometry"]["distance_m"])
+    true_len = sum(np.linalg.norm(b.t - a.t) for a, b in zip(truth, truth[1:]))
+    assert flown == pytest.approx(1.01 * true_len, rel=1e-3)
