@@ -83,18 +83,24 @@ def make_flight(seed: int, length_m: float, width: int, height: int, cache: Path
         return root
     city = generate_city(seed, 240.0, low_texture_fraction=0.3)
     rig = default_rig(width, height, 90.0, 0.3)
-    pos, yaw = flight_path(city, n, seed, SPEED_MPS, FPS, altitude_m=16.0, altitude_wobble_m=4.0, clearance_m=2.5)
+    pos, yaw = flight_path(
+        city, n, seed, SPEED_MPS, FPS, altitude_m=16.0, altitude_wobble_m=4.0, clearance_m=2.5
+    )
     t = np.arange(n) / FPS
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pos, axis=0), axis=1))])
     yaw = yaw + yaw_swings(s, t)
-    poses = [look_from(p, a, math.radians(12.0)).inverse().with_frames("world", "left") for p, a in zip(pos, yaw)]
+    poses = [
+        look_from(p, a, math.radians(12.0)).inverse().with_frames("world", "left") for p, a in zip(pos, yaw)
+    ]
     t0 = time.perf_counter()
 
     def frames():
         for k, p in enumerate(poses):
             f = render_stereo(city, rig, p.inverse())
             if k % 100 == 0:
-                print(f"  seed {seed}: rendered {k}/{n} frames ({time.perf_counter() - t0:.0f} s)", flush=True)
+                print(
+                    f"  seed {seed}: rendered {k}/{n} frames ({time.perf_counter() - t0:.0f} s)", flush=True
+                )
             yield f.left, f.right
 
     write_sequence(root, rig, frames(), poses)
@@ -180,7 +186,10 @@ def print_table(rows: list[dict], methods: list[str]) -> list[dict]:
         )
     worst_rows = [worst(rows, m) for m in methods]
     for w in worst_rows:
-        print(f"{w['method']:<9} {'worst':>5} {'':>7} " + " ".join(f"{_cell(w[k], f):>9}" for k, _, f in COLUMNS))
+        print(
+            f"{w['method']:<9} {'worst':>5} {'':>7} "
+            + " ".join(f"{_cell(w[k], f):>9}" for k, _, f in COLUMNS)
+        )
     if "skyrecon" in methods and "opencv" in methods:
         a, b = worst_rows[methods.index("skyrecon")], worst_rows[methods.index("opencv")]
         ratios = {}

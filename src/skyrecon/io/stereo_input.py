@@ -85,7 +85,9 @@ def associate(traj: TimedTrajectory, seq: StereoInput, path: Path) -> list[Rigid
                 path,
             )
         traj = traj.transformed(seq.body_from_left, "left")
-    idx, poses = traj.at_times(seq.timestamps_s, max_gap_s=0.05)
+    assert traj.timestamps_s is not None
+    spacing = float(np.median(np.diff(traj.timestamps_s))) if len(traj) > 1 else 0.0
+    idx, poses = traj.at_times(seq.timestamps_s, max_gap_s=max(0.05, 1.01 * spacing))
     if len(idx) < 2:
         raise InputError(
             f"the ground truth covers {len(idx)} of the {n} frame times "
