@@ -221,7 +221,7 @@ def _write_outputs(
         "settings": settings,
         "options": {
             "max_frames": args.max_frames,
-            "loop_closure": not args.no_loop_closure,
+            "loop_closure": bool(settings.get("loop_closure", not args.no_loop_closure)),
             "init_world_from_left": init.matrix3x4.tolist() if init is not None else None,
             "gps": args.gps,
         },
