@@ -102,6 +102,7 @@ def write_synthetic_euroc(
     climb_mps: float = 0.5,
     city: City | None = None,
     gray: bool = True,
+    baseline_m: float = 0.11,
 ) -> SyntheticEuroc:
     """Render a short stereo flight and write it in the EuRoC layout under ``root/mav0``.
 
@@ -114,6 +115,8 @@ def write_synthetic_euroc(
         speed_mps, yaw_rate_dps, climb_mps: the motion.
         city: the scene (default ``generate_city(seed, size_m=120)``).
         gray: write grey images (as EuRoC) rather than RGB.
+        baseline_m: distance along cam0's x axis to cam1, metres (EuRoC's rig: 0.11 m, made for rooms;
+            city streets at 10-60 m want more).
     """
     root = Path(root)
     city = generate_city(seed, size_m=120.0) if city is None else city
@@ -153,7 +156,10 @@ def write_synthetic_euroc(
         "cam",
     )
     cam0_from_cam1 = Rigid3(
-        rotvec_to_matrix(np.array([0.006, -0.012, 0.009])), np.array([0.11, 0.002, -0.0015]), "cam", "cam"
+        rotvec_to_matrix(np.array([0.006, -0.012, 0.009])),
+        np.array([baseline_m, 0.002, -0.0015]),
+        "cam",
+        "cam",
     )
     body_from_cam1 = (body_from_cam0 @ cam0_from_cam1.with_frames("cam", None)).with_frames("body", "cam")
     cam0_from_body = body_from_cam0.inverse()
