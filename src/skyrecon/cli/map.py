@@ -201,6 +201,7 @@ def _odometry_poses(seq: StereoSequence, n: int) -> tuple[list[Rigid3], dict[str
     run's summary. The world: the first pose of ``poses.txt`` when there is one, else a level
     camera at the origin looking along +x (z up)."""
     from skyrecon.cli.odometry import make_engine
+    from skyrecon.io.stereo_input import kitti_times
     from skyrecon.odometry.run import run_odometry, summarize_run
 
     if n < 2:
@@ -211,7 +212,7 @@ def _odometry_poses(seq: StereoSequence, n: int) -> tuple[list[Rigid3], dict[str
         init = Rigid3(_LEVEL_WORLD_FROM_CAM, np.zeros(3), "world", "left")
     engine, _ = make_engine(seq.rig, init, True)
     frames = progress((seq.frame(i) for i in range(n)), total=n, desc="odometry", unit="frame")
-    result = run_odometry(engine, frames, np.arange(n) / 10.0)
+    result = run_odometry(engine, frames, kitti_times(seq.root, len(seq))[0][:n])
     summary = summarize_run(result)
     info(
         f"odometry: {n} frames, {summary['distance_m']:.1f} m, {summary['lost']} lost, "

@@ -22,7 +22,7 @@ from skyrecon.io.euroc import EurocSequence, is_euroc_dir, read_euroc
 from skyrecon.io.sequence import StereoSequence, is_sequence_dir, read_sequence
 from skyrecon.io.trajectory import TimedTrajectory, read_trajectory
 
-__all__ = ["StereoInput", "open_stereo_sequence", "KITTI_DEFAULT_FPS"]
+__all__ = ["StereoInput", "open_stereo_sequence", "kitti_times", "KITTI_DEFAULT_FPS"]
 
 KITTI_DEFAULT_FPS = 10.0
 
@@ -100,7 +100,8 @@ def associate(traj: TimedTrajectory, seq: StereoInput, path: Path) -> list[Rigid
     return out
 
 
-def _kitti_times(root: Path, n: int) -> tuple[np.ndarray, bool]:
+def kitti_times(root: Path, n: int) -> tuple[np.ndarray, bool]:
+    """(frame times in seconds (n,), True when assumed at 10 Hz for want of ``root/times.txt``)."""
     path = root / "times.txt"
     if not path.is_file():
         return np.arange(n) / KITTI_DEFAULT_FPS, True
@@ -139,7 +140,7 @@ def open_stereo_sequence(path: str | Path) -> StereoInput:
         )
     if is_sequence_dir(root):
         k = read_sequence(root)
-        t, assumed = _kitti_times(root, len(k))
+        t, assumed = kitti_times(root, len(k))
         gt = list(k.world_from_left) if k.world_from_left is not None else None
         return StereoInput(root, "kitti", k.rig, t, k, gt, "poses.txt" if gt else "", None, assumed)  # type: ignore[arg-type]
     raise InputError(
