@@ -16,7 +16,10 @@ re-fitted whenever fixes arrive:
    drift makes old fixes less telling about the present) and tied to the previous correction by a few
    pseudo-points (``prior_weight``), which also fixes the rotation about a straight flight's line.
    Until the flown positions span ``min_span_m`` in two directions only the translation is fitted.
-3. **Rate limit**: once initialised, the correction may move the current position by at most
+3. **Recovery**: when every fix has been rejected for ``reset_after_s`` seconds (longer than a
+   multipath episode), the correction itself is wrong: it is re-aligned robustly (RANSAC) on those
+   fixes if most of them agree.
+4. **Rate limit**: once initialised, the correction may move the current position by at most
    ``max_correction_mps`` metres per second and turn by ``max_rotation_dps`` degrees per second: a
    bad fit cannot teleport the vehicle, only lean on it.
 
@@ -55,6 +58,7 @@ class GpsFusionSettings:
     max_correction_mps: float = 1.5
     max_rotation_dps: float = 3.0
     irls_iterations: int = 5
+    reset_after_s: float = 15.0
 
     def __post_init__(self) -> None:
         for name in (
@@ -107,6 +111,8 @@ class GpsFusion:
         self._t_prev: float | None = None
         self._p_prev: np.ndarray | None = None
         self._since_accept_m = 0.0
+        self._rejected: deque[tuple[float, np.ndarray, np.ndarray, float]] = deque()
+        self.resets = 0
         self._has_translation = False
         self._has_rotation = self.rotation_known or not self.estimate_rotation
 
@@ -179,12 +185,49 @@ class GpsFusion:
             gate = s.gate_sigma * math.hypot(fix.accuracy_m, sigma_pred)
             ok = innovation <= gate
         self.updates.append(GpsUpdate(fix.time_s, ok, innovation, gate))
+        entry = (fix.time_s, p_odom.copy(), fix.position.copy(), fix.accuracy_m)
         if ok:
-            self._window.append((fix.time_s, p_odom.copy(), fix.position.copy(), fix.accuracy_m))
+            self._window.append(entry)
+            self._rejected.clear()
             self._since_accept_m = 0.0
             while self._window and self._window[0][0] < fix.time_s - s.window_s:
                 self._window.popleft()
-        return ok
+            return True
+        self._rejected.append(entry)
+        if fix.time_s - self._rejected[0][0] >= s.reset_after_s:
+            return self._reset_from_rejected()
+        return False
+
+    def _reset_from_rejected(self) -> bool:
+        """Every fix rejected for ``reset_after_s``: a multipath episode lasts seconds, so it is the
+        correction that went wrong (e.g. a first alignment on a barely turning flight). Re-align
+        robustly on the rejected fixes when most of them agree; returns whether it did."""
+        src = np.array([w[1] for w in self._rejected])
+        dst = np.array([w[2] for w in self._rejected])
+        acc = float(np.median([w[3] for w in self._rejected]))
+        prev = self.world_from_odom
+        try:
+            if (
+                self._has_rotation
+                and self.estimate_rotation
+                and np.ptp(src, axis=0).max() >= self.settings.min_span_m
+            ):
+                res = robust_umeyama(src, dst, threshold=3.0 * acc, with_scale=False, seed=0)
+                R, t, inl = res.transform.R, res.transform.t, res.inliers
+            else:  # keep the rotation, move the translation (a median is robust to a minority of jumps)
+                R = prev.R
+                t = np.median(dst - src @ R.T, axis=0)
+                inl = np.linalg.norm(src @ R.T + t - dst, axis=1) < 3.0 * acc
+        except EstimationError:
+            return False
+        if inl.sum() < 0.6 * len(src):
+            return False
+        self.world_from_odom = Rigid3(R, t, "world", "odom")
+        self._window = deque(w for w, keep in zip(self._rejected, inl) if keep)
+        self._rejected.clear()
+        self._since_accept_m = 0.0
+        self.resets += 1
+        return True
 
     def _fit(self) -> Rigid3:
         s = self.settings
@@ -196,7 +239,8 @@ class GpsFusion:
         if rotate and not self._has_rotation:
             # the first alignment needs a turn: on a straight line the roll about it is unobservable
             spread = np.linalg.svd(src - src.mean(axis=0), compute_uv=False) / math.sqrt(len(src))
-            rotate = bool(spread[1] >= s.min_span_m / 8)
+            # ... and one wide against the fixes' accuracy, or their errors become a rotation error
+            rotate = bool(spread[1] >= max(s.min_span_m / 8, 1.0 * float(np.median(acc))))
         # pseudo-points tying the fit to the previous correction (about the window's centre)
         c = src.mean(axis=0)
         span = max(s.min_span_m, float(np.ptp(src, axis=0).max()))
