@@ -29,9 +29,13 @@ def _errors(vo, flight, frames):
     return pos, rot
 
 
-@pytest.mark.parametrize("disparity", [False, True], ids=["sparse-stereo", "given-disparity"])
-def test_flight_stays_close_to_truth(flight, disparity):
-    vo, est = _run(flight, disparity=disparity)
+@pytest.mark.parametrize(
+    "disparity, window",
+    [(False, 0), (True, 0), (False, 5)],
+    ids=["sparse-stereo", "given-disparity", "window-ba"],
+)
+def test_flight_stays_close_to_truth(flight, disparity, window):
+    vo, est = _run(flight, OdometrySettings(window_keyframes=window), disparity=disparity)
     frames = list(range(len(flight.left)))
     length = sum(
         float(np.linalg.norm(flight.world_from_left[k + 1].t - flight.world_from_left[k].t))
@@ -47,6 +51,11 @@ def test_flight_stays_close_to_truth(flight, disparity):
     assert all(np.isfinite(e.reprojection_rms_px) and e.reprojection_rms_px < 2.0 for e in est[1:])
     assert all("total" in e.timings_ms and "track" in e.timings_ms for e in est[1:])
     assert len(vo.trajectory()) == len(vo.estimates) == len(flight.left)
+    if window:
+        # the window's refinements reach the trajectory (keyframes and the frames that hang off them)
+        assert any("window_ba" in e.timings_ms for e in est)
+        moved = [np.linalg.norm(p.t - e.position) for p, e in zip(vo.trajectory(), est)]
+        assert max(moved) > 1e-4
 
 
 def test_same_seed_same_trajectory(flight):

@@ -73,7 +73,11 @@ class OdometrySettings:
         keyframe_max_distance_m: ... or when the camera moved this far from it, metres.
         keyframe_max_rotation_deg: ... or turned this much, degrees.
         keyframe_max_frames: ... or after this many frames.
-        window_keyframes: keyframes in the sliding-window bundle adjustment (0 turns it off).
+        window_keyframes: keyframes in the sliding-window bundle adjustment (0, the default,
+            turns it off). Off by default because on the synthetic flights it lowers the
+            per-frame error but biases the scale by 0.5-1 % (the KLT tracks it adjusts drift
+            radially by a few tenths of a pixel over 5-10 frames, which a monocular window
+            reads as motion), tripling the drift; see :mod:`skyrecon.odometry.window`.
         window_fixed_keyframes: oldest window keyframes held fixed (gauge and scale).
         window_iterations: Levenberg-Marquardt iterations of the window adjustment.
         max_speed_mps: a pose implying a faster motion since the last trusted one is rejected.
@@ -88,7 +92,7 @@ class OdometrySettings:
     max_features: int = 300
     grid: tuple[int, int] = (8, 6)
     min_corner_distance_px: float = 8.0
-    klt_window_px: int = 21
+    klt_window_px: int = 15
     klt_levels: int = 3
     fb_threshold_px: float = 0.7
     min_disparity_px: float = 0.5
@@ -390,7 +394,7 @@ class StereoOdometry:
         self._pyr, self._pts, self._ids = pyr, pts, ids
         self._add_keyframe(index, T, pts, ids, d)
         self._record(T, len(self._kfs) - 1)
-        self._trusted = [(ts, T.copy())]
+        self._trust(ts, T)  # after a loss: chained to the last trusted pose, the velocity kept
         lost_before = self._lost_count
         self._lost_count = 0
         state, reason = TrackingState.OK, ""
