@@ -30,12 +30,13 @@ def _errors(vo, flight, frames):
 
 
 @pytest.mark.parametrize(
-    "disparity, window",
-    [(False, 0), (True, 0), (False, 5)],
-    ids=["sparse-stereo", "given-disparity", "window-ba"],
+    "disparity, kw",
+    [(False, {}), (True, {}), (False, {"window_keyframes": 5}), (False, {"pnp_refinement": "lm"})],
+    ids=["sparse-stereo", "given-disparity", "window-ba", "lm-pnp"],
 )
-def test_flight_stays_close_to_truth(flight, disparity, window):
-    vo, est = _run(flight, OdometrySettings(window_keyframes=window), disparity=disparity)
+def test_flight_stays_close_to_truth(flight, disparity, kw):
+    window = kw.get("window_keyframes", 0)
+    vo, est = _run(flight, OdometrySettings(**kw), disparity=disparity)
     frames = list(range(len(flight.left)))
     length = sum(
         float(np.linalg.norm(flight.world_from_left[k + 1].t - flight.world_from_left[k].t))
