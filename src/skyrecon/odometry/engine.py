@@ -83,7 +83,11 @@ class OdometrySettings:
             per-frame error but biases the scale by 0.5-1 % (the KLT tracks it adjusts drift
             radially by a few tenths of a pixel over 5-10 frames, which a monocular window
             reads as motion), tripling the drift; see :mod:`skyrecon.odometry.window`.
-        window_fixed_keyframes: oldest window keyframes held fixed (gauge and scale).
+        window_fixed_keyframes: oldest window keyframes held fixed (gauge and scale). When it is
+            at least ``window_keyframes`` every keyframe is held and only the points are refined,
+            from the left and right observations of every keyframe (a stereo-consistent
+            multi-view triangulation; measured: a third less error per frame, but the same
+            tracking bias shows as drift, 0.39-0.42 % against 0.24-0.27 % with the window off).
         window_iterations: Levenberg-Marquardt iterations of the window adjustment.
         max_speed_mps: a pose implying a faster motion since the last trusted one is rejected.
         max_rotation_rate_dps: ... or a faster rotation, degrees per second.
@@ -672,7 +676,10 @@ class StereoOdometry:
         s = self.settings
         win = self._kfs[-s.window_keyframes :]
         K = len(win)
-        n_fixed = min(s.window_fixed_keyframes, K - 1)
+        # at least one free keyframe, unless every keyframe is held (points-only refinement)
+        n_fixed = (
+            K if s.window_fixed_keyframes >= s.window_keyframes else min(s.window_fixed_keyframes, K - 1)
+        )
         seen: dict[int, int] = {}
         for kf in win:
             for i in kf.obs_ids.tolist():
