@@ -52,6 +52,7 @@ from skyrecon.sim import (
 EXAMPLES = """  skyrecon render stereo --seed 3 --out scene/
   skyrecon render sequence --frames 60 --out flight/
   skyrecon render ring --views 12 --out ring/
+  skyrecon render ring --plain --views 12 --out ring-plain/
   skyrecon render images --views 10 --out photos/
 """
 
@@ -77,6 +78,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     )
     p.add_argument("--frames", type=positive_int, default=30, help="sequence: number of frames (default 30)")
     p.add_argument("--views", type=positive_int, default=12, help="ring/images: number of views (default 12)")
+    p.add_argument(
+        "--plain",
+        action="store_true",
+        help="ring/images: plain grey ground, plain walls and one glass face (low-texture surfaces)",
+    )
     p.add_argument(
         "--city-size", type=positive_float, default=200.0, help="city side length, metres (default 200)"
     )
@@ -183,7 +189,7 @@ def _write_views(out: Path, views, results, image_dir: str, model_dir: str, dept
 
 
 def _object_scene_views(args, kind: str):
-    scene = generate_object_scene(args.seed)
+    scene = generate_object_scene(args.seed, plain=bool(getattr(args, "plain", False)))
     cam = Intrinsics.from_fov(args.width, args.height, args.hfov)
     center = np.asarray(scene.center if hasattr(scene, "center") else [0.0, 0.0, 1.0], dtype=np.float64)
     radius = float(getattr(scene, "view_radius_m", 8.0))

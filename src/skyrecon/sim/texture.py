@@ -56,6 +56,7 @@ WINDOWS_RIBBON = 2
 # Ground styles (``City.ground_style``).
 GROUND_CITY = 0
 GROUND_PLAZA = 1
+GROUND_PLAIN = 2  # plain grey, barely textured (object scenes with ``plain=True``)
 
 # Noise octaves fade from full weight at a wavelength of AA_FULL footprints to zero at AA_ZERO.
 AA_ZERO = 2.0
@@ -376,6 +377,8 @@ def _surface(mat, face, u, v, fp, seed, ar, ag, ab, cr, cg, cb, floor_h, col_p, 
 def _ground(x, y, fp, style, seed, blocks_x, blocks_y, extent, sidewalk):
     """Pattern colour and noise layers of the ground at world (x, y), metres (same tuple as ``_surface``)."""
     w = AA_TENT * fp
+    if style == GROUND_PLAIN:  # plain grey everywhere: only a faint shading of 12 m wavelength
+        return 0.5, 0.5, 0.49, 12.0, 2, 0.02, 0.0, 0.0, 0.0, 0.0, 0.0
     inside = x >= extent[0] and x <= extent[2] and y >= extent[1] and y <= extent[3]
     if style == GROUND_PLAZA and inside:
         t = 0.5
