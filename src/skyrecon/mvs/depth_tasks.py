@@ -20,6 +20,7 @@ from skyrecon.executor import Executor
 from skyrecon.mvs.frames import WorkingView
 from skyrecon.mvs.pairwise import pairwise_depth
 from skyrecon.mvs.patchmatch import PatchMatchSettings, patchmatch_depth
+from skyrecon.mvs.planar_prior import dominant_planes
 from skyrecon.mvs.settings import MVSSettings
 
 __all__ = ["DepthEstimates", "TaskTimings", "estimate_depths"]
@@ -30,13 +31,17 @@ TaskTimings = dict[str, Any]
 
 
 class PatchMatchTask(NamedTuple):
-    """One reference view's PatchMatch: its sources, depth range (near, far) metres, settings, seed."""
+    """One reference view's PatchMatch: its sources, depth range (near, far) metres, settings, seed,
+    and the planar prior's sparse world points (N, 3) metres seen by the view and dominant world
+    planes (P, 4) (or None)."""
 
     ref: WorkingView
     sources: list[WorkingView]
     depth_range: tuple[float, float]
     settings: PatchMatchSettings
     seed: int
+    points: np.ndarray | None = None
+    planes: np.ndarray | None = None
 
 
 class PairwiseTask(NamedTuple):
@@ -78,8 +83,13 @@ def _without_colour(view: WorkingView) -> WorkingView:
 
 def _patchmatch_task(task: PatchMatchTask) -> tuple[np.ndarray, TaskTimings]:
     c0 = time.process_time()
-    res = patchmatch_depth(task.ref, task.sources, task.depth_range, task.settings, task.seed)
-    return res.depth, {**res.timings_ms, "cpu": (time.process_time() - c0) * 1e3, "pid": os.getpid()}
+    res = patchmatch_depth(
+        task.ref, task.sources, task.depth_range, task.settings, task.seed, task.points, task.planes
+    )
+    tm: TaskTimings = {**res.timings_ms, "cpu": (time.process_time() - c0) * 1e3, "pid": os.getpid()}
+    if res.prior:
+        tm["planar_prior"] = res.prior
+    return res.depth, tm
 
 
 def _pairwise_task(task: PairwiseTask) -> tuple[np.ndarray, TaskTimings]:
@@ -108,6 +118,14 @@ def _executor_threads(executor: Executor) -> int:
     return max(1, (os.cpu_count() or 1) // workers)
 
 
+def _points_in_view(points: np.ndarray | None, view: WorkingView) -> np.ndarray | None:
+    """The world points (M, 3) metres in front of and inside ``view``, or None without points."""
+    if points is None or len(points) == 0:
+        return None
+    uv, z = view.posed().project(points)
+    return points[view.intrinsics.in_image(uv) & (z > 0)]
+
+
 def _points_seen_by_both(points: np.ndarray | None, ref: WorkingView, src: WorkingView) -> np.ndarray | None:
     """The world points (M, 3) metres in front of and inside both views, or None without points."""
     if points is None or len(points) == 0:
@@ -126,20 +144,24 @@ def _patchmatch_depths(
     ranges: Sequence[tuple[float, float] | None],
     executor: Executor,
     desc: str | None,
+    points: np.ndarray | None,
 ) -> list[tuple[int, np.ndarray, TaskTimings]]:
     """One PatchMatch task per view with sources and a depth range."""
     pm = settings.patchmatch
     if pm.threads == 1:
         pm = replace(pm, threads=_executor_threads(executor))
     slim = [_without_colour(v) for v in views]
+    planes = None
+    if pm.prior.enabled and points is not None and len(points):
+        planes = dominant_planes(points, pm.prior, seed=settings.seed)
     tasks: list[tuple[int, PatchMatchTask]] = []
     for r, nb in enumerate(neighbors):
         depth_range = ranges[r]
         if nb and depth_range is not None:
             sources = [slim[s] for s in nb]
-            tasks.append(
-                (r, PatchMatchTask(slim[r], sources, depth_range, pm, settings.seed * 1_000_003 + r))
-            )
+            seen = _points_in_view(points, views[r]) if pm.prior.enabled else None
+            seed = settings.seed * 1_000_003 + r
+            tasks.append((r, PatchMatchTask(slim[r], sources, depth_range, pm, seed, seen, planes)))
     results = executor.map(_patchmatch_task, [t for _, t in tasks], desc=desc)
     return [(r, d, tm) for (r, _), (d, tm) in zip(tasks, results)]
 
@@ -189,14 +211,15 @@ def estimate_depths(
         ranges: per view the (near, far) depth range searched, metres, or None (no depth).
         executor: where the tasks run.
         progress: show a progress bar.
-        points: sparse world points (N, 3) metres that narrow the pairwise disparity search.
+        points: sparse world points (N, 3) metres that narrow the pairwise disparity search and
+            support PatchMatch's planar prior.
     Returns:
         DepthEstimates. A pair that cannot be matched gives an all-NaN depth and an ``error``
         in its timings; it does not stop the others.
     """
     desc = "MVS depth" if progress else None
     if settings.depth_method == "patchmatch":
-        results = _patchmatch_depths(views, settings, neighbors, ranges, executor, desc)
+        results = _patchmatch_depths(views, settings, neighbors, ranges, executor, desc, points)
     else:
         results = _pairwise_depths(views, settings, pairs, ranges, executor, desc, points)
     depths: list[np.ndarray | None] = [None] * len(views)

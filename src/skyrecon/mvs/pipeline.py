@@ -144,6 +144,10 @@ def _names(views: Sequence[WorkingView], idx: Sequence[int]) -> str:
     return ", ".join(names[:8]) + (f" and {len(names) - 8} more" if len(names) > 8 else "")
 
 
+def _names_of(names: Sequence[str]) -> str:
+    return ", ".join(names[:8]) + (f" and {len(names) - 8} more" if len(names) > 8 else "")
+
+
 def _all_names(views: Sequence[WorkingView]) -> str:
     return _names(views, range(len(views)))
 
@@ -274,6 +278,18 @@ def _depth(run: _MVSRun) -> None:
     )
     run.depths, run.pair_depths = est.depths, est.pair_depths
     run.diagnostics["depth_task_ms"] = est.task_timings
+    prior = {
+        run.views[r].stem: tm["planar_prior"]
+        for (r, _), tm in zip(est.pair_depths, est.task_timings)
+        if "planar_prior" in tm
+    }
+    if prior:
+        run.diagnostics["planar_prior"] = prior
+        failed = [n for n, p in prior.items() if str(p.get("fallback", "")).startswith("planar prior failed")]
+        if failed:
+            run.warnings.append(
+                f"planar prior failed (PatchMatch depth kept) in {_names_of(failed)}: {prior[failed[0]]['fallback']}"
+            )
     run.warnings.extend(tm["error"] for tm in est.task_timings if "error" in tm)
     empty = [i for i, d in enumerate(run.depths) if d is not None and not np.isfinite(d).any()]
     if empty:
