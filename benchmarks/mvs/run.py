@@ -91,7 +91,14 @@ def picture(clouds: dict, view, path: Path) -> None:
 
 
 def ring_scene(
-    name: str, seed: int, n: int, radius: float, height: float, hfov: float, plain: bool = False, width: int = 640
+    name: str,
+    seed: int,
+    n: int,
+    radius: float,
+    height: float,
+    hfov: float,
+    plain: bool = False,
+    width: int = 640,
 ):
     city = generate_object_scene(seed, plain=plain)
     intr = Intrinsics.from_fov(width, width * 3 // 4, hfov)
@@ -298,7 +305,11 @@ def main() -> None:
     rows: list[dict] = []
     results = Path(__file__).resolve().parent / "results.json"
     # the rows of scenes not run this time are kept
-    kept = [r for r in json.loads(results.read_text()) if r["scene"] not in args.scenes] if results.exists() else []
+    kept = (
+        [r for r in json.loads(results.read_text()) if r["scene"] not in args.scenes]
+        if results.exists()
+        else []
+    )
     jobs = {
         "ring-a": lambda: run_ring("ring-a", 0, 12, 8.0, 5.0, 60.0, args.workers),
         "ring-b": lambda: run_ring("ring-b", 3, 16, 9.0, 3.0, 55.0, args.workers),

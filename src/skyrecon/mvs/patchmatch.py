@@ -18,7 +18,6 @@ import numpy as np
 from skyrecon.errors import InputError
 from skyrecon.mvs import _pm_kernels as K
 from skyrecon.mvs.frames import WorkingView
-from skyrecon.mvs.planar_prior import PlanarPriorSettings, fill_plain_segments
 
 __all__ = ["PatchMatchSettings", "PatchMatchResult", "patchmatch_depth", "texture_mask", "brightness_gain"]
 
@@ -67,8 +66,6 @@ class PatchMatchSettings:
             seen by one source only can still be estimated if it matches well).
         threads: threads per view (rows split between them); 1 when views run in parallel
             processes.
-        prior: planar prior for the plain segments left without depth
-            (:mod:`skyrecon.mvs.planar_prior`; ``enabled=False`` turns it off).
     """
 
     iterations: int = 3
@@ -93,7 +90,6 @@ class PatchMatchSettings:
     min_source_var: float = 0.5
     missing_view_penalty: float = 0.15
     threads: int = 1
-    prior: PlanarPriorSettings = PlanarPriorSettings()
 
     def __post_init__(self) -> None:
         if self.levels < 1 or self.coarse_iterations < 1:
@@ -130,19 +126,14 @@ class PatchMatchResult:
         depth: (H, W) float32 metres along the reference optical axis, NaN where no estimate.
         normal: (H, W, 3) float32 unit normals in the reference camera frame, NaN where none.
         cost: (H, W) float32 final aggregated cost (1 - NCC of the ``topk`` best sources), 2
-            where not estimated, ``max_cost`` where the depth comes from the planar prior.
+            where not estimated.
         timings_ms: per stage.
-        prior: what the planar prior did (:meth:`PriorReport.as_dict`; ``fallback`` says why it
-            was not applied), empty when it is off.
-        from_prior: (H, W) bool pixels whose depth comes from the planar prior.
     """
 
     depth: np.ndarray
     normal: np.ndarray
     cost: np.ndarray
     timings_ms: dict[str, float] = field(default_factory=dict)
-    prior: dict[str, int | str] = field(default_factory=dict)
-    from_prior: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), bool))
 
 
 def _offsets(radius: int, step: int) -> tuple[np.ndarray, np.ndarray]:
@@ -420,16 +411,12 @@ def patchmatch_depth(
     depth_range: tuple[float, float],
     settings: PatchMatchSettings = PatchMatchSettings(),
     seed: int = 0,
-    sparse_points: np.ndarray | None = None,
-    planes: np.ndarray | None = None,
 ) -> PatchMatchResult:
     """Estimate the depth map of ``ref`` from ``sources`` with PatchMatch.
 
     With ``settings.levels > 1`` the images are solved at half size first (``coarse_iterations``
     sweeps); the coarse planes initialise the finer level, and pixels that are flat at the finer
-    level but were matched at the coarser one keep the coarse plane. With ``settings.prior``
-    enabled, plain segments still without depth then take the plane their surroundings support
-    (:func:`skyrecon.mvs.planar_prior.fill_plain_segments`).
+    level but were matched at the coarser one keep the coarse plane.
 
     Args:
         ref: the reference view (working resolution).
@@ -437,8 +424,6 @@ def patchmatch_depth(
         depth_range: (near, far) metres along the reference optical axis, 0 < near < far.
         settings: see :class:`PatchMatchSettings`.
         seed: random seed (results are identical for any thread count).
-        sparse_points: (N, 3) world points, metres (the sparse features): planar prior support.
-        planes: (P, 4) dominant world planes (:func:`skyrecon.mvs.planar_prior.dominant_planes`).
     Returns:
         PatchMatchResult at the reference's working resolution.
     Raises:
@@ -452,55 +437,9 @@ def patchmatch_depth(
         raise InputError(f"view {ref.name}: bad depth range ({near}, {far}); need 0 < near < far")
     s = settings
     lvl = _solve(ref, sources, near, far, s, seed, s.levels, s.iterations)
-    t1 = time.perf_counter()
     depth, normal, cost = lvl.depth, lvl.normal, lvl.cost
-    accepted = lvl.estimated & (cost <= s.max_cost)
-    cost[~lvl.estimated] = K.BAD_COST
-    filled = np.zeros(ref.shape, bool)
-    report: dict[str, int | str] = {}
-    if s.prior.enabled:
-        filled, report = _planar_prior(ref, sources, lvl, accepted, near, far, s, sparse_points, planes)
-    bad = ~accepted & ~filled
+    bad = ~lvl.estimated | ~(cost <= s.max_cost)
     depth[bad] = np.nan
     normal[bad] = np.nan
-    cost[filled] = s.max_cost
-    timings = {"total": (time.perf_counter() - t0) * 1e3, "prior": (time.perf_counter() - t1) * 1e3}
-    return PatchMatchResult(depth, normal, cost, timings, report, filled)
-
-
-def _planar_prior(
-    ref: WorkingView,
-    sources: list[WorkingView],
-    lvl: _Level,
-    accepted: np.ndarray,
-    near: float,
-    far: float,
-    s: PatchMatchSettings,
-    sparse_points: np.ndarray | None,
-    planes: np.ndarray | None,
-) -> tuple[np.ndarray, dict[str, int | str]]:
-    """Plain segments filled from planes (in ``lvl`` in place); on any failure nothing changes and
-    the report's ``fallback`` says why."""
-    depth, normal = lvl.depth.copy(), lvl.normal.copy()
-    try:
-        filled, rep = fill_plain_segments(
-            ref,
-            sources,
-            depth,
-            normal,
-            lvl.cost,
-            accepted,
-            (near, far),
-            float(np.cos(np.radians(s.max_incidence_deg))),
-            brightness_gain(ref),
-            s.prior,
-            sparse_points,
-            planes,
-        )
-    except (ValueError, np.linalg.LinAlgError, cv2.error) as exc:  # never worse than without the prior
-        return np.zeros(ref.shape, bool), {"fallback": f"planar prior failed: {str(exc).strip().splitlines()[-1]}"}
-    if rep.fallback:
-        return np.zeros(ref.shape, bool), rep.as_dict()
-    lvl.depth[filled] = depth[filled]
-    lvl.normal[filled] = normal[filled]
-    return filled, rep.as_dict()
+    cost[~lvl.estimated] = K.BAD_COST
+    return PatchMatchResult(depth, normal, cost, {"total": (time.perf_counter() - t0) * 1e3})
