@@ -3,7 +3,8 @@ SGBM per ``360`` pair, clouds concatenated: ``MVSSettings.writeup_baseline()``),
 
 Methods: ``skyrecon`` (default settings), ``concat`` (the write-up's SGBM parameters: the baseline
 of the targets), ``concat+`` (the same concatenation with the stereo engine's default SGBM: a
-stronger baseline, shown for transparency).
+stronger baseline, shown for transparency); on the plain rings also ``sky-noprior`` (the default
+without the planar prior).
 
 Scenes:
   ring-a, ring-b  synthetic monuments (skyrecon.sim) seen by a camera ring, exact geometry:
@@ -54,6 +55,7 @@ from skyrecon.executor import get_executor  # noqa: E402
 from skyrecon.io import read_ply, write_ply  # noqa: E402
 from skyrecon.io.atomic import write_text_atomic  # noqa: E402
 from skyrecon.mvs import MVSSettings, load_views_and_images, run_mvs  # noqa: E402
+from skyrecon.mvs.planar_prior import PlanarPriorSettings  # noqa: E402
 from skyrecon.mvs.preview import render_cloud  # noqa: E402
 from skyrecon.sim import generate_object_scene, render_views, ring_views  # noqa: E402
 
@@ -157,7 +159,10 @@ def run_ring(
 ) -> list[dict]:
     city, views, images, ref, box, size = ring_scene(name, seed, n, radius, height, hfov, plain)
     rows, clouds = [], {}
-    for method, settings in METHODS.items():
+    methods = dict(METHODS)
+    if plain:  # the planar prior's own effect
+        methods["sky-noprior"] = MVSSettings(planar_prior=PlanarPriorSettings(enabled=False))
+    for method, settings in methods.items():
         res, wall, cpu = timed_run(views, images, settings, workers)
         m = ring_metrics(city, res.cloud.points, ref, box, size, radius)
         clouds[method] = res.cloud

@@ -346,8 +346,10 @@ def _spread(uv: np.ndarray) -> float:
     """Standard deviation of image points (N, 2) along their least spread direction, pixels."""
     if len(uv) < 3:
         return 0.0
-    ev = np.linalg.eigvalsh(np.cov(uv.T))
-    return float(np.sqrt(max(ev[0], 0.0)))
+    c = uv - uv.mean(axis=0)
+    a, b, d = float(np.mean(c[:, 0] ** 2)), float(np.mean(c[:, 0] * c[:, 1])), float(np.mean(c[:, 1] ** 2))
+    smallest = 0.5 * (a + d) - np.hypot(0.5 * (a - d), b)  # the smaller eigenvalue of the 2x2 covariance
+    return float(np.sqrt(max(smallest, 0.0)))
 
 
 def _candidate_planes(
