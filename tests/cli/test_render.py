@@ -67,5 +67,3 @@ def test_render_plain_city(tmp_path, capsys):
     textured = tmp_path / "textured"
     assert main(["render", "sequence", "--out", str(textured), "--frames", "2", *SMALL]) == 0
     assert not np.array_equal(plain, read_image(textured / "image_2" / "000000.png"))
-    assert main(["render", "ring", "--plain", "--out", str(tmp_path / "ring"), "--quiet"]) == 2
-    assert "--plain" in capsys.readouterr().err

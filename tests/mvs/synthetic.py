@@ -27,9 +27,10 @@ class Ring:
 
 
 @lru_cache(maxsize=4)
-def make_ring(n: int = 10, width: int = 192, height: int = 144, seed: int = 0) -> Ring:
-    """``n`` cameras on a ring around a generated monument, looking down at about 30 degrees."""
-    city = generate_object_scene(seed)
+def make_ring(n: int = 10, width: int = 192, height: int = 144, seed: int = 0, plain: bool = False) -> Ring:
+    """``n`` cameras on a ring around a generated monument, looking down at about 30 degrees
+    (``plain``: the plain-surface variant of the scene)."""
+    city = generate_object_scene(seed, plain=plain)
     intr = Intrinsics.from_fov(width, height, 60.0)
     views = ring_views(city.center, 8.0, city.center[2] + 5.0, n, intr)
     renders = render_views(city, views)

@@ -22,6 +22,7 @@ from skyrecon.executor import get_executor
 from skyrecon.io.disparity import colorize_depth
 from skyrecon.io.images import write_image
 from skyrecon.mvs import MVSResult, MVSSettings, load_views_and_images, run_mvs, save_mvs_result
+from skyrecon.mvs.planar_prior import PlanarPriorSettings
 from skyrecon.mvs.preview import render_cloud
 from skyrecon.mvs.settings import DEPTH_METHODS, FUSION_METHODS
 from skyrecon.mvs.topology import TOPOLOGIES
@@ -92,6 +93,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "--mesh", action="store_true", help="also write mesh.ply (TSDF fusion + surface extraction)"
     )
     p.add_argument(
+        "--no-planar-prior",
+        action="store_true",
+        help="leave plain (textureless) regions without depth instead of giving them supported planes",
+    )
+    p.add_argument(
         "--allow-extra-images",
         action="store_true",
         help="ignore image files that no camera refers to (default: an error)",
@@ -114,6 +120,8 @@ def run(args: argparse.Namespace) -> int:
         changes["depth_range"] = tuple(args.depth_range)
     if args.voxel_size is not None:
         changes["voxel_size_m"] = args.voxel_size
+    if getattr(args, "no_planar_prior", False):
+        changes["planar_prior"] = PlanarPriorSettings(enabled=False)
     settings = MVSSettings.from_names(args.topology, args.fusion, args.mesh, **changes)
     out = output_dir(args.out)
     if not args.quiet:

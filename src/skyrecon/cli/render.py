@@ -53,6 +53,7 @@ EXAMPLES = """  skyrecon render stereo --seed 3 --out scene/
   skyrecon render sequence --frames 60 --out flight/
   skyrecon render sequence --plain --seed 3 --out plain_flight/
   skyrecon render ring --views 12 --out ring/
+  skyrecon render ring --plain --views 12 --out ring-plain/
   skyrecon render images --views 10 --out photos/
 """
 
@@ -84,7 +85,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument(
         "--plain",
         action="store_true",
-        help="stereo/sequence: a city of plain surfaces (plain and glass facades, plain grey ground)",
+        help="low-texture surfaces: stereo/sequence a city of plain and glass facades on plain grey "
+        "ground; ring/images plain grey ground, plain walls and one glass face",
     )
     return p
 
@@ -92,8 +94,6 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     if args.hfov >= 170:
         raise InputError(f"--hfov must be below 170 degrees for a pinhole camera, got {args.hfov}")
-    if args.plain and args.kind not in ("stereo", "sequence"):
-        raise InputError(f"--plain applies to the city (stereo, sequence), not to {args.kind}")
     out = output_dir(args.out)
     t0 = time.perf_counter()
     summary = {
@@ -191,7 +191,7 @@ def _write_views(out: Path, views, results, image_dir: str, model_dir: str, dept
 
 
 def _object_scene_views(args, kind: str):
-    scene = generate_object_scene(args.seed)
+    scene = generate_object_scene(args.seed, plain=args.plain)
     cam = Intrinsics.from_fov(args.width, args.height, args.hfov)
     center = np.asarray(scene.center if hasattr(scene, "center") else [0.0, 0.0, 1.0], dtype=np.float64)
     radius = float(getattr(scene, "view_radius_m", 8.0))

@@ -20,6 +20,7 @@ from skyrecon.mvs.inputs import load_views_and_images, load_working_views
 from skyrecon.mvs.pairwise import PairwiseResult, pairwise_depth
 from skyrecon.mvs.patchmatch import PatchMatchResult, PatchMatchSettings, patchmatch_depth
 from skyrecon.mvs.pipeline import MVSResult, run_mvs
+from skyrecon.mvs.planar_prior import PlanarPriorSettings
 from skyrecon.mvs.settings import DEPTH_METHODS, FUSION_METHODS, MVSSettings
 from skyrecon.mvs.topology import TOPOLOGIES, neighbors_from_pairs, select_neighbors, topology_pairs
 
@@ -41,6 +42,7 @@ __all__ = [
     "PatchMatchSettings",
     "PatchMatchResult",
     "patchmatch_depth",
+    "PlanarPriorSettings",
     "TOPOLOGIES",
     "DEPTH_METHODS",
     "FUSION_METHODS",

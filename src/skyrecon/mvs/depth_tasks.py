@@ -10,7 +10,7 @@ from __future__ import annotations
 import os
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -20,9 +20,10 @@ from skyrecon.executor import Executor
 from skyrecon.mvs.frames import WorkingView
 from skyrecon.mvs.pairwise import pairwise_depth
 from skyrecon.mvs.patchmatch import PatchMatchSettings, patchmatch_depth
+from skyrecon.mvs.planar_prior import PlanarPriorSettings, planar_prior_depth
 from skyrecon.mvs.settings import MVSSettings
 
-__all__ = ["DepthEstimates", "TaskTimings", "estimate_depths"]
+__all__ = ["DepthEstimates", "TaskTimings", "estimate_depths", "apply_planar_prior"]
 
 #: Per task: milliseconds per step of the depth method, ``cpu`` (CPU milliseconds of the task),
 #: ``pid`` (the process that ran it) and, for a pair that could not be matched, ``error`` (why).
@@ -64,11 +65,14 @@ class DepthEstimates:
             filled from the next ones, in order.
         pair_depths: (reference index, depth) per task, in task order.
         task_timings: per task, see :data:`TaskTimings`.
+        costs: per view (H, W) float32 PatchMatch cost (1 - NCC, 2 where not estimated), or
+            None (pairwise stereo, or no task).
     """
 
     depths: list[np.ndarray | None]
     pair_depths: list[tuple[int, np.ndarray]]
     task_timings: list[TaskTimings]
+    costs: list[np.ndarray | None] = field(default_factory=list)
 
 
 def _without_colour(view: WorkingView) -> WorkingView:
@@ -76,10 +80,11 @@ def _without_colour(view: WorkingView) -> WorkingView:
     return replace(view, rgb=np.zeros((0, 0, 3), np.uint8))
 
 
-def _patchmatch_task(task: PatchMatchTask) -> tuple[np.ndarray, TaskTimings]:
+def _patchmatch_task(task: PatchMatchTask) -> tuple[np.ndarray, TaskTimings, np.ndarray]:
     c0 = time.process_time()
     res = patchmatch_depth(task.ref, task.sources, task.depth_range, task.settings, task.seed)
-    return res.depth, {**res.timings_ms, "cpu": (time.process_time() - c0) * 1e3, "pid": os.getpid()}
+    tm = {**res.timings_ms, "cpu": (time.process_time() - c0) * 1e3, "pid": os.getpid()}
+    return res.depth, tm, res.cost
 
 
 def _pairwise_task(task: PairwiseTask) -> tuple[np.ndarray, TaskTimings]:
@@ -126,7 +131,7 @@ def _patchmatch_depths(
     ranges: Sequence[tuple[float, float] | None],
     executor: Executor,
     desc: str | None,
-) -> list[tuple[int, np.ndarray, TaskTimings]]:
+) -> list[tuple[int, np.ndarray, TaskTimings, np.ndarray | None]]:
     """One PatchMatch task per view with sources and a depth range."""
     pm = settings.patchmatch
     if pm.threads == 1:
@@ -141,7 +146,7 @@ def _patchmatch_depths(
                 (r, PatchMatchTask(slim[r], sources, depth_range, pm, settings.seed * 1_000_003 + r))
             )
     results = executor.map(_patchmatch_task, [t for _, t in tasks], desc=desc)
-    return [(r, d, tm) for (r, _), (d, tm) in zip(tasks, results)]
+    return [(r, d, tm, c) for (r, _), (d, tm, c) in zip(tasks, results)]
 
 
 def _pairwise_depths(
@@ -152,7 +157,7 @@ def _pairwise_depths(
     executor: Executor,
     desc: str | None,
     points: np.ndarray | None,
-) -> list[tuple[int, np.ndarray, TaskTimings]]:
+) -> list[tuple[int, np.ndarray, TaskTimings, np.ndarray | None]]:
     """One rectified-stereo task per (reference, source) pair whose reference has a depth range."""
     slim = [_without_colour(v) for v in views]
     tasks: list[tuple[int, PairwiseTask]] = []
@@ -165,7 +170,7 @@ def _pairwise_depths(
                 (r, PairwiseTask(slim[r], slim[s], depth_range, settings.matcher, matcher_settings, shared))
             )
     results = executor.map(_pairwise_task, [t for _, t in tasks], desc=desc)
-    return [(r, d, tm) for (r, _), (d, tm) in zip(tasks, results)]
+    return [(r, d, tm, None) for (r, _), (d, tm) in zip(tasks, results)]
 
 
 def estimate_depths(
@@ -200,8 +205,99 @@ def estimate_depths(
     else:
         results = _pairwise_depths(views, settings, pairs, ranges, executor, desc, points)
     depths: list[np.ndarray | None] = [None] * len(views)
-    for r, d, _ in results:
+    costs: list[np.ndarray | None] = [None] * len(views)
+    for r, d, _, c in results:
         first = depths[r]
         # several pairs for one view: fill the holes of the first
         depths[r] = d if first is None else np.where(np.isfinite(first), first, d)
-    return DepthEstimates(depths, [(r, d) for r, d, _ in results], [tm for _, _, tm in results])
+        costs[r] = c
+    return DepthEstimates(depths, [(r, d) for r, d, _, _ in results], [tm for _, _, tm, _ in results], costs)
+
+
+class PriorTask(NamedTuple):
+    """One view's planar prior (:func:`skyrecon.mvs.planar_prior.fill_plain_segments`): the view
+    and its sources with colour, its PatchMatch depth (H, W) metres and cost, depth range (near,
+    far) metres, settings, the sparse world points (N, 3) it sees and the dominant world planes
+    (P, 4)."""
+
+    ref: WorkingView
+    sources: list[WorkingView]
+    depth: np.ndarray
+    cost: np.ndarray
+    depth_range: tuple[float, float]
+    settings: PlanarPriorSettings
+    cos_max_incidence: float
+    points: np.ndarray | None
+    planes: np.ndarray
+
+
+def _prior_task(task: PriorTask) -> tuple[np.ndarray, dict[str, Any]]:
+    c0 = time.process_time()
+    depth, rep = planar_prior_depth(
+        task.ref,
+        task.sources,
+        task.depth,
+        task.cost,
+        task.depth_range,
+        task.cos_max_incidence,
+        task.settings,
+        task.points,
+        task.planes,
+    )
+    report: dict[str, Any] = {**rep, "cpu_ms": round((time.process_time() - c0) * 1e3, 1)}
+    return depth, report
+
+
+def apply_planar_prior(
+    views: Sequence[WorkingView],
+    settings: MVSSettings,
+    neighbors: Sequence[Sequence[int]],
+    ranges: Sequence[tuple[float, float] | None],
+    depths: list[np.ndarray | None],
+    costs: list[np.ndarray | None],
+    planes: np.ndarray,
+    executor: Executor,
+    *,
+    progress: bool = True,
+    points: np.ndarray | None = None,
+) -> tuple[list[np.ndarray | None], dict[int, dict[str, Any]]]:
+    """The planar prior of every view with a PatchMatch depth, fanned out on the executor.
+
+    Args:
+        views, neighbors, ranges: as for :func:`estimate_depths`.
+        settings: ``planar_prior`` and ``patchmatch.max_incidence_deg``.
+        depths, costs: per view the PatchMatch depth (H, W) metres (NaN invalid) and cost.
+        planes: (P, 4) dominant world planes (n, c), n . X = c.
+        executor: where the tasks run.
+        progress: show a progress bar.
+        points: sparse world points (N, 3) metres.
+    Returns:
+        (per view the depth with plain segments filled (unchanged where the prior fell back),
+        per view index the prior's report (``fallback`` says why it was not applied)).
+    """
+    cos_max = float(np.cos(np.radians(settings.patchmatch.max_incidence_deg)))
+    tasks: list[tuple[int, PriorTask]] = []
+    for r, nb in enumerate(neighbors):
+        d, c, rng = depths[r], costs[r], ranges[r]
+        if d is None or c is None or rng is None or not nb:
+            continue
+        seen = _points_in_view(points, views[r])
+        task = PriorTask(
+            views[r], [views[s] for s in nb], d, c, rng, settings.planar_prior, cos_max, seen, planes
+        )
+        tasks.append((r, task))
+    results = executor.map(_prior_task, [t for _, t in tasks], desc="MVS planar prior" if progress else None)
+    out = list(depths)
+    reports: dict[int, dict[str, Any]] = {}
+    for (r, _), (d, rep) in zip(tasks, results):
+        out[r] = d
+        reports[r] = rep
+    return out, reports
+
+
+def _points_in_view(points: np.ndarray | None, view: WorkingView) -> np.ndarray | None:
+    """The world points (M, 3) metres in front of and inside ``view``, or None without points."""
+    if points is None or len(points) == 0:
+        return None
+    uv, z = view.posed().project(points)
+    return points[view.intrinsics.in_image(uv) & (z > 0)]

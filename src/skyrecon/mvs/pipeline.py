@@ -8,6 +8,8 @@ Steps (each timed in ``MVSResult.timings_s``):
 3. ``select``: sources per reference view (``auto``) or the pairs of a named topology;
 4. ``depth``: PatchMatch (or pairwise rectified stereo) per view, fanned out on the executor
    (each task carries only its reference and source views);
+   ``prior``: plain (textureless) segments that PatchMatch left empty take the plane their
+   surroundings support (:mod:`skyrecon.mvs.planar_prior`), per view on the executor;
 5. ``fusion``: geometric-consistency fusion (or plain concatenation);
 6. ``cleanup``: statistical outlier removal, normals (PCA, oriented to the cameras), optional
    voxel averaging; optional ``mesh``.
@@ -33,11 +35,12 @@ from skyrecon.core import DepthMap, PointCloud, PosedView
 from skyrecon.errors import InputError
 from skyrecon.executor import Executor, get_executor
 from skyrecon.mvs.cleanup import clean_fused_cloud
-from skyrecon.mvs.depth_tasks import TaskTimings, estimate_depths
+from skyrecon.mvs.depth_tasks import TaskTimings, apply_planar_prior, estimate_depths
 from skyrecon.mvs.frames import WorkingView
 from skyrecon.mvs.fusion import FusedCloud, fuse_concat, fuse_consistent
 from skyrecon.mvs.inputs import ImagesArg, load_working_views
 from skyrecon.mvs.mesh import mesh_from_depth_maps
+from skyrecon.mvs.planar_prior import dominant_planes, horizontal_planes
 from skyrecon.mvs.settings import MVSSettings
 from skyrecon.mvs.sparse import depth_range_from_points, sparse_scene
 from skyrecon.mvs.topology import neighbors_from_pairs, select_neighbors, topology_pairs
@@ -106,7 +109,9 @@ class _MVSRun:
         ranges: ``sparse``: per view the (near, far) depth range, metres, or None if unknown.
         neighbors: ``select``: per view the source views of its depth.
         pairs: ``select``: the (reference, source) pairs matched.
-        depths: ``depth``: per view (H, W) float32 depth, metres, NaN invalid, or None.
+        depths: ``depth``: per view (H, W) float32 depth, metres, NaN invalid, or None
+            (``prior``: with the plain segments filled).
+        costs: ``depth``: per view the PatchMatch cost (H, W) float32, or None.
         pair_depths: ``depth``: (reference, depth) per task, for ``concat`` fusion.
         fused: ``fusion``: the fused cloud before cleanup.
         cloud, support: ``cleanup``: the final cloud and per-point support.
@@ -126,6 +131,7 @@ class _MVSRun:
     neighbors: list[list[int]] = field(default_factory=list)
     pairs: list[tuple[int, int]] = field(default_factory=list)
     depths: list[np.ndarray | None] = field(default_factory=list)
+    costs: list[np.ndarray | None] = field(default_factory=list)
     pair_depths: list[tuple[int, np.ndarray]] = field(default_factory=list)
     fused: FusedCloud = field(default_factory=_empty_fused)
     cloud: PointCloud = field(default_factory=lambda: _empty_fused().cloud)
@@ -141,6 +147,10 @@ class _MVSRun:
 # ------------------------------------------------------------------------------------------------
 def _names(views: Sequence[WorkingView], idx: Sequence[int]) -> str:
     names = [views[i].name for i in idx]
+    return ", ".join(names[:8]) + (f" and {len(names) - 8} more" if len(names) > 8 else "")
+
+
+def _names_of(names: Sequence[str]) -> str:
     return ", ".join(names[:8]) + (f" and {len(names) - 8} more" if len(names) > 8 else "")
 
 
@@ -274,10 +284,49 @@ def _depth(run: _MVSRun) -> None:
     )
     run.depths, run.pair_depths = est.depths, est.pair_depths
     run.diagnostics["depth_task_ms"] = est.task_timings
-    run.warnings.extend(tm["error"] for tm in est.task_timings if "error" in tm)
+    run.costs = est.costs
     empty = [i for i, d in enumerate(run.depths) if d is not None and not np.isfinite(d).any()]
     if empty:
         run.warnings.append(f"no depth could be estimated for {_names(run.views, empty)}")
+
+
+def _fusion_neighbors(run: _MVSRun) -> list[list[int]]:
+    checked = [(r, s) for r, nb in enumerate(run.neighbors) for s in nb]
+    return neighbors_from_pairs(checked, len(run.views))
+
+
+def _prior(run: _MVSRun) -> None:
+    """Plain segments without depth take the plane their surroundings support: the dominant planes
+    of the multi-view consistent PatchMatch points (and sparse points), or a triangle plane of the
+    view's own support; views where it fails keep their PatchMatch depth (see diagnostics)."""
+    s = run.settings
+    pre = fuse_consistent(run.views, run.depths, _fusion_neighbors(run), s.fusion_settings)
+    pts = np.concatenate([pre.cloud.points.astype(np.float64), run.sparse_points.reshape(-1, 3)])
+    planes = np.concatenate(
+        [dominant_planes(pts, s.planar_prior, seed=s.seed), horizontal_planes(pts, s.planar_prior)]
+    )
+    run.depths, reports = apply_planar_prior(
+        run.views,
+        s,
+        run.neighbors,
+        run.ranges,
+        run.depths,
+        run.costs,
+        planes,
+        run.executor,
+        progress=run.progress,
+        points=run.sparse_points,
+    )
+    prior = {run.views[r].stem: rep for r, rep in reports.items()}
+    run.diagnostics["planar_prior"] = {
+        "dominant_planes": np.round(planes, 4).tolist(),
+        "views": prior,
+    }
+    failed = [n for n, p in prior.items() if str(p.get("fallback", "")).startswith("planar prior failed")]
+    if failed:
+        run.warnings.append(
+            f"planar prior failed (PatchMatch depth kept) in {_names_of(failed)}: {prior[failed[0]]['fallback']}"
+        )
 
 
 def _fuse(run: _MVSRun) -> None:
@@ -285,9 +334,7 @@ def _fuse(run: _MVSRun) -> None:
     if run.settings.fusion == "concat":
         run.fused = fuse_concat(run.views, run.pair_depths)
         return
-    checked = [(r, s) for r, nb in enumerate(run.neighbors) for s in nb]
-    fusion_neighbors = neighbors_from_pairs(checked, len(run.views))
-    run.fused = fuse_consistent(run.views, run.depths, fusion_neighbors, run.settings.fusion_settings)
+    run.fused = fuse_consistent(run.views, run.depths, _fusion_neighbors(run), run.settings.fusion_settings)
 
 
 def _cleanup(run: _MVSRun) -> None:
@@ -318,6 +365,11 @@ _STEPS: tuple[_Step, ...] = (
     _Step("sparse", _sparse),
     _Step("select", _select),
     _Step("depth", _depth),
+    _Step(
+        "prior",
+        _prior,
+        wanted=lambda run: run.settings.depth_method == "patchmatch" and run.settings.planar_prior.enabled,
+    ),
     _Step("fusion", _fuse),
     _Step("cleanup", _cleanup),
     _Step("mesh", _mesh, wanted=lambda run: run.settings.mesh and len(run.cloud) > 0),

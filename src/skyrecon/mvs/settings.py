@@ -8,6 +8,7 @@ from typing import Any
 from skyrecon.errors import InputError
 from skyrecon.mvs.fusion import FusionSettings
 from skyrecon.mvs.patchmatch import PatchMatchSettings
+from skyrecon.mvs.planar_prior import PlanarPriorSettings
 from skyrecon.mvs.topology import TOPOLOGIES
 
 __all__ = ["MVSSettings", "DEPTH_METHODS", "FUSION_METHODS", "WRITEUP_SGBM"]
@@ -35,6 +36,8 @@ class MVSSettings:
         matcher_settings: keyword settings of that matcher.
         depth_range: (near, far) metres for every view instead of the sparse estimate.
         patchmatch: PatchMatch settings.
+        planar_prior: depth for the plain segments PatchMatch leaves empty, from the planes
+            their surroundings support (``patchmatch`` only; ``enabled=False`` turns it off).
         fusion_settings: consistency thresholds.
         outlier_k: neighbours for statistical outlier removal and normals.
         outlier_std: remove points whose mean neighbour distance exceeds mean + this many
@@ -61,6 +64,7 @@ class MVSSettings:
     matcher_settings: dict[str, Any] = field(default_factory=dict)
     depth_range: tuple[float, float] | None = None
     patchmatch: PatchMatchSettings = PatchMatchSettings()
+    planar_prior: PlanarPriorSettings = PlanarPriorSettings()
     fusion_settings: FusionSettings = FusionSettings()
     outlier_k: int = 8
     outlier_std: float = 2.0

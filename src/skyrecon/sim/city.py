@@ -80,7 +80,8 @@ class City:
         blocks_y: (Q, 2) y intervals of the block rows.
         sidewalk_m: width of the pavement around each block, metres.
         ground_style: 0 streets and blocks, 1 a paved plaza (object scenes), 2 streets and
-            blocks in plain greys (``generate_city(..., plain=True)``).
+            blocks in plain greys (``generate_city(..., plain=True)``), 3 one plain grey (object scenes
+            with ``plain=True``).
         center: (3,) point of interest (the monument of an object scene; the middle of the city), metres.
         view_radius_m: a good camera distance from ``center`` for orbits and rings, metres.
 

@@ -24,6 +24,7 @@ from skyrecon.sim.city import (
 from skyrecon.sim.texture import (
     GROUND_CITY,
     GROUND_PLAIN,
+    GROUND_PLAIN_PLAZA,
     GROUND_PLAZA,
     MAT_BARK,
     MAT_BRICK,
@@ -518,12 +519,21 @@ def _street_lines(blocks: np.ndarray, lo: float, hi: float) -> list[tuple[float,
     return [(edges[2 * i], edges[2 * i + 1]) for i in range(len(edges) // 2)]
 
 
-def generate_object_scene(seed: int, size_m: float = 4.0) -> City:
+def generate_object_scene(seed: int, size_m: float = 4.0, plain: bool = False) -> City:
     """A single textured monument about ``size_m`` across on a paved plaza, for rings and orbits.
 
     A stone plinth, a main block with mural-painted faces, a capstone, a few smaller blocks and
     columns around it; the plaza is paved with 0.5 m slabs out to 15 m, grass beyond. All
     surfaces are richly textured at centimetre scale (feature matching and MVS at 2-15 m).
+
+    With ``plain=True`` the same layout has the surfaces of a real city's plain walls and
+    roads: the ground is plain grey everywhere (only a faint shading of 12 m wavelength, no
+    fine texture), the plinth, the main block and all but one of the small blocks are plain
+    (``MAT_PLAIN``: uniform colour with a faint shading), one face of the main block is
+    covered by a glass curtain wall (``MAT_GLASS``: mullions and panels); the capstone, the
+    columns and one small block stay textured stone or mural (so that the views still share
+    some features). The random draws are the same, so the geometry is that of ``plain=False``
+    plus a 2 cm glass panel.
 
     Returns:
         A :class:`City` with ``center`` at the monument's middle and ``view_radius_m`` a good
@@ -537,15 +547,17 @@ def generate_object_scene(seed: int, size_m: float = 4.0) -> City:
     stone = lambda: _jitter_color(rng, [(0.62, 0.58, 0.52), (0.7, 0.66, 0.6), (0.55, 0.52, 0.5)], 0.08)  # noqa: E731
     mural = lambda: _jitter_color(rng, [(0.55, 0.45, 0.35), (0.4, 0.5, 0.55), (0.5, 0.4, 0.5)], 0.1)  # noqa: E731
     tex = (3.0, 0.0, 0.5, 0.5, 0.0, 0.35)
+    wall = MAT_PLAIN if plain else MAT_STONE
+    painted = MAT_PLAIN if plain else MAT_MURAL
     plinth_h = rng.uniform(0.4, 0.7)
-    b.box((-s / 2, -s / 2, 0.0), (s / 2, s / 2, plinth_h), MAT_STONE, KIND_MONUMENT, stone(), params=tex)
+    b.box((-s / 2, -s / 2, 0.0), (s / 2, s / 2, plinth_h), wall, KIND_MONUMENT, stone(), params=tex)
     body = s * rng.uniform(0.5, 0.65)
     body_h = s * rng.uniform(0.7, 1.0)
     ox, oy = rng.uniform(-0.08, 0.08, 2) * s
     b.box(
         (ox - body / 2, oy - body / 2, plinth_h),
         (ox + body / 2, oy + body / 2, plinth_h + body_h),
-        MAT_MURAL,
+        painted,
         KIND_MONUMENT,
         mural(),
         params=tex,
@@ -582,12 +594,12 @@ def generate_object_scene(seed: int, size_m: float = 4.0) -> City:
             b.box(
                 (x - w, y - w, plinth_h),
                 (x + w, y + w, plinth_h + s * rng.uniform(0.12, 0.3)),
-                MAT_MURAL,
+                painted,
                 KIND_MONUMENT,
                 mural(),
                 params=tex,
             )
-    for _ in range(int(rng.integers(2, 5))):
+    for i in range(int(rng.integers(2, 5))):
         a = rng.uniform(0, 2 * np.pi)
         r = s * rng.uniform(0.75, 1.2)
         w = s * rng.uniform(0.06, 0.12)
@@ -595,10 +607,24 @@ def generate_object_scene(seed: int, size_m: float = 4.0) -> City:
         b.box(
             (x - w, y - w, 0.0),
             (x + w, y + w, s * rng.uniform(0.1, 0.25)),
-            MAT_MURAL,
+            MAT_MURAL if i == 0 or not plain else MAT_PLAIN,
             KIND_MONUMENT,
             mural(),
             params=tex,
+        )
+    if plain:  # a glass curtain wall on one face of the main block (2 cm proud of it)
+        side = int(rng.integers(0, 4))
+        x0, y0, x1, y1 = ox - body / 2, oy - body / 2, ox + body / 2, oy + body / 2
+        t = 0.02
+        lo, hi = {
+            0: ((x0 - t, y0, plinth_h), (x0, y1, plinth_h + body_h)),
+            1: ((x1, y0, plinth_h), (x1 + t, y1, plinth_h + body_h)),
+            2: ((x0, y0 - t, plinth_h), (x1, y0, plinth_h + body_h)),
+            3: ((x0, y1, plinth_h), (x1, y1 + t, plinth_h + body_h)),
+        }[side]
+        glass = _jitter_color(rng, _GLASS)
+        b.box(
+            lo, hi, MAT_GLASS, KIND_MONUMENT, glass, (0.55, 0.55, 0.58), params=(0.9, 0.7, 0.5, 0.5, 0.0, 1.0)
         )
     arrays = b.arrays()
     e = max(15.0, 4.0 * s)
@@ -608,7 +634,7 @@ def generate_object_scene(seed: int, size_m: float = 4.0) -> City:
         blocks_x=np.zeros((0, 2)),
         blocks_y=np.zeros((0, 2)),
         sidewalk_m=0.0,
-        ground_style=GROUND_PLAZA,
+        ground_style=GROUND_PLAIN_PLAZA if plain else GROUND_PLAZA,
         center=np.array([0.0, 0.0, top / 2]),
         view_radius_m=1.7 * s,
         **arrays,

@@ -57,6 +57,7 @@ WINDOWS_RIBBON = 2
 GROUND_CITY = 0
 GROUND_PLAZA = 1
 GROUND_PLAIN = 2  # the city's streets and blocks in plain greys: no markings, paving or grain
+GROUND_PLAIN_PLAZA = 3  # one plain grey, barely textured (object scenes with ``plain=True``)
 
 # Noise octaves fade from full weight at a wavelength of AA_FULL footprints to zero at AA_ZERO.
 AA_ZERO = 2.0
@@ -390,6 +391,8 @@ def _ground_plain(x, y, inside, blocks_x, blocks_y):
 def _ground(x, y, fp, style, seed, blocks_x, blocks_y, extent, sidewalk):
     """Pattern colour and noise layers of the ground at world (x, y), metres (same tuple as ``_surface``)."""
     w = AA_TENT * fp
+    if style == GROUND_PLAIN_PLAZA:  # plain grey everywhere: only a faint shading of 12 m wavelength
+        return 0.5, 0.5, 0.49, 12.0, 2, 0.02, 0.0, 0.0, 0.0, 0.0, 0.0
     inside = x >= extent[0] and x <= extent[2] and y >= extent[1] and y <= extent[3]
     if style == GROUND_PLAZA and inside:
         t = 0.5

@@ -1,0 +1,694 @@
+"""Planar priors for plain (textureless) surfaces: depth where photo-consistency is flat.
+
+PatchMatch leaves plain regions (a plain wall, a grey road, glass) without depth: their matching
+windows have no texture, so no cost can tell one depth from another. Their geometry is still
+fixed by what surrounds them: the reliable depths at their borders (contact lines, corners,
+textured neighbours) and the sparse feature points. Following ACMP (Xu & Tao, "Planar Prior
+Assisted PatchMatch Multi-View Stereo", AAAI 2020), reliable support points are triangulated
+(Delaunay) and each triangle's plane is a hypothesis for the plain pixels; here the hypotheses are
+chosen per *plain segment* rather than per pixel, which also covers plain regions that reach
+beyond the support (the ground out to the image border):
+
+1. ``segments``: pixels without a PatchMatch depth, away from intensity edges, split into
+   4-connected segments (one per plain face, as far as edges separate them); small ones are left.
+2. ``support``: confident PatchMatch depths (cost at most ``support_cost``) and the sparse points
+   that project into the view unoccluded.
+3. ``planes``: per segment, candidates are the planes of the Delaunay triangles of the support in
+   a band around the segment, and the scene's dominant planes (sequential RANSAC on the sparse
+   points, :func:`dominant_planes`). A candidate's score is the number of band support points on
+   it (within ``inlier_rel`` relative depth); the best candidate with at least ``min_inliers``
+   (triangle planes: also spread over ``min_spread_px`` in both image directions) wins.
+   Of the distinct candidates, the one under which the segment's border ring (``ring_px`` wide)
+   looks the same in the sources wins: a wrong plane carries the border pixels onto other
+   surfaces there (the border is where a plain segment's geometry shows).
+4. ``check``: every pixel's plane point is projected into the sources; its colour must agree
+   with the reference (``color_tol``) in at least ``min_sources`` of the sources that see it. A
+   segment where fewer than ``min_pass_fraction`` of the pixels pass is dropped whole.
+
+The multi-view geometric-consistency fusion then keeps only the points that other views'
+depth maps agree with (:mod:`skyrecon.mvs.fusion`): no texture is needed there.
+
+Bad input: whatever goes wrong (no support, degenerate triangulations, no plane that fits) the
+view keeps its PatchMatch depth unchanged and the reason is returned (``PriorReport.fallback``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+from scipy.spatial import Delaunay, QhullError
+
+from skyrecon.errors import InputError
+from skyrecon.mvs.frames import WorkingView
+from skyrecon.mvs.patchmatch import brightness_gain
+
+__all__ = [
+    "PlanarPriorSettings",
+    "PriorReport",
+    "dominant_planes",
+    "horizontal_planes",
+    "fill_plain_segments",
+    "planar_prior_depth",
+]
+
+
+@dataclass(frozen=True)
+class PlanarPriorSettings:
+    """Settings of the planar prior (see the module docstring).
+
+    Attributes:
+        enabled: use the planar prior at all.
+        support_cost: PatchMatch pixels with at most this cost are support points.
+        edge_grad: intensity gradient (grey levels per pixel, Sobel of the image blurred with
+            sigma 1, scaled for dark images like the texture thresholds) above which a pixel is an
+            edge between segments.
+        min_segment_fraction: smallest segment, fraction of the image.
+        band_px: width of the band around a segment whose support is used, pixels.
+        max_support: at most this many band support points per segment (evenly subsampled).
+        inlier_rel: a support point is on a plane when their depths differ by at most this
+            fraction.
+        min_inliers: smallest number of band support points on the winning plane.
+        min_spread_px: a triangle plane's inliers must spread over at least this many pixels
+            (standard deviation) along their least spread direction (a line of points does not fix
+            a plane; a dominant plane is fixed by the sparse points already).
+        color_tol: largest grey-level difference between a pixel and its projection into a
+            source (images blurred with sigma 1), grey levels.
+        min_sources: sources that must agree (or all that see the point, if fewer).
+        min_pass_fraction: a segment is kept only if at least this fraction of its pixels pass
+            (and of its border ring, for the winning plane).
+        max_candidates: distinct candidate planes tried per segment.
+        ambiguity_margin: a segment is left empty when a different candidate's border agreement is
+            within this of the winner's.
+        dark_level: segments darker than this (mean grey level, scaled for dark images) are
+            unlit background (a black backdrop), not surfaces: left empty.
+        ring_px: width of a segment's border ring on which candidates are compared, pixels.
+        max_ring_px: at most this many ring pixels are compared (evenly subsampled).
+        max_planes: dominant planes from the sparse points.
+        plane_tol_frac: inlier distance of the dominant planes, fraction of the sparse points'
+            extent (between their 5th and 95th percentiles).
+        min_plane_points: points a dominant plane needs.
+        ransac_iterations: random planes tried per dominant plane.
+        max_plane_input: at most this many points (evenly subsampled) go into the dominant planes.
+    """
+
+    enabled: bool = True
+    support_cost: float = 0.3
+    edge_grad: float = 2.0
+    min_segment_fraction: float = 0.0005
+    band_px: int = 6
+    max_support: int = 400
+    inlier_rel: float = 0.01
+    min_inliers: int = 8
+    min_spread_px: float = 3.0
+    color_tol: float = 6.0
+    min_sources: int = 2
+    min_pass_fraction: float = 0.5
+    max_candidates: int = 12
+    dark_level: float = 12.0
+    ambiguity_margin: float = 0.05
+    ring_px: int = 4
+    max_ring_px: int = 3000
+    max_planes: int = 6
+    plane_tol_frac: float = 0.004
+    min_plane_points: int = 20
+    ransac_iterations: int = 512
+    max_plane_input: int = 40000
+
+    def __post_init__(self) -> None:
+        if not (0 < self.support_cost <= 2) or self.edge_grad <= 0 or self.band_px < 1:
+            raise InputError("planar prior: need 0 < support_cost <= 2, edge_grad > 0, band_px >= 1")
+        if self.min_inliers < 3 or self.min_sources < 1 or self.max_support < 3:
+            raise InputError("planar prior: need min_inliers >= 3, min_sources >= 1, max_support >= 3")
+        if not (0 < self.inlier_rel < 1) or self.color_tol <= 0 or not (0 <= self.min_pass_fraction <= 1):
+            raise InputError(
+                "planar prior: need 0 < inlier_rel < 1, color_tol > 0, 0 <= min_pass_fraction <= 1"
+            )
+
+
+@dataclass
+class PriorReport:
+    """What the planar prior did in one view.
+
+    Attributes:
+        segments: plain segments considered.
+        filled_segments: segments that received a plane.
+        filled_px: pixels that received a depth from a plane.
+        support_px: support points (PatchMatch and sparse).
+        fallback: why the prior was not applied (the PatchMatch depth is kept as it was), or "".
+    """
+
+    segments: int = 0
+    filled_segments: int = 0
+    filled_px: int = 0
+    support_px: int = 0
+    fallback: str = ""
+    details: dict[str, int] = field(default_factory=dict)
+
+    def as_dict(self) -> dict[str, int | str]:
+        out: dict[str, int | str] = dict(
+            segments=self.segments,
+            filled_segments=self.filled_segments,
+            filled_px=self.filled_px,
+            support_px=self.support_px,
+        )
+        if self.fallback:
+            out["fallback"] = self.fallback
+        return out
+
+
+# ------------------------------------------------------------------------------------------------
+# dominant planes of the sparse points
+# ------------------------------------------------------------------------------------------------
+def dominant_planes(
+    points: np.ndarray, settings: PlanarPriorSettings = PlanarPriorSettings(), seed: int = 0
+) -> np.ndarray:
+    """Sequential RANSAC planes of a point set (the scene's dominant planes).
+
+    Args:
+        points: (N, 3) world points, metres (the multi-view consistent PatchMatch points and the
+            sparse points).
+        settings: ``max_planes``, ``plane_tol_frac``, ``min_plane_points``.
+        seed: seed of the random samples.
+    Returns:
+        (P, 4) float64 planes ``(n, c)`` with ``n . X = c``, ``|n| = 1``, world frame, most
+        supported first (refit by least squares on their inliers); (0, 4) if none.
+    """
+    pts = np.asarray(points, np.float64).reshape(-1, 3)
+    pts = pts[np.all(np.isfinite(pts), axis=1)]
+    if len(pts) > settings.max_plane_input:
+        pts = pts[np.linspace(0, len(pts) - 1, settings.max_plane_input).astype(np.int64)]
+    out: list[np.ndarray] = []
+    if len(pts) < settings.min_plane_points:
+        return np.zeros((0, 4))
+    extent = float(np.linalg.norm(np.percentile(pts, 95, axis=0) - np.percentile(pts, 5, axis=0)))
+    tol = settings.plane_tol_frac * max(extent, 1e-9)
+    rng = np.random.default_rng(seed)
+    remaining = pts
+    for _ in range(settings.max_planes):
+        if len(remaining) < settings.min_plane_points:
+            break
+        idx = rng.integers(0, len(remaining), (settings.ransac_iterations, 3))
+        a, b, c = remaining[idx[:, 0]], remaining[idx[:, 1]], remaining[idx[:, 2]]
+        n = np.cross(b - a, c - a)
+        nn = np.linalg.norm(n, axis=1)
+        ok = nn > 1e-12
+        if not ok.any():
+            break
+        n = n[ok] / nn[ok, None]
+        off = np.sum(n * a[ok], axis=1)
+        dist = np.abs(remaining @ n.T - off[None, :])  # (N, T)
+        counts = (dist <= tol).sum(0)
+        best = int(np.argmax(counts))
+        inl = dist[:, best] <= tol
+        if counts[best] < settings.min_plane_points:
+            break
+        plane = _fit_plane(remaining[inl])
+        inl = np.abs(remaining @ plane[:3] - plane[3]) <= tol
+        if inl.sum() < settings.min_plane_points:
+            break
+        out.append(_fit_plane(remaining[inl]))
+        remaining = remaining[~inl]
+    return np.array(out).reshape(-1, 4)
+
+
+def horizontal_planes(
+    points: np.ndarray, settings: PlanarPriorSettings = PlanarPriorSettings()
+) -> np.ndarray:
+    """Horizontal candidate planes: the ground under the scene and the heights where points gather
+    (world z up, see DESIGN).
+
+    City scenes are full of horizontal surfaces (the ground, roofs, terraces) whose plain interior
+    gives PatchMatch nothing while their borders (contact lines with walls, corners) give a few
+    points at their height. Like the Manhattan-world prior of urban MVS, candidates are: the
+    lowest height where at least ``min_plane_points`` points gather within two bins (the ground the
+    scene stands on), and the peaks of the height histogram with at least that many points more
+    than their surroundings (bins of the dominant planes' tolerance). They are only candidates:
+    each plain segment still needs band support on the plane and photometric agreement.
+
+    Args:
+        points: (N, 3) world points, metres.
+        settings: ``plane_tol_frac``, ``min_plane_points``, ``max_planes``.
+    Returns:
+        (P, 4) float64 planes ``(0, 0, 1, z)`` (``n . X = c``), the ground first; (0, 4) if none.
+    """
+    pts = np.asarray(points, np.float64).reshape(-1, 3)
+    pts = pts[np.all(np.isfinite(pts), axis=1)]
+    if len(pts) < settings.min_plane_points:
+        return np.zeros((0, 4))
+    extent = float(np.linalg.norm(np.percentile(pts, 95, axis=0) - np.percentile(pts, 5, axis=0)))
+    tol = settings.plane_tol_frac * max(extent, 1e-9)
+    z = pts[:, 2]
+    lo, hi = float(z.min()), float(z.max())
+    nb = int(min(100000, max(2, np.ceil((hi - lo) / tol) + 1)))
+    counts, edges = np.histogram(z, bins=nb, range=(lo, lo + nb * tol))
+    heights: list[float] = []
+    pair = counts[:-1] + counts[1:]
+    first = np.nonzero(pair >= settings.min_plane_points)[0]
+    if len(first):
+        i = int(first[0])
+        h = float(z[(z >= edges[i]) & (z < edges[i + 2])].mean())
+        for _ in range(3):  # settle on the median of the points within the tolerance
+            h = float(np.median(z[np.abs(z - h) <= tol]))
+        heights.append(h)
+    k = 10
+    padded = np.pad(counts.astype(np.float64), k, mode="edge")
+    windows = np.lib.stride_tricks.sliding_window_view(padded, 2 * k + 1)
+    prominence = counts - np.median(windows, axis=1)
+    local_max = counts >= np.max(windows[:, k - 1 : k + 2], axis=1)
+    idx = np.nonzero(local_max & (prominence >= settings.min_plane_points))[0]
+    idx = idx[np.argsort(-prominence[idx], kind="stable")]
+    for i in idx[: settings.max_planes]:
+        c = 0.5 * (edges[i] + edges[i + 1])
+        h = float(z[np.abs(z - c) <= tol].mean())
+        if all(abs(h - o) > 2 * tol for o in heights):
+            heights.append(h)
+    return np.array([[0.0, 0.0, 1.0, h] for h in heights], np.float64).reshape(-1, 4)
+
+
+def _fit_plane(p: np.ndarray) -> np.ndarray:
+    """Least-squares plane (n, c) of (N, 3) points, n . X = c."""
+    m = p.mean(0)
+    _, _, vt = np.linalg.svd(p - m, full_matrices=False)
+    n = vt[-1]
+    return np.array([*n, float(n @ m)])
+
+
+# ------------------------------------------------------------------------------------------------
+# per view
+# ------------------------------------------------------------------------------------------------
+def _rays(view: WorkingView, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """(N, 3) camera-frame rays (x, y, 1) of pixels (u, v)."""
+    k = view.intrinsics
+    return np.stack([(u - k.cx) / k.fx, (v - k.cy) / k.fy, np.ones_like(u, dtype=np.float64)], axis=1)
+
+
+def _sparse_support(
+    view: WorkingView, points: np.ndarray | None, depth: np.ndarray, near: float, far: float
+) -> np.ndarray:
+    """(H, W) float64 depth of the sparse points seen in ``view`` (NaN elsewhere); points behind a
+    confident PatchMatch depth (occluded here) are left out."""
+    H, W = view.shape
+    out = np.full((H, W), np.nan)
+    if points is None or len(points) == 0:
+        return out
+    Xc = view.cam_from_world.apply(np.asarray(points, np.float64))
+    z = Xc[:, 2]
+    k = view.intrinsics
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = np.rint(k.fx * Xc[:, 0] / z + k.cx)
+        v = np.rint(k.fy * Xc[:, 1] / z + k.cy)
+    ok = (z >= near) & (z <= far) & (u >= 0) & (v >= 0) & (u < W) & (v < H)
+    u, v, z = u[ok].astype(np.int64), v[ok].astype(np.int64), z[ok]
+    ok = view.valid[v, u]
+    dz = depth[v, u]
+    with np.errstate(invalid="ignore"):
+        ok &= ~(dz < z * 0.98)  # something confident in front of it: occluded here
+    order = np.argsort(-z[ok], kind="stable")  # nearest written last
+    out[v[ok][order], u[ok][order]] = z[ok][order]
+    return out
+
+
+def _plane_depth(n: np.ndarray, h: np.ndarray, rays: np.ndarray) -> np.ndarray:
+    """Depth along the optical axis of rays (N, 3) on planes n . X = h: (P, N); NaN where the ray
+    meets the plane from behind or not at all. ``n`` (P, 3), ``h`` (P,)."""
+    den = n @ rays.T  # (P, N)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d = h[:, None] / den
+    d[~(den < -1e-9) | ~(d > 0)] = np.nan
+    return d
+
+
+def _triangle_planes(uv: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """(T, 4) camera-frame planes (n, h), n . X = h, n facing the camera (h < 0), of the Delaunay
+    triangles of the image points ``uv`` (N, 2) with camera-frame points ``X`` (N, 3)."""
+    if len(uv) < 3:
+        return np.zeros((0, 4))
+    try:
+        tri = Delaunay(uv)
+    except (QhullError, ValueError):  # collinear or duplicate points: no triangles
+        return np.zeros((0, 4))
+    s = tri.simplices
+    a, b, c = X[s[:, 0]], X[s[:, 1]], X[s[:, 2]]
+    n = np.cross(b - a, c - a)
+    nn = np.linalg.norm(n, axis=1)
+    ok = nn > 1e-12 * np.maximum(np.linalg.norm(a, axis=1), 1.0) ** 2
+    n = n[ok] / nn[ok, None]
+    h = np.sum(n * a[ok], axis=1)
+    flip = h > 0
+    n[flip] *= -1
+    h[flip] *= -1
+    return np.concatenate([n, h[:, None]], axis=1)
+
+
+def _spread(uv: np.ndarray) -> float:
+    """Standard deviation of image points (N, 2) along their least spread direction, pixels."""
+    if len(uv) < 3:
+        return 0.0
+    c = uv - uv.mean(axis=0)
+    a, b, d = float(np.mean(c[:, 0] ** 2)), float(np.mean(c[:, 0] * c[:, 1])), float(np.mean(c[:, 1] ** 2))
+    smallest = 0.5 * (a + d) - np.hypot(0.5 * (a - d), b)  # the smaller eigenvalue of the 2x2 covariance
+    return float(np.sqrt(max(smallest, 0.0)))
+
+
+def _candidate_planes(
+    uv: np.ndarray,
+    d: np.ndarray,
+    rays: np.ndarray,
+    global_planes: np.ndarray,
+    seg_ray: np.ndarray,
+    cos_max: float,
+    s: PlanarPriorSettings,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Distinct supported planes (K, 4) for one segment from its band support, best supported
+    first, and (K,) bool which of them are dominant (``global_planes``) planes.
+
+    A plane qualifies with at least ``min_inliers`` band support points on it (triangle planes:
+    spread over ``min_spread_px``), facing the camera within the incidence limit at the segment's
+    centre ray. Every qualifying dominant plane is kept; of triangle planes whose inlier sets
+    overlap by more than half, only the better supported one, at most ``max_candidates``.
+    """
+    X = rays * d[:, None]
+    n_global = len(global_planes)
+    P = np.concatenate([global_planes, _triangle_planes(uv, X)], axis=0)
+    if len(P) == 0:
+        return np.zeros((0, 4)), np.zeros(0, bool)
+    r = seg_ray / np.linalg.norm(seg_ray)
+    facing = -(P[:, :3] @ r) >= cos_max
+    pd = _plane_depth(P[:, :3], P[:, 3], rays)  # (P, N)
+    with np.errstate(invalid="ignore"):
+        inl = np.abs(pd - d[None, :]) <= s.inlier_rel * d[None, :]
+    score = inl.sum(1)
+    score[~facing] = -1
+    # every supported dominant plane; then the best supported distinct triangle planes
+    kept: list[int] = [i for i in range(n_global) if score[i] >= s.min_inliers]
+    n_kept_global = len(kept)
+    order = n_global + np.argsort(-score[n_global:], kind="stable")
+    for i in order:
+        if score[i] < s.min_inliers or len(kept) - n_kept_global >= s.max_candidates:
+            break
+        if _spread(uv[inl[i]]) < s.min_spread_px:
+            continue
+        if any((inl[i] & inl[k]).sum() > 0.5 * min(score[i], score[k]) for k in kept[n_kept_global:]):
+            continue
+        kept.append(int(i))
+    return P[kept], np.array([k < n_global for k in kept], bool)
+
+
+def _ambiguous(
+    cands: np.ndarray, fracs: np.ndarray, win: int, rays: np.ndarray, s: PlanarPriorSettings
+) -> bool:
+    """Whether a candidate whose depths on the ring rays (N, 3) differ from the winner's (by more
+    than ``2 * inlier_rel`` on a tenth of them) looks nearly as right (``ambiguity_margin``)."""
+    dw = _plane_depth(cands[win : win + 1, :3], cands[win, 3:], rays)[0]
+    for k in np.nonzero(fracs > fracs[win] - s.ambiguity_margin)[0]:
+        if k == win:
+            continue
+        dk = _plane_depth(cands[k : k + 1, :3], cands[k, 3:], rays)[0]
+        with np.errstate(invalid="ignore"):
+            differ = ~(np.abs(dk - dw) <= 2 * s.inlier_rel * dw)
+        if differ.mean() > 0.1:
+            return True
+    return False
+
+
+def _boundary_ring(seg: np.ndarray, width: int) -> np.ndarray:
+    """(h, w) bool: the pixels of ``seg`` within ``width`` pixels of its border (4-connected)."""
+    inner = cv2.erode(seg.astype(np.uint8), np.ones((2 * width + 1, 2 * width + 1), np.uint8), borderValue=1)
+    return seg & (inner == 0)
+
+
+def _sample(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Bilinear samples (N,) float32 of an (H, W) float32 image at (x, y); NaN outside (or NaN pixels)."""
+    H, W = img.shape
+    out = np.full(len(x), np.nan, np.float32)
+    ok = (x >= 0) & (y >= 0) & (x <= W - 1) & (y <= H - 1)
+    xs, ys = x[ok], y[ok]
+    x0 = np.minimum(xs.astype(np.int64), W - 2) if W > 1 else np.zeros(len(xs), np.int64)
+    y0 = np.minimum(ys.astype(np.int64), H - 2) if H > 1 else np.zeros(len(ys), np.int64)
+    ax, ay = (xs - x0).astype(np.float32), (ys - y0).astype(np.float32)
+    x1, y1 = np.minimum(x0 + 1, W - 1), np.minimum(y0 + 1, H - 1)
+    top = img[y0, x0] * (1 - ax) + img[y0, x1] * ax
+    bot = img[y1, x0] * (1 - ax) + img[y1, x1] * ax
+    out[ok] = top * (1 - ay) + bot * ay
+    return out
+
+
+def _photo_check(
+    ref: WorkingView,
+    sources: list[WorkingView],
+    u: np.ndarray,
+    v: np.ndarray,
+    d: np.ndarray,
+    ref_blur: np.ndarray,
+    src_blur: list[np.ndarray],
+    tol: float,
+    min_sources: int,
+) -> np.ndarray:
+    """(N,) bool: the plane points of pixels (u, v) at depths d (N,) metres look the same in enough
+    sources: every colour channel (blurred images, (H, W, C) float32, NaN without data) within
+    ``tol`` in at least ``min_sources`` of the sources that see the point (or all, if fewer)."""
+    X = ref.cam_from_world.inverse().apply(
+        _rays(ref, u.astype(np.float64), v.astype(np.float64)) * d[:, None]
+    )
+    g = ref_blur[v, u]
+    seen = np.zeros(len(u), np.int32)
+    agree = np.zeros(len(u), np.int32)
+    for src, sb in zip(sources, src_blur):
+        Xs = src.cam_from_world.apply(X)
+        k = src.intrinsics
+        with np.errstate(divide="ignore", invalid="ignore"):
+            x = k.fx * Xs[:, 0] / Xs[:, 2] + k.cx
+            y = k.fy * Xs[:, 1] / Xs[:, 2] + k.cy
+        inside = (Xs[:, 2] > 0) & np.isfinite(x) & np.isfinite(y)
+        diff = np.full(len(u), np.nan, np.float32)
+        if inside.any():
+            val = np.stack([_sample(sb[..., c], x[inside], y[inside]) for c in range(sb.shape[2])], axis=1)
+            diff[inside] = np.abs(val - g[inside]).max(axis=1)
+        ok = np.isfinite(diff)
+        seen += ok
+        with np.errstate(invalid="ignore"):
+            agree += ok & (diff <= tol)
+    return (seen > 0) & (agree >= np.minimum(min_sources, seen))
+
+
+def _blurred_colour(view: WorkingView) -> np.ndarray:
+    """(H, W, C) float32: the colour image (grey when the view carries none) blurred with sigma 1,
+    NaN where the image has no data."""
+    img = view.rgb if view.rgb.size else view.grey[..., None]
+    b = cv2.GaussianBlur(img.astype(np.float32), (0, 0), 1.0)
+    b = b.reshape(*view.shape, -1)
+    b[~view.valid] = np.nan
+    return b
+
+
+def fill_plain_segments(
+    ref: WorkingView,
+    sources: list[WorkingView],
+    depth: np.ndarray,
+    cost: np.ndarray,
+    accepted: np.ndarray,
+    depth_range: tuple[float, float],
+    cos_max_incidence: float,
+    gain: float,
+    settings: PlanarPriorSettings = PlanarPriorSettings(),
+    sparse_points: np.ndarray | None = None,
+    planes_world: np.ndarray | None = None,
+) -> tuple[np.ndarray, PriorReport]:
+    """Give the plain segments of one view the depth of their best-supported plane.
+
+    Args:
+        ref: the reference view (working resolution); sources: its source views.
+        depth: (H, W) float32 PatchMatch depth, metres (values outside ``accepted`` ignored);
+            filled in place where a plane is accepted.
+        cost: (H, W) float32 PatchMatch cost (support: ``accepted`` and ``cost <= support_cost``).
+        accepted: (H, W) bool pixels whose PatchMatch depth is kept.
+        depth_range: (near, far) metres; plane depths outside are not used.
+        cos_max_incidence: cos of the largest angle between a plane's normal and the viewing ray.
+        gain: brightness gain of the view (:func:`skyrecon.mvs.patchmatch.brightness_gain`):
+            grey-level thresholds are divided by it.
+        settings: see :class:`PlanarPriorSettings`.
+        sparse_points: (N, 3) world points, metres (sparse feature points) or None.
+        planes_world: (P, 4) world planes from :func:`dominant_planes` or None.
+    Returns:
+        ((H, W) bool pixels filled by a plane, PriorReport). Nothing is changed when the report
+        has a ``fallback``.
+    """
+    s = settings
+    H, W = ref.shape
+    near, far = depth_range
+    report = PriorReport()
+    filled = np.zeros((H, W), bool)
+    blur = cv2.GaussianBlur(ref.grey.astype(np.float32), (0, 0), 1.0)
+    gx = cv2.Sobel(blur, cv2.CV_32F, 1, 0, ksize=3) / 8.0
+    gy = cv2.Sobel(blur, cv2.CV_32F, 0, 1, ksize=3) / 8.0
+    edges = np.hypot(gx, gy) > s.edge_grad / gain
+    free = ref.valid & ~accepted & ~edges
+    n_lab, labels, stats, _ = cv2.connectedComponentsWithStats(free.astype(np.uint8), connectivity=4)
+    min_area = max(16, int(s.min_segment_fraction * H * W))
+    segs = [i for i in range(1, n_lab) if stats[i, cv2.CC_STAT_AREA] >= min_area]
+    report.segments = len(segs)
+    if not segs:
+        report.fallback = "no plain segments"
+        return filled, report
+    support = np.where(accepted & (cost <= s.support_cost) & np.isfinite(depth), depth, np.nan).astype(
+        np.float64
+    )
+    sparse = _sparse_support(ref, sparse_points, np.where(accepted, depth, np.nan), near, far)
+    support = np.where(np.isfinite(sparse), sparse, support)
+    report.support_px = int(np.isfinite(support).sum())
+    if report.support_px < 3:
+        report.fallback = f"only {report.support_px} support points"
+        return filled, report
+    # planes in this camera's frame: n_c = R n_w, h = c + n_c . t; facing the camera (h < 0)
+    if planes_world is not None and len(planes_world):
+        R, t = ref.cam_from_world.R, ref.cam_from_world.t
+        nc = planes_world[:, :3] @ R.T
+        hc = planes_world[:, 3] + nc @ t
+        flip = hc > 0
+        nc[flip] *= -1
+        hc[flip] *= -1
+        gplanes = np.concatenate([nc, hc[:, None]], axis=1)
+    else:
+        gplanes = np.zeros((0, 4))
+    ref_blur = _blurred_colour(ref)
+    src_blur = [_blurred_colour(sv) for sv in sources]
+    if ref_blur.shape[2] != 3 or any(sb.shape[2] != 3 for sb in src_blur):  # some without colour: grey
+        ref_blur = ref_blur.mean(axis=2, keepdims=True) if ref_blur.shape[2] == 3 else ref_blur
+        src_blur = [sb.mean(axis=2, keepdims=True) if sb.shape[2] == 3 else sb for sb in src_blur]
+    tol = s.color_tol / gain
+    band_k = np.ones((2 * s.band_px + 1, 2 * s.band_px + 1), np.uint8)
+    rejected = 0
+    dark = 0
+    ambiguous = 0
+    for i in segs:
+        if float(blur[labels == i].mean()) * gain < s.dark_level:  # unlit background, not a surface
+            dark += 1
+            continue
+        x0, y0, w, h = (int(a) for a in stats[i, :4])
+        bx0, by0 = max(0, x0 - s.band_px), max(0, y0 - s.band_px)
+        bx1, by1 = min(W, x0 + w + s.band_px), min(H, y0 + h + s.band_px)
+        seg = labels[by0:by1, bx0:bx1] == i
+        band = (cv2.dilate(seg.astype(np.uint8), band_k) > 0) & ~seg
+        sup = support[by0:by1, bx0:bx1]
+        vv, uu = np.nonzero(band & np.isfinite(sup))
+        if len(vv) < s.min_inliers:
+            continue
+        if len(vv) > s.max_support:
+            keep = np.linspace(0, len(vv) - 1, s.max_support).astype(np.int64)
+            vv, uu = vv[keep], uu[keep]
+        d = sup[vv, uu]
+        uf, vf = (uu + bx0).astype(np.float64), (vv + by0).astype(np.float64)
+        sv_, su_ = np.nonzero(seg)
+        centre = _rays(ref, np.array([su_.mean() + bx0]), np.array([sv_.mean() + by0]))[0]
+        srays = _rays(ref, uf, vf)
+        cands, is_global = _candidate_planes(
+            np.stack([uf, vf], axis=1), d, srays, gplanes, centre, cos_max_incidence, s
+        )
+        if len(cands) == 0:
+            continue
+        # the candidate whose segment border looks the same in the sources wins (a wrong plane
+        # carries the border pixels onto other surfaces there)
+        rv, ru = np.nonzero(_boundary_ring(seg, s.ring_px))
+        if len(rv) > s.max_ring_px:
+            keep = np.linspace(0, len(rv) - 1, s.max_ring_px).astype(np.int64)
+            rv, ru = rv[keep], ru[keep]
+        ru, rv = ru + bx0, rv + by0
+        rrays = _rays(ref, ru.astype(np.float64), rv.astype(np.float64))
+        fracs = np.zeros(len(cands))
+        for ci, plane in enumerate(cands):
+            rd = _plane_depth(plane[None, :3], plane[3:], rrays)[0]
+            with np.errstate(invalid="ignore"):
+                ok = (rd >= near) & (rd <= far)
+            if ok.sum() < 0.5 * len(rd):
+                continue
+            fracs[ci] = _photo_check(
+                ref, sources, ru[ok], rv[ok], rd[ok], ref_blur, src_blur, tol, s.min_sources
+            ).mean()
+        # a dominant plane (multi-view support) that looks right wins over a single view's
+        # triangles; a winner that another, different plane nearly matches is ambiguous: left empty
+        good = fracs >= s.min_pass_fraction
+        pool = np.nonzero(good & is_global)[0] if (good & is_global).any() else np.nonzero(good)[0]
+        if len(pool) == 0:
+            rejected += 1
+            continue
+        win = int(pool[np.argmax(fracs[pool])])
+        if _ambiguous(cands, fracs, win, rrays, s):
+            ambiguous += 1
+            continue
+        plane = cands[win]
+        pu, pv = (su_ + bx0).astype(np.int64), (sv_ + by0).astype(np.int64)
+        pd = _plane_depth(
+            plane[None, :3], plane[3:], _rays(ref, pu.astype(np.float64), pv.astype(np.float64))
+        )[0]
+        with np.errstate(invalid="ignore"):
+            ok = (pd >= near) & (pd <= far)
+        if not ok.any():
+            continue
+        pu, pv, pd = pu[ok], pv[ok], pd[ok]
+        passed = _photo_check(ref, sources, pu, pv, pd, ref_blur, src_blur, tol, s.min_sources)
+        if passed.sum() < s.min_pass_fraction * len(pd):
+            rejected += 1
+            continue
+        pu, pv, pd = pu[passed], pv[passed], pd[passed]
+        depth[pv, pu] = pd
+        filled[pv, pu] = True
+        report.filled_segments += 1
+    report.filled_px = int(filled.sum())
+    report.details = dict(
+        photo_rejected_segments=rejected,
+        ambiguous_segments=ambiguous,
+        dark_segments=dark,
+        dominant_planes=len(gplanes),
+    )
+    if report.filled_px == 0:
+        report.fallback = "no plain segment fits a supported plane"
+    return filled, report
+
+
+def planar_prior_depth(
+    ref: WorkingView,
+    sources: list[WorkingView],
+    depth: np.ndarray,
+    cost: np.ndarray,
+    depth_range: tuple[float, float],
+    cos_max_incidence: float,
+    settings: PlanarPriorSettings = PlanarPriorSettings(),
+    sparse_points: np.ndarray | None = None,
+    planes_world: np.ndarray | None = None,
+) -> tuple[np.ndarray, dict[str, int | str]]:
+    """One view's depth with its plain segments filled from planes (never worse than without).
+
+    Args:
+        ref, sources: the views (with colour for the photometric checks).
+        depth: (H, W) float32 PatchMatch depth, metres, NaN where none (not modified).
+        cost: (H, W) float32 PatchMatch cost.
+        depth_range, cos_max_incidence, settings, sparse_points, planes_world: see
+            :func:`fill_plain_segments`.
+    Returns:
+        ((H, W) float32 depth: a copy of ``depth`` with the filled pixels, or ``depth`` itself
+        when the prior was not applied; the report (:meth:`PriorReport.as_dict`) whose
+        ``fallback`` says why not).
+    """
+    out = np.array(depth, np.float32, copy=True)
+    try:
+        filled, rep = fill_plain_segments(
+            ref,
+            sources,
+            out,
+            cost,
+            np.isfinite(depth),
+            depth_range,
+            cos_max_incidence,
+            brightness_gain(ref),
+            settings,
+            sparse_points,
+            planes_world,
+        )
+    except (ValueError, np.linalg.LinAlgError, cv2.error) as exc:  # never worse than without it
+        msg = str(exc).strip().splitlines()
+        return depth, {"fallback": f"planar prior failed: {msg[-1] if msg else type(exc).__name__}"}
+    if rep.fallback:
+        return depth, rep.as_dict()
+    return out, rep.as_dict()
