@@ -1,0 +1,713 @@
+"""Stereo visual odometry: the pose of a rectified stereo camera, frame by frame.
+
+    vo = StereoOdometry(rig)                                   # rectified skyrecon.core.StereoRig
+    for left, right, t in frames:
+        est = vo.track(left, right, t)                         # FrameEstimate (pose, state, reason)
+    poses = vo.trajectory()                                    # refined world_from_left of every frame
+
+Pipeline per frame: KLT tracking (forward-backward checked) of the previous frame's features,
+predicted by a constant-velocity motion prior; 3D-2D matches of the tracked features that carry a
+map point; PnP in RANSAC (:func:`skyrecon.sfm.pnp.estimate_absolute_pose`, AP3P + robust
+refinement); plausibility against the elapsed time; keyframe decision. On a keyframe: new corners
+fill the empty grid cells, sparse stereo (or the given dense disparity) turns features into map
+points, and a sliding-window bundle adjustment (:mod:`skyrecon.odometry.window`) refines the last
+keyframes and their points. Non-keyframe poses are kept relative to their reference keyframe, so
+the window's refinements reach them in :meth:`StereoOdometry.trajectory`.
+
+Frames: ``world`` is the left camera of the first frame unless ``init_world_from_left`` says
+otherwise; ``left`` is the current left camera (OpenCV axes). Metres, seconds, pixels.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from skyrecon.core import StereoRig
+from skyrecon.core.rigid import Rigid3, matrix_to_rotvec, rotation_angle, rotvec_to_matrix
+from skyrecon.errors import EstimationError, InputError
+from skyrecon.odometry.checks import blank_reason, check_pair, is_frozen, to_grey
+from skyrecon.odometry.frontend import (
+    Pyramid,
+    build_pyramid,
+    detect_corners,
+    disparity_lookup,
+    grid_coverage,
+    stereo_match,
+    track_points,
+)
+from skyrecon.odometry.types import FrameEstimate, TrackingState
+from skyrecon.odometry.window import window_bundle_adjust
+from skyrecon.sfm.pnp import estimate_absolute_pose
+
+__all__ = ["OdometrySettings", "StereoOdometry"]
+
+
+@dataclass(frozen=True)
+class OdometrySettings:
+    """How the odometry runs.
+
+    Attributes:
+        max_features: features kept per frame (corners are topped up on keyframes).
+        grid: (columns, rows) of the detection grid that keeps features spread.
+        min_corner_distance_px: minimum distance between corners, pixels.
+        klt_window_px: KLT window side, pixels.
+        klt_levels: KLT pyramid levels above the base (one more after a dropped frame).
+        fb_threshold_px: forward-backward tracking check, pixels.
+        min_disparity_px: a feature becomes a map point only with at least this disparity
+            (sets the farthest usable depth, ``fx * baseline / min_disparity_px``).
+        stereo_row_tolerance_px: sparse stereo: the right match must stay within this many
+            pixels of the left feature's row.
+        ransac_threshold_px: PnP RANSAC and inlier threshold on the reprojection error, pixels.
+        ransac_iterations: PnP RANSAC iteration cap.
+        min_inliers: fewer PnP inliers lose the frame.
+        good_inliers: fewer inliers (but at least ``min_inliers``) degrade the frame.
+        min_inlier_coverage: inliers covering less than this fraction of a 4x4 image grid
+            degrade the frame (poor spread makes the pose ill-conditioned).
+        min_stereo_points: a (re)initialisation needs at least this many features with depth.
+        keyframe_tracked_ratio: a new keyframe when fewer than this fraction of the reference
+            keyframe's map points are still tracked.
+        keyframe_max_distance_m: ... or when the camera moved this far from it, metres.
+        keyframe_max_rotation_deg: ... or turned this much, degrees.
+        keyframe_max_frames: ... or after this many frames.
+        window_keyframes: keyframes in the sliding-window bundle adjustment (0 turns it off).
+        window_fixed_keyframes: oldest window keyframes held fixed (gauge and scale).
+        window_iterations: Levenberg-Marquardt iterations of the window adjustment.
+        max_speed_mps: a pose implying a faster motion since the last trusted one is rejected.
+        max_rotation_rate_dps: ... or a faster rotation, degrees per second.
+        gap_factor: a timestamp step larger than this many times the usual frame interval is a
+            dropped frame: the search is widened and the frame flagged.
+        seed: seeds the RANSAC (frame ``i`` uses ``seed + i``).
+        loop_closure: reserved for place recognition and pose-graph correction (not implemented
+            yet: setting it raises ``InputError`` rather than silently doing nothing).
+    """
+
+    max_features: int = 300
+    grid: tuple[int, int] = (8, 6)
+    min_corner_distance_px: float = 8.0
+    klt_window_px: int = 21
+    klt_levels: int = 3
+    fb_threshold_px: float = 0.7
+    min_disparity_px: float = 0.5
+    stereo_row_tolerance_px: float = 0.7
+    ransac_threshold_px: float = 2.0
+    ransac_iterations: int = 300
+    min_inliers: int = 20
+    good_inliers: int = 50
+    min_inlier_coverage: float = 0.25
+    min_stereo_points: int = 30
+    keyframe_tracked_ratio: float = 0.6
+    keyframe_max_distance_m: float = 2.0
+    keyframe_max_rotation_deg: float = 10.0
+    keyframe_max_frames: int = 10
+    window_keyframes: int = 0
+    window_fixed_keyframes: int = 2
+    window_iterations: int = 8
+    max_speed_mps: float = 40.0
+    max_rotation_rate_dps: float = 360.0
+    gap_factor: float = 1.8
+    seed: int = 0
+    loop_closure: bool = False
+
+    def __post_init__(self) -> None:
+        if self.max_features < 10:
+            raise InputError(f"max_features must be at least 10, got {self.max_features}")
+        if self.min_inliers < 4:
+            raise InputError(f"min_inliers must be at least 4, got {self.min_inliers}")
+        if not self.ransac_threshold_px > 0:
+            raise InputError(f"ransac_threshold_px must be positive, got {self.ransac_threshold_px}")
+        if self.window_keyframes and self.window_fixed_keyframes < 1:
+            raise InputError("window_fixed_keyframes must be at least 1 (the gauge)")
+        if self.klt_window_px < 5 or self.klt_levels < 0:
+            raise InputError("klt_window_px must be at least 5 and klt_levels non-negative")
+        if self.loop_closure:
+            raise InputError("loop_closure is not implemented yet")
+
+
+@dataclass
+class _Keyframe:
+    """A keyframe: its pose and what it observed (left pixels of map points, right pixels)."""
+
+    frame: int
+    world_from_left: np.ndarray  # (4, 4)
+    n_points: int
+    obs_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    obs_uv: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    right_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    right_uv: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+
+
+@dataclass
+class _FrameRecord:
+    keyframe: int  # index into the keyframe list (-1: before any keyframe)
+    kf_from_frame: np.ndarray  # (4, 4) left_kf_from_left_frame (or world_from_left when keyframe == -1)
+
+
+def _inv(T: np.ndarray) -> np.ndarray:
+    out = np.eye(4)
+    out[:3, :3] = T[:3, :3].T
+    out[:3, 3] = -T[:3, :3].T @ T[:3, 3]
+    return out
+
+
+def _rigid(T: np.ndarray) -> Rigid3:
+    return Rigid3(T[:3, :3], T[:3, 3], "world", "left")
+
+
+class StereoOdometry:
+    """Stereo visual odometry on a rectified rig (see the module docstring).
+
+    Args:
+        rig: rectified :class:`~skyrecon.core.StereoRig` (``x_right = x_left - d``).
+        settings: :class:`OdometrySettings`.
+        init_world_from_left: pose of the first frame's left camera in the world (default:
+            identity, the world is the first left camera).
+    Raises:
+        InputError: the rig is not rectified.
+    """
+
+    def __init__(
+        self,
+        rig: StereoRig,
+        settings: OdometrySettings = OdometrySettings(),  # noqa: B008 (frozen dataclass)
+        init_world_from_left: Rigid3 | None = None,
+    ) -> None:
+        if not rig.is_rectified:
+            raise InputError("stereo odometry needs a rectified rig (rectify the images first)")
+        self.rig = rig
+        self.settings = settings
+        L = rig.left
+        self._f = np.array([L.fx, L.fy])
+        self._c = np.array([L.cx, L.cy])
+        self._fb = L.fx * rig.baseline_m
+        self._doffs = rig.doffs_px
+        self._size = (L.width, L.height)
+        self._init = np.eye(4) if init_world_from_left is None else init_world_from_left.matrix
+        self._frames: list[_FrameRecord] = []
+        self._estimates: list[FrameEstimate] = []
+        self._kfs: list[_Keyframe] = []
+        self._points: dict[int, np.ndarray] = {}
+        self._next_id = 0
+        self._pyr: Pyramid | None = None
+        self._pts = np.zeros((0, 2), np.float32)
+        self._ids = np.zeros(0, np.int64)
+        self._last_input: np.ndarray | None = None
+        self._last_time: float | None = None
+        self._dts: list[float] = []
+        # the trusted poses behind the motion prior: (timestamp, world_from_left 4x4)
+        self._trusted: list[tuple[float, np.ndarray]] = []
+        self._lost_count = 0
+
+    # ----- public ------------------------------------------------------------------------
+    @property
+    def estimates(self) -> list[FrameEstimate]:
+        """The per-frame answers as given by :meth:`track` (poses as estimated then)."""
+        return list(self._estimates)
+
+    def trajectory(self) -> list[Rigid3]:
+        """The best current ``world_from_left`` of every frame given so far (window refinements included)."""
+        out = []
+        for rec in self._frames:
+            T = (
+                rec.kf_from_frame
+                if rec.keyframe < 0
+                else self._kfs[rec.keyframe].world_from_left @ rec.kf_from_frame
+            )
+            out.append(_rigid(T))
+        return out
+
+    def track(
+        self, left: np.ndarray, right: np.ndarray, timestamp_s: float, disparity_px: np.ndarray | None = None
+    ) -> FrameEstimate:
+        """Estimate the pose of one stereo frame.
+
+        Args:
+            left, right: (H, W, 3) uint8 RGB or (H, W) uint8 grey rectified images of the rig's size.
+            timestamp_s: the frame's time, seconds, increasing from frame to frame.
+            disparity_px: optional (H, W) float32 left disparity (``x_right = x_left - d``, NaN
+                invalid); when given it supplies the features' depth instead of sparse stereo.
+        Returns:
+            :class:`FrameEstimate` (also appended to :attr:`estimates`).
+        Raises:
+            InputError: wrong image size or type, a disparity of the wrong shape, or a timestamp
+                that is not finite or does not increase.
+        """
+        t_start = time.perf_counter()
+        W, H = self._size
+        check_pair(left, right, W, H)
+        if disparity_px is not None:
+            disparity_px = np.asarray(disparity_px)
+            if disparity_px.shape != (H, W):
+                raise InputError(f"the disparity must be ({H}, {W}), got {disparity_px.shape}")
+        ts = float(timestamp_s)
+        if not math.isfinite(ts):
+            raise InputError(f"the timestamp must be finite, got {timestamp_s}")
+        if self._last_time is not None and ts <= self._last_time:
+            raise InputError(f"timestamps must increase: {ts} after {self._last_time}")
+        index = len(self._frames)
+        timings: dict[str, float] = {}
+        grey = to_grey(left)
+        frozen = is_frozen(grey, self._last_input)
+        self._last_input = grey
+        blank = blank_reason(grey)
+        gap = ""
+        if self._last_time is not None:
+            dt = ts - self._last_time
+            expected = float(np.median(self._dts[-20:])) if self._dts else None
+            if expected is not None and dt > self.settings.gap_factor * expected:
+                gap = f"frame gap {dt:.3f} s (usual {expected:.3f} s): search widened"
+            elif not blank and not frozen:
+                self._dts.append(dt)
+        self._last_time = ts
+        timings["checks"] = (time.perf_counter() - t_start) * 1e3
+
+        if blank or frozen:
+            reason = blank or "frozen frame (identical to the previous one)"
+            est = self._lost(index, ts, reason, timings)
+        elif not self._kfs:
+            est = self._initialise(index, ts, grey, right, disparity_px, self._init, timings, reinit=False)
+        else:
+            est = self._track_frame(index, ts, grey, right, disparity_px, gap, timings)
+        est.timings_ms["total"] = (time.perf_counter() - t_start) * 1e3
+        self._estimates.append(est)
+        return est
+
+    # ----- motion prior -----------------------------------------------------------------------
+    def _predict(self, ts: float) -> np.ndarray:
+        """Constant-velocity ``world_from_left`` at time ``ts`` from the last two trusted poses."""
+        if not self._trusted:
+            return self._init.copy()
+        t1, T1 = self._trusted[-1]
+        if len(self._trusted) < 2:
+            return T1.copy()
+        t0, T0 = self._trusted[-2]
+        rel = _inv(T0) @ T1
+        s = (ts - t1) / max(t1 - t0, 1e-6)
+        step = np.eye(4)
+        step[:3, :3] = rotvec_to_matrix(matrix_to_rotvec(rel[:3, :3]) * s)
+        step[:3, 3] = rel[:3, 3] * s
+        return T1 @ step
+
+    def _trust(self, ts: float, T: np.ndarray) -> None:
+        self._trusted.append((ts, T.copy()))
+        del self._trusted[:-2]
+
+    # ----- outcomes ---------------------------------------------------------------------------
+    def _record(self, T: np.ndarray, keyframe: int) -> None:
+        if keyframe < 0:
+            self._frames.append(_FrameRecord(-1, T.copy()))
+        else:
+            self._frames.append(_FrameRecord(keyframe, _inv(self._kfs[keyframe].world_from_left) @ T))
+
+    def _lost(self, index: int, ts: float, reason: str, timings: dict[str, float]) -> FrameEstimate:
+        """A frame without a pose: the constant-velocity prediction, flagged lost."""
+        T = self._predict(ts)
+        self._lost_count += 1
+        self._record(T, len(self._kfs) - 1)
+        return FrameEstimate(
+            index=index,
+            timestamp_s=ts,
+            world_from_left=_rigid(T),
+            state=TrackingState.LOST,
+            reason=reason,
+            n_features=len(self._pts),
+            timings_ms=timings,
+        )
+
+    # ----- stereo ------------------------------------------------------------------------------
+    def _disparities(
+        self,
+        left: Pyramid,
+        right_image: np.ndarray,
+        disparity_px: np.ndarray | None,
+        pts: np.ndarray,
+        guess: np.ndarray | None,
+    ) -> np.ndarray:
+        """(N,) disparities of left features: from the given dense map, else sparse KLT stereo."""
+        if disparity_px is not None:
+            d = disparity_lookup(disparity_px, pts)
+            with np.errstate(invalid="ignore"):
+                d[~(d >= self.settings.min_disparity_px)] = np.nan
+            return d
+        right = build_pyramid(to_grey(right_image), self.settings.klt_window_px, 2)
+        return stereo_match(
+            left,
+            right,
+            pts,
+            guess,
+            max_row_error_px=self.settings.stereo_row_tolerance_px,
+            min_disparity_px=self.settings.min_disparity_px,
+        )
+
+    def _backproject(self, pts: np.ndarray, d: np.ndarray) -> np.ndarray:
+        """(N, 3) left-camera points from pixels (N, 2) and disparities (N,)."""
+        z = self._fb / (d + self._doffs)
+        xy = (pts.astype(np.float64) - self._c) / self._f * z[:, None]
+        return np.column_stack([xy, z])
+
+    # ----- initialisation and keyframes -------------------------------------------------------
+    def _initialise(
+        self,
+        index: int,
+        ts: float,
+        grey: np.ndarray,
+        right: np.ndarray,
+        disparity_px: np.ndarray | None,
+        T: np.ndarray,
+        timings: dict[str, float],
+        reinit: bool,
+        why: str = "",
+    ) -> FrameEstimate:
+        """Start a new track at this frame with pose ``T`` (``world_from_left``)."""
+        s = self.settings
+        t0 = time.perf_counter()
+        pyr = build_pyramid(grey, s.klt_window_px, s.klt_levels)
+        pts = detect_corners(
+            grey, np.zeros((0, 2), np.float32), s.max_features, s.grid, s.min_corner_distance_px
+        )
+        timings["detect"] = (time.perf_counter() - t0) * 1e3
+        t0 = time.perf_counter()
+        d = self._disparities(pyr, right, disparity_px, pts, None)
+        timings["stereo"] = (time.perf_counter() - t0) * 1e3
+        n_stereo = int(np.count_nonzero(np.isfinite(d)))
+        if n_stereo < s.min_stereo_points:
+            if len(pts) < s.min_stereo_points:
+                reason = f"{len(pts)} features (< {s.min_stereo_points}): too little texture or sky"
+            else:
+                reason = (
+                    f"no stereo depth in view: {n_stereo} of {len(pts)} features with depth "
+                    f"(< {s.min_stereo_points}); pure rotation or distant scene"
+                )
+            prefix = "cannot initialise: " if not self._kfs else "cannot re-initialise: "
+            est = self._lost(index, ts, prefix + reason + (f" ({why})" if why else ""), timings)
+            est.n_features, est.n_stereo = len(pts), n_stereo
+            return est
+        ids = np.arange(self._next_id, self._next_id + len(pts), dtype=np.int64)
+        self._next_id += len(pts)
+        self._pyr, self._pts, self._ids = pyr, pts, ids
+        self._add_keyframe(index, T, pts, ids, d)
+        self._record(T, len(self._kfs) - 1)
+        self._trusted = [(ts, T.copy())]
+        lost_before = self._lost_count
+        self._lost_count = 0
+        state, reason = TrackingState.OK, ""
+        if reinit:
+            state = TrackingState.DEGRADED
+            reason = (
+                f"re-initialised after {lost_before} lost frame(s): pose chained to the last trusted one "
+                "by constant velocity" + (f" ({why})" if why else "")
+            )
+        return FrameEstimate(
+            index=index,
+            timestamp_s=ts,
+            world_from_left=_rigid(T),
+            state=state,
+            reason=reason,
+            keyframe=True,
+            reinitialised=reinit,
+            n_features=len(pts),
+            n_stereo=n_stereo,
+            timings_ms=timings,
+        )
+
+    def _add_keyframe(
+        self, index: int, T: np.ndarray, pts: np.ndarray, ids: np.ndarray, d: np.ndarray
+    ) -> None:
+        """Create map points for features with depth and no point yet; store the keyframe's observations."""
+        has_d = np.isfinite(d)
+        new = has_d & np.array([i not in self._points for i in ids.tolist()], bool)
+        if np.any(new):
+            Xw = self._backproject(pts[new], d[new]) @ T[:3, :3].T + T[:3, 3]
+            for i, X in zip(ids[new].tolist(), Xw):
+                self._points[i] = X
+        has_pt = np.array([i in self._points for i in ids.tolist()], bool)
+        right_uv = pts[has_pt & has_d].astype(np.float64).copy()
+        right_uv[:, 0] -= d[has_pt & has_d]
+        self._kfs.append(
+            _Keyframe(
+                index,
+                T.copy(),
+                int(np.count_nonzero(has_pt)),
+                ids[has_pt].copy(),
+                pts[has_pt].astype(np.float64),
+                ids[has_pt & has_d].copy(),
+                right_uv,
+            )
+        )
+
+    # ----- tracking ------------------------------------------------------------------------------
+    def _guess(self, T_pred: np.ndarray, T_last: np.ndarray, has_pt: np.ndarray) -> np.ndarray:
+        """Predicted pixels of the tracked features in the new frame (motion prior)."""
+        pts = self._pts.astype(np.float64)
+        guess = pts.copy()
+        # rotation-only prediction for every feature (points at infinity)
+        R_rel = T_pred[:3, :3].T @ T_last[:3, :3]  # cur_from_last
+        rays = np.column_stack([(pts - self._c) / self._f, np.ones(len(pts))]) @ R_rel.T
+        front = rays[:, 2] > 1e-3
+        guess[front] = rays[front, :2] / rays[front, 2:3] * self._f + self._c
+        # full projection for features with a map point
+        if np.any(has_pt):
+            X = np.stack([self._points[i] for i in self._ids[has_pt].tolist()])
+            cam_from_world = _inv(T_pred)
+            P = X @ cam_from_world[:3, :3].T + cam_from_world[:3, 3]
+            ok = P[:, 2] > 0.1
+            g = guess[has_pt]
+            g[ok] = P[ok, :2] / P[ok, 2:3] * self._f + self._c
+            guess[has_pt] = g
+        W, H = self._size
+        bad = ~np.isfinite(guess).all(axis=1) | (guess[:, 0] < -W) | (guess[:, 0] > 2 * W)
+        bad |= (guess[:, 1] < -H) | (guess[:, 1] > 2 * H)
+        guess[bad] = pts[bad]
+        return guess.astype(np.float32)
+
+    def _track_frame(
+        self,
+        index: int,
+        ts: float,
+        grey: np.ndarray,
+        right: np.ndarray,
+        disparity_px: np.ndarray | None,
+        gap: str,
+        timings: dict[str, float],
+    ) -> FrameEstimate:
+        s = self.settings
+        T_pred = self._predict(ts)
+        t_last, T_last = self._trusted[-1]
+        t0 = time.perf_counter()
+        widen = bool(gap) or self._lost_count > 0
+        win = s.klt_window_px + (10 if widen else 0)
+        pyr = build_pyramid(grey, win, s.klt_levels + (1 if widen else 0))
+        assert self._pyr is not None
+        prev = self._pyr
+        if prev.win != win or prev.max_level != pyr.max_level:
+            prev = build_pyramid(prev.image, win, pyr.max_level)
+        has_pt = np.array([i in self._points for i in self._ids.tolist()], bool)
+        guess = self._guess(T_pred, T_last, has_pt)
+        pts, ok = track_points(prev, pyr, self._pts, guess, s.fb_threshold_px)
+        timings["track"] = (time.perf_counter() - t0) * 1e3
+        n_tracked = int(np.count_nonzero(ok))
+        use = ok & has_pt
+        n_use = int(np.count_nonzero(use))
+
+        failure = ""
+        T = None
+        pose = None
+        if n_use < s.min_inliers:
+            failure = f"{n_use} tracked features with a 3D point (< {s.min_inliers})"
+        else:
+            t0 = time.perf_counter()
+            ids_use = self._ids[use]
+            X = np.stack([self._points[i] for i in ids_use.tolist()])
+            xn = (pts[use].astype(np.float64) - self._c) / self._f
+            try:
+                pose = estimate_absolute_pose(
+                    xn,
+                    X,
+                    float(self._f[0]),
+                    threshold_px=s.ransac_threshold_px,
+                    seed=s.seed + index,
+                    max_iterations=s.ransac_iterations,
+                    confidence=0.999,
+                    min_inliers=s.min_inliers,
+                )
+            except EstimationError as exc:
+                failure = str(exc)
+            timings["pnp"] = (time.perf_counter() - t0) * 1e3
+            if pose is not None:
+                T = np.eye(4)
+                T[:3, :3] = pose.R.T
+                T[:3, 3] = -pose.R.T @ pose.t
+                elapsed = max(ts - t_last, 1e-6)
+                speed = float(np.linalg.norm(T[:3, 3] - T_last[:3, 3])) / elapsed
+                rate = math.degrees(rotation_angle(T_last[:3, :3].T @ T[:3, :3])) / elapsed
+                if speed > s.max_speed_mps or rate > s.max_rotation_rate_dps:
+                    failure = (
+                        f"rejected an implausible pose: {speed:.1f} m/s, {rate:.0f} deg/s since the last "
+                        f"trusted frame (limits {s.max_speed_mps:g} m/s, {s.max_rotation_rate_dps:g} deg/s)"
+                    )
+                    T = None
+
+        if T is None or pose is None:
+            if self._lost_count > 0:
+                # the map could not be found again: start a new track here, chained by the prior
+                return self._initialise(
+                    index, ts, grey, right, disparity_px, T_pred, timings, reinit=True, why=failure
+                )
+            est = self._lost(index, ts, failure, timings)
+            est.n_tracked = n_tracked
+            return est
+
+        # keep the tracked features, minus PnP outliers
+        inl_full = np.zeros(len(self._ids), bool)
+        inl_full[np.flatnonzero(use)[pose.inliers]] = True
+        outlier = use & ~inl_full
+        keep = ok & ~outlier
+        n_inl = pose.num_inliers
+        inl_px = pts[inl_full]
+        err = pose.errors_px[pose.inliers]
+        rms = float(np.sqrt(np.mean(err**2))) if len(err) else float("nan")
+        self._pts, self._ids, self._pyr = pts[keep], self._ids[keep], pyr
+
+        reasons = []
+        if n_inl < s.good_inliers:
+            reasons.append(f"{n_inl} inliers (< {s.good_inliers})")
+        cover = grid_coverage(inl_px, *self._size)
+        if cover < s.min_inlier_coverage:
+            reasons.append(f"poor inlier spread ({cover:.0%} of the image grid)")
+        if gap:
+            reasons.append(gap)
+        recovered = self._lost_count
+        self._lost_count = 0
+        self._trust(ts, T)
+
+        # keyframe decision
+        kf = self._kfs[-1]
+        n_pts_now = int(np.count_nonzero(inl_full))
+        rel = _inv(kf.world_from_left) @ T
+        make_kf = (
+            n_pts_now < s.keyframe_tracked_ratio * kf.n_points
+            or float(np.linalg.norm(rel[:3, 3])) > s.keyframe_max_distance_m
+            or math.degrees(rotation_angle(rel[:3, :3])) > s.keyframe_max_rotation_deg
+            or index - kf.frame >= s.keyframe_max_frames
+            or bool(recovered)
+        )
+        n_stereo = n_pts_now
+        if make_kf:
+            t0 = time.perf_counter()
+            new = detect_corners(grey, self._pts, s.max_features, s.grid, s.min_corner_distance_px)
+            timings["detect"] = (time.perf_counter() - t0) * 1e3
+            if len(new):
+                self._pts = np.concatenate([self._pts, new])
+                self._ids = np.concatenate(
+                    [self._ids, np.arange(self._next_id, self._next_id + len(new), dtype=np.int64)]
+                )
+                self._next_id += len(new)
+            t0 = time.perf_counter()
+            guess_d = self._predicted_disparity(T)
+            d = self._disparities(pyr, right, disparity_px, self._pts, guess_d)
+            timings["stereo"] = (time.perf_counter() - t0) * 1e3
+            self._add_keyframe(index, T, self._pts, self._ids, d)
+            n_stereo = self._kfs[-1].n_points
+            if s.window_keyframes >= 3 and len(self._kfs) >= 3:
+                t0 = time.perf_counter()
+                self._window_adjust()
+                timings["window_ba"] = (time.perf_counter() - t0) * 1e3
+                T = self._kfs[-1].world_from_left
+                self._trusted[-1] = (ts, T.copy())
+        self._record(T, len(self._kfs) - 1)
+        depth_med = self._median_depth(T, self._ids)
+        sigma = rms / float(self._f[0]) * depth_med / math.sqrt(max(n_inl, 1)) * 3.0
+        return FrameEstimate(
+            index=index,
+            timestamp_s=ts,
+            world_from_left=_rigid(T),
+            state=TrackingState.DEGRADED if reasons else TrackingState.OK,
+            reason="; ".join(reasons),
+            keyframe=make_kf,
+            n_features=len(self._pts),
+            n_stereo=n_stereo,
+            n_tracked=n_tracked,
+            n_inliers=n_inl,
+            reprojection_rms_px=rms,
+            timings_ms=timings,
+            position_sigma_m=sigma,
+        )
+
+    def _median_depth(self, T: np.ndarray, ids: np.ndarray) -> float:
+        pts = [self._points[i] for i in ids.tolist() if i in self._points]
+        if not pts:
+            return float("nan")
+        cam = _inv(T)
+        z = (np.stack(pts) @ cam[:3, :3].T + cam[:3, 3])[:, 2]
+        return float(np.median(z))
+
+    def _predicted_disparity(self, T: np.ndarray) -> np.ndarray:
+        """(N,) disparity of the current features predicted from their map points (NaN: none)."""
+        out = np.full(len(self._ids), np.nan)
+        cam = _inv(T)
+        for k, i in enumerate(self._ids.tolist()):
+            X = self._points.get(i)
+            if X is not None:
+                z = float(cam[2, :3] @ X + cam[2, 3])
+                if z > 0:
+                    out[k] = self._fb / z - self._doffs
+        return out
+
+    # ----- sliding window ---------------------------------------------------------------------
+    def _window_adjust(self) -> None:
+        """Bundle-adjust the last ``window_keyframes`` keyframes (oldest ones fixed) and their points."""
+        s = self.settings
+        win = self._kfs[-s.window_keyframes :]
+        K = len(win)
+        n_fixed = min(s.window_fixed_keyframes, K - 1)
+        seen: dict[int, int] = {}
+        for kf in win:
+            for i in kf.obs_ids.tolist():
+                if i in self._points:
+                    seen[i] = seen.get(i, 0) + 1
+        pids = [i for i, c in seen.items() if c >= 2]
+        if len(pids) < 10:
+            return
+        col = {i: k for k, i in enumerate(pids)}
+        points = np.stack([self._points[i] for i in pids])
+        obs_kf, obs_pt, obs_uv = [], [], []
+        r_kf, r_pt, r_uv = [], [], []
+        for k, kf in enumerate(win):
+            for i, uv in zip(kf.obs_ids.tolist(), kf.obs_uv):
+                c = col.get(i)
+                if c is not None:
+                    obs_kf.append(k)
+                    obs_pt.append(c)
+                    obs_uv.append(uv)
+            if k < n_fixed:
+                for i, uv in zip(kf.right_ids.tolist(), kf.right_uv):
+                    c = col.get(i)
+                    if c is not None:
+                        r_kf.append(k)
+                        r_pt.append(c)
+                        r_uv.append(uv)
+        Ts = [_inv(kf.world_from_left) for kf in win]
+        fixed = np.zeros(K, bool)
+        fixed[:n_fixed] = True
+        res = window_bundle_adjust(
+            self.rig,
+            np.stack([T[:3, :3] for T in Ts]),
+            np.stack([T[:3, 3] for T in Ts]),
+            fixed,
+            points,
+            np.array(obs_kf, np.int64),
+            np.array(obs_pt, np.int64),
+            np.array(obs_uv, np.float64).reshape(-1, 2),
+            np.array(r_kf, np.int64),
+            np.array(r_pt, np.int64),
+            np.array(r_uv, np.float64).reshape(-1, 2),
+            max_iterations=s.window_iterations,
+        )
+        if not (res.rms_after_px <= res.rms_before_px * 1.05 + 0.05):
+            return  # the adjustment made things worse: keep the previous estimate
+        # points seen by a single window keyframe were not adjusted: they move with that keyframe
+        single: dict[int, int] = {}
+        for k, kf in enumerate(win):
+            for i in kf.obs_ids.tolist():
+                if seen.get(i) == 1:
+                    single[i] = k
+        moves = {}
+        for k in range(n_fixed, K):
+            T = np.eye(4)
+            T[:3, :3] = res.R[k].T
+            T[:3, 3] = -res.R[k].T @ res.t[k]
+            moves[k] = T @ _inv(win[k].world_from_left)
+            win[k].world_from_left = T
+        for i, k in single.items():
+            C = moves.get(k)
+            if C is not None and i in self._points:
+                self._points[i] = C[:3, :3] @ self._points[i] + C[:3, 3]
+        bad = res.point_error_px > 3.0 * s.ransac_threshold_px
+        for i, X, b in zip(pids, res.points, bad):
+            if b:
+                del self._points[i]
+            else:
+                self._points[i] = X

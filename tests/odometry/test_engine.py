@@ -1,0 +1,151 @@
+import numpy as np
+import pytest
+
+from skyrecon.core import StereoRig
+from skyrecon.core.rigid import rotation_angle_deg
+from skyrecon.errors import InputError
+from skyrecon.odometry import FrameEstimate, TrackingState
+from skyrecon.odometry.engine import OdometrySettings, StereoOdometry
+from skyrecon.sim import default_rig
+
+
+def _run(flight, settings=None, frames=None, disparity=False, skip=(), replace=None):
+    vo = StereoOdometry(flight.rig, settings or OdometrySettings(), flight.world_from_left[0])
+    out = []
+    for k in frames if frames is not None else range(len(flight.left)):
+        if k in skip:
+            continue
+        left, right = flight.left[k], flight.right[k]
+        if replace and k in replace:
+            left, right = replace[k](k)
+        out.append(vo.track(left, right, flight.timestamps[k], flight.disparity[k] if disparity else None))
+    return vo, out
+
+
+def _errors(vo, flight, frames):
+    traj = vo.trajectory()
+    pos = max(float(np.linalg.norm(p.t - flight.world_from_left[k].t)) for p, k in zip(traj, frames))
+    rot = max(rotation_angle_deg(p.R.T @ flight.world_from_left[k].R) for p, k in zip(traj, frames))
+    return pos, rot
+
+
+@pytest.mark.parametrize("disparity", [False, True], ids=["sparse-stereo", "given-disparity"])
+def test_flight_stays_close_to_truth(flight, disparity):
+    vo, est = _run(flight, disparity=disparity)
+    frames = list(range(len(flight.left)))
+    length = sum(
+        float(np.linalg.norm(flight.world_from_left[k + 1].t - flight.world_from_left[k].t))
+        for k in frames[:-1]
+    )
+    assert length > 15.0
+    assert all(e.state is TrackingState.OK for e in est), [(e.index, e.reason) for e in est if e.reason]
+    pos, rot = _errors(vo, flight, frames)
+    assert pos < 0.03 * length, pos  # within 3 % of the distance flown, everywhere
+    assert rot < 2.0, rot
+    assert est[0].keyframe and sum(e.keyframe for e in est) >= 3
+    assert all(e.n_inliers >= 20 for e in est[1:])
+    assert all(np.isfinite(e.reprojection_rms_px) and e.reprojection_rms_px < 2.0 for e in est[1:])
+    assert all("total" in e.timings_ms and "track" in e.timings_ms for e in est[1:])
+    assert len(vo.trajectory()) == len(vo.estimates) == len(flight.left)
+
+
+def test_same_seed_same_trajectory(flight):
+    a, _ = _run(flight, frames=range(15))
+    b, _ = _run(flight, frames=range(15))
+    for p, q in zip(a.trajectory(), b.trajectory()):
+        assert np.array_equal(p.matrix, q.matrix)
+
+
+def test_black_and_frozen_frames_are_flagged_and_recovered(flight):
+    black = lambda k: (np.zeros_like(flight.left[k]), np.zeros_like(flight.right[k]))  # noqa: E731
+    frozen = lambda k: (flight.left[k - 1], flight.right[k - 1])  # noqa: E731
+    frames = range(16)
+    vo, est = _run(flight, frames=frames, replace={6: black, 11: frozen})
+    assert est[6].state is TrackingState.LOST and est[6].reason.startswith("black frame")
+    assert est[11].state is TrackingState.LOST and "frozen frame" in est[11].reason
+    # the next frames track again against the map (no silent jump, no reinitialisation needed)
+    for k in (7, 12):
+        assert est[k].state is not TrackingState.LOST, est[k].reason
+        assert est[k].n_inliers >= 20
+    pos, rot = _errors(vo, flight, list(frames))
+    assert pos < 0.3 and rot < 1.5
+
+
+def test_sky_view_is_flagged_not_silently_wrong(flight, sky_view):
+    vo = StereoOdometry(flight.rig, OdometrySettings(), flight.world_from_left[0])
+    for k in range(5):
+        vo.track(flight.left[k], flight.right[k], flight.timestamps[k])
+    e = vo.track(sky_view.left[0], sky_view.right[0], flight.timestamps[5])
+    assert e.state is TrackingState.LOST
+    assert e.reason
+    # the pose given is the constant-velocity prediction, near where the drone really is
+    assert np.linalg.norm(e.position - flight.world_from_left[5].t) < 0.3
+    # starting on the sky view: cannot initialise, says why
+    vo2 = StereoOdometry(flight.rig)
+    e2 = vo2.track(sky_view.left[0], sky_view.right[0], 0.0)
+    assert e2.state is TrackingState.LOST and e2.reason.startswith("cannot initialise")
+
+
+def test_lost_track_reinitialises_chained_to_the_prediction(flight, sky_view):
+    vo = StereoOdometry(flight.rig, OdometrySettings(), flight.world_from_left[0])
+    est = [vo.track(flight.left[k], flight.right[k], flight.timestamps[k]) for k in range(5)]
+    for k in range(5, 9):  # four sky frames: the map falls out of view
+        est.append(vo.track(sky_view.left[0], sky_view.right[0], flight.timestamps[k]))
+    # the first frame after the loss may still find the old map; when it cannot, it starts a new track
+    for k in range(9, 14):
+        est.append(vo.track(flight.left[k], flight.right[k], flight.timestamps[k]))
+    assert all(e.state is TrackingState.LOST for e in est[5:9])
+    back = est[9]
+    assert back.state is not TrackingState.LOST
+    if back.reinitialised:
+        assert back.state is TrackingState.DEGRADED and "re-initialised" in back.reason
+    assert all(e.state is not TrackingState.LOST for e in est[9:])
+    # chained, not reset: still near the truth after 4 predicted frames
+    assert np.linalg.norm(est[-1].position - flight.world_from_left[13].t) < 1.0
+
+
+def test_dropped_frames_widen_the_search_and_say_so(flight):
+    vo, est = _run(flight, frames=range(16), skip={8, 9})
+    after = next(e for e in est if e.timestamp_s == pytest.approx(flight.timestamps[10]))
+    assert after.state is TrackingState.DEGRADED and "frame gap" in after.reason
+    pos, _ = _errors(vo, flight, [k for k in range(16) if k not in (8, 9)])
+    assert pos < 0.3
+
+
+def test_implausible_motion_is_rejected(flight):
+    vo, est = _run(flight, OdometrySettings(max_speed_mps=1.0), frames=range(4))
+    assert est[0].state is TrackingState.OK
+    assert est[1].state is TrackingState.LOST and "implausible" in est[1].reason
+    # the pose given is the prediction (no motion known yet: the last trusted pose), not a jump
+    assert np.allclose(est[1].position, est[0].position)
+
+
+def test_bad_inputs_raise(flight):
+    vo = StereoOdometry(flight.rig)
+    with pytest.raises(InputError):
+        vo.track(flight.left[0][:100], flight.right[0], 0.0)
+    with pytest.raises(InputError):
+        vo.track(flight.left[0], flight.right[0], 0.0, np.zeros((3, 3), np.float32))
+    vo.track(flight.left[0], flight.right[0], 1.0)
+    with pytest.raises(InputError, match="increase"):
+        vo.track(flight.left[1], flight.right[1], 1.0)
+    unrect = StereoRig(flight.rig.left, flight.rig.right, flight.rig.right_from_left.inverse())
+    with pytest.raises(InputError, match="rectified"):
+        StereoOdometry(unrect)
+    with pytest.raises(InputError):
+        OdometrySettings(min_inliers=2)
+
+
+def test_estimates_are_json_ready(flight):
+    vo, est = _run(flight, frames=range(3))
+    rec = est[1].as_json()
+    assert rec["state"] == "ok" and len(rec["position"]) == 3
+    assert isinstance(est[1], FrameEstimate) and vo.estimates[1] is est[1]
+
+
+def test_grey_input_works():
+    rig = default_rig(64, 48)
+    vo = StereoOdometry(rig)
+    g = np.zeros((48, 64), np.uint8)
+    e = vo.track(g, g, 0.0)
+    assert e.state is TrackingState.LOST and "black" in e.reason
