@@ -18,7 +18,20 @@ from skyrecon.jit import install_compile_notice
 from skyrecon.progress import set_progress_enabled
 
 # Command modules, in the order --help lists them. Each has add_parser(subparsers) and run(args) -> int.
-COMMANDS = ["render", "stereo", "two-view", "sfm", "align", "mvs", "map", "plan", "eval", "demo", "warmup"]
+COMMANDS = [
+    "render",
+    "stereo",
+    "two-view",
+    "sfm",
+    "align",
+    "mvs",
+    "map",
+    "odometry",
+    "plan",
+    "eval",
+    "demo",
+    "warmup",
+]
 
 EXAMPLES = """Examples:
   skyrecon render stereo --out scene/        # a synthetic stereo pair with ground truth

@@ -29,10 +29,11 @@ from typing import Any
 import numpy as np
 
 from skyrecon.cli.common import add_command, info, positive_float, positive_int
+from skyrecon.core.rigid import Rigid3
 from skyrecon.errors import InputError
 from skyrecon.io.depth_dir import iter_depth_maps, sequence_depth_paths
 from skyrecon.io.ply import read_ply
-from skyrecon.io.sequence import read_sequence
+from skyrecon.io.sequence import StereoSequence, read_sequence
 from skyrecon.mapping import (
     MapConfig,
     OccupancyMap,
@@ -49,6 +50,7 @@ from skyrecon.progress import progress
 
 EXAMPLES = """  skyrecon map flight/ --out flight_map/ --voxel-size 0.2
   skyrecon map flight/ --depth depth_2 --out gt_map/        # use depth maps instead of stereo
+  skyrecon map flight/ --poses odometry --out vo_map/       # poses from visual odometry
   skyrecon map fused.ply --origin 0 0 30 --out cloud_map/
 """
 
@@ -84,6 +86,14 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "--max-disparity", type=positive_int, default=128, help="stereo search range, pixels (default 128)"
     )
     p.add_argument("--frames", type=positive_int, help="use only the first N frames")
+    p.add_argument(
+        "--poses",
+        choices=("file", "odometry"),
+        default="file",
+        help="camera poses of a sequence: 'file' reads poses.txt (default); 'odometry' estimates them "
+        "with stereo visual odometry first (see 'skyrecon odometry'), starting from the first pose of "
+        "poses.txt when there is one, else from a level camera at the origin (world z up)",
+    )
     p.add_argument(
         "--origin", type=float, nargs=3, metavar=("X", "Y", "Z"), help="sensor position for a .ply source"
     )
@@ -135,12 +145,18 @@ def run(args: argparse.Namespace) -> int:
 def _map_sequence(root: Path, args: argparse.Namespace) -> tuple[OccupancyMap, dict[str, Any], np.ndarray]:
     """(map, summary, camera track (N, 3) world metres) of a sequence: stereo, or ``--depth`` maps."""
     seq = read_sequence(root)
-    if seq.world_from_left is None:
-        raise InputError(
-            "the sequence has no poses.txt; a map needs one world_from_left_camera pose per frame", root
-        )
     n = min(len(seq), args.frames or len(seq))
-    poses = seq.world_from_left[:n]
+    odometry_summary: dict[str, Any] | None = None
+    if getattr(args, "poses", "file") == "odometry":
+        poses, odometry_summary = _odometry_poses(seq, n)
+    elif seq.world_from_left is None:
+        raise InputError(
+            "the sequence has no poses.txt; a map needs one world_from_left_camera pose per frame "
+            "(or estimate them: --poses odometry)",
+            root,
+        )
+    else:
+        poses = seq.world_from_left[:n]
     if args.depth is None:
         settings = StereoMapSettings(voxel_size_m=args.voxel_size, max_range_m=args.max_range).with_overrides(
             method=args.method, max_disparity=args.max_disparity, max_depth_error_m=args.max_depth_error
@@ -163,6 +179,9 @@ def _map_sequence(root: Path, args: argparse.Namespace) -> tuple[OccupancyMap, d
         "depth_from": args.depth or f"stereo ({args.method})",
         **summary,
     }
+    if odometry_summary is not None:
+        summary["poses_from"] = "odometry"
+        summary["odometry"] = odometry_summary
     track = np.array([p.t for p in poses])
     if not (np.isfinite(args.vehicle_radius) and args.vehicle_radius >= 0):
         raise InputError(
@@ -171,6 +190,36 @@ def _map_sequence(root: Path, args: argparse.Namespace) -> tuple[OccupancyMap, d
     summary["flown_free_voxels"] = occ.mark_flown_free(track, args.vehicle_radius)
     summary["vehicle_radius_m"] = args.vehicle_radius
     return occ, summary, track
+
+
+# a level camera looking along world +x: camera x right = world -y, y down = world -z, z forward = world +x
+_LEVEL_WORLD_FROM_CAM = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+
+
+def _odometry_poses(seq: StereoSequence, n: int) -> tuple[list[Rigid3], dict[str, Any]]:
+    """``world_from_left`` of the first ``n`` frames estimated by stereo visual odometry, and the
+    run's summary. The world: the first pose of ``poses.txt`` when there is one, else a level
+    camera at the origin looking along +x (z up)."""
+    from skyrecon.cli.odometry import make_engine
+    from skyrecon.io.stereo_input import kitti_times
+    from skyrecon.odometry.run import run_odometry, summarize_run
+
+    if n < 2:
+        raise InputError(f"odometry needs at least 2 frames, the sequence has {n}", seq.root)
+    if seq.world_from_left is not None:
+        init = seq.world_from_left[0].with_frames("world", "left")
+    else:
+        init = Rigid3(_LEVEL_WORLD_FROM_CAM, np.zeros(3), "world", "left")
+    engine, _ = make_engine(seq.rig, init, True)
+    frames = progress((seq.frame(i) for i in range(n)), total=n, desc="odometry", unit="frame")
+    result = run_odometry(engine, frames, kitti_times(seq.root, len(seq))[0][:n])
+    summary = summarize_run(result)
+    info(
+        f"odometry: {n} frames, {summary['distance_m']:.1f} m, {summary['lost']} lost, "
+        f"{summary['degraded']} degraded"
+    )
+    brief = {k: summary[k] for k in ("frames", "distance_m", "fps", "ok", "degraded", "lost")}
+    return result.odometry, brief
 
 
 def _map_cloud(path: Path, args: argparse.Namespace) -> tuple[OccupancyMap, dict[str, Any], None]:

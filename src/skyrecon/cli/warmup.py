@@ -3,8 +3,8 @@
 Numba compiles skyrecon's kernels on first use and caches them on disk (``$NUMBA_CACHE_DIR``, or
 beside the sources, or ``~/.cache/skyrecon/numba`` for a read-only install). A fresh install would
 pay that on the first run of each command. This command renders tiny synthetic inputs and runs
-each command on them in-process (``render``, ``stereo``, ``two-view``, ``sfm``, ``mvs``, ``map``
-and ``plan``), so the kernels are compiled for exactly the argument types the commands use. The
+each command on them in-process (``render``, ``stereo``, ``two-view``, ``sfm``, ``mvs``,
+``odometry``, ``map`` and ``plan``), so the kernels are compiled for exactly the argument types the commands use. The
 groups run in ``--jobs`` processes.
 
 Idempotent: a stamp in the cache (``skyrecon-warmup.json``: the groups done, for which sources,
@@ -74,6 +74,7 @@ GROUPS: dict[str, list[str]] = {
     ],
     "sfm": ["sfm {IN}/sfm/images --camera {IN}/sfm/K.txt --out {OUT}/model --workers 1"],
     "mvs": ["mvs {IN}/images/images --cameras {IN}/images/gt_sparse --out {OUT}/dense --workers 1"],
+    "odometry": ["odometry {IN}/sequence --out {OUT}/vo"],
     "map": [
         "map {IN}/sequence --out {OUT}/stereo_map --voxel-size 0.5",
         "map {IN}/sequence --depth depth_2 --out {OUT}/map --voxel-size 0.5",
