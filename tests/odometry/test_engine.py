@@ -29,9 +29,20 @@ def _errors(vo, flight, frames):
     return pos, rot
 
 
-@pytest.mark.parametrize("disparity", [False, True], ids=["sparse-stereo", "given-disparity"])
-def test_flight_stays_close_to_truth(flight, disparity):
-    vo, est = _run(flight, disparity=disparity)
+@pytest.mark.parametrize(
+    "disparity, kw",
+    [
+        (False, {}),
+        (True, {}),
+        (False, {"window_keyframes": 5}),
+        (False, {"window_keyframes": 4, "window_fixed_keyframes": 4}),
+        (False, {"pnp_refinement": "lm"}),
+    ],
+    ids=["sparse-stereo", "given-disparity", "window-ba", "window-points-only", "lm-pnp"],
+)
+def test_flight_stays_close_to_truth(flight, disparity, kw):
+    window = kw.get("window_keyframes", 0)
+    vo, est = _run(flight, OdometrySettings(**kw), disparity=disparity)
     frames = list(range(len(flight.left)))
     length = sum(
         float(np.linalg.norm(flight.world_from_left[k + 1].t - flight.world_from_left[k].t))
@@ -47,6 +58,14 @@ def test_flight_stays_close_to_truth(flight, disparity):
     assert all(np.isfinite(e.reprojection_rms_px) and e.reprojection_rms_px < 2.0 for e in est[1:])
     assert all("total" in e.timings_ms and "track" in e.timings_ms for e in est[1:])
     assert len(vo.trajectory()) == len(vo.estimates) == len(flight.left)
+    if window:
+        # the window's refinements reach the trajectory (keyframes and the frames that hang off them)
+        assert any("window_ba" in e.timings_ms for e in est)
+        moved = [np.linalg.norm(p.t - e.position) for p, e in zip(vo.trajectory(), est)]
+        if kw.get("window_fixed_keyframes", 2) < window:
+            assert max(moved) > 1e-4
+        else:  # points only: the poses given stay as they were
+            assert max(moved) < 1e-9
 
 
 def test_same_seed_same_trajectory(flight):

@@ -11,6 +11,13 @@ independently and cannot keep a right camera rigidly beside its left one, and a 
 would only add unknowns. Scale then reaches the free keyframes through the points they share
 with the fixed ones, while the points' depths are refined from the motion baseline between
 keyframes (metres) rather than the stereo baseline (centimetres), which is what sharpens far points.
+
+Measured (synthetic 190 m flights, 640x480, 0.12 m baseline): the window lowers the per-frame
+error (rotation 35 -> 29 millidegrees, translation 1.5 -> 1.2 cm) but shrinks the scale by about
+1 % (drift 0.27 % -> 1.45 %), also with exact disparity and also with right observations in every
+keyframe; the frame-to-frame KLT tracks it adjusts drift radially (+0.1 to +0.6 px over 5-10
+frames, measured against the true projections), which a window trusting those tracks across
+keyframes turns into scale. So the engine runs it only when asked (``window_keyframes > 0``).
 """
 
 from __future__ import annotations
