@@ -93,6 +93,9 @@ class OdometrySettings:
         max_rotation_rate_dps: ... or a faster rotation, degrees per second.
         gap_factor: a timestamp step larger than this many times the usual frame interval is a
             dropped frame: the search is widened and the frame flagged.
+        detect_frozen: a frame byte-identical to the previous one is lost ("frozen"): a stuck
+            camera or driver on real hardware. In a noise-free simulator a perfectly still drone
+            also repeats its frames; turn this off there if it hovers.
         seed: seeds the RANSAC (frame ``i`` uses ``seed + i``).
         loop_closure: reserved for place recognition and pose-graph correction (not implemented
             yet: setting it raises ``InputError`` rather than silently doing nothing).
@@ -123,6 +126,7 @@ class OdometrySettings:
     max_speed_mps: float = 40.0
     max_rotation_rate_dps: float = 360.0
     gap_factor: float = 1.8
+    detect_frozen: bool = True
     seed: int = 0
     loop_closure: bool = False
 
@@ -283,7 +287,7 @@ class StereoOdometry:
         index = len(self._frames)
         timings: dict[str, float] = {}
         grey = to_grey(left)
-        frozen = is_frozen(grey, self._last_input)
+        frozen = self.settings.detect_frozen and is_frozen(grey, self._last_input)
         self._last_input = grey
         blank = blank_reason(grey)
         gap = ""
