@@ -96,18 +96,30 @@ class TruthPose:
 class OdometryPose:
     """Stereo visual odometry on the loop's frames.
 
+    The loop's dense disparity (a fast matcher at half resolution, pixel-locked) only seeds the
+    odometry's sub-pixel sparse stereo at each feature (``refine_disparity``): used as depth
+    directly its bias is a scale error. The frozen-frame check is off: the noise-free simulator
+    repeats identical frames while the drone hovers.
+
     Args:
         rig: the loop's rectified rig.
         init_world_from_left: the pose at take-off (the first frame), frames ``("world", "left")``.
-        settings: odometry settings (None: the defaults).
+        settings: odometry settings (None: :meth:`loop_settings`).
     """
 
     name = "odometry"
 
     def __init__(self, rig: StereoRig, init_world_from_left: Rigid3, settings=None) -> None:
-        from skyrecon.odometry.engine import OdometrySettings, StereoOdometry
+        from skyrecon.odometry.engine import StereoOdometry
 
-        self.odometry = StereoOdometry(rig, settings or OdometrySettings(), init_world_from_left)
+        self.odometry = StereoOdometry(rig, settings or self.loop_settings(), init_world_from_left)
+
+    @staticmethod
+    def loop_settings():
+        """The odometry settings the delivery loop flies on."""
+        from skyrecon.odometry.engine import OdometrySettings
+
+        return OdometrySettings(detect_frozen=False, refine_disparity=True, anchor_tracks=True)
 
     def read(self, left, right, time_s, disparity_px, true_world_from_left) -> PoseReading:
         t0 = time.perf_counter()
