@@ -119,7 +119,7 @@ class OdometryPose:
         """The odometry settings the delivery loop flies on."""
         from skyrecon.odometry.engine import OdometrySettings
 
-        return OdometrySettings(detect_frozen=False, refine_disparity=True, anchor_tracks=True)
+        return OdometrySettings(detect_frozen=False, refine_disparity=True)
 
     def read(self, left, right, time_s, disparity_px, true_world_from_left) -> PoseReading:
         t0 = time.perf_counter()

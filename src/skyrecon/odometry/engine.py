@@ -67,7 +67,10 @@ class OdometrySettings:
         anchor_tracks: re-align every tracked feature on its patch in the last keyframe (one
             finest-level KLT from the keyframe image, started at the frame-to-frame result), so
             the sub-pixel errors of chained frame-to-frame tracking do not add up between
-            keyframes (:func:`skyrecon.odometry.frontend.refine_to_anchor`).
+            keyframes (:func:`skyrecon.odometry.frontend.refine_to_anchor`). Off by default:
+            measured against the true projections it does not shrink the track error (what
+            grows over 5-10 frames is not chaining noise), and on the loop's flights it made the
+            drift slightly worse (0.24 -> 0.28 %, 0.17 -> 0.22 %).
         anchor_max_move_px: ... a re-alignment moving a feature farther than this is refused.
         refine_disparity: with a given dense disparity, use it only as the starting guess of the
             sub-pixel sparse stereo at each feature (the dense map of a fast matcher is
@@ -121,7 +124,7 @@ class OdometrySettings:
     klt_window_px: int = 15
     klt_levels: int = 3
     retry_levels: int = 2
-    anchor_tracks: bool = True
+    anchor_tracks: bool = False
     anchor_max_move_px: float = 1.5
     refine_disparity: bool = True
     fb_threshold_px: float = 0.7
