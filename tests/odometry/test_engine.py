@@ -191,3 +191,35 @@ def test_biased_dense_disparity_is_refined_to_subpixel(flight):
         assert all(e.state is not TrackingState.LOST for e in est)
         errs[refine] = _errors(vo, flight, frames)[0]
     assert errs[True] < 0.5 * errs[False], errs
+
+
+@pytest.fixture(scope="module")
+def jerky(city, flight):
+    """14 frames along the flight's first metres whose camera jerks by 30 degrees of yaw and 8 of
+    pitch in one frame (the delivery loop's look-at control does such things), then steadies."""
+    from skyrecon.sim.scenes import look_from
+    from tests.odometry.conftest import _render
+
+    fwd = flight.world_from_left[0].R[:, 2]
+    yaw0 = float(np.arctan2(fwd[1], fwd[0]))
+    poses = []
+    for k in range(14):
+        jump = k >= 7
+        yaw = yaw0 + np.radians(30.0 if jump else 0.0)
+        pitch = np.radians(10.0 + (8.0 if jump else 0.0))
+        poses.append(look_from(flight.world_from_left[k].t, yaw, pitch).inverse())
+    return _render(city, flight.rig, poses)
+
+
+def test_a_sudden_rotation_is_not_lost(jerky):
+    frames = list(range(len(jerky.left)))
+    states = {}
+    for retry in (0, 2):
+        vo, est = _run(jerky, OdometrySettings(retry_levels=retry))
+        states[retry] = [e.state for e in est]
+        if retry:
+            assert all(s is not TrackingState.LOST for s in states[retry]), [e.reason for e in est]
+            pos, rot = _errors(vo, jerky, frames)
+            assert pos < 0.3 and rot < 1.0, (pos, rot)
+    # without the wide, shift-seeded retry the prior's miss loses the frame
+    assert TrackingState.LOST in states[0]
