@@ -567,6 +567,62 @@ class StereoOdometry:
         out[:3, :3] = T_last[:3, :3] @ R_rel.T
         return out
 
+    def _relocate_rotation(self, grey: np.ndarray, T_pred: np.ndarray, T_last: np.ndarray) -> np.ndarray:
+        """``T_pred`` with its rotation measured from the last trusted image to ``grey``: fresh
+        corners tracked (seeded by the dominant image shift) and a pure-rotation fit in RANSAC
+        (the translation over a frame or two is small against the depths). ``T_pred`` unchanged
+        when the fit fails."""
+        assert self._pyr is not None
+        prev = self._pyr.image
+        s = self.settings
+        T_rot = self._rotation_from_shift(global_shift(prev, grey), T_pred, T_last)
+        R_rel = T_rot[:3, :3].T @ T_last[:3, :3]  # cur_from_last
+        pts = detect_corners(
+            prev, np.zeros((0, 2), np.float32), s.max_features, s.grid, s.min_corner_distance_px
+        )
+        if len(pts) < s.min_inliers:
+            return T_rot
+        rays0 = np.column_stack([(pts - self._c) / self._f, np.ones(len(pts))])
+        g = rays0 @ R_rel.T
+        front = g[:, 2] > 1e-3
+        guess = pts.astype(np.float64).copy()
+        guess[front] = g[front, :2] / g[front, 2:3] * self._f + self._c
+        win, levels = s.klt_window_px + 10, s.klt_levels + max(s.retry_levels, 1)
+        cur, ok = track_points(
+            build_pyramid(prev, win, levels),
+            build_pyramid(grey, win, levels),
+            pts,
+            guess.astype(np.float32),
+            s.fb_threshold_px,
+        )
+        if np.count_nonzero(ok) < s.min_inliers:
+            return T_rot
+        a = rays0[ok] / np.linalg.norm(rays0[ok], axis=1, keepdims=True)
+        b = np.column_stack(
+            [(cur[ok].astype(np.float64) - self._c) / self._f, np.ones(int(np.count_nonzero(ok)))]
+        )
+        b /= np.linalg.norm(b, axis=1, keepdims=True)
+
+        def fit(idx: np.ndarray) -> np.ndarray:  # R with b ~ R a (Kabsch)
+            U, _, Vt = np.linalg.svd(b[idx].T @ a[idx])
+            D = np.diag([1.0, 1.0, float(np.sign(np.linalg.det(U @ Vt)))])
+            return U @ D @ Vt
+
+        rng = np.random.default_rng(s.seed)
+        tol = 3.0 * s.ransac_threshold_px / float(self._f[0])
+        best = np.zeros(len(a), bool)
+        for _ in range(100):
+            R = fit(rng.choice(len(a), 2, replace=False))
+            inl = np.linalg.norm(a @ R.T - b, axis=1) < tol
+            if inl.sum() > best.sum():
+                best = inl
+        if best.sum() < s.min_inliers:
+            return T_rot
+        R = fit(np.flatnonzero(best))
+        out = T_pred.copy()
+        out[:3, :3] = T_last[:3, :3] @ R.T
+        return out
+
     def _attempt(
         self,
         index: int,
@@ -708,9 +764,11 @@ class StereoOdometry:
 
         if T is None or pose is None:
             if self._lost_count > 0:
-                # the map could not be found again: start a new track here, chained by the prior
+                # the map could not be found again: start a new track here, chained by the prior,
+                # its rotation measured against the last trusted image (a jerk breaks the prior)
+                T_re = self._relocate_rotation(grey, T_pred, T_last)
                 return self._initialise(
-                    index, ts, grey, right, disparity_px, T_pred, timings, reinit=True, why=failure
+                    index, ts, grey, right, disparity_px, T_re, timings, reinit=True, why=failure
                 )
             est = self._lost(index, ts, failure, timings)
             est.n_tracked = n_tracked
