@@ -8,7 +8,12 @@
 Pipeline per frame: KLT tracking (forward-backward checked) of the previous frame's features,
 predicted by a constant-velocity motion prior; 3D-2D matches of the tracked features that carry a
 map point; PnP in RANSAC (:func:`skyrecon.sfm.pnp.estimate_absolute_pose`, AP3P + robust
-refinement); plausibility against the elapsed time; keyframe decision. On a keyframe: new corners
+refinement); plausibility against the elapsed time. A frame whose pose fails or has few inliers
+(a sudden pitch or yaw the prior missed) is tracked again with two more pyramid levels and a
+wider window, then seeded by the rotation read off the image's dominant shift (phase
+correlation); a re-initialisation after lost frames measures the rotation since the last
+trusted image the same way (fresh corners, pure-rotation RANSAC) rather than chaining the
+prior through the jerk. Then the keyframe decision. On a keyframe: new corners
 fill the empty grid cells, sparse stereo (or the given dense disparity) turns features into map
 points, and a sliding-window bundle adjustment (:mod:`skyrecon.odometry.window`) refines the last
 keyframes and their points. Non-keyframe poses are kept relative to their reference keyframe, so
