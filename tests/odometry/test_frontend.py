@@ -6,6 +6,7 @@ from skyrecon.odometry.frontend import (
     detect_corners,
     disparity_lookup,
     grid_coverage,
+    refine_to_anchor,
     stereo_match,
     track_points,
 )
@@ -77,3 +78,21 @@ def test_grid_coverage():
     assert grid_coverage(np.zeros((0, 2)), 100, 100) == 0.0
     pts = np.array([[1, 1], [99, 99]], float)
     assert grid_coverage(pts, 100, 100, (4, 4)) == 2 / 16
+
+
+def test_refine_to_anchor_removes_accumulated_track_error():
+    img = _texture()
+    moved = _shift(img, 2.6, 1.2)
+    pts = detect_corners(img, np.zeros((0, 2), np.float32), 60, grid=(4, 3), min_distance_px=5)
+    pts = pts[(pts[:, 0] > 15) & (pts[:, 0] < 140) & (pts[:, 1] > 15) & (pts[:, 1] < 100)]
+    truth = pts + np.array([2.6, 1.2], np.float32)
+    rng = np.random.default_rng(1)
+    drifted = truth + rng.uniform(-0.6, 0.6, truth.shape).astype(np.float32)  # a chained track's error
+    out, refined = refine_to_anchor(img, moved, pts, drifted, 15, max_move_px=1.5)
+    assert refined.mean() > 0.9
+    assert np.median(np.linalg.norm(out[refined] - truth[refined], axis=1)) < 0.05
+    # a refinement that would jump too far is refused: the guess is kept
+    far = truth + np.array([6.0, 0.0], np.float32)
+    out2, refined2 = refine_to_anchor(img, moved, pts, far, 15, max_move_px=1.5)
+    assert not refined2.any()
+    assert np.array_equal(out2, far)

@@ -99,8 +99,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--pose-source",
-        choices=("truth",),
-        default="truth",
+        choices=("odometry", "truth", "gps+odometry"),
+        default="odometry",
         help="where the drone's pose comes from: its own stereo visual odometry (default), the "
         "simulator's exact pose, or the odometry anchored by a simulated urban-canyon GPS",
     )

@@ -308,7 +308,11 @@ def run_mission(
     stalled = 0  # cycles held still while following a path (see guidance.scan_look_at)
     if pose_source is None:
         pose_source = make_pose_source(
-            cfg.pose_source, rig, state.cam_from_world().inverse().with_frames("world", "left"), scenario.seed
+            cfg.pose_source,
+            rig,
+            state.cam_from_world().inverse().with_frames("world", "left"),
+            scenario.seed,
+            scenario.city,
         )
     truth = pose_source.name == "truth"
     believed = state

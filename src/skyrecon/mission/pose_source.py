@@ -96,24 +96,74 @@ class TruthPose:
 class OdometryPose:
     """Stereo visual odometry on the loop's frames.
 
+    The loop's dense disparity (a fast matcher at half resolution, pixel-locked) only seeds the
+    odometry's sub-pixel sparse stereo at each feature (``refine_disparity``): used as depth
+    directly its bias is a scale error. The frozen-frame check is off: the noise-free simulator
+    repeats identical frames while the drone hovers.
+
     Args:
         rig: the loop's rectified rig.
         init_world_from_left: the pose at take-off (the first frame), frames ``("world", "left")``.
-        settings: odometry settings (None: the defaults).
+        settings: odometry settings (None: :meth:`loop_settings`).
     """
 
     name = "odometry"
 
     def __init__(self, rig: StereoRig, init_world_from_left: Rigid3, settings=None) -> None:
-        from skyrecon.odometry.engine import OdometrySettings, StereoOdometry  # type: ignore[import-untyped,unused-ignore]
+        from skyrecon.odometry.engine import StereoOdometry
 
-        self.odometry = StereoOdometry(rig, settings or OdometrySettings(), init_world_from_left)
+        self.odometry = StereoOdometry(rig, settings or self.loop_settings(), init_world_from_left)
+
+    @staticmethod
+    def loop_settings():
+        """The odometry settings the delivery loop flies on."""
+        from skyrecon.odometry.engine import OdometrySettings
+
+        return OdometrySettings(detect_frozen=False, refine_disparity=True)
 
     def read(self, left, right, time_s, disparity_px, true_world_from_left) -> PoseReading:
         t0 = time.perf_counter()
         est = self.odometry.track(left, right, time_s, disparity_px)
         ms = 1e3 * (time.perf_counter() - t0)
         return PoseReading(est.world_from_left.with_frames("world", "left"), est.state, est.reason, ms)
+
+
+class GpsOdometryPose:
+    """The odometry anchored by a GPS with urban-canyon errors (:mod:`skyrecon.sim.gps`):
+    :class:`skyrecon.odometry.gps.GpsFusion` leans the odometry's world onto the fixes, gated and
+    rate limited, so a multipath jump cannot throw the drone through a wall.
+
+    Args:
+        rig: the loop's rectified rig.
+        init_world_from_left: the pose at take-off, frames ``("world", "left")``.
+        city: the simulated city (its buildings block the sky: noise, dropouts and jumps).
+        seed: seeds the simulated receiver.
+    """
+
+    name = "gps+odometry"
+
+    def __init__(self, rig: StereoRig, init_world_from_left: Rigid3, city, seed: int = 0) -> None:
+        from skyrecon.odometry.gps import GpsFusion
+        from skyrecon.sim.gps import UrbanCanyonGps
+
+        self.odometry = OdometryPose(rig, init_world_from_left)
+        # the odometry starts from the true take-off pose: its world is already level and oriented
+        self.fusion = GpsFusion(rotation_known=True)
+        self.receiver = UrbanCanyonGps(city, seed)
+        self._next_fix_s = 0.0
+
+    def read(self, left, right, time_s, disparity_px, true_world_from_left) -> PoseReading:
+        r = self.odometry.read(left, right, time_s, disparity_px, true_world_from_left)
+        t0 = time.perf_counter()
+        fixes = []
+        while self._next_fix_s <= time_s + 1e-9:  # the receiver's own rate
+            fix = self.receiver.fix(self._next_fix_s, true_world_from_left.t)
+            if fix is not None:
+                fixes.append(fix)
+            self._next_fix_s += 1.0 / self.receiver.settings.rate_hz
+        fused = self.fusion.update(time_s, r.world_from_left.with_frames("odom", "left"), fixes)
+        ms = r.ms + 1e3 * (time.perf_counter() - t0)
+        return PoseReading(fused.with_frames("world", "left"), r.state, r.reason, ms)
 
 
 def yaw_of(R: np.ndarray) -> float:
@@ -165,10 +215,17 @@ def true_step(
     )
 
 
-def make_pose_source(name: str, rig: StereoRig, init_world_from_left: Rigid3, seed: int = 0) -> PoseSource:
-    """The pose source called ``name`` (one of :data:`POSE_SOURCES`)."""
+def make_pose_source(
+    name: str, rig: StereoRig, init_world_from_left: Rigid3, seed: int = 0, city=None
+) -> PoseSource:
+    """The pose source called ``name`` (one of :data:`POSE_SOURCES`); ``city`` (the simulated
+    one) is needed by ``gps+odometry``."""
     if name == "truth":
         return TruthPose()
     if name == "odometry":
         return OdometryPose(rig, init_world_from_left)
+    if name == "gps+odometry":
+        if city is None:
+            raise ValueError("the gps+odometry pose source needs the simulated city")
+        return GpsOdometryPose(rig, init_world_from_left, city, seed)
     raise ValueError(f"unknown pose source {name!r}; expected one of {', '.join(POSE_SOURCES)}")

@@ -18,6 +18,8 @@ __all__ = [
     "build_pyramid",
     "detect_corners",
     "track_points",
+    "refine_to_anchor",
+    "global_shift",
     "stereo_match",
     "disparity_lookup",
     "grid_coverage",
@@ -164,6 +166,72 @@ def track_points(
     inside = (p1[:, 0] >= 0) & (p1[:, 0] <= W - 1) & (p1[:, 1] >= 0) & (p1[:, 1] <= H - 1)
     ok = (st.reshape(-1) == 1) & (st_b.reshape(-1) == 1) & (fb < fb_threshold_px) & inside
     return p1.astype(np.float32), ok
+
+
+def refine_to_anchor(
+    anchor: np.ndarray,
+    cur: np.ndarray,
+    anchor_px: np.ndarray,
+    guess_px: np.ndarray,
+    win: int,
+    max_move_px: float = 1.5,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Re-align tracked points on their keyframe (anchor) patch, so a track does not drift.
+
+    Chained frame-to-frame KLT accumulates a sub-pixel error at every step; one KLT from the
+    anchor image (where the feature was last anchored, e.g. its keyframe) straight to the current
+    image, started at the chained position on the finest level, removes what accumulated since
+    the anchor.
+
+    Args:
+        anchor, cur: (H, W) uint8 grey anchor and current images.
+        anchor_px: (N, 2) pixels of the features in ``anchor``.
+        guess_px: (N, 2) chained positions in ``cur``.
+        win: KLT window side, pixels.
+        max_move_px: a refinement moving a point farther than this from ``guess_px`` is refused.
+    Returns:
+        ``(points (N, 2) float32, refined (N,) bool)``: the refined position where ``refined``,
+        else ``guess_px``.
+    """
+    n = len(anchor_px)
+    g = np.ascontiguousarray(guess_px, np.float32).reshape(-1, 2)
+    if n == 0:
+        return g.copy(), np.zeros(0, bool)
+    p1, st, _ = cv2.calcOpticalFlowPyrLK(
+        anchor,
+        cur,
+        np.ascontiguousarray(anchor_px, np.float32).reshape(-1, 1, 2),
+        g.reshape(-1, 1, 2).copy(),
+        winSize=(win, win),
+        maxLevel=0,
+        criteria=_KLT_CRITERIA,
+        flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
+    )
+    p1 = p1.reshape(-1, 2)
+    good = (
+        (st.reshape(-1) == 1) & (np.linalg.norm(p1 - g, axis=1) < max_move_px) & np.isfinite(p1).all(axis=1)
+    )
+    out = g.copy()
+    out[good] = p1[good]
+    return out, good
+
+
+def global_shift(prev: np.ndarray, cur: np.ndarray, levels: int = 2) -> tuple[float, float, float]:
+    """The dominant image translation from ``prev`` to ``cur`` by phase correlation on a
+    ``2**levels`` times smaller copy: a coarse guess for a sudden camera rotation.
+
+    Returns:
+        ``(dx, dy, response)``: the shift in full-resolution pixels and the correlation peak's
+        strength (0 to 1; low when there is no single dominant shift).
+    """
+    a, b = prev, cur
+    for _ in range(levels):
+        a, b = cv2.pyrDown(a), cv2.pyrDown(b)
+    a32, b32 = a.astype(np.float32), b.astype(np.float32)
+    win = cv2.createHanningWindow((a32.shape[1], a32.shape[0]), cv2.CV_32F)
+    (dx, dy), response = cv2.phaseCorrelate(a32 - a32.mean(), b32 - b32.mean(), win)
+    k = float(2**levels)
+    return float(dx) * k, float(dy) * k, float(response)
 
 
 def stereo_match(
