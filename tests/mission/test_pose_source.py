@@ -95,3 +95,27 @@ def test_a_degraded_pose_caps_the_speed(tiny_config):
     cfg = tiny_config.with_overrides(degraded_speed_mps=1.5)
     r = run_mission(make_scenario(1, cfg), cfg, pose_source=_OffsetPose([0, 0, 0], TrackingState.DEGRADED))
     assert max(rec.speed_mps for rec in r.records) <= 1.5 + 1e-6
+
+
+class _LostAtFirst(_OffsetPose):
+    """Lost for the first ``n`` frames, then exact."""
+
+    def __init__(self, n):
+        super().__init__([0.0, 0.0, 0.0])
+        self.n, self.calls = n, 0
+
+    def read(self, left, right, time_s, disparity_px, true_world_from_left):
+        self.calls += 1
+        self.state = TrackingState.LOST if self.calls <= self.n else TrackingState.OK
+        return super().read(left, right, time_s, disparity_px, true_world_from_left)
+
+
+def test_a_lasting_loss_looks_around_then_flies_on(tiny_config):
+    sc = make_scenario(1, tiny_config)
+    r = run_mission(sc, tiny_config, pose_source=_LostAtFirst(25))
+    lost = r.records[:25]
+    assert all(rec.speed_mps == 0.0 for rec in lost)
+    # after a second lost it turns to find texture (45 degrees a second), not staring at one view
+    turned = abs(math.remainder(lost[-1].yaw - lost[0].yaw, 2 * math.pi))
+    assert turned > math.radians(40)
+    assert r.success and r.collisions == 0

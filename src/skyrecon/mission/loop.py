@@ -315,6 +315,8 @@ def run_mission(
             scenario.city,
         )
     truth = pose_source.name == "truth"
+    lost_cycles, lost_yaw0 = 0, 0.0  # cycles lost since the pose was last trusted, the heading then
+    trusted_run = 0  # consecutive cycles with a pose (not lost)
     believed = state
     while True:
         true_p = state.position.copy()
@@ -362,13 +364,28 @@ def run_mission(
         t0 = time.perf_counter()
         rest = nav.rest(p) if len(nav.waypoints) else np.zeros((0, 3))
         momentum = nav.free_along(p, believed.velocity, cfg.verify_horizon_m)
-        if len(rest) >= 2 and (outcome.clear or replan_ok) and not lost:
+        recovering = lost or lost_cycles > 0  # hold still and look around until the pose holds again
+        if len(rest) >= 2 and (outcome.clear or replan_ok) and not recovering:
             verified = nav.verified_distance(rest, cfg.verify_horizon_m, cfg.verify_skip_m)
             g = guide(rest, believed, verified, cfg, momentum)
             if reading.state == TrackingState.DEGRADED and g.speed_limit > cfg.degraded_speed_mps:
                 g.speed_limit = cfg.degraded_speed_mps
         else:
             verified, g = 0.0, hover(p, scenario.goal)
+            if recovering:
+                # look where there is texture to find the pose again: ahead and down, not at the
+                # sky; still lost after a second, turn 45 degrees more every second (a view with
+                # too few near features must not hold the drone forever)
+                lost_cycles += 1
+                if lost_cycles == 1:
+                    lost_yaw0 = believed.yaw
+                yaw = lost_yaw0 + math.radians(45.0) * math.floor(lost_cycles * cfg.dt)
+                pitch0 = math.radians(cfg.camera_pitch_deg)
+                c0 = math.cos(pitch0)
+                g.look_at = p + 20.0 * np.array([math.cos(yaw) * c0, math.sin(yaw) * c0, -math.sin(pitch0)])
+        trusted_run = trusted_run + 1 if not lost else 0
+        if trusted_run >= 5:  # a re-initialisation lost again at the next frame is still lost
+            lost_cycles = 0
         stalled = stalled + 1 if believed.speed < 0.05 and g.limit is not None else 0
         if stalled:
             g.look_at = scan_look_at(g.look_at, p, stalled * cfg.dt)
