@@ -15,18 +15,13 @@ import cv2
 import numpy as np
 
 from skyrecon.errors import EstimationError
-from skyrecon.sfm.pnp import AbsolutePose
+from skyrecon.sfm.pnp import AbsolutePose, reprojection_errors_px
 
 __all__ = ["fast_absolute_pose"]
 
 
 def _errors_px(rvec: np.ndarray, tvec: np.ndarray, xn: np.ndarray, X: np.ndarray, focal: float) -> np.ndarray:
-    R = cv2.Rodrigues(rvec)[0]
-    P = X @ R.T + tvec.reshape(3)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        e = np.hypot(P[:, 0] / P[:, 2] - xn[:, 0], P[:, 1] / P[:, 2] - xn[:, 1]) * focal
-    e[~(P[:, 2] > 0) | ~np.isfinite(e)] = np.inf
-    return e
+    return reprojection_errors_px(cv2.Rodrigues(rvec)[0], tvec.reshape(3), xn, X, focal)
 
 
 def fast_absolute_pose(

@@ -43,7 +43,11 @@ class AbsolutePose:
         return self.num_inliers / max(1, self.num_correspondences)
 
 
-def _errors_px(R: np.ndarray, t: np.ndarray, xn: np.ndarray, X: np.ndarray, focal: float) -> np.ndarray:
+def reprojection_errors_px(
+    R: np.ndarray, t: np.ndarray, xn: np.ndarray, X: np.ndarray, focal: float
+) -> np.ndarray:
+    """(N,) reprojection errors, pixels, of world points X (N, 3) seen at normalised coordinates
+    xn (N, 2) by the camera ``cam_from_world = (R, t)``; inf behind the camera or not finite."""
     P = X @ R.T + t
     with np.errstate(divide="ignore", invalid="ignore"):
         e = np.hypot(P[:, 0] / P[:, 2] - xn[:, 0], P[:, 1] / P[:, 2] - xn[:, 1]) * focal
@@ -162,11 +166,11 @@ def estimate_absolute_pose(
             refine_loss_scale_px,
             None if sigmas_px is None else np.asarray(sigmas_px)[inliers],
         )
-        new = _errors_px(R, t, xn, X, focal_px) < threshold_px
+        new = reprojection_errors_px(R, t, xn, X, focal_px) < threshold_px
         if np.array_equal(new, inliers):
             break
         inliers = new
-    err = _errors_px(R, t, xn, X, focal_px)
+    err = reprojection_errors_px(R, t, xn, X, focal_px)
     inliers = err < threshold_px
     if np.count_nonzero(inliers) < min_inliers:
         raise EstimationError(
