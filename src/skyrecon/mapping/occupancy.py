@@ -464,25 +464,35 @@ class OccupancyMap:
         vox = cand[keep]
         if len(vox) == 0:
             return 0
+        ids, flat = self._slots(vox)
+        data = self.grid.data
+        before = data[ids, flat]
+        data[ids, flat] = self._lodds[2]
+        self._mark_written(ids, before, data[ids, flat])
+        return int(len(vox))
+
+    def _slots(self, vox: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The (block id, flat index) of voxels (N, 3) in the grid, allocating missing blocks."""
         B = self.block_size
         blocks, local = np.divmod(vox, B)
         ids = self.grid.ensure(blocks.astype(np.int32))
         self._grow_flags()
-        flat = (local[:, 0] * B + local[:, 1]) * B + local[:, 2]
-        data = self.grid.data
-        before = data[ids, flat]
-        lo_min, thr = self._lodds[2], self._lodds[4]
-        data[ids, flat] = lo_min
+        return ids, (local[:, 0] * B + local[:, 1]) * B + local[:, 2]
+
+    def _mark_written(self, ids: np.ndarray, before: np.ndarray, after: np.ndarray) -> None:
+        """Flag the blocks whose voxels changed state (unknown, free, occupied) from ``before`` to
+        ``after`` (log-odds, NaN unknown) for the distance field and the planner."""
+        thr = self._lodds[4]
         was_unknown = np.isnan(before)
         was_occupied = ~was_unknown & (before >= thr)
-        changed = np.where(was_occupied, proj.CHANGED_STATE | proj.CHANGED_OCCUPIED, 0).astype(np.uint8)
-        changed[was_unknown] = proj.CHANGED_STATE
+        became = after >= thr
+        changed = np.where(was_unknown | (was_occupied != became), proj.CHANGED_STATE, 0).astype(np.uint8)
+        changed[was_occupied != became] |= proj.CHANGED_OCCUPIED
         uniq, inv = np.unique(ids, return_inverse=True)
         per_block = np.zeros(len(uniq), np.uint8)
         np.bitwise_or.at(per_block, inv, changed)
         self._mark(uniq, per_block)
         self._bounds_cache = None
-        return int(len(vox))
 
     def add_hits(self, voxels: np.ndarray) -> int:
         """Add one hit (``prob_hit``, clamped) to each of the given voxels, without casting rays:
@@ -497,26 +507,13 @@ class OccupancyMap:
         vox = np.unique(np.asarray(voxels, dtype=np.int64).reshape(-1, 3), axis=0)
         if len(vox) == 0:
             return 0
-        B = self.block_size
-        blocks, local = np.divmod(vox, B)
-        ids = self.grid.ensure(blocks.astype(np.int32))
-        self._grow_flags()
-        flat = (local[:, 0] * B + local[:, 1]) * B + local[:, 2]
+        ids, flat = self._slots(vox)
         data = self.grid.data
         before = data[ids, flat]
-        l_hit, _, _, lo_max, thr = self._lodds
+        l_hit, lo_max = self._lodds[0], self._lodds[3]
         after = np.minimum(np.nan_to_num(before, nan=0.0) + l_hit, lo_max).astype(np.float32)
         data[ids, flat] = after
-        was_unknown = np.isnan(before)
-        was_occupied = ~was_unknown & (before >= thr)
-        became = after >= thr
-        changed = np.where(was_unknown | (was_occupied != became), proj.CHANGED_STATE, 0).astype(np.uint8)
-        changed[was_occupied != became] |= proj.CHANGED_OCCUPIED
-        uniq, inv = np.unique(ids, return_inverse=True)
-        per_block = np.zeros(len(uniq), np.uint8)
-        np.bitwise_or.at(per_block, inv, changed)
-        self._mark(uniq, per_block)
-        self._bounds_cache = None
+        self._mark_written(ids, before, after)
         return int(len(vox))
 
     # ----- queries ---------------------------------------------------------------------
