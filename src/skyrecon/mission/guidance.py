@@ -107,6 +107,19 @@ def scan_look_at(look_at: np.ndarray, position: np.ndarray, stalled_s: float) ->
     return position + np.array([c * d[0] - s * d[1], s * d[0] + c * d[1], d[2] + dz])
 
 
+def recovery_look_at(position: np.ndarray, yaw0: float, lost_s: float, pitch_down_deg: float) -> np.ndarray:
+    """Where a drone that has lost its pose looks to find it again: ahead and down (where there
+    is texture, not the sky) along the heading ``yaw0`` (radians) it had when the loss began; still
+    lost after a second, 45 degrees further every second, so that a view with too few near
+    features does not hold it forever. ``position`` (3,) world metres; returns (3,) the point."""
+    yaw = yaw0 + math.radians(45.0) * math.floor(lost_s)
+    pitch = math.radians(pitch_down_deg)
+    c = math.cos(pitch)
+    return np.asarray(position, np.float64) + 20.0 * np.array(
+        [math.cos(yaw) * c, math.sin(yaw) * c, -math.sin(pitch)]
+    )
+
+
 def hover(position: np.ndarray, goal: np.ndarray) -> Guidance:
     """No path to follow: stay, and look towards the goal."""
     p = np.asarray(position, dtype=np.float64)

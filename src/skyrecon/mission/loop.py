@@ -41,7 +41,7 @@ import numpy as np
 
 from skyrecon.mapping import OccupancyMap
 from skyrecon.mission.config import MissionConfig
-from skyrecon.mission.guidance import guide, hover, scan_look_at
+from skyrecon.mission.guidance import guide, hover, recovery_look_at, scan_look_at
 from skyrecon.mission.navigator import Navigator, timed
 from skyrecon.mission.perception import flight_perception, mission_rig
 from skyrecon.mission.pose_source import (
@@ -326,17 +326,12 @@ def run_mission(
             render_stereo, scenario.city, rig, true_cam_from_world.with_frames("left", "world")
         )
         depth, ms["stereo"] = timed(stereo.compute, frame.left, frame.right)
+        true_world_from_left = true_cam_from_world.inverse().with_frames("world", "left")
         reading = pose_source.read(
-            frame.left,
-            frame.right,
-            state.time_s,
-            depth.disparity,
-            true_cam_from_world.inverse().with_frames("world", "left"),
+            frame.left, frame.right, state.time_s, depth.disparity, true_world_from_left
         )
         ms["pose"] = reading.ms
-        est_from_world = est_from_true(
-            reading.world_from_left, true_cam_from_world.inverse().with_frames("world", "left")
-        )
+        est_from_world = est_from_true(reading.world_from_left, true_world_from_left)
         believed = state if truth else believed_state(state, est_from_world)
         lost = reading.state == TrackingState.LOST
         p = believed.position.copy()
@@ -373,16 +368,10 @@ def run_mission(
         else:
             verified, g = 0.0, hover(p, scenario.goal)
             if recovering:
-                # look where there is texture to find the pose again: ahead and down, not at the
-                # sky; still lost after a second, turn 45 degrees more every second (a view with
-                # too few near features must not hold the drone forever)
                 lost_cycles += 1
                 if lost_cycles == 1:
                     lost_yaw0 = believed.yaw
-                yaw = lost_yaw0 + math.radians(45.0) * math.floor(lost_cycles * cfg.dt)
-                pitch0 = math.radians(cfg.camera_pitch_deg)
-                c0 = math.cos(pitch0)
-                g.look_at = p + 20.0 * np.array([math.cos(yaw) * c0, math.sin(yaw) * c0, -math.sin(pitch0)])
+                g.look_at = recovery_look_at(p, lost_yaw0, lost_cycles * cfg.dt, cfg.camera_pitch_deg)
         trusted_run = trusted_run + 1 if not lost else 0
         if trusted_run >= 5:  # a re-initialisation lost again at the next frame is still lost
             lost_cycles = 0

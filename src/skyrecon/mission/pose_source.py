@@ -36,7 +36,10 @@ import numpy as np
 
 from skyrecon.core import Rigid3, StereoRig
 from skyrecon.mission.vehicle import DroneState, wrap_angle
+from skyrecon.odometry.engine import OdometrySettings, StereoOdometry
+from skyrecon.odometry.gps import GpsFusion
 from skyrecon.odometry.types import TrackingState
+from skyrecon.sim.gps import UrbanCanyonGps
 
 POSE_SOURCES = ("odometry", "truth", "gps+odometry")
 
@@ -110,15 +113,11 @@ class OdometryPose:
     name = "odometry"
 
     def __init__(self, rig: StereoRig, init_world_from_left: Rigid3, settings=None) -> None:
-        from skyrecon.odometry.engine import StereoOdometry
-
         self.odometry = StereoOdometry(rig, settings or self.loop_settings(), init_world_from_left)
 
     @staticmethod
-    def loop_settings():
+    def loop_settings() -> OdometrySettings:
         """The odometry settings the delivery loop flies on."""
-        from skyrecon.odometry.engine import OdometrySettings
-
         return OdometrySettings(detect_frozen=False, refine_disparity=True)
 
     def read(self, left, right, time_s, disparity_px, true_world_from_left) -> PoseReading:
@@ -143,9 +142,6 @@ class GpsOdometryPose:
     name = "gps+odometry"
 
     def __init__(self, rig: StereoRig, init_world_from_left: Rigid3, city, seed: int = 0) -> None:
-        from skyrecon.odometry.gps import GpsFusion
-        from skyrecon.sim.gps import UrbanCanyonGps
-
         self.odometry = OdometryPose(rig, init_world_from_left)
         # the odometry starts from the true take-off pose: its world is already level and oriented
         self.fusion = GpsFusion(rotation_known=True)
