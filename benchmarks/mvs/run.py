@@ -71,6 +71,19 @@ METHODS = {
 }
 
 
+def cloud_scores(m) -> dict:
+    """The row fields of one :func:`evaluate_cloud` result (per threshold where a list)."""
+    return dict(
+        precision=m.precision,
+        recall=m.recall,
+        fscore=m.fscore,
+        acc_mean_m=m.accuracy_mean,
+        acc_median_m=m.accuracy_median,
+        acc90_m=m.accuracy_90,
+        comp_median_m=m.completeness_median,
+    )
+
+
 def timed_run(views, images, settings, workers):
     ex = get_executor("process", workers)
     t0 = time.perf_counter()
@@ -131,13 +144,7 @@ def ring_metrics(city, points: np.ndarray, ref: np.ndarray, box, size: float, ra
     return dict(
         scene_size_m=size,
         tau_m=taus,
-        precision=m.precision,
-        recall=m.recall,
-        fscore=m.fscore,
-        acc_mean_m=m.accuracy_mean,
-        acc_median_m=m.accuracy_median,
-        acc90_m=m.accuracy_90,
-        comp_median_m=m.completeness_median,
+        **cloud_scores(m),
         tau_radius_m=tr,
         precision_r1=mr.precision[0],
         recall_r1=mr.recall[0],
@@ -205,13 +212,7 @@ def run_rock(workers: int) -> list[dict]:
                 wall_s=wall,
                 cpu_s=cpu,
                 tau_m=taus,
-                precision=m.precision,
-                recall=m.recall,
-                fscore=m.fscore,
-                acc_mean_m=m.accuracy_mean,
-                acc_median_m=m.accuracy_median,
-                acc90_m=m.accuracy_90,
-                comp_median_m=m.completeness_median,
+                **cloud_scores(m),
                 cropped_out=m.num_cropped_out,
                 timings_s=res.timings_s,
                 warnings=res.warnings,
