@@ -121,3 +121,32 @@ def test_plan_from_every_flown_position_to_every_other(flight, tmp_path):
             w = np.array(json.loads((route / "path.json").read_text())["waypoints"])
             seg = np.concatenate([np.linspace(a, b, 30) for a, b in zip(w[:-1], w[1:])])
             assert city.distance(seg, include_ground=True).min() > 0.35, (i, j)
+
+
+def test_plan_with_a_prior_map_fills_what_today_has_not_seen(tmp_path, capsys):
+    from skyrecon.mapping import MapConfig, OccupancyMap
+
+    cfg = MapConfig(voxel_size_m=0.5)
+    shape = (80, 40, 40)
+    wall = np.zeros(shape, bool)
+    wall[40:42, :30, :] = True  # a wall across x = 0 leaving a gap at y > 5 m
+    origin = np.array([-20.0, -10.0, 0.0])
+    known_today = np.zeros(shape, bool)
+    known_today[:20] = True  # today's map saw only the first 10 m
+    OccupancyMap.from_occupancy_grid(wall, origin, cfg, known=known_today).save(tmp_path / "today")
+    OccupancyMap.from_occupancy_grid(wall, origin, cfg).save(tmp_path / "prior")
+    args = ["plan", str(tmp_path / "today"), "--start", "-15", "0", "10", "--goal", "15", "0", "10"]
+    assert main([*args, "--out", str(tmp_path / "r0"), "--quiet"]) != 0  # unknown space blocks the way
+    assert main([*args, "--prior-map", str(tmp_path / "prior"), "--out", str(tmp_path / "r1")]) == 0
+    assert "prior map filled" in capsys.readouterr().err
+    path = json.loads((tmp_path / "r1" / "path.json").read_text())
+    assert max(p[1] for p in path["waypoints"]) > 5.0  # through the gap the prior knows of
+    OccupancyMap.from_occupancy_grid(wall, origin + 1000.0, cfg).save(tmp_path / "far")
+    assert main([*args, "--prior-map", str(tmp_path / "far"), "--out", str(tmp_path / "r2"), "--quiet"]) == 2
+    assert "another place" in capsys.readouterr().err
+    coarse = OccupancyMap.from_occupancy_grid(wall[::2, ::2, ::2], origin, MapConfig(voxel_size_m=1.0))
+    coarse.save(tmp_path / "coarse")
+    assert (
+        main([*args, "--prior-map", str(tmp_path / "coarse"), "--out", str(tmp_path / "r3"), "--quiet"]) == 2
+    )
+    assert "voxel" in capsys.readouterr().err

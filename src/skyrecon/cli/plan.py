@@ -7,7 +7,8 @@ mission ``mission.plan``. Unknown space is not flyable unless ``--allow-unknown`
 in unexplored space or within the clearance of an obstacle (where the vehicle was, say) is joined
 to the nearest usable point within ``--snap-radius``; when the map was built by ``skyrecon map`` from
 a flight and no path keeps the clearance, the path retraces the flown track (``flown_path.json``).
-``path.json`` says what was done under ``adjusted``.
+``path.json`` says what was done under ``adjusted``. With ``--prior-map`` an older map of the same
+place (an earlier flight) fills what this map has not observed.
 When no path exists it says why (start or goal inside or too near an obstacle, enclosed, outside
 the map).
 """
@@ -25,6 +26,7 @@ from skyrecon.planning import plan_with_flown_path, write_path_json, write_qgc_p
 
 EXAMPLES = """  skyrecon plan flight_map/ --start 0 0 15 --goal 120 80 20 --out route/
   skyrecon plan flight_map/ --start 0 0 15 --goal 120 80 20 --clearance 3 --max-z 40 --out route/
+  skyrecon plan today_map/ --prior-map yesterday_map/ --start 0 0 15 --goal 120 80 20 --out route/
   skyrecon plan flight_map/ --start 0 0 15 --goal 120 80 20 --origin 47.3769 8.5417 408 --out route/
 """
 
@@ -53,6 +55,12 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         help="a start or goal in unexplored space or nearer an obstacle than the clearance is moved to the "
         "nearest usable point within this radius, and path.json says so (metres, default 3; 0: never)",
     )
+    p.add_argument(
+        "--prior-map",
+        metavar="MAP_DIR",
+        help="an older map of the same place and frame (an earlier flight): it fills the voxels MAP_DIR "
+        "has not observed; what MAP_DIR observed wins where they disagree",
+    )
     p.add_argument("--allow-unknown", action="store_true", help="let the path cross unexplored space")
     p.add_argument("--min-z", type=float, default=-np.inf, help="lowest altitude allowed, world z metres")
     p.add_argument("--max-z", type=float, default=np.inf, help="highest altitude allowed, world z metres")
@@ -72,6 +80,22 @@ def run(args: argparse.Namespace) -> int:
         if not np.all(np.isfinite(p)):
             raise InputError(f"{name} must be three finite numbers, got {p.tolist()}")
     occ = load_map(args.map_dir)
+    prior_note = ""
+    if args.prior_map:
+        prior = load_map(args.prior_map)
+        (alo, ahi), (blo, bhi) = occ.bounds(), prior.bounds()
+        if np.any(np.minimum(ahi, bhi) <= np.maximum(alo, blo)):
+            raise InputError(
+                f"the prior map covers {np.round(blo, 1).tolist()}..{np.round(bhi, 1).tolist()} m and the map "
+                f"{np.round(alo, 1).tolist()}..{np.round(ahi, 1).tolist()} m: they do not overlap (another place "
+                "or another frame?)",
+                args.prior_map,
+            )
+        try:
+            filled = occ.fill_unknown_from(prior)
+        except InputError as e:
+            raise InputError(f"{e.reason}; rebuild the prior with the same --voxel", args.prior_map) from None
+        prior_note = f"the prior map filled {filled} unobserved voxels"
     result = plan_with_flown_path(
         occ,
         start,
@@ -98,6 +122,8 @@ def run(args: argparse.Namespace) -> int:
             f"path of {len(result.waypoints)} waypoints, {result.length_m:.1f} m ({result.length_m / max(straight, 1e-9):.3f} x straight line), "
             f"clearance {args.clearance} m, planned in {1000 * result.timings.get('total', float('nan')):.0f} ms"
         )
+        if prior_note:
+            info(f"note: {prior_note}")
         if result.adjusted.get("route") == "flown_path":
             info(
                 "note: no path keeps the clearance from unexplored space here; this one retraces the path "

@@ -516,6 +516,36 @@ class OccupancyMap:
         self._mark_written(ids, before, after)
         return int(len(vox))
 
+    def fill_unknown_from(self, other: OccupancyMap) -> int:
+        """Copy ``other``'s log-odds into the voxels this map has not observed (e.g. a prior map
+        from an earlier flight under today's map); observed voxels keep their values.
+
+        Raises:
+            InputError: the maps have different voxel sizes.
+        Returns:
+            Number of voxels filled.
+        """
+        if abs(other.voxel_size - self.voxel_size) > 1e-9:
+            raise InputError(
+                f"cannot combine maps with {self.voxel_size:g} m and {other.voxel_size:g} m voxels"
+            )
+        coords = other.grid.block_coords.copy()
+        if len(coords) == 0:
+            return 0
+        vals = other.grid.blocks.copy()
+        ids = self.grid.ensure(coords)
+        cur = self.grid.data[ids]
+        fill = np.isnan(cur) & ~np.isnan(vals)
+        cur[fill] = vals[fill]
+        self.grid.data[ids] = cur
+        with np.errstate(invalid="ignore"):
+            occ = np.any(fill & (vals >= self._lodds[4]), axis=1)
+        changed = np.where(np.any(fill, axis=1), proj.CHANGED_STATE, 0) | np.where(
+            occ, proj.CHANGED_OCCUPIED, 0
+        )
+        self._mark(ids, changed)
+        return int(np.count_nonzero(fill))
+
     # ----- queries ---------------------------------------------------------------------
     def log_odds_at(self, points: np.ndarray) -> np.ndarray:
         """(N,) float32 log-odds of the voxels holding world points (N, 3); NaN where unknown."""
@@ -605,18 +635,48 @@ class OccupancyMap:
         occ = np.asarray(occupied, dtype=bool)
         if occ.ndim != 3:
             raise InputError(f"an occupancy grid must be 3-D, got shape {occ.shape}")
-        o = check_point3(origin_m, "grid origin") / m.voxel_size
-        lo = np.rint(o).astype(np.int64)
-        if np.abs(o - lo).max() > 1e-6:
-            raise InputError(
-                f"grid origin {np.asarray(origin_m).tolist()} is not a multiple of the voxel size {m.voxel_size} m"
-            )
+        lo = m._origin_voxel(origin_m)
         vals = np.where(occ, m._lodds[3], m._lodds[2]).astype(np.float32)
         if known is not None:
             vals[~np.asarray(known, dtype=bool)] = np.nan
+        return m._fill_dense(vals, lo)
+
+    @classmethod
+    def from_dense_log_odds(
+        cls, log_odds: np.ndarray, origin_m: np.ndarray, config: MapConfig | None = None, **overrides
+    ) -> OccupancyMap:
+        """A map holding a dense box of log-odds (e.g. a prior map re-weighted for a new flight).
+
+        Args:
+            log_odds: (X, Y, Z) float log-odds, NaN unknown; voxel ``[i, j, k]`` has its lower
+                corner at ``origin_m + (i, j, k) * voxel_size``.
+            origin_m: (3,) world position of the box's lower corner, metres (a multiple of the voxel size).
+        """
+        m = cls(config, **overrides)
+        vals = np.asarray(log_odds, dtype=np.float32)
+        if vals.ndim != 3:
+            raise InputError(f"a log-odds grid must be 3-D, got shape {vals.shape}")
+        lo = m._origin_voxel(origin_m)
+        return m._fill_dense(vals, lo)
+
+    def _origin_voxel(self, origin_m: np.ndarray) -> np.ndarray:
+        """(3,) int64 voxel index of a grid's lower corner ``origin_m`` (3,) metres, which must be
+        a multiple of the voxel size."""
+        o = check_point3(origin_m, "grid origin") / self.voxel_size
+        lo = np.rint(o).astype(np.int64)
+        if np.abs(o - lo).max() > 1e-6:
+            raise InputError(
+                f"grid origin {np.asarray(origin_m).tolist()} is not a multiple of the voxel size {self.voxel_size} m"
+            )
+        return lo
+
+    def _fill_dense(self, vals: np.ndarray, lo: np.ndarray) -> OccupancyMap:
+        """Write the dense float32 log-odds ``vals`` (X, Y, Z) at voxel ``lo`` (3,) into this
+        (empty) map, allocating the blocks it covers and marking them changed."""
+        m = self
         B = m.block_size
         b0 = np.floor_divide(lo, B)
-        b1 = np.floor_divide(lo + np.array(occ.shape) - 1, B)
+        b1 = np.floor_divide(lo + np.array(vals.shape) - 1, B)
         rngs = [np.arange(b0[i], b1[i] + 1) for i in range(3)]
         bc = np.stack(np.meshgrid(*rngs, indexing="ij"), -1).reshape(-1, 3)
         ids = m.grid.ensure(bc)

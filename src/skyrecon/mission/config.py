@@ -74,6 +74,16 @@ class MissionConfig:
         cruise_altitude_m: altitude of the start and the goal picked from a seed, metres.
         min_goal_distance_m, max_goal_distance_m: straight-line distance range of start to goal.
         endpoint_clearance_m: start and goal picked from a seed keep this far from obstacles.
+    A city that moves (:mod:`skyrecon.sim.movers`, :mod:`skyrecon.mission.changes`):
+        movers: the simulated city has moving obstacles (other drones, vehicles, a crane boom).
+        city_changes: today's city differs from the one the prior map was made of (a new
+            scaffold tower on the way, a container stack gone).
+        prior_map: "" (start with an empty map), "earlier" (the map an earlier flight over
+            yesterday's city left: its true occupancy) or a map directory (``skyrecon map`` /
+            ``skyrecon demo`` output); see :mod:`skyrecon.mission.prior`.
+        track_movers: separate moving objects from the static map and track them
+            (:mod:`skyrecon.perception.movers`); the planner keeps clear of their predicted sweep.
+        mover_horizon_s: how far ahead a tracked mover's motion is predicted for planning, seconds.
     """
 
     width: int = 640
@@ -113,6 +123,11 @@ class MissionConfig:
     min_goal_distance_m: float = 100.0
     max_goal_distance_m: float = 180.0
     endpoint_clearance_m: float = 4.0
+    movers: bool = False
+    city_changes: bool = False
+    prior_map: str = ""
+    track_movers: bool = True
+    mover_horizon_s: float = 3.0
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -164,6 +179,8 @@ class MissionConfig:
             raise InputError(f"pose_source must be odometry, truth or gps+odometry, got {self.pose_source!r}")
         if not (self.degraded_speed_mps >= 0 and self.delivery_tolerance_m >= 0):
             raise InputError("degraded_speed_mps and delivery_tolerance_m must be at least 0")
+        if not self.mover_horizon_s > 0:
+            raise InputError(f"mover_horizon_s must be positive, got {self.mover_horizon_s}")
         if self.time_limit_s is not None and not self.time_limit_s > 0:
             raise InputError(f"time_limit_s must be positive, got {self.time_limit_s}")
 

@@ -39,9 +39,10 @@ import numpy as np
 from skyrecon.core import Intrinsics, Rigid3
 from skyrecon.mapping import FREE, OCCUPIED, UNKNOWN, DistanceField, MapConfig, OccupancyMap
 from skyrecon.mission.config import MissionConfig
+from skyrecon.mission.prior import OBSERVED_FREE_LOG_ODDS, PriorMap
 from skyrecon.mission.scenario import MapBox
 from skyrecon.mission.vehicle import sample_path
-from skyrecon.planning import Planner, PlanResult, Replanner, remaining_path
+from skyrecon.planning import Planner, PlanResult, Replanner, path_conflict, remaining_path
 
 
 @dataclass
@@ -72,16 +73,29 @@ class Navigator:
             None: ``cfg.max_range_m``.
     """
 
-    def __init__(self, cfg: MissionConfig, box: MapBox, goal: np.ndarray, max_range_m: float | None = None):
+    def __init__(
+        self,
+        cfg: MissionConfig,
+        box: MapBox,
+        goal: np.ndarray,
+        max_range_m: float | None = None,
+        prior: PriorMap | None = None,
+    ):
         self.cfg = cfg
         self.goal = np.asarray(goal, dtype=np.float64)
-        mc = MapConfig(
-            voxel_size_m=cfg.voxel_size_m, max_range_m=cfg.max_range_m if max_range_m is None else max_range_m
-        )
-        nothing = np.zeros(box.shape, bool)
-        self.map = OccupancyMap.from_occupancy_grid(nothing, box.origin, mc, known=nothing)
-        self.map.pop_changed_blocks()
-        self.map.pop_changed_blocks(occupied_only=True)
+        rng = cfg.max_range_m if max_range_m is None else max_range_m
+        if prior is not None:
+            self.map = prior.seed_map(cfg, rng)
+            # a voxel is seen free only after this flight's own cameras saw it (see mission.prior)
+            self.observed_free_below = OBSERVED_FREE_LOG_ODDS
+        else:
+            mc = MapConfig(voxel_size_m=cfg.voxel_size_m, max_range_m=rng)
+            nothing = np.zeros(box.shape, bool)
+            self.map = OccupancyMap.from_occupancy_grid(nothing, box.origin, mc, known=nothing)
+            self.map.pop_changed_blocks()
+            self.map.pop_changed_blocks(occupied_only=True)
+            self.observed_free_below = 0.0
+        self.prior = prior
         v = cfg.voxel_size_m
         need = cfg.clearance_m + cfg.planning_margin_m + 2 * v + 0.05  # what the Planner needs, no more
         self.df = DistanceField(self.map, max_distance_m=need, unknown_is_occupied=False)
@@ -161,22 +175,29 @@ class Navigator:
         """
         return self.planner.nearest_clear_point(position, radius_m, toward=self.goal)
 
-    def replan(self, position: np.ndarray) -> tuple[PlanResult, str]:
+    def replan(self, position: np.ndarray, keep_out: np.ndarray | None = None) -> tuple[PlanResult, str]:
         """Plan from ``position`` (3,) to the goal; on success the new path is followed.
 
         When the drone is too close to a mapped obstacle for the planner to start there
         (``start_too_close``, ``start_in_obstacle``, ``start_enclosed``), the plan starts at the
         :meth:`escape_point` instead and the path leads there first.
 
+        Args:
+            keep_out: (K, 7) capsules of the tracked movers' predicted sweep
+                (:mod:`skyrecon.planning.keep_out`), kept clear like obstacles for this plan.
         Returns:
             The PlanResult (its waypoints start at ``position``) and how it was planned:
             "plan" or "escape".
         """
         p = np.asarray(position, dtype=np.float64)
+        with self.planner.avoiding(keep_out, p, self.goal):
+            return self._replan(p, 3.0 if keep_out is None or len(keep_out) == 0 else 6.0)
+
+    def _replan(self, p: np.ndarray, escape_radius_m: float) -> tuple[PlanResult, str]:
         r = self.replanner.replan(p)
         if r.success or r.reason not in ("start_too_close", "start_in_obstacle", "start_enclosed"):
             return r, "plan"
-        esc = self.escape_point(p)
+        esc = self.escape_point(p, escape_radius_m)
         if esc is None:
             return r, "plan"
         r2 = self.planner.plan(esc, self.goal)
@@ -186,6 +207,26 @@ class Navigator:
         r2.length_m = float(np.linalg.norm(np.diff(r2.waypoints, axis=0), axis=1).sum())
         self.replanner.waypoints = r2.waypoints
         return r2, "escape"
+
+    def mover_conflict(self, rest: np.ndarray, keep_out: np.ndarray | None, reach_m: float) -> float:
+        """Where the path ahead meets a mover's predicted sweep.
+
+        Args:
+            rest: (K, 3) the path ahead, starting at the drone, world metres.
+            keep_out: (K, 7) capsules (:mod:`skyrecon.planning.keep_out`) or None.
+            reach_m: only the first ``reach_m`` of the path count (where the drone can be
+                within the prediction horizon).
+        Returns:
+            Arc length of the first sample closer to a capsule than the planner's threshold
+            less ``replan_tolerance_m`` (hysteresis, as for static obstacles), metres; inf if none.
+        """
+        if keep_out is None or len(keep_out) == 0 or len(rest) < 2:
+            return float("inf")
+        near, _ = sample_path(rest, 0.5 * self.cfg.voxel_size_m, reach_m)
+        if len(near) < 2:
+            return float("inf")
+        thr = self.planner.threshold - self.cfg.replan_tolerance_m
+        return path_conflict(near, keep_out, thr, 0.5 * self.cfg.voxel_size_m)
 
     def rest(self, position: np.ndarray) -> np.ndarray:
         """(K, 3) the part of the path still ahead, starting at ``position``."""
@@ -222,8 +263,10 @@ class Navigator:
         down = -np.cross(side, tang)
         r = self.cfg.verify_radius_m
         probes = np.concatenate([pts, pts + r * side, pts - r * side, pts + r * down])
-        st = self.map.state_at(probes).reshape(4, -1)
-        ok = (st[0] == FREE) & np.all(st[1:] != UNKNOWN, axis=0)
+        lo = self.map.log_odds_at(probes).reshape(4, -1)
+        with np.errstate(invalid="ignore"):
+            seen_free = lo < self.observed_free_below
+            ok = seen_free[0] & np.all(seen_free[1:] | (lo[1:] >= 0.0), axis=0)
         bad = np.flatnonzero(~ok)
         return float(s[bad[0]]) if len(bad) else horizon_m
 

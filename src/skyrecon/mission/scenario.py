@@ -96,6 +96,9 @@ class Scenario:
         box: the box of the drone's map.
         shortest: the shortest feasible path in the true city (PlanResult, world frame).
         picked: "seed" when start and goal were picked from the seed, "user" when given.
+        prior_city: the city as it was when the prior map was made (None: as today).
+        changes: :class:`~skyrecon.mission.changes.CityChange` list, yesterday -> today.
+        movers: the moving obstacles (:class:`~skyrecon.sim.movers.MovingScene`) or None.
     """
 
     seed: int
@@ -106,6 +109,9 @@ class Scenario:
     shortest: PlanResult
     picked: str = "seed"
     notes: list[str] = field(default_factory=list)
+    prior_city: City | None = None
+    changes: list = field(default_factory=list)
+    movers: object | None = None
 
     @property
     def straight_line_m(self) -> float:
@@ -129,6 +135,7 @@ class Scenario:
             "map_box_origin": self.box.origin.tolist(),
             "map_box_shape": list(self.box.shape),
             "shortest_feasible_m": self.shortest.length_m if self.shortest.success else None,
+            "changes": [c.to_dict() for c in self.changes],
         }
 
 
@@ -256,22 +263,47 @@ def make_scenario(
     planner = truth_planner(city, cfg)
     if start is None:
         s, g, shortest = pick_endpoints(city, cfg, seed, planner)
-        return Scenario(int(seed), city, s, g, box, shortest, "seed")
-    s = np.asarray(start, dtype=np.float64).reshape(-1)
-    g = np.asarray(goal, dtype=np.float64).reshape(-1)
-    _check_endpoint(city, cfg, box, s, "start")
-    _check_endpoint(city, cfg, box, g, "goal")
-    if np.linalg.norm(g - s) < cfg.arrival_tolerance_m:
-        raise ImpossibleMission(
-            f"start and goal are less than {cfg.arrival_tolerance_m:g} m apart", "too_short"
-        )
-    shortest = planner.plan(s, g)
+        picked = "seed"
+    else:
+        s = np.asarray(start, dtype=np.float64).reshape(-1)
+        g = np.asarray(goal, dtype=np.float64).reshape(-1)
+        _check_endpoint(city, cfg, box, s, "start")
+        _check_endpoint(city, cfg, box, g, "goal")
+        if np.linalg.norm(g - s) < cfg.arrival_tolerance_m:
+            raise ImpossibleMission(
+                f"start and goal are less than {cfg.arrival_tolerance_m:g} m apart", "too_short"
+            )
+        shortest = planner.plan(s, g)
+        if not shortest.success:
+            raise ImpossibleMission(
+                f"no way through from {_fmt(s)} to {_fmt(g)} in the true city: {shortest.message}",
+                shortest.reason or "no_path",
+            )
+        picked = "user"
+    scenario = Scenario(int(seed), city, s, g, box, shortest, picked)
+    if cfg.city_changes:
+        _apply_changes(scenario, cfg)
+    return scenario
+
+
+def _apply_changes(scenario: Scenario, cfg: MissionConfig) -> None:
+    """Make today's city differ from yesterday's (:func:`~skyrecon.mission.changes.city_changes`)
+    and re-plan the shortest path in today's city; a change that would make the mission
+    impossible is left out (and said in ``notes``)."""
+    from skyrecon.mission.changes import city_changes
+
+    base = scenario.city
+    today, yesterday, changes = city_changes(
+        base, scenario.seed, scenario.shortest.waypoints, scenario.start, scenario.goal, cfg
+    )
+    shortest = truth_planner(today, cfg).plan(scenario.start, scenario.goal)
     if not shortest.success:
-        raise ImpossibleMission(
-            f"no way through from {_fmt(s)} to {_fmt(g)} in the true city: {shortest.message}",
-            shortest.reason or "no_path",
-        )
-    return Scenario(int(seed), city, s, g, box, shortest, "user")
+        scenario.notes.append("the new obstacle would close the way; left out")
+        changes = [c for c in changes if c.kind != "added"]
+        today = base
+    else:
+        scenario.shortest = shortest
+    scenario.city, scenario.prior_city, scenario.changes = today, yesterday, changes
 
 
 def impossible_scenario_stub(seed: int, cfg: MissionConfig, start, goal) -> dict:

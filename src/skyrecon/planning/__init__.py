@@ -6,6 +6,7 @@ Main entry points: :func:`plan_path` / :class:`Planner` -> :class:`PlanResult`,
 """
 
 from skyrecon.planning.flown import plan_with_flown_path, route_along_track
+from skyrecon.planning.keep_out import capsule_distance, keep_out, path_conflict
 from skyrecon.planning.mission import enu_to_geodetic, qgc_plan, write_path_json, write_qgc_plan
 from skyrecon.planning.planner import Planner, plan_path
 from skyrecon.planning.replan import ReplanDecision, Replanner, remaining_path
@@ -13,6 +14,9 @@ from skyrecon.planning.result import REASONS, PlanResult
 
 __all__ = [
     "Planner",
+    "capsule_distance",
+    "keep_out",
+    "path_conflict",
     "plan_path",
     "plan_with_flown_path",
     "route_along_track",

@@ -26,6 +26,8 @@ from __future__ import annotations
 
 import time
 import weakref
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 import numpy as np
 
@@ -36,6 +38,7 @@ from skyrecon.mapping.occupancy import OCCUPIED, UNKNOWN, OccupancyMap
 from skyrecon.planning import _geom
 from skyrecon.planning._search import component, search
 from skyrecon.planning.grid import PlanningGrid
+from skyrecon.planning.keep_out import keep_out
 from skyrecon.planning.result import PlanResult
 
 
@@ -189,6 +192,20 @@ class Planner:
         self._grid = None  # free the old grid before building the new one
         self._grid = PlanningGrid(self.df, lo, hi - lo, self.threshold, self.min_z, self.max_z, self.step)
         return self._grid
+
+    @contextmanager
+    def avoiding(self, capsules: np.ndarray | None, near: np.ndarray, goal: np.ndarray) -> Iterator[int]:
+        """Within the ``with`` block, queries between ``near`` and ``goal`` ((3,) world metres)
+        also keep the clearance from the keep-out capsules (K, 7) (moving obstacles, see
+        :mod:`skyrecon.planning.keep_out`); the map's own grid is restored on exit. Do not
+        update the planner inside the block.
+
+        Yields:
+            The number of grid voxels the capsules lowered.
+        """
+        grid = self.grid_for(np.minimum(near, goal), np.maximum(near, goal))
+        with keep_out(grid, capsules) as n:
+            yield n
 
     # ----- queries --------------------------------------------------------------------------
     def _kw(self) -> dict:

@@ -1,0 +1,120 @@
+"""Keep-out volumes for moving obstacles: capsules the planner must avoid for one query.
+
+A mover tracked by the drone (another drone, a crane boom) is not part of the static map: its
+hits are kept out of the occupancy map so that it leaves no phantom trail. The planner still
+has to keep clear of where it is going, so each mover becomes a *capsule*: the segment from its
+position now to its predicted position ``horizon_s`` later, inflated by its size (and the track's
+uncertainty). For one planning query the capsules are written into the planner's dense grid
+(:meth:`~skyrecon.planning.grid.PlanningGrid` distances are lowered to the capsules' surface
+distance where that is smaller) and restored afterwards, so the distance field of the static map
+is never touched.
+
+Capsules: (K, 7) float64 ``[x0, y0, z0, x1, y1, z1, radius_m]``, world frame, metres.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+import numpy as np
+
+from skyrecon.errors import InputError
+from skyrecon.planning._los import lattice, safe_cells
+
+
+def as_capsules(capsules: np.ndarray | None) -> np.ndarray:
+    """(K, 7) float64 capsules (see the module docstring); None or empty gives (0, 7)."""
+    if capsules is None:
+        return np.zeros((0, 7))
+    c = np.asarray(capsules, dtype=np.float64).reshape(-1, 7) if np.size(capsules) else np.zeros((0, 7))
+    if not np.all(np.isfinite(c)) or np.any(c[:, 6] < 0):
+        raise InputError("keep-out capsules must be finite with a non-negative radius")
+    return c
+
+
+def capsule_distance(points: np.ndarray, capsules: np.ndarray) -> np.ndarray:
+    """Distance from each point to the nearest capsule surface (negative inside), metres.
+
+    Args:
+        points: (N, 3) world points, metres.
+        capsules: (K, 7) ``[x0, y0, z0, x1, y1, z1, radius]``.
+    Returns:
+        (N,) float64; ``inf`` when there are no capsules.
+    """
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    c = as_capsules(capsules)
+    out = np.full(len(p), np.inf)
+    for a, b, r in zip(c[:, :3], c[:, 3:6], c[:, 6]):
+        ab = b - a
+        L2 = float(ab @ ab)
+        t = np.zeros(len(p)) if L2 < 1e-12 else np.clip((p - a) @ ab / L2, 0.0, 1.0)
+        d = np.linalg.norm(p - (a + t[:, None] * ab), axis=1) - r
+        np.minimum(out, d, out=out)
+    return out
+
+
+def path_conflict(path: np.ndarray, capsules: np.ndarray, threshold_m: float, step_m: float) -> float:
+    """Arc length along ``path`` (K, 3) of the first sample closer than ``threshold_m`` to a
+    capsule, metres; ``inf`` when the whole path keeps clear (samples every ``step_m``)."""
+    c = as_capsules(capsules)
+    if len(c) == 0 or len(path) < 2:
+        return float("inf")
+    seg = np.diff(path, axis=0)
+    seg_len = np.linalg.norm(seg, axis=1)
+    cum = np.concatenate([[0.0], np.cumsum(seg_len)])
+    s = np.arange(0.0, cum[-1] + 1e-9, step_m)
+    k = np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(seg) - 1)
+    u = np.where(seg_len[k] > 0, (s - cum[k]) / np.maximum(seg_len[k], 1e-12), 0.0)
+    pts = path[k] + u[:, None] * seg[k]
+    bad = np.flatnonzero(capsule_distance(pts, c) < threshold_m)
+    return float(s[bad[0]]) if len(bad) else float("inf")
+
+
+@contextmanager
+def keep_out(grid, capsules: np.ndarray) -> Iterator[int]:
+    """Within the ``with`` block, ``grid`` (a :class:`~skyrecon.planning.grid.PlanningGrid`)
+    treats the capsules as obstacles; everything is restored on exit.
+
+    Yields:
+        The number of grid voxels whose distance was lowered.
+    """
+    c = as_capsules(capsules)
+    if len(c) == 0:
+        yield 0
+        return
+    v = grid.voxel
+    pad = grid.threshold + 2 * v
+    lo_w = np.minimum(c[:, :3], c[:, 3:6]).min(axis=0) - c[:, 6].max() - pad
+    hi_w = np.maximum(c[:, :3], c[:, 3:6]).max(axis=0) + c[:, 6].max() + pad
+    shape = np.array(grid.shape)
+    lo = np.clip(np.floor((lo_w - grid.origin) / v).astype(np.int64), 0, shape)
+    hi = np.clip(np.ceil((hi_w - grid.origin) / v).astype(np.int64) + 1, 0, shape)
+    if not np.all(hi > lo):
+        yield 0
+        return
+    box = tuple(slice(int(a), int(b)) for a, b in zip(lo, hi))
+    s_lo = np.maximum(lo - 1, 0)
+    s_hi = np.minimum(hi, np.array(grid.safe.shape))
+    sbox = tuple(slice(int(a), int(b)) for a, b in zip(s_lo, s_hi))
+    saved = (grid.dist[box].copy(), grid.flyable[box].copy(), grid.safe[sbox].copy())
+    levels = {f: a.copy() for f, a in grid._levels.items() if f > 1}
+    try:
+        axes = [grid.origin[i] + (np.arange(lo[i], hi[i]) + 0.5) * v for i in range(3)]
+        centres = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+        d_cap = capsule_distance(centres, c).reshape(tuple(int(x) for x in hi - lo)).astype(np.float32)
+        lowered = d_cap < grid.dist[box]
+        grid.dist[box] = np.minimum(grid.dist[box], d_cap)
+        zc = axes[2]
+        zok = (zc >= grid.zmin) & (zc <= grid.zmax)
+        grid.flyable[box] = (grid.dist[box] >= grid.threshold) & zok[None, None, :]
+        if np.all(s_hi > s_lo):
+            fly = grid.flyable[s_lo[0] : s_hi[0] + 1, s_lo[1] : s_hi[1] + 1, s_lo[2] : s_hi[2] + 1]
+            grid.safe[sbox] = safe_cells(np.ascontiguousarray(fly))
+        for f in levels:
+            grid._levels[f][...] = lattice(grid.safe, f)
+        yield int(np.count_nonzero(lowered))
+    finally:
+        grid.dist[box], grid.flyable[box], grid.safe[sbox] = saved
+        for f, a in levels.items():
+            grid._levels[f][...] = a
