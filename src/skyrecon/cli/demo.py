@@ -7,6 +7,13 @@ and the path are checked and replanned, and the drone moves on. Collisions are j
 the true geometry. It writes ``report.html`` (self-contained), ``mission.json`` (metrics),
 ``path.json`` (the flown track), ``cycles.json`` and the drone's map (``map/``).
 
+Other things move in the city (``--movers on``, the default): other drones on their own
+routes (some crossing the drone's), vehicles in the streets and a crane boom turning over a
+building site. The drone tells what moves from what stands, tracks the movers, keeps them out
+of its map and keeps clear of where they are going. With ``--prior-map`` it starts from an older
+map of the city (``earlier``: the map a flight before a scaffold tower went up and a container
+stack went away would have left) and corrects it with its own cameras.
+
 With ``--missions N`` it flies seeds N, N+1, ... in parallel, each in ``seed_NNNN/``, and writes
 ``summary.json``, ``summary.md`` and ``summary.html``.
 
@@ -37,6 +44,9 @@ EXAMPLES = """  skyrecon demo                                  # one delivery, s
   skyrecon demo --missions 20 --out many/        # seeds 0..19 in parallel, summary.html
   skyrecon demo --width 320 --height 240 --city-size 100 --out quick/
   skyrecon demo --speed 15 --baseline 0.6 --out fast/   # a wider rig trusts depth farther: 15 m/s
+  skyrecon demo --prior-map earlier --out stale/   # plans on yesterday's map; a tower is new, a stack gone
+  skyrecon demo --seed 7 --prior-map mission7/map --out again/   # reuse the map of an earlier flight
+  skyrecon demo --movers off --out still/         # a city where nothing moves
 """
 
 
@@ -105,6 +115,30 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "simulator's exact pose, or the odometry anchored by a simulated urban-canyon GPS",
     )
     p.add_argument(
+        "--movers",
+        choices=("on", "off"),
+        default="on",
+        help="other drones, vehicles and a turning crane boom move through the city (default on)",
+    )
+    p.add_argument(
+        "--prior-map",
+        metavar="MAP_DIR|earlier",
+        help="start from an older map of this city: a map directory (e.g. the map/ of an earlier demo "
+        "with the same seed) or 'earlier' (the map an earlier flight left, before a scaffold tower went "
+        "up and a container stack went away); the drone plans on it and corrects it with its cameras",
+    )
+    p.add_argument(
+        "--city-changes",
+        action="store_true",
+        help="today's city differs from the prior's (a new scaffold tower, a container stack gone); "
+        "on with --prior-map earlier",
+    )
+    p.add_argument(
+        "--no-tracking",
+        action="store_true",
+        help="do not separate and track moving objects (they go into the map like buildings); for comparison",
+    )
+    p.add_argument(
         "--time-limit",
         type=positive_float,
         help="simulated seconds before giving up (default: from the distance)",
@@ -124,6 +158,10 @@ def _config(args):
         time_limit_s=args.time_limit,
         max_altitude_m=args.max_altitude,
         pose_source=args.pose_source,
+        movers=args.movers == "on",
+        prior_map=args.prior_map or "",
+        city_changes=bool(args.city_changes or args.prior_map == "earlier"),
+        track_movers=not args.no_tracking,
     )
     if args.city_size is not None:
         scale = min(1.0, args.city_size / cfg.city_size_m)

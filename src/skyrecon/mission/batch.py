@@ -53,6 +53,9 @@ SUMMARY_KEYS = (
     "drift_m",
     "ate_m",
     "pose_lost_cycles",
+    "moving_obstacles",
+    "min_clearance_static_m",
+    "min_clearance_moving_m",
 )
 
 

@@ -41,7 +41,7 @@ class CityChange:
 
     kind: str
     name: str
-    box: tuple[float, float, float, float, float, float]
+    box: tuple[float, ...]
 
     def to_dict(self) -> dict:
         return {"kind": self.kind, "name": self.name, "box": [round(float(v), 3) for v in self.box]}

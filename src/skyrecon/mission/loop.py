@@ -51,14 +51,17 @@ from skyrecon.mission.pose_source import (
     make_pose_source,
     true_step,
 )
+from skyrecon.mission.prior import PriorMap, mission_prior
 from skyrecon.mission.scenario import Scenario
 from skyrecon.mission.vehicle import DroneState, step
+from skyrecon.mission.world_monitor import WorldMonitor
 from skyrecon.odometry.types import TrackingState
 from skyrecon.perception import StereoDepth
+from skyrecon.perception.movers import MoverSettings, MoverTracker
 from skyrecon.sim import render_stereo
 
 #: Stages of the loop proper (rendering is the simulator's and is reported apart).
-LOOP_STAGES = ("stereo", "pose", "integrate", "distance", "check", "replan", "control")
+LOOP_STAGES = ("stereo", "pose", "movers", "integrate", "distance", "check", "replan", "control")
 STAGES = ("render",) + LOOP_STAGES
 
 
@@ -84,6 +87,12 @@ class CycleRecord:
         momentum_room_m: known-free room along the velocity at the start of the cycle, metres.
         est_position: (3,) where the drone believed it was, metres (None: same as ``position``);
         pose_state: ``ok``, ``degraded`` or ``lost``; pose_reason: why not ok.
+        clearance_static_m, clearance_moving_m: the true clearance along the step to the static
+            city (ground included) and to the movers (true geometry at the true time), metres.
+        replan_reason: why the path was replanned: "no_path" (none yet), "blocked" (the map
+            showed the path inside the clearance) or "mover" (a tracked mover's predicted sweep
+            crossed it); "" when not replanned.
+        movers_tracked: confirmed tracks of moving objects after this cycle's update.
     """
 
     cycle: int
@@ -107,6 +116,10 @@ class CycleRecord:
     est_position: np.ndarray | None = None
     pose_state: str = "ok"
     pose_reason: str = ""
+    clearance_static_m: float = math.inf
+    clearance_moving_m: float = math.inf
+    replan_reason: str = ""
+    movers_tracked: int = 0
 
     @property
     def pose_error_m(self) -> float:
@@ -154,7 +167,15 @@ class CycleRecord:
             "pose_error_m": round(self.pose_error_m, 4),
             "pose_state": self.pose_state,
             "pose_reason": self.pose_reason,
+            "clearance_static_m": _finite(self.clearance_static_m),
+            "clearance_moving_m": _finite(self.clearance_moving_m),
+            "replan_reason": self.replan_reason,
+            "movers_tracked": self.movers_tracked,
         }
+
+
+def _finite(v: float, nd: int = 3) -> float | None:
+    return round(float(v), nd) if math.isfinite(v) else None
 
 
 @dataclass
@@ -197,6 +218,8 @@ class MissionResult:
         final_position: (3,) world metres where the drone truly ended.
         final_est_position: (3,) where it believed it ended (the estimated world), metres.
         occ_map: the drone's map at the end.
+        monitor: the simulator's judge of movers and changes (:class:`WorldMonitor`), or None.
+        prior: the prior map the drone started from (:class:`~skyrecon.mission.prior.PriorMap`), or None.
         wall_s: wall-clock seconds of the whole mission (rendering and set-up included).
         setup_s: wall-clock seconds of set-up (map allocation, matcher warm-up).
     """
@@ -215,6 +238,9 @@ class MissionResult:
     setup_s: float = 0.0
     message: str = ""
     final_est_position: np.ndarray | None = None
+    monitor: WorldMonitor | None = None
+    prior: PriorMap | None = None
+    world_summary: dict | None = None
 
     def flown_path(self) -> np.ndarray:
         """(N + 1, 3) positions of the drone, world metres: one per cycle, then the final one."""
@@ -259,11 +285,40 @@ class _FrameKeeper:
         return sorted(chosen, key=lambda f: f.cycle)
 
 
-def _truth_clearance(scenario: Scenario, a: np.ndarray, b: np.ndarray) -> float:
-    """Smallest true distance to an obstacle (ground included) along the segment a -> b, metres."""
+def _truth_clearance(
+    scenario: Scenario, a: np.ndarray, b: np.ndarray, t0: float, t1: float
+) -> tuple[float, float]:
+    """Smallest true distance along the segment a -> b flown from time t0 to t1 (seconds) to the
+    static city (ground included) and to the movers (each sample at its own time), metres."""
     n = max(2, int(math.ceil(np.linalg.norm(b - a) / 0.1)) + 1)
-    pts = a + (b - a) * np.linspace(0.0, 1.0, n)[:, None]
-    return float(scenario.city.distance(pts, include_ground=True).min())
+    u = np.linspace(0.0, 1.0, n)
+    pts = a + (b - a) * u[:, None]
+    static = float(scenario.city.distance(pts, include_ground=True).min())
+    if scenario.movers is None:
+        return static, math.inf
+    return static, float(scenario.movers.mover_distance(pts, t0 + (t1 - t0) * u).min())
+
+
+def _map_update(
+    nav: Navigator,
+    tracker: MoverTracker | None,
+    depth,
+    cam_from_world,
+    time_s: float,
+    flown_from: np.ndarray,
+) -> tuple[float, float]:
+    """Track the movers in this frame's depth and integrate the rest into the static map (the
+    movers' pixels are kept out, so they leave no trail). Returns (movers ms, integrate ms)."""
+    depth_for_map, movers_ms = depth.depth_m, 0.0
+    if tracker is not None:
+        world_from_cam = cam_from_world.inverse().with_frames("world", "cam")
+        mf = tracker.update(time_s, depth.depth_m, depth.intrinsics, world_from_cam, nav.map)
+        movers_ms = mf.ms
+        if mf.dynamic_mask.any():
+            depth_for_map = depth.depth_m.copy()
+            depth_for_map[mf.dynamic_mask] = np.nan
+    _, integrate_ms = timed(nav.integrate, depth_for_map, depth.intrinsics, cam_from_world, flown_from)
+    return movers_ms, integrate_ms
 
 
 def run_mission(
@@ -289,9 +344,15 @@ def run_mission(
     perception = flight_perception(cfg)
     stereo = StereoDepth(rig, perception)
     _ = stereo.matcher  # build (and warm up) the matcher before the first cycle
-    nav = Navigator(
-        cfg, scenario.box, scenario.goal, perception.hit_range_m(rig, cfg.voxel_size_m, cfg.max_range_m)
+    hit_range = perception.hit_range_m(rig, cfg.voxel_size_m, cfg.max_range_m)
+    prior = mission_prior(scenario, cfg)
+    nav = Navigator(cfg, scenario.box, scenario.goal, hit_range, prior=prior)
+    tracker = MoverTracker(MoverSettings(max_range_m=hit_range)) if cfg.track_movers else None
+    world = scenario.movers
+    monitor = (
+        WorldMonitor(scenario, cfg.voxel_size_m, hit_range) if world is not None or scenario.changes else None
     )
+    reach_m = cfg.cruise_speed_mps * cfg.mover_horizon_s + cfg.stopping_distance_m
     setup_s = time.perf_counter() - t_start
     state = DroneState(
         scenario.start.copy(), np.zeros(3), scenario.start_yaw, math.radians(cfg.camera_pitch_deg)
@@ -322,9 +383,10 @@ def run_mission(
         true_p = state.position.copy()
         ms: dict[str, float] = {}
         true_cam_from_world = state.cam_from_world()
-        frame, ms["render"] = timed(
-            render_stereo, scenario.city, rig, true_cam_from_world.with_frames("left", "world")
-        )
+        t_render = time.perf_counter()
+        scene_now = world.snapshot(state.time_s) if world is not None else scenario.city
+        frame = render_stereo(scene_now, rig, true_cam_from_world.with_frames("left", "world"))
+        ms["render"] = 1e3 * (time.perf_counter() - t_render)
         depth, ms["stereo"] = timed(stereo.compute, frame.left, frame.right)
         true_world_from_left = true_cam_from_world.inverse().with_frames("world", "left")
         reading = pose_source.read(
@@ -336,18 +398,27 @@ def run_mission(
         lost = reading.state == TrackingState.LOST
         p = believed.position.copy()
         cam_from_world = reading.world_from_left.inverse().with_frames("cam", "world")
-        if lost:
-            ms["integrate"] = 0.0  # no map update from a pose that cannot be trusted
-        else:
-            _, ms["integrate"] = timed(nav.integrate, depth.depth_m, depth.intrinsics, cam_from_world, p_prev)
+        ms["movers"] = ms["integrate"] = 0.0
+        if not lost:  # no map update from a pose that cannot be trusted
+            ms["movers"], ms["integrate"] = _map_update(
+                nav, tracker, depth, cam_from_world, state.time_s, p_prev
+            )
             p_prev = p
         rewritten, ms["distance"] = timed(nav.update_distance)
-        outcome, ms["check"] = timed(nav.check, p, rewritten)
-        replanned = replan_ok = False
         t0 = time.perf_counter()
-        if not outcome.clear:
+        outcome = nav.check(p, rewritten)
+        keep = tracker.keep_out(cfg.mover_horizon_s) if tracker is not None else None
+        conflict_m = math.inf
+        if keep is not None and len(keep) and outcome.clear and len(nav.waypoints):
+            conflict_m = nav.mover_conflict(nav.rest(p), keep, reach_m)
+        ms["check"] = 1e3 * (time.perf_counter() - t0)
+        replanned = replan_ok = False
+        replan_reason = ""
+        t0 = time.perf_counter()
+        if not outcome.clear or math.isfinite(conflict_m):
             replanned = True
-            r, how = nav.replan(p)
+            replan_reason = "mover" if outcome.clear else ("no_path" if not len(nav.waypoints) else "blocked")
+            r, how = nav.replan(p, keep)
             replan_ok = r.success
             if r.success:
                 kind = "initial" if not plans else ("escape" if how == "escape" else "replan")
@@ -360,7 +431,8 @@ def run_mission(
         rest = nav.rest(p) if len(nav.waypoints) else np.zeros((0, 3))
         momentum = nav.free_along(p, believed.velocity, cfg.verify_horizon_m)
         recovering = lost or lost_cycles > 0  # hold still and look around until the pose holds again
-        if len(rest) >= 2 and (outcome.clear or replan_ok) and not recovering:
+        path_ok = (outcome.clear and not math.isfinite(conflict_m)) or replan_ok
+        if len(rest) >= 2 and path_ok and not recovering:
             verified = nav.verified_distance(rest, cfg.verify_horizon_m, cfg.verify_skip_m)
             g = guide(rest, believed, verified, cfg, momentum)
             if reading.state == TrackingState.DEGRADED and g.speed_limit > cfg.degraded_speed_mps:
@@ -390,7 +462,10 @@ def run_mission(
         )
         new_state = new_believed if truth else true_step(state, believed, new_believed, est_from_world)
         ms["control"] = 1e3 * (time.perf_counter() - t0)
-        clearance = _truth_clearance(scenario, true_p, new_state.position)
+        c_static, c_moving = _truth_clearance(
+            scenario, true_p, new_state.position, state.time_s, new_state.time_s
+        )
+        clearance = min(c_static, c_moving)
         rec = CycleRecord(
             cycle,
             state.time_s,
@@ -413,8 +488,22 @@ def run_mission(
             None if truth else p,
             reading.state.value,
             reading.reason,
+            c_static,
+            c_moving,
+            replan_reason,
+            0 if tracker is None else sum(1 for t in tracker.tracks if t.moving),
         )
         records.append(rec)
+        if monitor is not None:
+            monitor.observe(
+                state.time_s,
+                true_world_from_left.t,
+                frame.left_result.object_id,
+                scene_now,
+                tracker.tracks if tracker is not None else [],
+                nav.map,
+                None if truth else est_from_world,
+            )
         keeper.offer(cycle, frame.left, depth.disparity, replanned)
         last_frame = FrameSample(cycle, frame.left, depth.disparity)
         if on_cycle is not None:
@@ -423,9 +512,10 @@ def run_mission(
         cycle += 1
         if clearance < cfg.drone_radius_m:
             collisions, reason = 1, "collision"
+            what = "a moving obstacle" if c_moving < c_static else "an obstacle"
             message = (
                 f"collision at t = {state.time_s:.1f} s near {np.round(state.position, 1).tolist()}: "
-                f"{clearance:.2f} m from an obstacle (drone radius {cfg.drone_radius_m:g} m)"
+                f"{clearance:.2f} m from {what} (drone radius {cfg.drone_radius_m:g} m)"
             )
             break
         if np.linalg.norm(believed.position - scenario.goal) <= cfg.arrival_tolerance_m:
@@ -461,4 +551,9 @@ def run_mission(
         setup_s,
         message,
         believed.position.copy(),
+        monitor,
+        prior,
+        None
+        if monitor is None
+        else monitor.summary(nav.map, state.time_s, None if truth else est_from_world),
     )

@@ -21,6 +21,10 @@
   where the drone believed it was and where it truly was at the end; ``ate_m``: RMS of that
   distance over every cycle (the estimated and the true world share the take-off pose, so no
   alignment); ``pose_degraded_cycles``, ``pose_lost_cycles`` and ``pose_reasons`` (count per reason);
+* the city that moves (:func:`dynamic_metrics`): ``moving_obstacles``,
+  ``min_clearance_static_m``, ``min_clearance_moving_m``, ``replan_reasons``, ``dynamic``
+  (mover detection recall and error, phantom trails, vacated voxels, changes seen) and
+  ``prior_map`` (what the cameras changed in the prior);
 * ``stage_ms``: per stage (render, stereo, integrate, distance, check, replan, control, loop)
   the median, 95th percentile and mean in milliseconds.
 """
@@ -32,6 +36,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from skyrecon.mission.loop import LOOP_STAGES, STAGES, CycleRecord, MissionResult
+from skyrecon.mission.prior import prior_changes
 from skyrecon.mission.safety import rig_supported_speed, speed_warning
 
 
@@ -92,6 +97,29 @@ def pose_metrics(result: MissionResult) -> dict:
     }
 
 
+def dynamic_metrics(result: MissionResult) -> dict:
+    """The city that moves: ``moving_obstacles``, ``min_clearance_static_m`` and
+    ``min_clearance_moving_m`` (true geometry, true time), ``replan_reasons``, the movers'
+    detection and the changes since the prior (``dynamic``, see
+    :mod:`skyrecon.mission.world_monitor`) and what the cameras changed in the prior (``prior_map``)."""
+    recs = result.records
+    c_static = [r.clearance_static_m for r in recs]
+    c_moving = [r.clearance_moving_m for r in recs if np.isfinite(r.clearance_moving_m)]
+    reasons: dict[str, int] = {}
+    for r in recs:
+        if r.replanned and r.replan_reason:
+            reasons[r.replan_reason] = reasons.get(r.replan_reason, 0) + 1
+    world = result.world_summary or {}
+    return {
+        "moving_obstacles": int(world.get("moving_obstacles", 0)),
+        "min_clearance_static_m": round(float(min(c_static)), 3) if c_static else None,
+        "min_clearance_moving_m": round(float(min(c_moving)), 3) if c_moving else None,
+        "replan_reasons": reasons,
+        "dynamic": world or None,
+        "prior_map": None if result.prior is None else prior_changes(result.prior, result.occ_map),
+    }
+
+
 def mission_metrics(result: MissionResult) -> dict:
     """The metrics of a flown mission as a JSON-ready dict (see the module docstring)."""
     sc, cfg = result.scenario, result.config
@@ -143,6 +171,7 @@ def mission_metrics(result: MissionResult) -> dict:
         "seed": int(sc.seed),
         "map_voxels": result.occ_map.counts(),
         **pose_metrics(result),
+        **dynamic_metrics(result),
     }
     if not result.success and not m["reason"]:
         m["reason"] = "unknown"

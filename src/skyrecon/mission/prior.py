@@ -147,3 +147,14 @@ def prior_changes(prior: PriorMap, final: OccupancyMap, min_observed_log_odds: f
         "removed_voxels": int(np.count_nonzero(removed)),
         "disagreement": round(n_bad / n_obs, 4) if n_obs else 0.0,
     }
+
+
+def mission_prior(scenario, cfg: MissionConfig) -> PriorMap | None:
+    """The prior of a mission as ``cfg.prior_map`` says: None (""), the map an earlier flight over
+    yesterday's city left ("earlier"; its true occupancy), or a map directory."""
+    if not cfg.prior_map:
+        return None
+    if cfg.prior_map == "earlier":
+        city = scenario.prior_city if scenario.prior_city is not None else scenario.city
+        return prior_from_city(city, cfg, scenario.box, "earlier flight (simulated)")
+    return load_prior_map(cfg.prior_map, cfg, scenario.box)

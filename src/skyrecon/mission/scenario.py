@@ -136,6 +136,7 @@ class Scenario:
             "map_box_shape": list(self.box.shape),
             "shortest_feasible_m": self.shortest.length_m if self.shortest.success else None,
             "changes": [c.to_dict() for c in self.changes],
+            "movers": None if self.movers is None else self.movers.to_dict()["movers"],
         }
 
 
@@ -283,6 +284,18 @@ def make_scenario(
     scenario = Scenario(int(seed), city, s, g, box, shortest, picked)
     if cfg.city_changes:
         _apply_changes(scenario, cfg)
+    if cfg.movers:
+        from skyrecon.sim.movers import make_movers
+
+        scenario.movers = make_movers(
+            scenario.city,
+            scenario.seed,
+            scenario.start,
+            scenario.goal,
+            scenario.shortest.waypoints,
+            band=(cfg.min_altitude_m, cfg.max_altitude_m),
+            cruise_speed_mps=cfg.cruise_speed_mps,
+        )
     return scenario
 
 

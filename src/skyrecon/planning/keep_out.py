@@ -72,7 +72,7 @@ def path_conflict(path: np.ndarray, capsules: np.ndarray, threshold_m: float, st
 
 
 @contextmanager
-def keep_out(grid, capsules: np.ndarray) -> Iterator[int]:
+def keep_out(grid, capsules: np.ndarray | None) -> Iterator[int]:
     """Within the ``with`` block, ``grid`` (a :class:`~skyrecon.planning.grid.PlanningGrid`)
     treats the capsules as obstacles; everything is restored on exit.
 

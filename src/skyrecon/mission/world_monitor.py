@@ -1,0 +1,282 @@
+"""The simulator's judge of a city that moves: how well the drone saw movers and changes.
+
+Runs beside the loop (never inside its timing, and the drone never reads it), comparing what
+the drone believed with the simulator's truth:
+
+* **movers** (other drones and vehicles; the crane is judged as a structure): in every frame
+  where a mover shows at least :data:`MIN_VISIBLE_PX` pixels and lies within
+  :data:`DETECTION_RANGE_M` of the camera, whether a confirmed track sits within
+  :data:`MATCH_RADIUS_M` of its true centre, and that track's position error. The true and the
+  tracked paths are kept for the report.
+* **phantom trails**: at the end, the voxels each mover swept until 2 s before the end (minus
+  the static city), and how many of those the drone observed that its map holds as occupied.
+* **vacated voxels**: every voxel the map holds as occupied inside a mover's box; once the mover
+  has left it, the time until the map frees it.
+* **changes since the prior** (:mod:`skyrecon.mission.changes`, the crane's tower): for an
+  added obstacle, the time from when it first shows within the trusted range to when the map
+  holds :data:`MAPPED_VOXELS` occupied voxels inside it; for a removed one, per voxel the time
+  from its first miss (the cameras saw through it) to free.
+
+Positions are compared in the drone's estimated world (``est_from_true`` maps the truth
+there), so a drifting pose does not count against perception.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from skyrecon.core import Rigid3
+from skyrecon.mapping import OccupancyMap
+from skyrecon.mission.prior import PRIOR_OCCUPIED_LOG_ODDS
+
+#: A mover counts as visible from this many pixels of the left image.
+MIN_VISIBLE_PX = 30
+#: Movers are judged within this distance of the camera, metres.
+DETECTION_RANGE_M = 20.0
+#: A track within this distance of a mover's true centre detects it, metres.
+MATCH_RADIUS_M = 1.5
+#: An added obstacle is "in the map" with this many occupied voxels inside it.
+MAPPED_VOXELS = 20
+
+
+def _voxels_of_boxes(boxes: np.ndarray, v: float) -> np.ndarray:
+    """(M, 3) int64 voxels whose centres lie inside any of the boxes (K, 6)."""
+    out = []
+    for b in np.asarray(boxes, dtype=np.float64).reshape(-1, 6):
+        lo = np.ceil(b[:3] / v - 0.5).astype(np.int64)
+        hi = np.floor(b[3:] / v - 0.5).astype(np.int64)
+        if np.any(hi < lo):
+            continue
+        g = np.stack(np.meshgrid(*[np.arange(lo[i], hi[i] + 1) for i in range(3)], indexing="ij"), -1)
+        out.append(g.reshape(-1, 3))
+    return np.unique(np.concatenate(out), axis=0) if out else np.zeros((0, 3), np.int64)
+
+
+@dataclass
+class _Change:
+    kind: str
+    name: str
+    boxes: np.ndarray
+    object_ids: set[int] = field(default_factory=set)
+    t_in_range: float | None = None
+    t_mapped: float | None = None
+    touched: dict[tuple, float] = field(default_factory=dict)
+    freed: dict[tuple, float] = field(default_factory=dict)
+
+
+class WorldMonitor:
+    """Collects the dynamic-world figures of one mission (see the module docstring).
+
+    Args:
+        scenario: the mission's scenario (city, changes, movers).
+        voxel_size_m: the drone's map voxel size.
+        trusted_range_m: the stereo range the drone trusts, metres.
+    """
+
+    def __init__(self, scenario, voxel_size_m: float, trusted_range_m: float):
+        self.scene = scenario.movers
+        self.v = float(voxel_size_m)
+        self.range_m = float(trusted_range_m)
+        self.static = scenario.city
+        movers = [] if self.scene is None else list(self.scene.movers)
+        self.judged = [i for i, m in enumerate(movers) if m.kind in ("drone", "vehicle")]
+        self.names = [m.name for m in movers]
+        self.kinds = [m.kind for m in movers]
+        self.true_paths: dict[int, list] = {i: [] for i in range(len(movers))}
+        self.track_paths: dict[int, list] = {}
+        self.visible_frames = {i: 0 for i in self.judged}
+        self.detected_frames = {i: 0 for i in self.judged}
+        self.errors: list[float] = []
+        self.times: list[float] = []
+        self.vacate_pending: dict[tuple, float] = {}
+        self.vacate_delays: list[float] = []
+        self.closest: list[dict] = []
+        self.changes: list[_Change] = []
+        for c in getattr(scenario, "changes", []):
+            self.changes.append(_Change(c.kind, c.name, np.asarray(c.box, dtype=np.float64)[None]))
+        if self.scene is not None:
+            for m in self.scene.new_obstacles:
+                tower = m.boxes_at(0.0)[:1]  # the crane's tower; its boom moves
+                self.changes.append(_Change("added", f"{m.name} tower", tower))
+        for ch in self.changes:
+            if ch.kind == "added":
+                ch.object_ids = self._object_ids(ch.boxes)
+
+    def _object_ids(self, boxes: np.ndarray) -> set[int]:
+        """Object ids (``1 + box index`` in the rendered scene) of static boxes equal to ``boxes``."""
+        ids = set()
+        for b in boxes:
+            hit = np.flatnonzero(np.all(np.abs(self.static.boxes - b) < 1e-6, axis=1))
+            ids.update(int(k) + 1 for k in hit)
+        return ids
+
+    def observe(
+        self,
+        time_s: float,
+        cam_position: np.ndarray,
+        object_id: np.ndarray,
+        snapshot,
+        tracks: list,
+        occ_map: OccupancyMap,
+        est_from_true: Rigid3 | None,
+    ) -> None:
+        """One cycle: the true camera position (3,), the left image's object ids (H, W) of the
+        rendered ``snapshot``, the tracker's tracks (estimated world) and the drone's map."""
+        t = float(time_s)
+        self.times.append(t)
+        to_est = (lambda p: p) if est_from_true is None else (lambda p: est_from_true.apply(p))  # noqa: E731
+        live = [tr for tr in tracks if tr.confirmed and not tr.static]
+        for tr in live:
+            self.track_paths.setdefault(int(tr.track_id), []).append([t, *np.round(tr.position, 3).tolist()])
+        if self.scene is not None:
+            mover_px = self.scene.mover_of_object_id(snapshot, object_id)
+            counts = np.bincount(mover_px[mover_px >= 0].ravel(), minlength=len(self.names))
+            states = self.scene.mover_states(t)
+            for i, st in enumerate(states):
+                self.true_paths[i].append([t, *np.round(st["center"], 3).tolist()])
+            for i in self.judged:
+                m = self.scene.movers[i]
+                d = float(m.distance(np.asarray(cam_position, dtype=np.float64)[None], t)[0])
+                if counts[i] < MIN_VISIBLE_PX or d > DETECTION_RANGE_M:
+                    continue
+                self.visible_frames[i] += 1
+                c = to_est(np.asarray(states[i]["center"], dtype=np.float64)[None])[0]
+                if live:
+                    err = np.array([np.linalg.norm(tr.position - c) for tr in live])
+                    k = int(np.argmin(err))
+                    if err[k] <= MATCH_RADIUS_M:
+                        self.detected_frames[i] += 1
+                        self.errors.append(float(err[k]))
+            self._vacated(t, occ_map, to_est)
+        self._changes(t, cam_position, object_id, occ_map, to_est)
+
+    def _vacated(self, t: float, occ_map: OccupancyMap, to_est) -> None:
+        """Voxels the map holds occupied inside a mover now; once the mover leaves, time to free."""
+        boxes = np.concatenate([self.scene.movers[i].boxes_at(t) for i in self.judged]) if self.judged else None
+        inside = set()
+        if boxes is not None and len(boxes):
+            vox = _voxels_of_boxes(boxes, self.v)
+            if len(vox):
+                centres = to_est((vox + 0.5) * self.v)
+                occ = occ_map.state_at(centres) == 1
+                inside = {tuple(x) for x in vox}
+                for x in vox[occ]:
+                    self.vacate_pending.setdefault(tuple(x), -1.0)  # occupied while the mover is there
+        keys = list(self.vacate_pending)
+        if not keys:
+            return
+        st = occ_map.state_at(to_est((np.array(keys, dtype=np.float64) + 0.5) * self.v))
+        for key, s in zip(keys, st):
+            if key in inside:
+                self.vacate_pending[key] = -1.0
+                continue
+            t_left = self.vacate_pending[key]
+            if t_left < 0:
+                self.vacate_pending[key] = t_left = t
+            if s != 1:
+                self.vacate_delays.append(t - t_left)
+                del self.vacate_pending[key]
+
+    def _changes(self, t, cam_position, object_id, occ_map: OccupancyMap, to_est) -> None:
+        for ch in self.changes:
+            vox = _voxels_of_boxes(ch.boxes, self.v)
+            if len(vox) == 0:
+                continue
+            lo = occ_map.log_odds_at(to_est((vox + 0.5) * self.v))
+            if ch.kind == "added":
+                if ch.t_in_range is None and ch.object_ids:
+                    px = int(np.isin(object_id, list(ch.object_ids)).sum())
+                    b = ch.boxes[0]
+                    d = float(np.linalg.norm(np.clip(cam_position, b[:3], b[3:]) - cam_position))
+                    if px >= MIN_VISIBLE_PX and d <= self.range_m:
+                        ch.t_in_range = t
+                if ch.t_mapped is None and ch.t_in_range is not None:
+                    with np.errstate(invalid="ignore"):
+                        if int(np.count_nonzero(lo >= 0.0)) >= MAPPED_VOXELS:
+                            ch.t_mapped = t
+            else:
+                with np.errstate(invalid="ignore"):
+                    touched = np.flatnonzero(lo < PRIOR_OCCUPIED_LOG_ODDS - 1e-3)
+                    free = lo < 0.0
+                for k in touched:
+                    key = tuple(vox[k])
+                    ch.touched.setdefault(key, t)
+                    if free[k] and key not in ch.freed:
+                        ch.freed[key] = t
+
+    def summary(self, occ_map: OccupancyMap, end_time_s: float, est_from_true: Rigid3 | None) -> dict:
+        """The figures for ``mission.json`` (see the module docstring)."""
+        to_est = (lambda p: p) if est_from_true is None else (lambda p: est_from_true.apply(p))  # noqa: E731
+        vis = sum(self.visible_frames.values())
+        det = sum(self.detected_frames.values())
+        out: dict = {
+            "moving_obstacles": len(self.names),
+            "mover_kinds": {k: self.kinds.count(k) for k in sorted(set(self.kinds))},
+            "mover_visible_frames": vis,
+            "mover_detection_recall": round(det / vis, 4) if vis else None,
+            "mover_position_error_m": {
+                "median": round(float(np.median(self.errors)), 3) if self.errors else None,
+                "p95": round(float(np.percentile(self.errors, 95)), 3) if self.errors else None,
+                "max": round(float(np.max(self.errors)), 3) if self.errors else None,
+            },
+            "mover_recall_by_mover": {
+                self.names[i]: round(self.detected_frames[i] / self.visible_frames[i], 3)
+                for i in self.judged
+                if self.visible_frames[i]
+            },
+        }
+        swept_total = swept_known = phantom = 0
+        if self.scene is not None and self.judged:
+            t_end = end_time_s - 2.0
+            for i in self.judged:
+                m = self.scene.movers[i]
+                if t_end <= 0:
+                    continue
+                ts = np.arange(0.0, t_end, 0.1)
+                vox = _voxels_of_boxes(m.boxes_many(ts).reshape(-1, 6), self.v) if len(ts) else np.zeros((0, 3))
+                if len(vox) == 0:
+                    continue
+                centres = (vox + 0.5) * self.v
+                vox = vox[self.static.distance(centres, include_ground=True) > self.v]
+                if len(vox) == 0:
+                    continue
+                st = occ_map.state_at(to_est((vox + 0.5) * self.v))
+                swept_total += len(vox)
+                swept_known += int(np.count_nonzero(st >= 0))
+                phantom += int(np.count_nonzero(st == 1))
+        out["phantom_trail"] = {
+            "swept_voxels": swept_total,
+            "observed_swept_voxels": swept_known,
+            "occupied_voxels": phantom,
+            "fraction_of_observed": round(phantom / swept_known, 5) if swept_known else None,
+            "fraction_of_swept": round(phantom / swept_total, 5) if swept_total else None,
+        }
+        d = np.asarray(self.vacate_delays)
+        out["vacated_free_s"] = {
+            "voxels": int(len(d)),
+            "still_occupied": int(len(self.vacate_pending)),
+            "median": round(float(np.median(d)), 3) if len(d) else None,
+            "max": round(float(d.max()), 3) if len(d) else None,
+        }
+        changes = []
+        for ch in self.changes:
+            row = {"kind": ch.kind, "name": ch.name, "box": np.round(ch.boxes[0], 2).tolist()}
+            if ch.kind == "added":
+                row["in_range_s"] = ch.t_in_range
+                row["mapped_s"] = ch.t_mapped
+                row["delay_s"] = (
+                    round(ch.t_mapped - ch.t_in_range, 3)
+                    if ch.t_mapped is not None and ch.t_in_range is not None
+                    else None
+                )
+            else:
+                delays = [ch.freed[k] - ch.touched[k] for k in ch.freed]
+                row["touched_voxels"] = len(ch.touched)
+                row["freed_voxels"] = len(ch.freed)
+                row["free_delay_s_median"] = round(float(np.median(delays)), 3) if delays else None
+                row["free_delay_s_max"] = round(float(np.max(delays)), 3) if delays else None
+            changes.append(row)
+        out["changes_seen"] = changes
+        return out
