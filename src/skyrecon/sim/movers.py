@@ -79,7 +79,9 @@ def _static_overlap(city: City, boxes: np.ndarray, margin: float = 0.0) -> np.nd
             out[i : i + 4096] |= _overlap(chunk, sb, margin).any(axis=1)
     c = city.cylinders
     if len(c):
-        cb = np.stack([c[:, 0] - c[:, 2], c[:, 1] - c[:, 2], c[:, 3], c[:, 0] + c[:, 2], c[:, 1] + c[:, 2], c[:, 4]], 1)
+        cb = np.stack(
+            [c[:, 0] - c[:, 2], c[:, 1] - c[:, 2], c[:, 3], c[:, 0] + c[:, 2], c[:, 1] + c[:, 2], c[:, 4]], 1
+        )
         keep = np.all((cb[:, :3] < hi_all) & (cb[:, 3:] > lo_all), axis=1)
         c = c[keep]
         for ci in c:
@@ -332,7 +334,9 @@ class Mover:
         if self.kind not in MOVER_KINDS:
             raise InputError(f"mover {self.name!r}: kind must be one of {MOVER_KINDS}, got {self.kind!r}")
         if (self.kind == "crane") != isinstance(self.motion, CraneMotion):
-            raise InputError(f"mover {self.name!r}: a crane needs a CraneMotion, other kinds a PolylineMotion")
+            raise InputError(
+                f"mover {self.name!r}: a crane needs a CraneMotion, other kinds a PolylineMotion"
+            )
         self.size_m = np.asarray(self.size_m, dtype=np.float64).reshape(3)
         self.albedo = np.asarray(self.albedo, dtype=np.float64).reshape(3)
         self.accent = np.asarray(self.accent, dtype=np.float64).reshape(3)
@@ -493,7 +497,8 @@ class MovingScene:
         s = self.static
         n = len(s.boxes)
         self._box_mover = np.concatenate(
-            [np.full(n, -1, np.int32)] + [np.full(m.num_boxes, i, np.int32) for i, m in enumerate(self.movers)]
+            [np.full(n, -1, np.int32)]
+            + [np.full(m.num_boxes, i, np.int32) for i, m in enumerate(self.movers)]
         )
         k = len(self._box_mover) - n
         mat = np.concatenate([[m.material] * m.num_boxes for m in self.movers]) if k else np.zeros(0)
@@ -670,9 +675,21 @@ def _check_static(city: City, m: Mover, horizon_s: float | None = None, margin: 
 
 
 # ----- generation ---------------------------------------------------------------------------------
-_DRONE_COLOURS = [(0.9, 0.45, 0.1), (0.85, 0.15, 0.15), (0.15, 0.55, 0.85), (0.95, 0.85, 0.2), (0.6, 0.2, 0.7)]
-_CAR_COLOURS = [(0.8, 0.1, 0.1), (0.1, 0.25, 0.6), (0.9, 0.9, 0.88), (0.15, 0.15, 0.17), (0.2, 0.5, 0.25),
-                (0.75, 0.6, 0.15)]
+_DRONE_COLOURS = [
+    (0.9, 0.45, 0.1),
+    (0.85, 0.15, 0.15),
+    (0.15, 0.55, 0.85),
+    (0.95, 0.85, 0.2),
+    (0.6, 0.2, 0.7),
+]
+_CAR_COLOURS = [
+    (0.8, 0.1, 0.1),
+    (0.1, 0.25, 0.6),
+    (0.9, 0.9, 0.88),
+    (0.15, 0.15, 0.17),
+    (0.2, 0.5, 0.25),
+    (0.75, 0.6, 0.15),
+]
 _CRANE_COLOUR = (0.92, 0.72, 0.08)
 
 
@@ -773,8 +790,13 @@ def _crane_sector(
     th = np.arange(nbin) * (2.0 * math.pi / nbin)
     r = np.arange(0.0, length + 1e-9, 0.5)
     xy = pivot_xy + r[None, :, None] * np.stack([np.cos(th), np.sin(th)], axis=1)[:, None, :]  # (B, R, 2)
-    ok = np.all((xy[..., 0] > extent[0]) & (xy[..., 0] < extent[2]) & (xy[..., 1] > extent[1])
-                & (xy[..., 1] < extent[3]), axis=1)
+    ok = np.all(
+        (xy[..., 0] > extent[0])
+        & (xy[..., 0] < extent[2])
+        & (xy[..., 1] > extent[1])
+        & (xy[..., 1] < extent[3]),
+        axis=1,
+    )
     q = np.maximum(np.maximum(items[:, :2] - pivot_xy, pivot_xy - items[:, 3:5]), 0.0)
     near = items[(np.linalg.norm(q, axis=1) < length + 2.5) & (items[:, 5] > h - 3.0)]
     if len(near):
@@ -801,8 +823,13 @@ def _crane_sector(
 
 
 def _place_crane(
-    city: City, rng: np.random.Generator, path: np.ndarray, start: np.ndarray, goal: np.ndarray,
-    band: tuple[float, float], attempts: int = 400,
+    city: City,
+    rng: np.random.Generator,
+    path: np.ndarray,
+    start: np.ndarray,
+    goal: np.ndarray,
+    band: tuple[float, float],
+    attempts: int = 400,
 ) -> Mover | None:
     """A tower crane on a block (on the ground or on one building's roof) whose boom sweeps over the path
     when such a spot exists (else anywhere), at 16-24 m and >= 3 m above everything it sweeps over: round
@@ -811,7 +838,9 @@ def _place_crane(
     if len(bx) == 0 or len(by) == 0:
         return None
     sb, c = city.boxes, city.cylinders
-    cyl_b = np.stack([c[:, 0] - c[:, 2], c[:, 1] - c[:, 2], c[:, 3], c[:, 0] + c[:, 2], c[:, 1] + c[:, 2], c[:, 4]], 1)
+    cyl_b = np.stack(
+        [c[:, 0] - c[:, 2], c[:, 1] - c[:, 2], c[:, 3], c[:, 0] + c[:, 2], c[:, 1] + c[:, 2], c[:, 4]], 1
+    )
     items = np.concatenate([sb, cyl_b.reshape(-1, 6)])
     h_cap = min(24.0, band[1] - 2.0)
     cum = _path_arc(path) if len(path) >= 2 else np.zeros(1)
@@ -822,7 +851,9 @@ def _place_crane(
             p, d = _path_at(path, cum, rng.uniform(0.0, cum[-1]))
             off = rng.uniform(6.0, length - 5.0) * rng.choice([-1.0, 1.0])
             x, y = p[0] - d[1] * off, p[1] + d[0] * off
-            inb = np.any((bx[:, 0] + 1.5 < x) & (x < bx[:, 1] - 1.5)) and np.any((by[:, 0] + 1.5 < y) & (y < by[:, 1] - 1.5))
+            inb = np.any((bx[:, 0] + 1.5 < x) & (x < bx[:, 1] - 1.5)) and np.any(
+                (by[:, 0] + 1.5 < y) & (y < by[:, 1] - 1.5)
+            )
             if not inb:
                 continue
         else:
@@ -861,9 +892,20 @@ def _place_crane(
             theta0, phase = rng.uniform(0.0, 2.0 * math.pi), 0.0
         else:
             phase = rng.uniform(0.0, 2.0 * sweep)
-        motion = CraneMotion(np.array([x, y, h]), base, length, omega, theta0, sweep_rad=sweep, phase_rad=phase)
-        m = Mover("crane-0", "crane", motion, np.zeros(3), MAT_METAL, _colour(rng, [_CRANE_COLOUR]),
-                  np.array([0.2, 0.2, 0.2]), 0.5, new_since_map=True)
+        motion = CraneMotion(
+            np.array([x, y, h]), base, length, omega, theta0, sweep_rad=sweep, phase_rad=phase
+        )
+        m = Mover(
+            "crane-0",
+            "crane",
+            motion,
+            np.zeros(3),
+            MAT_METAL,
+            _colour(rng, [_CRANE_COLOUR]),
+            np.array([0.2, 0.2, 0.2]),
+            0.5,
+            new_since_map=True,
+        )
         if _keeps_off_endpoints(m, start, goal) and _in_city(city, m):
             return m
     return None
@@ -882,8 +924,13 @@ def _drone_polyline(
 
 
 def _crossing_drone(
-    city: City, rng: np.random.Generator, name: str, path: np.ndarray, band: tuple[float, float],
-    cruise_speed_mps: float, extra: list,
+    city: City,
+    rng: np.random.Generator,
+    name: str,
+    path: np.ndarray,
+    band: tuple[float, float],
+    cruise_speed_mps: float,
+    extra: list,
 ) -> Mover | None:
     """A drone whose polyline crosses the path at 45-90 degrees within 1.5 m of its altitude, passing the
     crossing point when a drone flying the path at 0.5-0.7 x cruise speed would."""
@@ -893,7 +940,9 @@ def _crossing_drone(
     s = rng.uniform(lo, hi)
     p, d = _path_at(path, cum, s)
     ang = math.radians(rng.uniform(45.0, 90.0)) * rng.choice([-1.0, 1.0])
-    u = np.array([d[0] * math.cos(ang) - d[1] * math.sin(ang), d[0] * math.sin(ang) + d[1] * math.cos(ang), 0.0])
+    u = np.array(
+        [d[0] * math.cos(ang) - d[1] * math.sin(ang), d[0] * math.sin(ang) + d[1] * math.cos(ang), 0.0]
+    )
     z = float(np.clip(p[2] + rng.uniform(-1.5, 1.5), band[0] + 1.0, band[1] - 1.0))
     if abs(z - p[2]) > 2.0:
         return None
@@ -907,8 +956,16 @@ def _crossing_drone(
     length = float(np.linalg.norm(pts[1] - pts[0]))
     s_at_cross = arc if rng.random() < 0.5 else 2.0 * length - arc  # outbound or on the way back
     phase = float(np.mod(s_at_cross - speed * t_cross, 2.0 * length))
-    return Mover(name, "drone", PolylineMotion(pts, speed, False, phase), np.array(DRONE_SIZE_M), MAT_METAL,
-                 _colour(rng, _DRONE_COLOURS), np.array([0.15, 0.15, 0.17]), 0.3)
+    return Mover(
+        name,
+        "drone",
+        PolylineMotion(pts, speed, False, phase),
+        np.array(DRONE_SIZE_M),
+        MAT_METAL,
+        _colour(rng, _DRONE_COLOURS),
+        np.array([0.15, 0.15, 0.17]),
+        0.3,
+    )
 
 
 def _roaming_drone(
@@ -937,8 +994,16 @@ def _roaming_drone(
             pts = np.vstack([pts, pts[1] + b * w])
     motion = PolylineMotion(pts, rng.uniform(2.0, DRONE_MAX_SPEED_MPS), False, 0.0)
     motion = PolylineMotion(pts, motion.speed_mps, False, rng.uniform(0.0, motion.cycle_m))
-    return Mover(name, "drone", motion, np.array(DRONE_SIZE_M), MAT_METAL, _colour(rng, _DRONE_COLOURS),
-                 np.array([0.15, 0.15, 0.17]), 0.3)
+    return Mover(
+        name,
+        "drone",
+        motion,
+        np.array(DRONE_SIZE_M),
+        MAT_METAL,
+        _colour(rng, _DRONE_COLOURS),
+        np.array([0.15, 0.15, 0.17]),
+        0.3,
+    )
 
 
 def _vehicle(city: City, rng: np.random.Generator, name: str, used: set) -> Mover | None:
@@ -970,8 +1035,16 @@ def _vehicle(city: City, rng: np.random.Generator, name: str, used: set) -> Move
     motion = PolylineMotion(np.array(pts), rng.uniform(5.0, 12.0), True, 0.0)
     motion = PolylineMotion(motion.points, motion.speed_mps, True, rng.uniform(0.0, motion.cycle_m))
     used.add((along_x, k))
-    return Mover(name, "vehicle", motion, 2.0 * half, MAT_METAL, _colour(rng, _CAR_COLOURS),
-                 np.array([0.1, 0.1, 0.12]), 0.5)
+    return Mover(
+        name,
+        "vehicle",
+        motion,
+        2.0 * half,
+        MAT_METAL,
+        _colour(rng, _CAR_COLOURS),
+        np.array([0.1, 0.1, 0.12]),
+        0.5,
+    )
 
 
 def make_movers(
