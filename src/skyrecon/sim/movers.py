@@ -65,7 +65,7 @@ def _overlap(a: np.ndarray, b: np.ndarray, margin: float = 0.0) -> np.ndarray:
 
 
 def _static_overlap(city: City, boxes: np.ndarray, margin: float = 0.0) -> np.ndarray:
-    """(K,) bool: box k (K, 6), grown by ``margin`` metres, overlaps a static box or cylinder (open overlap)."""
+    """(K,) bool: box k (K, 6), grown by ``margin`` metres, overlaps a static box or cylinder (open)."""
     out = np.zeros(len(boxes), dtype=bool)
     if len(boxes) == 0:
         return out
