@@ -8,7 +8,8 @@ static occupancy map they would leave phantom trails, and the planner would not 
    are back-projected to world points. A point is a *motion candidate* when the static map has
    observed the space there as free (its voxel is FREE, and so is the voxel ``behind_m`` farther
    along the viewing ray, so that a point of a static surface pushed forward by depth noise is not
-   a candidate), or when it lies in the gate (predicted box, inflated) of a confirmed moving track
+   a candidate, and so are the voxels a little away from it along the axes, so that the silhouette
+   of a static object is not one), or when it lies in the gate (predicted box, inflated) of a confirmed moving track
    and does not look like a static surface (its voxel OCCUPIED with no free space behind it).
    Candidates are voxelised at ``cluster_voxel_m`` and grouped into 26-connected components;
    each component with enough points is a :class:`MoverDetection`.
@@ -54,6 +55,7 @@ _HALF_NEIGHBOURS = np.array(
     [(dx, dy, dz) for dx in (-1, 0, 1) for dy in (-1, 0, 1) for dz in (-1, 0, 1) if (dx, dy, dz) > (0, 0, 0)],
     dtype=np.int64,
 )
+_AXIS_STEPS = np.concatenate([np.eye(3), -np.eye(3)])
 
 
 @dataclass(frozen=True)
@@ -69,7 +71,9 @@ class MoverSettings:
             considered, metres (beyond ``max_range_m`` stereo depth is too noisy).
         inside_m: the state of a point is read this far behind it along the viewing ray,
             metres, so that a surface lying on a voxel boundary reads as its occupied voxel and
-            not as the free voxel in front of it.
+            not as the free voxel in front of it; the states this far along +-x, +-y, +-z must
+            be free too (so that the silhouette of a static object, whose rays graze past it
+            into free space, is not a candidate).
         behind_m: the free-space test also looks this far behind the point along the viewing
             ray, metres (one map voxel of 0.5 m) ...
         depth_noise_frac, noise_sigmas: ... plus ``noise_sigmas * depth_noise_frac * range``, so
@@ -324,6 +328,12 @@ def detect_movers(
     states = occ_map.state_at(np.concatenate([pts + s.inside_m * unit_w, pts + unit_w * behind[:, None]]))
     here, back = states[: len(flat)], states[len(flat) :]
     cand = (here == FREE) & (back == FREE)
+    # a silhouette point of a static object (its ray grazes past the object into free space)
+    # has an occupied voxel within inside_m across the ray: look along the axes too
+    c1 = np.flatnonzero(cand)
+    if c1.size:
+        around = (pts[c1][None, :, :] + _AXIS_STEPS[:, None, :] * s.inside_m).reshape(-1, 3)
+        cand[c1] = np.all(occ_map.state_at(around).reshape(6, -1) == FREE, axis=0)
     if gates is not None and len(gates):
         g = np.asarray(gates, np.float64).reshape(-1, 6)
         lo, hi = pts.min(axis=0), pts.max(axis=0)
