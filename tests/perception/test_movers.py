@@ -253,3 +253,15 @@ def test_noisy_static_scene_has_no_false_movers():
         d[f.dynamic_mask] = np.nan
         occ.integrate_depth(d, CAM, pose)
     assert n_dets <= 5
+
+
+def test_vehicle_on_the_road():
+    """A car (4.5 x 1.9 x 1.6 m) at 8 m/s that emerges from behind a building: one track."""
+    half = np.array([2.25, 0.95, 0.8])
+    v = np.array([0.0, 8.0, 0.0])
+    run = run_mover(lambda t: np.array([14.0, -10.0, 0.8]) + v * t, 25, half=half)
+    ids = {t.track_id for f in run.frames for t in f.tracks}
+    assert len(ids) == 1
+    for f in run.frames[10:]:
+        (trk,) = f.moving_tracks
+        assert np.linalg.norm(trk.velocity[:2] - v[:2]) <= 1.0

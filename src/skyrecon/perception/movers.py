@@ -80,7 +80,7 @@ class MoverSettings:
             that depth noise (standard deviation ``depth_noise_frac`` of the range) does not
             make points of static surfaces look like they float in free space.
         gate_m: association gate on the centre distance, metres (grows with the track's
-            position uncertainty, up to ``3 * gate_m``).
+            position uncertainty, up to ``3 * gate_m``, plus the track's largest half size).
         gate_inflate_m: a confirmed moving track's predicted box, inflated by this, metres, is
             the region where its points are candidates even over non-free map space.
         confirm_hits: detections before a track is confirmed.
@@ -473,7 +473,8 @@ class MoverTracker:
 
     def _gate_radius(self, t: MoverTrack) -> float:
         g = self.settings.gate_m
-        return min(g + 3.0 * t.position_sigma, 3.0 * g)
+        # a large mover seen in fragments (partly occluded) has its fragments' centres far apart
+        return min(g + 3.0 * t.position_sigma, 3.0 * g) + float(t.half_size.max())
 
     # ----- per frame --------------------------------------------------------------------------
     def update(
