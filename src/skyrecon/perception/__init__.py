@@ -2,9 +2,18 @@
 
 Today stereo depth (:class:`StereoDepth` with the rules in :class:`PerceptionSettings`, presets
 ``mapping()`` for ``skyrecon map`` and ``flight()`` for the delivery loop); visual odometry
-is meant to live here too.
+is meant to live here too; movers (:class:`MoverTracker`): what moves in the depth images,
+kept out of the static map and tracked for the planner.
 """
 
+from skyrecon.perception.movers import (
+    MoverDetection,
+    MoverFrame,
+    MoverSettings,
+    MoverTrack,
+    MoverTracker,
+    detect_movers,
+)
 from skyrecon.perception.settings import PerceptionSettings, stereo_hit_range_m
 from skyrecon.perception.stereo_depth import (
     DepthFrame,
@@ -16,6 +25,12 @@ from skyrecon.perception.stereo_depth import (
 
 __all__ = [
     "DepthFrame",
+    "MoverDetection",
+    "MoverFrame",
+    "MoverSettings",
+    "MoverTrack",
+    "MoverTracker",
+    "detect_movers",
     "PerceptionSettings",
     "StereoDepth",
     "disparity_discontinuities",

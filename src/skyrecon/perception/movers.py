@@ -1,0 +1,621 @@
+"""Movers: what moves in the depth images, told apart from what stands, and tracked.
+
+A delivery drone shares the city with other drones, vehicles and cranes. Integrated into the
+static occupancy map they would leave phantom trails, and the planner would not know they move.
+:class:`MoverTracker` looks at every depth frame against the static map:
+
+1. **Detection** (:func:`detect_movers`): valid depth pixels (finite, within ``max_range_m``)
+   are back-projected to world points. A point is a *motion candidate* when the static map has
+   observed the space there as free (its voxel is FREE, and so is the voxel ``behind_m`` farther
+   along the viewing ray, so that a point of a static surface pushed forward by depth noise is not
+   a candidate, and so are the voxels a little away from it along the axes, so that the silhouette
+   of a static object is not one), or when it lies in the gate (predicted box, inflated) of a confirmed moving track
+   and does not look like a static surface (its voxel OCCUPIED with no free space behind it).
+   Candidates are voxelised at ``cluster_voxel_m`` and grouped into 26-connected components;
+   each component with enough points is a :class:`MoverDetection`.
+2. **Tracking**: one constant-velocity Kalman filter per track (world frame, state position and
+   velocity), association by :func:`scipy.optimize.linear_sum_assignment` on the centre
+   distance with a gate; tracks are confirmed after ``confirm_hits`` detections, coast (predicted
+   forward) for up to ``coast_s`` when unseen, and a cluster that stays still is released as a
+   *new static obstacle* (its pixels go back into the static map).
+3. **Outputs** (:class:`MoverFrame`): the detections, copies of the tracks, and the
+   ``dynamic_mask`` of pixels to keep out of the static map (``depth[mask] = NaN`` before
+   :meth:`~skyrecon.mapping.OccupancyMap.integrate_depth`). For the planner,
+   :meth:`MoverTracker.predict` (predicted paths) and :meth:`MoverTracker.keep_out` (capsules).
+
+Frames and units: world frame z up, metres, seconds; camera frame x right, y down, z forward
+(OpenCV); poses are ``world_from_cam`` (``p_world = R @ p_cam + t``).
+
+Known limits: the visible part of a mover is what is measured, so a detection's centre is biased
+towards the camera (the tracker corrects it by the track's remembered size); the parts of a mover
+that share a voxel with a static surface (the lowest ~0.5 m of a vehicle on the road) are not
+candidates and stay out of the mask.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, fields, replace
+from typing import TYPE_CHECKING
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+from skyrecon.core.intrinsics import Intrinsics
+from skyrecon.core.rigid import Rigid3
+from skyrecon.errors import InputError
+
+if TYPE_CHECKING:  # skyrecon.mapping imports skyrecon.perception: import it late, in the functions
+    from skyrecon.mapping.occupancy import OccupancyMap
+
+# the 13 "forward" neighbours of a voxel: with their opposites, its 26 neighbours
+_HALF_NEIGHBOURS = np.array(
+    [(dx, dy, dz) for dx in (-1, 0, 1) for dy in (-1, 0, 1) for dz in (-1, 0, 1) if (dx, dy, dz) > (0, 0, 0)],
+    dtype=np.int64,
+)
+_AXIS_STEPS = np.concatenate([np.eye(3), -np.eye(3)])
+
+
+@dataclass(frozen=True)
+class MoverSettings:
+    """How movers are detected and tracked (defaults for 320x240 depth at 10 Hz, 0.5 m map voxels).
+
+    Attributes:
+        stride: use every ``stride``-th pixel of the depth image (rows and columns) for detection;
+            the dynamic mask is still filled at full resolution (1: every pixel).
+        cluster_voxel_m: voxel edge of the clustering grid, metres (26-connected components).
+        min_points: clusters with fewer candidate points (at the detection stride) are dropped.
+        min_range_m, max_range_m: only pixels whose Euclidean range is in this interval are
+            considered, metres (beyond ``max_range_m`` stereo depth is too noisy).
+        inside_m: the state of a point is read this far behind it along the viewing ray,
+            metres, so that a surface lying on a voxel boundary reads as its occupied voxel and
+            not as the free voxel in front of it; the states this far along +-x, +-y, +-z must
+            be free too (so that the silhouette of a static object, whose rays graze past it
+            into free space, is not a candidate).
+        behind_m: the free-space test also looks this far behind the point along the viewing
+            ray, metres (one map voxel of 0.5 m) ...
+        depth_noise_frac, noise_sigmas: ... plus ``noise_sigmas * depth_noise_frac * range``, so
+            that depth noise (standard deviation ``depth_noise_frac`` of the range) does not
+            make points of static surfaces look like they float in free space.
+        gate_m: association gate on the centre distance, metres (grows with the track's
+            position uncertainty, up to ``3 * gate_m``, plus the track's largest half size).
+        gate_inflate_m: a confirmed moving track's predicted box, inflated by this, metres, is
+            the region where its points are candidates even over non-free map space.
+        confirm_hits: detections before a track is confirmed.
+        coast_s: a track not seen is predicted forward for up to this long, seconds, then
+            dropped (tentative, not yet confirmed tracks are dropped at their first miss).
+        moving_speed_mps: a confirmed track faster than this is moving, m/s.
+        static_speed_mps, static_frames: a track with at least ``static_frames`` detections
+            that never moved and whose speed (filter estimate and mean displacement since its
+            first detection) is below ``static_speed_mps`` is released as a new static obstacle.
+        accel_noise_mps2: process noise, white acceleration standard deviation, m/s^2.
+        meas_noise_m: measurement noise of a detection centre, standard deviation, metres.
+        init_speed_sigma_mps: velocity standard deviation of a new track, m/s.
+        size_memory: a track's half size is ``max(detection, size_memory * old + (1 -
+            size_memory) * detection)`` per axis (a decaying maximum).
+        keep_out_sigmas: keep-out radius margin, in standard deviations of the predicted position.
+    """
+
+    stride: int = 1
+    cluster_voxel_m: float = 0.5
+    min_points: int = 12
+    min_range_m: float = 0.3
+    max_range_m: float = 20.0
+    inside_m: float = 0.15
+    behind_m: float = 0.5
+    depth_noise_frac: float = 0.02
+    noise_sigmas: float = 2.5
+    gate_m: float = 2.0
+    gate_inflate_m: float = 0.5
+    confirm_hits: int = 2
+    coast_s: float = 3.0
+    moving_speed_mps: float = 0.5
+    static_speed_mps: float = 0.3
+    static_frames: int = 3
+    accel_noise_mps2: float = 3.0
+    meas_noise_m: float = 0.2
+    init_speed_sigma_mps: float = 8.0
+    size_memory: float = 0.97
+    keep_out_sigmas: float = 2.0
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if not np.isfinite(v) or v < 0:
+                raise InputError(f"mover setting {f.name} must be finite and >= 0, got {v}")
+        if int(self.stride) < 1 or int(self.confirm_hits) < 1 or int(self.static_frames) < 1:
+            raise InputError("stride, confirm_hits and static_frames must be >= 1")
+        if self.cluster_voxel_m <= 0 or self.meas_noise_m <= 0 or self.max_range_m <= self.min_range_m:
+            raise InputError("need cluster_voxel_m > 0, meas_noise_m > 0 and max_range_m > min_range_m")
+        if self.static_speed_mps > self.moving_speed_mps:
+            raise InputError("static_speed_mps must not exceed moving_speed_mps")
+        if not 0 <= self.size_memory < 1:
+            raise InputError(f"size_memory must lie in [0, 1), got {self.size_memory}")
+
+
+@dataclass
+class MoverDetection:
+    """One cluster of motion candidates in one frame.
+
+    Attributes:
+        center: (3,) world centre of the axis-aligned bounding box of its points, metres.
+        half_size: (3,) half extents of that box, metres.
+        n_points: candidate points in the cluster (at the detection stride).
+        pixel_mask: (H, W) bool, its pixels in the depth image (full resolution).
+        track_id: the track it was associated with (or started), -1 before tracking.
+    """
+
+    center: np.ndarray
+    half_size: np.ndarray
+    n_points: int
+    pixel_mask: np.ndarray
+    track_id: int = -1
+
+
+@dataclass
+class MoverTrack:
+    """A tracked object (world frame, metres, seconds).
+
+    Attributes:
+        track_id: unique within a tracker, from 1.
+        position, velocity: (3,) filter estimate of the centre (m) and its velocity (m/s).
+        covariance: (6, 6) covariance of ``[position, velocity]``.
+        half_size: (3,) half extents, a decaying maximum of the detections', metres.
+        hits: detections associated so far.
+        age_s: time since the first detection, seconds; first_seen_s, last_seen_s: times of the
+            first and of the last detection, seconds.
+        first_position: (3,) centre of the first detection.
+        confirmed: has had ``confirm_hits`` detections.
+        moving: confirmed and faster than ``moving_speed_mps`` (as of the last update).
+        was_moving: has been moving at some time (such a track is never released as static).
+        static: released as a new static obstacle (its pixels go into the map).
+        coasting: not detected in the last frame (predicted only).
+    """
+
+    track_id: int
+    position: np.ndarray
+    velocity: np.ndarray
+    covariance: np.ndarray
+    half_size: np.ndarray
+    hits: int = 1
+    age_s: float = 0.0
+    first_seen_s: float = 0.0
+    last_seen_s: float = 0.0
+    first_position: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    confirmed: bool = False
+    moving: bool = False
+    was_moving: bool = False
+    static: bool = False
+    coasting: bool = False
+
+    @property
+    def speed(self) -> float:
+        """Speed of the filter estimate, m/s."""
+        return float(np.linalg.norm(self.velocity))
+
+    @property
+    def position_sigma(self) -> float:
+        """Largest standard deviation of the position estimate, metres."""
+        return float(np.sqrt(max(np.linalg.eigvalsh(self.covariance[:3, :3]).max(), 0.0)))
+
+    def copy(self) -> MoverTrack:
+        return replace(
+            self,
+            position=self.position.copy(),
+            velocity=self.velocity.copy(),
+            covariance=self.covariance.copy(),
+            half_size=self.half_size.copy(),
+            first_position=self.first_position.copy(),
+        )
+
+
+@dataclass
+class MoverFrame:
+    """What :meth:`MoverTracker.update` found in one frame.
+
+    Attributes:
+        time_s: the frame time, seconds.
+        detections: the clusters of this frame (``track_id`` set).
+        tracks: copies of the live tracks after the update.
+        dynamic_mask: (H, W) bool, pixels to keep out of the static map this frame: those of the
+            detections associated with moving or not yet decided tracks (not with static ones).
+        ms: wall time of the update, milliseconds.
+    """
+
+    time_s: float
+    detections: list[MoverDetection]
+    tracks: list[MoverTrack]
+    dynamic_mask: np.ndarray
+    ms: float
+
+    @property
+    def moving_tracks(self) -> list[MoverTrack]:
+        """The confirmed moving tracks of this frame."""
+        return [t for t in self.tracks if t.moving]
+
+
+# ----- detection ------------------------------------------------------------------------------
+_RAY_CACHE: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
+
+
+def _rays(intr: Intrinsics, stride: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per pixel of the strided grid: (h, w, 3) float32 camera rays with z = 1 and (h, w) their norms."""
+    key = (intr.width, intr.height, intr.fx, intr.fy, intr.cx, intr.cy, intr.skew, tuple(intr.dist), stride)
+    hit = _RAY_CACHE.get(key)
+    if hit is None:
+        rd = intr.ray_directions()[::stride, ::stride]
+        hit = (np.ascontiguousarray(rd, np.float32), np.linalg.norm(rd, axis=2).astype(np.float32))
+        if len(_RAY_CACHE) > 8:
+            _RAY_CACHE.clear()
+        _RAY_CACHE[key] = hit
+    return hit
+
+
+def _box_gates(tracks: list[MoverTrack], inflate_m: float) -> np.ndarray:
+    """(K, 6) ``[lo, hi]`` world boxes of the given tracks' predicted extents, inflated."""
+    if not tracks:
+        return np.zeros((0, 6))
+    p = np.array([t.position for t in tracks])
+    h = np.array([t.half_size for t in tracks]) + inflate_m
+    return np.concatenate([p - h, p + h], axis=1)
+
+
+def _components(vox: np.ndarray) -> np.ndarray:
+    """(M,) int component label of every voxel index (M, 3) int64 (26-connectivity, duplicates share)."""
+    lo = vox.min(axis=0) - 1
+    dims = vox.max(axis=0) - lo + 2
+    keys = ((vox[:, 0] - lo[0]) * dims[1] + (vox[:, 1] - lo[1])) * dims[2] + (vox[:, 2] - lo[2])
+    uniq, inverse = np.unique(keys, return_inverse=True)
+    n = len(uniq)
+    offs = (_HALF_NEIGHBOURS[:, 0] * dims[1] + _HALF_NEIGHBOURS[:, 1]) * dims[2] + _HALF_NEIGHBOURS[:, 2]
+    nk = uniq[None, :] + offs[:, None]  # (13, n): padding keeps neighbours from wrapping
+    idx = np.searchsorted(uniq, nk)
+    idx_c = np.minimum(idx, n - 1)
+    ok = (idx < n) & (uniq[idx_c] == nk)
+    src = np.broadcast_to(np.arange(n), nk.shape)[ok]
+    dst = idx_c[ok]
+    graph = coo_matrix((np.ones(len(src), np.int8), (src, dst)), shape=(n, n))
+    _, lab = connected_components(graph, directed=False)
+    return lab[inverse.reshape(-1)]
+
+
+def detect_movers(
+    depth_m: np.ndarray,
+    intrinsics: Intrinsics,
+    world_from_cam: Rigid3 | np.ndarray,
+    occ_map: OccupancyMap,
+    settings: MoverSettings | None = None,
+    gates: np.ndarray | None = None,
+) -> list[MoverDetection]:
+    """Clusters of depth points that lie in space the static map has seen free.
+
+    Args:
+        depth_m: (H, W) depth along the optical axis, metres; NaN invalid, inf no return.
+        intrinsics: the depth camera (size must match ``depth_m``).
+        world_from_cam: the camera pose (Rigid3 or 4x4 / 3x4 matrix).
+        occ_map: the static occupancy map (not modified).
+        settings: :class:`MoverSettings` (defaults if None).
+        gates: (K, 6) world boxes ``[xmin, ymin, zmin, xmax, ymax, zmax]`` in which points are
+            candidates even where the map is not free (unless they look like a static surface).
+    Returns:
+        The detections, largest first; ``track_id`` is -1.
+    """
+    from skyrecon.mapping.inputs import as_world_from_cam
+    from skyrecon.mapping.occupancy import FREE, OCCUPIED
+
+    s = settings or MoverSettings()
+    depth = np.asarray(depth_m)
+    intrinsics.check_image(depth, "depth")
+    pose = as_world_from_cam(world_from_cam)
+    st = int(s.stride)
+    H, W = depth.shape
+    rays, ray_norm = _rays(intrinsics, st)
+    d = np.asarray(depth[::st, ::st], np.float32)
+    with np.errstate(invalid="ignore"):
+        rng = d * ray_norm
+        valid = np.isfinite(rng) & (rng >= s.min_range_m) & (rng <= s.max_range_m)
+    flat = np.flatnonzero(valid)
+    if flat.size == 0:
+        return []
+    dv = d.reshape(-1)[flat].astype(np.float64)
+    rv = rays.reshape(-1, 3)[flat].astype(np.float64)
+    p_cam = rv * dv[:, None]
+    pts = p_cam @ pose.R.T + pose.t
+    unit_w = (rv / ray_norm.reshape(-1)[flat, None]) @ pose.R.T
+    behind = s.behind_m + s.noise_sigmas * s.depth_noise_frac * (dv * ray_norm.reshape(-1)[flat])
+    states = occ_map.state_at(np.concatenate([pts + s.inside_m * unit_w, pts + unit_w * behind[:, None]]))
+    here, back = states[: len(flat)], states[len(flat) :]
+    cand = (here == FREE) & (back == FREE)
+    # a silhouette point of a static object (its ray grazes past the object into free space)
+    # has an occupied voxel within inside_m across the ray: look along the axes too
+    c1 = np.flatnonzero(cand)
+    if c1.size:
+        around = (pts[c1][None, :, :] + _AXIS_STEPS[:, None, :] * s.inside_m).reshape(-1, 3)
+        cand[c1] = np.all(occ_map.state_at(around).reshape(6, -1) == FREE, axis=0)
+    if gates is not None and len(gates):
+        g = np.asarray(gates, np.float64).reshape(-1, 6)
+        lo, hi = pts.min(axis=0), pts.max(axis=0)
+        g = g[np.all(g[:, :3] <= hi, axis=1) & np.all(g[:, 3:] >= lo, axis=1)]
+        if len(g):
+            surface = (here == OCCUPIED) & (back != FREE)
+            rest = np.flatnonzero(~cand & ~surface)
+            q = pts[rest]
+            inside = np.zeros(len(rest), bool)
+            for box in g:
+                inside |= np.all((q >= box[:3]) & (q <= box[3:]), axis=1)
+            cand[rest[inside]] = True
+    ci = np.flatnonzero(cand)
+    if ci.size < s.min_points:
+        return []
+    cp = pts[ci]
+    labels = _components(np.floor(cp / s.cluster_voxel_m).astype(np.int64))
+    counts = np.bincount(labels)
+    keep = np.flatnonzero(counts >= s.min_points)
+    if keep.size == 0:
+        return []
+    keep = keep[np.argsort(-counts[keep], kind="stable")]
+    # pixel (row, col) of each candidate in the full image
+    h_s, w_s = d.shape
+    rows, cols = np.divmod(flat[ci], w_s)
+    rows, cols = rows * st, cols * st
+    out = []
+    for lab in keep:
+        m = labels == lab
+        q = cp[m]
+        lo, hi = q.min(axis=0), q.max(axis=0)
+        mask = np.zeros((H, W), bool)
+        mask[rows[m], cols[m]] = True
+        if st > 1:
+            mask = _fill_strided(mask, depth, intrinsics, pose, lo, hi, st, s.cluster_voxel_m / 2)
+        out.append(MoverDetection((lo + hi) / 2, (hi - lo) / 2, int(m.sum()), mask))
+    return out
+
+
+def _fill_strided(
+    mask: np.ndarray,
+    depth: np.ndarray,
+    intr: Intrinsics,
+    pose: Rigid3,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    st: int,
+    margin: float,
+) -> np.ndarray:
+    """Full-resolution pixel mask of a cluster found at stride ``st``: the pixels near a cluster
+    pixel (within one stride) whose point lies in the cluster's box ``[lo, hi]`` grown by ``margin``."""
+    from scipy.ndimage import binary_dilation
+
+    near = binary_dilation(mask, np.ones((2 * st + 1, 2 * st + 1), bool))
+    r, c = np.nonzero(near)
+    z = depth[r, c].astype(np.float64)
+    ok = np.isfinite(z)
+    r, c, z = r[ok], c[ok], z[ok]
+    xy = intr.normalized(np.stack([c, r], axis=1).astype(np.float64))
+    p = (np.concatenate([xy, np.ones((len(z), 1))], axis=1) * z[:, None]) @ pose.R.T + pose.t
+    inside = np.all((p >= lo - margin) & (p <= hi + margin), axis=1)
+    out = np.zeros_like(mask)
+    out[r[inside], c[inside]] = True
+    return out | mask
+
+
+# ----- tracking -------------------------------------------------------------------------------
+class MoverTracker:
+    """Detects and tracks movers frame by frame (see the module docstring).
+
+    Args:
+        settings: :class:`MoverSettings` (defaults if None).
+    """
+
+    def __init__(self, settings: MoverSettings | None = None):
+        self.settings = settings or MoverSettings()
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget all tracks."""
+        self._tracks: list[MoverTrack] = []
+        self._next_id = 1
+        self._time: float | None = None
+
+    @property
+    def tracks(self) -> list[MoverTrack]:
+        """The live tracks (not copies)."""
+        return self._tracks
+
+    @property
+    def time_s(self) -> float | None:
+        """Time of the last update, seconds (None before the first)."""
+        return self._time
+
+    # ----- Kalman filter ----------------------------------------------------------------------
+    def _predict_track(self, t: MoverTrack, dt: float) -> None:
+        if dt <= 0:
+            return
+        q = self.settings.accel_noise_mps2**2
+        F = np.eye(6)
+        F[:3, 3:] = dt * np.eye(3)
+        Q = np.zeros((6, 6))
+        Q[:3, :3] = (dt**4 / 4) * q * np.eye(3)
+        Q[:3, 3:] = Q[3:, :3] = (dt**3 / 2) * q * np.eye(3)
+        Q[3:, 3:] = dt**2 * q * np.eye(3)
+        t.position = t.position + dt * t.velocity
+        t.covariance = F @ t.covariance @ F.T + Q
+
+    def _correct_track(self, t: MoverTrack, z: np.ndarray) -> None:
+        r2 = self.settings.meas_noise_m**2
+        P = t.covariance
+        S = P[:3, :3] + r2 * np.eye(3)
+        K = P[:, :3] @ np.linalg.inv(S)
+        innov = z - t.position
+        x = np.concatenate([t.position, t.velocity]) + K @ innov
+        IKH = np.eye(6)
+        IKH[:, :3] -= K
+        t.covariance = IKH @ P @ IKH.T + r2 * K @ K.T  # Joseph form
+        t.position, t.velocity = x[:3], x[3:]
+
+    def _new_track(self, det: MoverDetection, time_s: float) -> MoverTrack:
+        s = self.settings
+        P = np.diag([s.meas_noise_m**2] * 3 + [s.init_speed_sigma_mps**2] * 3)
+        t = MoverTrack(
+            track_id=self._next_id,
+            position=det.center.copy(),
+            velocity=np.zeros(3),
+            covariance=P,
+            half_size=det.half_size.copy(),
+            first_seen_s=time_s,
+            last_seen_s=time_s,
+            first_position=det.center.copy(),
+            confirmed=s.confirm_hits <= 1,
+        )
+        self._next_id += 1
+        return t
+
+    def _gate_radius(self, t: MoverTrack) -> float:
+        g = self.settings.gate_m
+        # a large mover seen in fragments (partly occluded) has its fragments' centres far apart
+        return min(g + 3.0 * t.position_sigma, 3.0 * g) + float(t.half_size.max())
+
+    # ----- per frame --------------------------------------------------------------------------
+    def update(
+        self,
+        time_s: float,
+        depth_m: np.ndarray,
+        intrinsics: Intrinsics,
+        world_from_cam: Rigid3 | np.ndarray,
+        occ_map: OccupancyMap,
+    ) -> MoverFrame:
+        """Detect movers in one depth frame, update the tracks, and say which pixels to keep out.
+
+        Args:
+            time_s: frame time, seconds (non-decreasing).
+            depth_m: (H, W) depth along the optical axis, metres; NaN invalid, inf no return.
+            intrinsics: the depth camera.
+            world_from_cam: the camera pose (Rigid3 or 4x4 / 3x4 matrix).
+            occ_map: the static map *before* this frame is integrated (not modified).
+        Returns:
+            :class:`MoverFrame`.
+        """
+        from skyrecon.mapping.inputs import as_world_from_cam
+
+        t0 = time.perf_counter()
+        s = self.settings
+        time_s = float(time_s)
+        if self._time is not None and time_s < self._time:
+            raise InputError(f"mover tracker: time went backwards ({time_s} s after {self._time} s)")
+        dt = 0.0 if self._time is None else time_s - self._time
+        self._time = time_s
+        for t in self._tracks:
+            self._predict_track(t, dt)
+            t.age_s = time_s - t.first_seen_s
+        pose = as_world_from_cam(world_from_cam)
+        gated = [t for t in self._tracks if t.confirmed and t.moving]
+        dets = detect_movers(
+            depth_m, intrinsics, pose, occ_map, s, _box_gates(gated, s.gate_inflate_m + s.meas_noise_m)
+        )
+        self._associate(dets, time_s, pose.t)
+        # drop tracks unseen too long (tentative ones at their first miss)
+        live = []
+        for t in self._tracks:
+            t.coasting = t.last_seen_s < time_s
+            if t.coasting and (not t.confirmed or time_s - t.last_seen_s > s.coast_s):
+                continue
+            live.append(t)
+        self._tracks = live
+        by_id = {t.track_id: t for t in live}
+        mask = np.zeros(np.asarray(depth_m).shape, bool)
+        for det in dets:
+            tr = by_id.get(det.track_id)
+            if tr is not None and not tr.static:
+                mask |= det.pixel_mask
+        ms = (time.perf_counter() - t0) * 1e3
+        return MoverFrame(time_s, dets, [t.copy() for t in live], mask, ms)
+
+    def _associate(self, dets: list[MoverDetection], time_s: float, cam_center: np.ndarray) -> None:
+        """Match detections to tracks, correct matched tracks, start tracks for the others."""
+        s = self.settings
+        tracks = self._tracks
+        pairs: list[tuple[int, int]] = []
+        if tracks and dets:
+            pt = np.array([t.position for t in tracks])
+            pd = np.array([d.center for d in dets])
+            cost = np.linalg.norm(pt[:, None, :] - pd[None, :, :], axis=2)
+            gate = np.array([self._gate_radius(t) for t in tracks])
+            big = 1e6
+            cost = np.where(cost <= gate[:, None], cost, big)
+            ri, ci = linear_sum_assignment(cost)
+            pairs = [(int(i), int(j)) for i, j in zip(ri, ci) if cost[i, j] < big]
+        matched_d = set()
+        for i, j in pairs:
+            t, det = tracks[i], dets[j]
+            matched_d.add(j)
+            # the visible surface is nearer than the centre: push the centre away from the camera
+            # by the size the track remembers and this view does not show
+            side = np.sign(det.center - cam_center)
+            z = det.center + side * np.maximum(t.half_size - det.half_size, 0.0)
+            self._correct_track(t, z)
+            t.half_size = np.maximum(
+                det.half_size, s.size_memory * t.half_size + (1 - s.size_memory) * det.half_size
+            )
+            t.hits += 1
+            t.last_seen_s = time_s
+            det.track_id = t.track_id
+            self._classify(t, time_s)
+        for j, det in enumerate(dets):
+            if j not in matched_d:
+                t = self._new_track(det, time_s)
+                det.track_id = t.track_id
+                self._classify(t, time_s)
+                tracks.append(t)
+
+    def _classify(self, t: MoverTrack, time_s: float) -> None:
+        """Update ``confirmed``, ``moving``, ``static`` of a track just detected."""
+        s = self.settings
+        t.confirmed = t.confirmed or t.hits >= s.confirm_hits
+        speed = t.speed
+        t.moving = t.confirmed and not t.static and speed > s.moving_speed_mps
+        if t.static and speed > s.moving_speed_mps and t.hits > s.static_frames + 2:
+            t.static, t.moving = False, True
+        t.was_moving = t.was_moving or t.moving
+        if not t.static and not t.was_moving and t.hits >= s.static_frames and t.age_s > 0:
+            mean_speed = np.linalg.norm(t.position - t.first_position) / t.age_s
+            if speed < s.static_speed_mps and mean_speed < s.static_speed_mps:
+                t.static = True
+
+    # ----- for the planner ----------------------------------------------------------------------
+    def _planner_tracks(self) -> list[MoverTrack]:
+        return [t for t in self._tracks if t.confirmed and not t.static and (t.moving or t.was_moving)]
+
+    def predict(self, horizon_s: float, dt: float = 0.1) -> list[tuple[int, np.ndarray, np.ndarray]]:
+        """Predicted paths of the confirmed moving (or coasting) tracks.
+
+        Args:
+            horizon_s: how far ahead, seconds; dt: step, seconds.
+        Returns:
+            ``[(track_id, positions (T, 3) world metres at times 0, dt, ..., horizon, half_size (3,))]``
+            with ``T = floor(horizon / dt) + 1``, times relative to the last update.
+        """
+        if dt <= 0 or horizon_s < 0:
+            raise InputError(f"need dt > 0 and horizon >= 0, got dt={dt}, horizon={horizon_s}")
+        ts = np.arange(int(np.floor(horizon_s / dt + 1e-9)) + 1) * dt
+        return [
+            (t.track_id, t.position[None, :] + ts[:, None] * t.velocity[None, :], t.half_size.copy())
+            for t in self._planner_tracks()
+        ]
+
+    def keep_out(self, horizon_s: float) -> np.ndarray:
+        """(K, 7) capsules ``[x0, y0, z0, x1, y1, z1, radius]`` the planner must avoid.
+
+        One per confirmed moving (or coasting, once moving) track: the segment from its position
+        to its predicted position after ``horizon_s`` seconds, radius ``norm(half_size)`` plus
+        ``keep_out_sigmas`` standard deviations of the position predicted at the horizon (metres).
+        """
+        out = []
+        for t in self._planner_tracks():
+            end = t.position + horizon_s * t.velocity
+            P = t.covariance
+            Ph = P[:3, :3] + horizon_s * (P[:3, 3:] + P[3:, :3]) + horizon_s**2 * P[3:, 3:]
+            sig = float(np.sqrt(max(np.linalg.eigvalsh(Ph).max(), 0.0)))
+            radius = np.linalg.norm(t.half_size) + self.settings.keep_out_sigmas * sig
+            out.append(np.concatenate([t.position, end, [radius]]))
+        return np.array(out, np.float64).reshape(-1, 7)

@@ -1,0 +1,267 @@
+"""Movers (skyrecon.perception.movers) on exact synthetic depth: a static scene mapped first, then
+frames with a moving box rendered into it (one City per frame)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from skyrecon.core import Intrinsics, Rigid3
+from skyrecon.mapping import OCCUPIED, OccupancyMap
+from skyrecon.perception import MoverFrame, MoverSettings, MoverTracker, strided_intrinsics
+from skyrecon.sim import City
+from skyrecon.sim.render import render_depth
+
+CAM = strided_intrinsics(Intrinsics.from_fov(640, 480, 90.0), 2)  # 320 x 240
+STATIC = np.array(
+    [[22, -14, 0, 30, -4, 15], [22, 5, 0, 28, 14, 10], [10, -8, 0, 12, -6, 3], [16, 8, 0, 18, 10, 6]], float
+)
+STATIC_CITY = City.from_obstacles(STATIC)
+DRONE_HALF = np.array([0.5, 0.5, 0.2])
+DT = 0.1
+
+
+def world_from_cam(eye, target) -> Rigid3:
+    return Rigid3.look_at(np.asarray(eye, float), np.asarray(target, float)).inverse()
+
+
+def forward_pose(x: float, y: float = 0.0) -> Rigid3:
+    """The camera 5 m up at (x, y), looking along +x and a little down."""
+    return world_from_cam([x, y, 5.0], [x + 10.0, y, 3.5])
+
+
+def render(pose: Rigid3, movers: list[np.ndarray] = ()) -> np.ndarray:
+    """(240, 320) depth of the static scene plus the given boxes (6,)."""
+    city = STATIC_CITY if not len(movers) else City.from_obstacles(np.vstack([STATIC, *movers]))
+    return render_depth(city, CAM, pose.inverse())
+
+
+def static_map(xs=(0.0, 1.0, 2.0, 3.0), noise=None) -> OccupancyMap:
+    """The static scene mapped from a few poses (so the space around it is observed free)."""
+    occ = OccupancyMap(voxel_size_m=0.5, max_range_m=40.0)
+    for x in xs:
+        for y in (-1.0, 0.0, 1.0):
+            pose = forward_pose(x, y)
+            d = render(pose)
+            occ.integrate_depth(d if noise is None else noise(d), CAM, pose)
+    return occ
+
+
+def box(center, half=DRONE_HALF) -> np.ndarray:
+    return np.concatenate([np.asarray(center) - half, np.asarray(center) + half])
+
+
+def mover_pixels(d_mov: np.ndarray, d_static: np.ndarray) -> np.ndarray:
+    """(H, W) bool: pixels where the mover is seen (nearer than the static scene)."""
+    with np.errstate(invalid="ignore"):
+        return np.isfinite(d_mov) & ~(np.abs(d_mov - d_static) < 1e-3)
+
+
+@dataclass
+class Run:
+    frames: list[MoverFrame]
+    centers: np.ndarray  # (N, 3) true mover centre per frame
+    visible: np.ndarray  # (N,) bool: seen with >= 20 pixels within 20 m
+    mover_px: list[np.ndarray]
+    static_px: list[np.ndarray]
+    occ_masked: OccupancyMap
+    occ_raw: OccupancyMap
+    tracker: MoverTracker
+    trail: np.ndarray  # (N, 2) occupied samples at the mover's past positions: masked map, raw map
+
+
+_BOX_SAMPLES = np.stack(np.meshgrid(*[np.linspace(-0.8, 0.8, 5)] * 3, indexing="ij"), -1).reshape(-1, 3)
+
+
+def trail_count(occ: OccupancyMap, past: np.ndarray, half: np.ndarray) -> int:
+    """Occupied samples inside the mover's boxes at the past centres (K, 3)."""
+    if not len(past):
+        return 0
+    pts = (past[:, None, :] + _BOX_SAMPLES[None] * half).reshape(-1, 3)
+    return int(np.sum(occ.state_at(pts) == OCCUPIED))
+
+
+def run_mover(center_at, n: int, cam_x_at=lambda t: 0.0, half=DRONE_HALF, settings=None) -> Run:
+    """Feed ``n`` frames at 10 Hz with one box at ``center_at(t)`` (None: absent); the masked depth
+    goes into the tracker's map, the raw depth into a copy (what would happen without movers)."""
+    occ = static_map()
+    raw = occ.copy()
+    tr = MoverTracker(settings)
+    frames, centers, visible, mpx, spx, trail = [], [], [], [], [], []
+    for i in range(n):
+        t = i * DT
+        pose = forward_pose(cam_x_at(t))
+        c = center_at(t)
+        d_static = render(pose)
+        d = d_static if c is None else render(pose, [box(c, half)])
+        f = tr.update(t, d, CAM, pose, occ)
+        masked = d.copy()
+        masked[f.dynamic_mask] = np.nan
+        occ.integrate_depth(masked, CAM, pose)
+        raw.integrate_depth(d, CAM, pose)
+        px = mover_pixels(d, d_static)
+        rng = np.inf if c is None else np.linalg.norm(c - pose.t)
+        frames.append(f)
+        centers.append(np.full(3, np.nan) if c is None else c)
+        visible.append(px.sum() >= 20 and rng <= 20.0)
+        mpx.append(px)
+        spx.append(np.isfinite(d) & ~px)
+        # positions 0.5 to 2 s ago (well clear of the current box)
+        past = [center_at(i * DT - k * DT) for k in range(5, 21) if i >= k]
+        past = np.array([p for p in past if p is not None], float).reshape(-1, 3)
+        trail.append((trail_count(occ, past, half), trail_count(raw, past, half)))
+    return Run(frames, np.array(centers), np.array(visible), mpx, spx, occ, raw, tr, np.array(trail))
+
+
+V_DRONE = np.array([0.0, 3.0, 0.0])
+
+
+def drone_center(t: float) -> np.ndarray:
+    return np.array([12.0, -8.0, 4.2]) + V_DRONE * t
+
+
+@pytest.fixture(scope="module")
+def crossing() -> Run:
+    """A drone crossing the view at 3 m/s, 12 m ahead, while the camera creeps forward."""
+    return run_mover(drone_center, 50, cam_x_at=lambda t: 0.4 * t)
+
+
+def test_detects_the_mover(crossing):
+    vis = np.flatnonzero(crossing.visible)
+    assert len(vis) >= 45
+    found = 0
+    for i in vis:
+        errs = [np.linalg.norm(d.center - crossing.centers[i]) for d in crossing.frames[i].detections]
+        found += bool(errs) and min(errs) <= 0.5
+    assert found >= 0.95 * len(vis)
+    # nothing else is detected in the static scene
+    assert all(len(f.detections) <= 1 for f in crossing.frames)
+
+
+def test_track_velocity_converges(crossing):
+    for f in crossing.frames[10:]:
+        (trk,) = f.moving_tracks
+        assert np.linalg.norm(trk.velocity - V_DRONE) <= 0.5
+        assert trk.confirmed and not trk.static
+    assert crossing.frames[1].tracks[0].confirmed  # confirm_hits = 2
+
+
+def test_mask_covers_the_mover_only(crossing):
+    vis = np.flatnonzero(crossing.visible)
+    hit = sum((crossing.frames[i].dynamic_mask & crossing.mover_px[i]).sum() for i in vis)
+    total = sum(crossing.mover_px[i].sum() for i in vis)
+    assert hit >= 0.9 * total
+    false = sum((f.dynamic_mask & s).sum() for f, s in zip(crossing.frames, crossing.static_px))
+    assert false < 0.01 * sum(s.sum() for s in crossing.static_px)
+
+
+def test_masked_depth_leaves_no_phantom_trail(crossing):
+    masked, raw = crossing.trail[:, 0], crossing.trail[:, 1]
+    assert raw.max() > 20  # the raw depth leaves a trail behind the mover ...
+    assert masked.max() == 0  # ... the masked depth does not
+
+
+def test_keep_out_contains_the_future(crossing):
+    tr = crossing.tracker
+    t_now = tr.time_s
+    for horizon in (1.0, 2.0):
+        caps = tr.keep_out(horizon)
+        assert caps.shape == (1, 7)
+        a, b, r = caps[0, :3], caps[0, 3:6], caps[0, 6]
+        for tau in np.linspace(0.0, horizon, 11):
+            p = drone_center(t_now + tau)
+            s = np.clip(np.dot(p - a, b - a) / np.dot(b - a, b - a), 0.0, 1.0)
+            assert np.linalg.norm(p - (a + s * (b - a))) <= r
+        assert r < 1.0 + 1.2 * horizon  # norm(half_size) 0.73 m plus the grown uncertainty
+    ((tid, path, half),) = tr.predict(2.0, 0.5)
+    assert path.shape == (5, 3) and half.shape == (3,)
+    assert np.allclose(path[-1], drone_center(t_now + 2.0), atol=0.6)
+
+
+def test_new_static_obstacle_is_released():
+    """A box that appears in free space and stays is a new static obstacle after 3-5 frames."""
+    c = np.array([13.0, 2.0, 1.5])
+    run = run_mover(lambda t: c if t >= 0.45 else None, 15, half=np.array([0.6, 0.6, 0.6]))
+    first = 5
+    released = [i for i, f in enumerate(run.frames) if any(t.static for t in f.tracks)]
+    assert released and 3 <= released[0] - first + 1 <= 5
+    # masked while undecided, not once released; never a moving track
+    assert run.frames[first].dynamic_mask[run.mover_px[first]].mean() > 0.9
+    for f, px in zip(run.frames[released[0] :], run.mover_px[released[0] :]):
+        assert not (f.dynamic_mask & px).any()
+    assert not any(f.moving_tracks for f in run.frames)
+    # its pixels went into the map: the box is occupied there now
+    assert np.any(run.occ_masked.state_at(c[None] - [0.55, 0, 0]) == OCCUPIED)
+
+
+def test_track_coasts_out_of_view_then_drops():
+    """A drone leaves the field of view to the left: its track coasts, then is dropped after coast_s."""
+    v = np.array([0.0, 4.0, 0.0])
+
+    def center(t):
+        return np.array([8.0, 2.0, 4.5]) + v * t  # out of view beyond y ~ 8 (hfov 90 degrees)
+
+    settings = MoverSettings(coast_s=1.0)
+    run = run_mover(center, 35, settings=settings)
+    vis = np.flatnonzero(run.visible)
+    last_seen = vis.max()
+    assert last_seen < 25
+    tid = run.frames[last_seen].moving_tracks[0].track_id
+    for i in range(last_seen + 1, 35):
+        t = i * DT
+        alive = [trk for trk in run.frames[i].tracks if trk.track_id == tid]
+        unseen = t - alive[0].last_seen_s if alive else t - last_seen * DT
+        if unseen <= settings.coast_s - 1e-9:
+            (trk,) = alive
+            assert trk.coasting
+            assert np.linalg.norm(trk.position - center(t)) < 1.5  # predicted forward
+        elif unseen > settings.coast_s + DT:
+            assert not alive
+    assert len(run.tracker.keep_out(1.0)) == 0
+
+
+def test_deterministic():
+    a = run_mover(drone_center, 12)
+    b = run_mover(drone_center, 12)
+    for fa, fb in zip(a.frames, b.frames):
+        assert np.array_equal(fa.dynamic_mask, fb.dynamic_mask)
+        assert [t.track_id for t in fa.tracks] == [t.track_id for t in fb.tracks]
+        for ta, tb in zip(fa.tracks, fb.tracks):
+            assert np.array_equal(ta.position, tb.position) and np.array_equal(ta.velocity, tb.velocity)
+
+
+def test_noisy_static_scene_has_no_false_movers():
+    """1.5 % depth noise and 3 % holes, a camera flying 2 m/s: no moving track in 30 frames."""
+    rng = np.random.default_rng(5)
+
+    def noisy(d):
+        out = (d * (1.0 + 0.015 * rng.standard_normal(d.shape))).astype(np.float32)
+        out[rng.random(d.shape) < 0.03] = np.nan
+        return out
+
+    occ = static_map(noise=noisy)
+    tr = MoverTracker()
+    n_dets = 0
+    for i in range(30):
+        pose = forward_pose(0.2 * i, 0.3 * np.sin(i / 5))
+        d = noisy(render(pose))
+        f = tr.update(i * DT, d, CAM, pose, occ)
+        assert not f.moving_tracks
+        n_dets += len(f.detections)
+        d[f.dynamic_mask] = np.nan
+        occ.integrate_depth(d, CAM, pose)
+    assert n_dets <= 5
+
+
+def test_vehicle_on_the_road():
+    """A car (4.5 x 1.9 x 1.6 m) at 8 m/s that emerges from behind a building: one track."""
+    half = np.array([2.25, 0.95, 0.8])
+    v = np.array([0.0, 8.0, 0.0])
+    run = run_mover(lambda t: np.array([14.0, -10.0, 0.8]) + v * t, 25, half=half)
+    ids = {t.track_id for f in run.frames for t in f.tracks}
+    assert len(ids) == 1
+    for f in run.frames[10:]:
+        (trk,) = f.moving_tracks
+        assert np.linalg.norm(trk.velocity[:2] - v[:2]) <= 1.0
