@@ -154,7 +154,9 @@ class WorldMonitor:
 
     def _vacated(self, t: float, occ_map: OccupancyMap, to_est) -> None:
         """Voxels the map holds occupied inside a mover now; once the mover leaves, time to free."""
-        boxes = np.concatenate([self.scene.movers[i].boxes_at(t) for i in self.judged]) if self.judged else None
+        boxes = (
+            np.concatenate([self.scene.movers[i].boxes_at(t) for i in self.judged]) if self.judged else None
+        )
         inside = set()
         if boxes is not None and len(boxes):
             vox = _voxels_of_boxes(boxes, self.v)
@@ -235,7 +237,9 @@ class WorldMonitor:
                 if t_end <= 0:
                     continue
                 ts = np.arange(0.0, t_end, 0.1)
-                vox = _voxels_of_boxes(m.boxes_many(ts).reshape(-1, 6), self.v) if len(ts) else np.zeros((0, 3))
+                vox = (
+                    _voxels_of_boxes(m.boxes_many(ts).reshape(-1, 6), self.v) if len(ts) else np.zeros((0, 3))
+                )
                 if len(vox) == 0:
                     continue
                 centres = (vox + 0.5) * self.v

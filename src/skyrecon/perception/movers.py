@@ -38,6 +38,7 @@ import time
 from dataclasses import dataclass, field, fields, replace
 from typing import TYPE_CHECKING
 
+import cv2
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.sparse import coo_matrix
@@ -74,6 +75,13 @@ class MoverSettings:
             not as the free voxel in front of it; the states this far along +-x, +-y, +-z must
             be free too (so that the silhouette of a static object, whose rays graze past it
             into free space, is not a candidate).
+        free_evidence: a voxel counts as free for the test only when its log-odds is at most
+            ``-free_evidence`` (0.6: seen free at least twice; a weak prior from an earlier
+            flight, or one glance, is not enough, so a new static obstacle standing where the
+            prior had nothing is mapped at once rather than taken for a mover).
+        edge_jump_frac: pixels whose 3x3 neighbourhood spans a depth jump of more than this
+            fraction of their depth are not candidates (stereo puts points in the air between
+            a near edge and the far background there).
         behind_m: the free-space test also looks this far behind the point along the viewing
             ray, metres (one map voxel of 0.5 m) ...
         depth_noise_frac, noise_sigmas: ... plus ``noise_sigmas * depth_noise_frac * range``, so
@@ -96,6 +104,11 @@ class MoverSettings:
         size_memory: a track's half size is ``max(detection, size_memory * old + (1 -
             size_memory) * detection)`` per axis (a decaying maximum).
         keep_out_sigmas: keep-out radius margin, in standard deviations of the predicted position.
+        max_keep_out_margin_m: cap of that margin, metres (a long-coasting track's uncertainty
+            would otherwise close whole streets).
+        max_speed_mps, max_climb_mps: a track faster than this (3-D speed), or climbing or sinking
+            faster than this, once it has ``confirm_hits`` detections is not a real object (stereo
+            outliers at depth edges chained by chance) and is dropped, m/s.
     """
 
     stride: int = 1
@@ -104,12 +117,14 @@ class MoverSettings:
     min_range_m: float = 0.3
     max_range_m: float = 20.0
     inside_m: float = 0.15
+    free_evidence: float = 0.6
+    edge_jump_frac: float = 0.1
     behind_m: float = 0.5
     depth_noise_frac: float = 0.02
     noise_sigmas: float = 2.5
     gate_m: float = 2.0
     gate_inflate_m: float = 0.5
-    confirm_hits: int = 2
+    confirm_hits: int = 3
     coast_s: float = 3.0
     moving_speed_mps: float = 0.5
     static_speed_mps: float = 0.3
@@ -119,6 +134,9 @@ class MoverSettings:
     init_speed_sigma_mps: float = 8.0
     size_memory: float = 0.97
     keep_out_sigmas: float = 2.0
+    max_keep_out_margin_m: float = 2.5
+    max_speed_mps: float = 20.0
+    max_climb_mps: float = 6.0
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -325,15 +343,21 @@ def detect_movers(
     pts = p_cam @ pose.R.T + pose.t
     unit_w = (rv / ray_norm.reshape(-1)[flat, None]) @ pose.R.T
     behind = s.behind_m + s.noise_sigmas * s.depth_noise_frac * (dv * ray_norm.reshape(-1)[flat])
-    states = occ_map.state_at(np.concatenate([pts + s.inside_m * unit_w, pts + unit_w * behind[:, None]]))
+    lo_odds = occ_map.log_odds_at(np.concatenate([pts + s.inside_m * unit_w, pts + unit_w * behind[:, None]]))
+    states = occ_map.classify(lo_odds)
     here, back = states[: len(flat)], states[len(flat) :]
-    cand = (here == FREE) & (back == FREE)
+    with np.errstate(invalid="ignore"):
+        seen_free = lo_odds <= -s.free_evidence
+    edges_full = _depth_edges(depth, s.edge_jump_frac)
+    edges = edges_full[::st, ::st]
+    cand = seen_free[: len(flat)] & seen_free[len(flat) :] & ~edges.reshape(-1)[flat]
     # a silhouette point of a static object (its ray grazes past the object into free space)
     # has an occupied voxel within inside_m across the ray: look along the axes too
     c1 = np.flatnonzero(cand)
     if c1.size:
         around = (pts[c1][None, :, :] + _AXIS_STEPS[:, None, :] * s.inside_m).reshape(-1, 3)
-        cand[c1] = np.all(occ_map.state_at(around).reshape(6, -1) == FREE, axis=0)
+        with np.errstate(invalid="ignore"):
+            cand[c1] = np.all(occ_map.log_odds_at(around).reshape(6, -1) <= -s.free_evidence, axis=0)
     if gates is not None and len(gates):
         g = np.asarray(gates, np.float64).reshape(-1, 6)
         lo, hi = pts.min(axis=0), pts.max(axis=0)
@@ -367,10 +391,19 @@ def detect_movers(
         lo, hi = q.min(axis=0), q.max(axis=0)
         mask = np.zeros((H, W), bool)
         mask[rows[m], cols[m]] = True
-        if st > 1:
-            mask = _fill_strided(mask, depth, intrinsics, pose, lo, hi, st, s.cluster_voxel_m / 2)
+        mask = _fill_strided(
+            mask, depth, intrinsics, pose, lo, hi, max(st, 2), s.cluster_voxel_m / 2, edges_full
+        )
         out.append(MoverDetection((lo + hi) / 2, (hi - lo) / 2, int(m.sum()), mask))
     return out
+
+
+def _depth_edges(depth: np.ndarray, jump_frac: float) -> np.ndarray:
+    """(H, W) bool: pixels whose 3x3 neighbourhood spans a depth jump above ``jump_frac`` of
+    their depth (invalid neighbours count as far: the border of a hole or of the sky is an edge)."""
+    d = np.where(np.isfinite(depth), depth, 1e4).astype(np.float32)
+    k = np.ones((3, 3), np.uint8)
+    return (cv2.dilate(d, k) - cv2.erode(d, k)) > jump_frac * d
 
 
 def _fill_strided(
@@ -382,9 +415,12 @@ def _fill_strided(
     hi: np.ndarray,
     st: int,
     margin: float,
+    edges: np.ndarray | None = None,
 ) -> np.ndarray:
     """Full-resolution pixel mask of a cluster found at stride ``st``: the pixels near a cluster
-    pixel (within one stride) whose point lies in the cluster's box ``[lo, hi]`` grown by ``margin``."""
+    pixel (within ``st`` pixels) whose point lies in the cluster's box ``[lo, hi]`` grown by
+    ``margin``, and the depth-edge pixels (``edges`` (H, W) bool) among them: the mover's
+    silhouette, where stereo puts points between it and the background."""
     from scipy.ndimage import binary_dilation
 
     near = binary_dilation(mask, np.ones((2 * st + 1, 2 * st + 1), bool))
@@ -397,6 +433,8 @@ def _fill_strided(
     inside = np.all((p >= lo - margin) & (p <= hi + margin), axis=1)
     out = np.zeros_like(mask)
     out[r[inside], c[inside]] = True
+    if edges is not None:
+        out |= near & edges
     return out | mask
 
 
@@ -520,6 +558,10 @@ class MoverTracker:
             t.coasting = t.last_seen_s < time_s
             if t.coasting and (not t.confirmed or time_s - t.last_seen_s > s.coast_s):
                 continue
+            if t.hits >= s.confirm_hits and (
+                t.speed > s.max_speed_mps or abs(float(t.velocity[2])) > s.max_climb_mps
+            ):
+                continue  # no real mover moves like that: outliers chained by chance
             live.append(t)
         self._tracks = live
         by_id = {t.track_id: t for t in live}
@@ -616,6 +658,7 @@ class MoverTracker:
             P = t.covariance
             Ph = P[:3, :3] + horizon_s * (P[:3, 3:] + P[3:, :3]) + horizon_s**2 * P[3:, 3:]
             sig = float(np.sqrt(max(np.linalg.eigvalsh(Ph).max(), 0.0)))
-            radius = np.linalg.norm(t.half_size) + self.settings.keep_out_sigmas * sig
+            margin = min(self.settings.keep_out_sigmas * sig, self.settings.max_keep_out_margin_m)
+            radius = np.linalg.norm(t.half_size) + margin
             out.append(np.concatenate([t.position, end, [radius]]))
         return np.array(out, np.float64).reshape(-1, 7)

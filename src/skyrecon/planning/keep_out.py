@@ -49,7 +49,8 @@ def capsule_distance(points: np.ndarray, capsules: np.ndarray) -> np.ndarray:
         ab = b - a
         L2 = float(ab @ ab)
         t = np.zeros(len(p)) if L2 < 1e-12 else np.clip((p - a) @ ab / L2, 0.0, 1.0)
-        d = np.linalg.norm(p - (a + t[:, None] * ab), axis=1) - r
+        e = p - (a + t[:, None] * ab)
+        d = np.sqrt(np.einsum("ij,ij->i", e, e)) - r
         np.minimum(out, d, out=out)
     return out
 
@@ -71,50 +72,67 @@ def path_conflict(path: np.ndarray, capsules: np.ndarray, threshold_m: float, st
     return float(s[bad[0]]) if len(bad) else float("inf")
 
 
+def _capsule_region(grid, cap: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """Voxel box ``[lo, hi)`` of ``grid`` a capsule (7,) can lower (None if it misses the grid)."""
+    v = grid.voxel
+    pad = cap[6] + grid.threshold + 2 * v
+    lo_w = np.minimum(cap[:3], cap[3:6]) - pad
+    hi_w = np.maximum(cap[:3], cap[3:6]) + pad
+    lo_w[2] = max(lo_w[2], grid.zmin - 2 * v)  # below or above the band nothing is flyable anyway
+    hi_w[2] = min(hi_w[2], grid.zmax + 2 * v)
+    shape = np.array(grid.shape)
+    lo = np.clip(np.floor((lo_w - grid.origin) / v).astype(np.int64), 0, shape)
+    hi = np.clip(np.ceil((hi_w - grid.origin) / v).astype(np.int64) + 1, 0, shape)
+    return (lo, hi) if np.all(hi > lo) else None
+
+
 @contextmanager
 def keep_out(grid, capsules: np.ndarray | None) -> Iterator[int]:
     """Within the ``with`` block, ``grid`` (a :class:`~skyrecon.planning.grid.PlanningGrid`)
     treats the capsules as obstacles; everything is restored on exit.
 
+    Each capsule touches only the voxels within its radius plus the planner's threshold (and
+    inside the altitude band), so the cost grows with the capsules' size, not their spread.
+
     Yields:
         The number of grid voxels whose distance was lowered.
     """
     c = as_capsules(capsules)
-    if len(c) == 0:
+    regions = [(cap, r) for cap in c if (r := _capsule_region(grid, cap)) is not None]
+    if not regions:
         yield 0
         return
     v = grid.voxel
-    pad = grid.threshold + 2 * v
-    lo_w = np.minimum(c[:, :3], c[:, 3:6]).min(axis=0) - c[:, 6].max() - pad
-    hi_w = np.maximum(c[:, :3], c[:, 3:6]).max(axis=0) + c[:, 6].max() + pad
-    shape = np.array(grid.shape)
-    lo = np.clip(np.floor((lo_w - grid.origin) / v).astype(np.int64), 0, shape)
-    hi = np.clip(np.ceil((hi_w - grid.origin) / v).astype(np.int64) + 1, 0, shape)
-    if not np.all(hi > lo):
-        yield 0
-        return
-    box = tuple(slice(int(a), int(b)) for a, b in zip(lo, hi))
-    s_lo = np.maximum(lo - 1, 0)
-    s_hi = np.minimum(hi, np.array(grid.safe.shape))
-    sbox = tuple(slice(int(a), int(b)) for a, b in zip(s_lo, s_hi))
-    saved = (grid.dist[box].copy(), grid.flyable[box].copy(), grid.safe[sbox].copy())
+    saved: list[tuple[tuple, np.ndarray, np.ndarray, tuple, np.ndarray]] = []
     levels = {f: a.copy() for f, a in grid._levels.items() if f > 1}
+    lowered = 0
     try:
-        axes = [grid.origin[i] + (np.arange(lo[i], hi[i]) + 0.5) * v for i in range(3)]
-        centres = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
-        d_cap = capsule_distance(centres, c).reshape(tuple(int(x) for x in hi - lo)).astype(np.float32)
-        lowered = d_cap < grid.dist[box]
-        grid.dist[box] = np.minimum(grid.dist[box], d_cap)
-        zc = axes[2]
-        zok = (zc >= grid.zmin) & (zc <= grid.zmax)
-        grid.flyable[box] = (grid.dist[box] >= grid.threshold) & zok[None, None, :]
-        if np.all(s_hi > s_lo):
-            fly = grid.flyable[s_lo[0] : s_hi[0] + 1, s_lo[1] : s_hi[1] + 1, s_lo[2] : s_hi[2] + 1]
-            grid.safe[sbox] = safe_cells(np.ascontiguousarray(fly))
+        for cap, (lo, hi) in regions:
+            box = tuple(slice(int(a), int(b)) for a, b in zip(lo, hi))
+            s_lo = np.maximum(lo - 1, 0)
+            s_hi = np.minimum(hi, np.array(grid.safe.shape))
+            sbox = tuple(slice(int(a), int(b)) for a, b in zip(s_lo, s_hi))
+            saved.append((box, grid.dist[box].copy(), grid.flyable[box].copy(), sbox, grid.safe[sbox].copy()))
+            axes = [grid.origin[i] + (np.arange(lo[i], hi[i]) + 0.5) * v for i in range(3)]
+            centres = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+            d_cap = (
+                capsule_distance(centres, cap[None])
+                .reshape(tuple(int(x) for x in hi - lo))
+                .astype(np.float32)
+            )
+            lowered += int(np.count_nonzero(d_cap < grid.dist[box]))
+            np.minimum(grid.dist[box], d_cap, out=grid.dist[box])
+            zc = axes[2]
+            zok = (zc >= grid.zmin) & (zc <= grid.zmax)
+            grid.flyable[box] = (grid.dist[box] >= grid.threshold) & zok[None, None, :]
+            if np.all(s_hi > s_lo):
+                fly = grid.flyable[s_lo[0] : s_hi[0] + 1, s_lo[1] : s_hi[1] + 1, s_lo[2] : s_hi[2] + 1]
+                grid.safe[sbox] = safe_cells(np.ascontiguousarray(fly))
         for f in levels:
             grid._levels[f][...] = lattice(grid.safe, f)
-        yield int(np.count_nonzero(lowered))
+        yield lowered
     finally:
-        grid.dist[box], grid.flyable[box], grid.safe[sbox] = saved
+        for box, dist, fly, sbox, safe in reversed(saved):
+            grid.dist[box], grid.flyable[box], grid.safe[sbox] = dist, fly, safe
         for f, a in levels.items():
             grid._levels[f][...] = a

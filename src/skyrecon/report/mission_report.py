@@ -442,6 +442,7 @@ def render_mission_report(result, metrics: dict, extra_notes: Sequence[str] = ()
         _img(over, "plan view of the mission"),
         "<h2>Metrics</h2>",
         _table(rows),
+        *_dynamic(result, m, extent),
         "<h2>Time per stage</h2>",
         _timing_table(m["stage_ms"], m["loop_stages"]),
         _img(loop_img, "loop time per cycle"),
@@ -453,6 +454,12 @@ def render_mission_report(result, metrics: dict, extra_notes: Sequence[str] = ()
         f"<p><small>{html.escape(settings)}</small></p>",
     ]
     return _page(f"skyrecon mission {sc.seed}", "".join(body))
+
+
+def _dynamic(result, metrics: dict, extent) -> list[str]:
+    from skyrecon.report.dynamic_report import dynamic_section  # it draws on this module
+
+    return dynamic_section(result, metrics, extent)
 
 
 def _xyz(p) -> str:
