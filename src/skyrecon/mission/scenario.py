@@ -295,6 +295,8 @@ def make_scenario(
             scenario.shortest.waypoints,
             band=(cfg.min_altitude_m, cfg.max_altitude_m),
             cruise_speed_mps=cfg.cruise_speed_mps,
+            n_drones=4,
+            pace=(0.7, 1.0) if cfg.prior_map else (0.35, 0.6),
         )
     return scenario
 

@@ -41,6 +41,12 @@ MATCH_RADIUS_M = 1.5
 MAPPED_VOXELS = 20
 
 
+def _recall(sightings: list[tuple[float, bool]], within_m: float) -> float | None:
+    """Share of the mover-frames within ``within_m`` metres in which the mover was detected."""
+    near = [h for d, h in sightings if d <= within_m]
+    return round(sum(near) / len(near), 4) if near else None
+
+
 def _voxels_of_boxes(boxes: np.ndarray, v: float) -> np.ndarray:
     """(M, 3) int64 voxels whose centres lie inside any of the boxes (K, 6)."""
     out = []
@@ -89,6 +95,7 @@ class WorldMonitor:
         self.visible_frames = {i: 0 for i in self.judged}
         self.detected_frames = {i: 0 for i in self.judged}
         self.errors: list[float] = []
+        self.sightings: list[tuple[float, bool]] = []  # (distance m, detected) per visible mover-frame
         self.times: list[float] = []
         self.vacate_pending: dict[tuple, float] = {}
         self.vacate_delays: list[float] = []
@@ -143,12 +150,15 @@ class WorldMonitor:
                     continue
                 self.visible_frames[i] += 1
                 c = to_est(np.asarray(states[i]["center"], dtype=np.float64)[None])[0]
+                hit = False
                 if live:
                     err = np.array([np.linalg.norm(tr.position - c) for tr in live])
                     k = int(np.argmin(err))
                     if err[k] <= MATCH_RADIUS_M:
+                        hit = True
                         self.detected_frames[i] += 1
                         self.errors.append(float(err[k]))
+                self.sightings.append((d, hit))
             self._vacated(t, occ_map, to_est)
         self._changes(t, cam_position, object_id, occ_map, to_est)
 
@@ -223,6 +233,8 @@ class WorldMonitor:
                 "p95": round(float(np.percentile(self.errors, 95)), 3) if self.errors else None,
                 "max": round(float(np.max(self.errors)), 3) if self.errors else None,
             },
+            "mover_recall_within_10m": _recall(self.sightings, 10.0),
+            "mover_sightings": [[round(d, 2), bool(h)] for d, h in self.sightings],
             "mover_recall_by_mover": {
                 self.names[i]: round(self.detected_frames[i] / self.visible_frames[i], 3)
                 for i in self.judged

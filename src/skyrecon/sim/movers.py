@@ -931,9 +931,10 @@ def _crossing_drone(
     band: tuple[float, float],
     cruise_speed_mps: float,
     extra: list,
+    pace: tuple[float, float] = (0.5, 0.7),
 ) -> Mover | None:
     """A drone whose polyline crosses the path at 45-90 degrees within 1.5 m of its altitude, passing the
-    crossing point when a drone flying the path at 0.5-0.7 x cruise speed would."""
+    crossing point when a drone flying the path at ``pace`` (a range) x cruise speed would."""
     cum = _path_arc(path)
     total = cum[-1]
     lo, hi = min(max(20.0, 0.15 * total), 0.5 * total), max(total - max(15.0, 0.15 * total), 0.5 * total)
@@ -952,7 +953,7 @@ def _crossing_drone(
         return None
     pts, arc = line
     speed = rng.uniform(2.0, DRONE_MAX_SPEED_MPS)
-    t_cross = s / (rng.uniform(0.5, 0.7) * cruise_speed_mps)
+    t_cross = s / (rng.uniform(*pace) * cruise_speed_mps)
     length = float(np.linalg.norm(pts[1] - pts[0]))
     s_at_cross = arc if rng.random() < 0.5 else 2.0 * length - arc  # outbound or on the way back
     phase = float(np.mod(s_at_cross - speed * t_cross, 2.0 * length))
@@ -1060,6 +1061,7 @@ def make_movers(
     band: tuple[float, float] = (12.0, 30.0),
     cruise_speed_mps: float = 6.0,
     attempts: int = 200,
+    pace: tuple[float, float] = (0.5, 0.7),
 ) -> MovingScene:
     """Draw the movers of a delivery mission, deterministically from ``seed``.
 
@@ -1069,7 +1071,7 @@ def make_movers(
         start, goal: (3,) the mission's endpoints, world metres.
         path: (K, 3) the mission's reference path (the shortest feasible path), world metres.
         n_drones: drones; the first ``ceil(n_drones / 2)`` cross the path (45-90 degrees, within 2 m of its
-            altitude) when a drone flying it at 0.5-0.7 x ``cruise_speed_mps`` passes; the others roam
+            altitude) when a drone flying it at ``pace`` x ``cruise_speed_mps`` passes; the others roam
             the streets. Each flies at 2-4.5 m/s, its polyline >= 2.5 m from every static obstacle.
         n_vehicles: vehicles on distinct streets at 5-12 m/s.
         crane: place a tower crane (boom 18-28 m at 16-24 m, 2-5 deg/s) whose boom sweeps over the path
@@ -1077,6 +1079,9 @@ def make_movers(
         band: the flight band (min, max altitude), metres.
         cruise_speed_mps: the mission's cruise speed, m/s.
         attempts: draws per mover before it is skipped.
+        pace: the crossing drones are timed for a drone flying the path at this fraction (a range,
+            drawn per drone) of ``cruise_speed_mps`` (faster with a prior map: the drone needs not
+            stop to look around).
     Returns:
         The :class:`MovingScene`. No mover comes within 6 m of ``start`` in the first 5 s, within 4 m of
         ``goal`` ever, overlaps the static city (sampled), or (within the mission's horizon) another mover.
@@ -1100,7 +1105,7 @@ def make_movers(
         for _ in range(attempts):
             name = f"drone-{i}"
             if i < n_cross:
-                m = _crossing_drone(city, rng, name, path, band, cruise_speed_mps, extra)
+                m = _crossing_drone(city, rng, name, path, band, cruise_speed_mps, extra, pace)
             else:
                 m = _roaming_drone(city, rng, name, band, extra)
             if m is None or not _keeps_off_endpoints(m, start, goal) or _conflicts(m, movers, horizon):
