@@ -25,6 +25,7 @@ from skyrecon.mapping import MapConfig, OccupancyMap
 from skyrecon.mission.config import MissionConfig
 from skyrecon.planning import Planner, PlanResult
 from skyrecon.sim import City, generate_city
+from skyrecon.sim.movers import MovingScene, make_movers
 
 
 class ImpossibleMission(InputError):
@@ -111,7 +112,7 @@ class Scenario:
     notes: list[str] = field(default_factory=list)
     prior_city: City | None = None
     changes: list = field(default_factory=list)
-    movers: object | None = None
+    movers: MovingScene | None = None
 
     @property
     def straight_line_m(self) -> float:
@@ -285,8 +286,6 @@ def make_scenario(
     if cfg.city_changes:
         _apply_changes(scenario, cfg)
     if cfg.movers:
-        from skyrecon.sim.movers import make_movers
-
         scenario.movers = make_movers(
             scenario.city,
             scenario.seed,

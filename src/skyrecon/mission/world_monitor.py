@@ -113,7 +113,7 @@ class WorldMonitor:
 
     def _object_ids(self, boxes: np.ndarray) -> set[int]:
         """Object ids (``1 + box index`` in the rendered scene) of static boxes equal to ``boxes``."""
-        ids = set()
+        ids: set[int] = set()
         for b in boxes:
             hit = np.flatnonzero(np.all(np.abs(self.static.boxes - b) < 1e-6, axis=1))
             ids.update(int(k) + 1 for k in hit)

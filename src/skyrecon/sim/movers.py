@@ -762,8 +762,9 @@ def _conflicts(a: Mover, others: list[Mover], horizon_s: float) -> bool:
     for b in others:
         if {a.kind, b.kind} == {"drone", "crane"}:
             d, c = (a, b) if a.kind == "drone" else (b, a)
-            cm = c.motion
-            pts = d.motion._loop
+            cm, dm = c.motion, d.motion
+            assert isinstance(cm, CraneMotion) and isinstance(dm, PolylineMotion)
+            pts = dm._loop
             sample = np.concatenate([np.linspace(p, q, 50) for p, q in zip(pts[:-1], pts[1:])])
             near = np.linalg.norm(sample[:, :2] - cm.pivot[:2], axis=1) < cm.length_m + 2.5
             if np.any(near & (np.abs(sample[:, 2] - cm.pivot[2]) < cm.cube_m / 2 + d.size_m[2] / 2 + 2.0)):
@@ -1097,7 +1098,7 @@ def make_movers(
     extra: list = []
     if crane:
         m = _place_crane(city, rng, path, start, goal, band)
-        if m is not None:
+        if m is not None and isinstance(m.motion, CraneMotion):
             movers.append(m)
             extra.append(m.motion.tower_box)
     n_cross = (n_drones + 1) // 2 if len(path) >= 2 and cum[-1] > 30.0 else 0
