@@ -52,19 +52,13 @@ import numpy as np  # noqa: E402
 from skyrecon.executor import ProcessExecutor  # noqa: E402
 from skyrecon.io.atomic import write_text_atomic  # noqa: E402
 from skyrecon.mission import MissionConfig  # noqa: E402
-from skyrecon.mission.batch import MissionJob, fly_job  # noqa: E402
+from skyrecon.mission.batch import MissionJob, fly_job, read_mission_json  # noqa: E402
 
 
 def mission_row(folder: Path) -> dict | None:
     """The figures of one finished mission folder (None if it has none)."""
-    p = folder / "mission.json"
-    if not p.is_file():
-        return None
-    try:
-        doc = json.loads(p.read_text())
-    except (OSError, json.JSONDecodeError):
-        return None
-    if doc.get("reason") == "error" or "dynamic" not in doc:
+    doc = read_mission_json(folder)
+    if doc is None or "dynamic" not in doc:
         return None
     dyn = doc.get("dynamic") or {}
     changes = dyn.get("changes_seen") or []

@@ -40,20 +40,21 @@ sys.path.insert(0, str(ROOT / "src"))
 from skyrecon.executor import ProcessExecutor  # noqa: E402
 from skyrecon.io.atomic import write_text_atomic  # noqa: E402
 from skyrecon.mission import MissionConfig  # noqa: E402
-from skyrecon.mission.batch import SUMMARY_KEYS, MissionJob, fly_job, summarize, summary_markdown  # noqa: E402
+from skyrecon.mission.batch import (  # noqa: E402
+    SUMMARY_KEYS,
+    MissionJob,
+    fly_job,
+    read_mission_json,
+    summarize,
+    summary_markdown,
+)
 from skyrecon.report.mission_report import render_summary_report  # noqa: E402
 
 
 def row_from_folder(folder: Path) -> dict | None:
     """The summary row of a finished mission folder, or None if it has none."""
-    p = folder / "mission.json"
-    if not p.is_file():
-        return None
-    try:
-        doc = json.loads(p.read_text())
-    except (OSError, json.JSONDecodeError):
-        return None
-    if doc.get("reason") == "error":
+    doc = read_mission_json(folder)
+    if doc is None:
         return None
     row = {k: doc.get(k) for k in SUMMARY_KEYS}
     row["message"] = doc.get("message", "")

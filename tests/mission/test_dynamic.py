@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 
 import numpy as np
 import pytest
 
+from skyrecon.cli import demo as demo_cli
 from skyrecon.cli.main import main
 from skyrecon.mapping import MapConfig, OccupancyMap
 from skyrecon.mission.loop import run_mission
@@ -98,3 +100,37 @@ def test_bad_prior_maps_give_one_clear_line(tmp_path, capsys):
     assert main([*args, "--prior-map", str(tmp_path / "far")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "another city" in err[0]
+
+
+def test_user_movers_inside_a_building_or_on_the_start_are_refused(tmp_path, capsys):
+    args = ["demo", "--seed", "0", "--city-size", "60", "--width", "160", "--quiet", "--movers", "off"]
+    parser = argparse.ArgumentParser()
+    demo_cli.add_parser(parser.add_subparsers())
+    sc = make_scenario(0, demo_cli._config(parser.parse_args(args)))  # what the command will fly
+    b = sc.city.boxes[int(np.argmax(sc.city.boxes[:, 5]))]  # the tallest building
+    inside = [(b[0] + b[3]) / 2, (b[1] + b[4]) / 2, min(b[5] - 1.0, 14.0)]
+    drone = {
+        "name": "intruder",
+        "kind": "drone",
+        "motion": {
+            "type": "polyline",
+            "points": [inside, [inside[0] + 0.5, inside[1], inside[2]]],
+            "speed_mps": 1.0,
+        },
+        "size_m": [1.0, 1.0, 0.4],
+    }
+    args = args[:-2]
+    f = tmp_path / "movers.json"
+    f.write_text(json.dumps([drone]))
+    assert main([*args, "--movers", str(f), "--out", str(tmp_path / "a")]) == 2
+    err = [line for line in capsys.readouterr().err.splitlines() if line.startswith("error:")]
+    assert len(err) == 1 and "movers.json" in err[0] and "intruder" in err[0], err
+    s = sc.start.tolist()
+    drone["motion"]["points"] = [s, [s[0] + 0.5, s[1], s[2]]]
+    f.write_text(json.dumps({"movers": [drone]}))
+    assert main([*args, "--movers", str(f), "--out", str(tmp_path / "b")]) == 2
+    err = [line for line in capsys.readouterr().err.splitlines() if line.startswith("error:")]
+    assert len(err) == 1 and "start" in err[0], err
+    f.write_text("{not json")
+    assert main([*args, "--movers", str(f), "--out", str(tmp_path / "c")]) == 2
+    assert "JSON" in capsys.readouterr().err

@@ -116,9 +116,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--movers",
-        choices=("on", "off"),
         default="on",
-        help="other drones, vehicles and a turning crane boom move through the city (default on)",
+        metavar="on|off|FILE.json",
+        help="other drones, vehicles and a turning crane boom move through the city (default on); or "
+        "the movers described in a JSON file (as mission.json's scenario.movers)",
     )
     p.add_argument(
         "--prior-map",
@@ -158,7 +159,8 @@ def _config(args):
         time_limit_s=args.time_limit,
         max_altitude_m=args.max_altitude,
         pose_source=args.pose_source,
-        movers=args.movers == "on",
+        movers=args.movers != "off",
+        movers_file="" if args.movers in ("on", "off") else args.movers,
         prior_map=args.prior_map or "",
         city_changes=bool(args.city_changes or args.prior_map == "earlier"),
         track_movers=not args.no_tracking,

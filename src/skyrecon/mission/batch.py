@@ -107,6 +107,19 @@ def fly_and_write(
     return Outcome(doc, False, out)
 
 
+def read_mission_json(folder: str | Path) -> dict | None:
+    """The ``mission.json`` of a finished mission folder, or None when it has none (or it is
+    unreadable, or the mission ended in an error): for resuming batches and benchmarks."""
+    p = Path(folder) / "mission.json"
+    if not p.is_file():
+        return None
+    try:
+        doc = json.loads(p.read_text())
+    except (OSError, json.JSONDecodeError):
+        return None
+    return None if doc.get("reason") == "error" else doc
+
+
 def mission_line(doc: dict) -> str:
     """One line describing a mission outcome (for stderr)."""
     seed = doc.get("seed")

@@ -76,6 +76,9 @@ class MissionConfig:
         endpoint_clearance_m: start and goal picked from a seed keep this far from obstacles.
     A city that moves (:mod:`skyrecon.sim.movers`, :mod:`skyrecon.mission.changes`):
         movers: the simulated city has moving obstacles (other drones, vehicles, a crane boom).
+        movers_file: a JSON file describing the movers instead (a list of movers as in
+            ``mission.json`` ``scenario.movers``, see :meth:`skyrecon.sim.movers.Mover.to_dict`);
+            a mover inside a building or on the drone's start is refused with one clear line.
         city_changes: today's city differs from the one the prior map was made of (a new
             scaffold tower on the way, a container stack gone).
         prior_map: "" (start with an empty map), "earlier" (the map an earlier flight over
@@ -124,6 +127,7 @@ class MissionConfig:
     max_goal_distance_m: float = 180.0
     endpoint_clearance_m: float = 4.0
     movers: bool = False
+    movers_file: str = ""
     city_changes: bool = False
     prior_map: str = ""
     track_movers: bool = True

@@ -15,8 +15,10 @@ or too close to a building, outside the altitude band or the map, or no way thro
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -285,7 +287,9 @@ def make_scenario(
     scenario = Scenario(int(seed), city, s, g, box, shortest, picked)
     if cfg.city_changes:
         _apply_changes(scenario, cfg)
-    if cfg.movers:
+    if cfg.movers_file:
+        scenario.movers = load_movers(cfg.movers_file, scenario.city, scenario.start, cfg)
+    elif cfg.movers:
         scenario.movers = make_movers(
             scenario.city,
             scenario.seed,
@@ -298,6 +302,30 @@ def make_scenario(
             pace=(0.7, 1.0) if cfg.prior_map else (0.35, 0.6),
         )
     return scenario
+
+
+def load_movers(path: str | Path, city: City, start: np.ndarray, cfg: MissionConfig) -> MovingScene:
+    """The movers described in a JSON file (a list of :meth:`~skyrecon.sim.movers.Mover.to_dict`
+    descriptions, or ``{"movers": [...]}``), checked against the city and the drone's start.
+
+    Raises:
+        ImpossibleMission: an unreadable file, a bad description, a mover inside a building or
+            on the drone's start (the message names the file and the mover).
+    """
+    p = Path(path)
+    try:
+        doc = json.loads(p.read_text())
+    except FileNotFoundError:
+        raise ImpossibleMission(f"{p}: no such movers file", "movers_file") from None
+    except (OSError, json.JSONDecodeError) as e:
+        raise ImpossibleMission(f"{p}: not a JSON movers file ({e})", "movers_file") from None
+    desc = {"movers": doc} if isinstance(doc, list) else doc
+    try:
+        scene = MovingScene.from_dict(desc, city)
+        scene.validate(start, cfg.clearance_m)
+    except InputError as e:
+        raise ImpossibleMission(f"{p}: {e.reason}", "movers_file") from None
+    return scene
 
 
 def _apply_changes(scenario: Scenario, cfg: MissionConfig) -> None:

@@ -25,6 +25,7 @@ from skyrecon.report.mission_report import (
     _img,
     _PlanView,
     _table,
+    legend_html,
     overview_image,
     series_plot,
 )
@@ -97,14 +98,14 @@ def movers_image(result, extent) -> np.ndarray:
 
 
 def _legend() -> str:
-    items = [
-        (RED, "flown track (circles: closest approaches)"),
-        (CYAN, "movers' true paths (circles: where they were then)"),
-        (MAGENTA, "movers as the drone tracked them"),
-        (ORANGE, "drone's map: occupied voxels"),
-    ]
-    spans = "".join(f"<span><i class='sw' style='background: rgb{c}'></i>{t}</span>" for c, t in items)
-    return f"<p class='legend'>{spans}</p>"
+    return legend_html(
+        [
+            (RED, "flown track (circles: closest approaches)"),
+            (CYAN, "movers' true paths (circles: where they were then)"),
+            (MAGENTA, "movers as the drone tracked them"),
+            (ORANGE, "drone's map: occupied voxels"),
+        ]
+    )
 
 
 def dynamic_section(result, metrics: dict, extent) -> list[str]:

@@ -250,6 +250,12 @@ def _page(title: str, body: str) -> str:
     )
 
 
+def legend_html(items: Sequence[tuple[tuple[int, int, int], str]], extra: str = "") -> str:
+    """A legend line: (RGB colour, label) swatches, then ``extra`` HTML."""
+    spans = "".join(f"<span><i class='sw' style='background: rgb{c}'></i>{t}</span>" for c, t in items)
+    return f"<p class='legend'>{spans}{extra}</p>"
+
+
 def _legend(estimated: bool = False) -> str:
     items = [
         (RED, "flown track"),
@@ -258,8 +264,7 @@ def _legend(estimated: bool = False) -> str:
         (GREEN, "shortest feasible path (true city)"),
         (ORANGE, "drone's map: occupied voxels"),
     ]
-    spans = "".join(f"<span><i class='sw' style='background: rgb{c}'></i>{t}</span>" for c, t in items)
-    return f"<p class='legend'>{spans}<span>○ start</span><span>✕ goal</span></p>"
+    return legend_html(items, "<span>○ start</span><span>✕ goal</span>")
 
 
 def _timing_table(stage_ms: dict, loop_stages: Sequence[str]) -> str:
