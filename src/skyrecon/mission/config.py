@@ -87,6 +87,12 @@ class MissionConfig:
         track_movers: separate moving objects from the static map and track them
             (:mod:`skyrecon.perception.movers`); the planner keeps clear of their predicted sweep.
         mover_horizon_s: how far ahead a tracked mover's motion is predicted for planning, seconds.
+    Faults (:mod:`skyrecon.sim.faults`, :mod:`skyrecon.mission.health`, :mod:`skyrecon.mission.failsafe`):
+        faults: faults injected into the simulated sensors ("" none; a specification or "random").
+        failsafe: what a prolonged loss of trustworthy depth triggers: "return" (back along the
+            flown track to take-off), "land" (where it is, over observed free ground) or "hover".
+        failsafe_after_s: how long the depth must stay untrustworthy before that, seconds (until
+            then the drone holds a hover).
     """
 
     width: int = 640
@@ -132,6 +138,9 @@ class MissionConfig:
     prior_map: str = ""
     track_movers: bool = True
     mover_horizon_s: float = 3.0
+    faults: str = ""
+    failsafe: str = "return"
+    failsafe_after_s: float = 3.0
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -183,6 +192,10 @@ class MissionConfig:
             raise InputError(f"pose_source must be odometry, truth or gps+odometry, got {self.pose_source!r}")
         if not (self.degraded_speed_mps >= 0 and self.delivery_tolerance_m >= 0):
             raise InputError("degraded_speed_mps and delivery_tolerance_m must be at least 0")
+        if self.failsafe not in ("return", "land", "hover"):
+            raise InputError(f"failsafe must be return, land or hover, got {self.failsafe!r}")
+        if not self.failsafe_after_s > 0:
+            raise InputError(f"failsafe_after_s must be positive, got {self.failsafe_after_s}")
         if not self.mover_horizon_s > 0:
             raise InputError(f"mover_horizon_s must be positive, got {self.mover_horizon_s}")
         if self.time_limit_s is not None and not self.time_limit_s > 0:

@@ -35,16 +35,20 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
+from skyrecon.core import Rigid3
 from skyrecon.mapping import OccupancyMap
 from skyrecon.mission.config import MissionConfig
-from skyrecon.mission.guidance import guide, hover, recovery_look_at, scan_look_at
+from skyrecon.mission.failsafe import Failsafe
+from skyrecon.mission.guidance import Guidance, guide, hover, recovery_look_at, scan_look_at
+from skyrecon.mission.health import REVEALS, SensorHealth
 from skyrecon.mission.navigator import Navigator, timed
 from skyrecon.mission.perception import flight_perception, mission_rig
 from skyrecon.mission.pose_source import (
+    PoseReading,
     PoseSource,
     believed_state,
     est_from_true,
@@ -59,6 +63,7 @@ from skyrecon.odometry.types import TrackingState
 from skyrecon.perception import StereoDepth
 from skyrecon.perception.movers import MoverSettings, MoverTracker
 from skyrecon.sim import render_stereo
+from skyrecon.sim.faults import Delivery, Fault, FaultInjector, parse_faults
 
 #: Stages of the loop proper (rendering is the simulator's and is reported apart).
 LOOP_STAGES = ("stereo", "pose", "movers", "integrate", "distance", "check", "replan", "control")
@@ -93,6 +98,8 @@ class CycleRecord:
             showed the path inside the clearance) or "mover" (a tracked mover's predicted sweep
             crossed it); "" when not replanned.
         movers_tracked: confirmed tracks of moving objects after this cycle's update.
+        health: what was wrong with the cycle's data, comma-separated (:mod:`skyrecon.mission.health`).
+        mode: the failsafe mode (:mod:`skyrecon.mission.failsafe`): fly, hold, return or land.
     """
 
     cycle: int
@@ -120,6 +127,8 @@ class CycleRecord:
     clearance_moving_m: float = math.inf
     replan_reason: str = ""
     movers_tracked: int = 0
+    health: str = ""
+    mode: str = "fly"
 
     @property
     def pose_error_m(self) -> float:
@@ -171,6 +180,8 @@ class CycleRecord:
             "clearance_moving_m": _finite(self.clearance_moving_m),
             "replan_reason": self.replan_reason,
             "movers_tracked": self.movers_tracked,
+            "health": self.health,
+            "mode": self.mode,
         }
 
 
@@ -241,6 +252,8 @@ class MissionResult:
     monitor: WorldMonitor | None = None
     prior: PriorMap | None = None
     world_summary: dict | None = None
+    faults: list[dict] = field(default_factory=list)
+    failsafe_events: list[dict] = field(default_factory=list)
 
     def flown_path(self) -> np.ndarray:
         """(N + 1, 3) positions of the drone, world metres: one per cycle, then the final one."""
@@ -299,6 +312,51 @@ def _truth_clearance(
     return static, float(scenario.movers.mover_distance(pts, t0 + (t1 - t0) * u).min())
 
 
+def fault_report(faults: list[Fault], records: list[CycleRecord]) -> list[dict]:
+    """Each injected fault with its onset and when the navigator's health check first revealed
+    it (``detected_s``, None if it never did, e.g. a fault after the mission ended)."""
+    out = []
+    for f in faults:
+        hit = next(
+            (
+                r.time_s
+                for r in records
+                if r.time_s >= f.onset_s - 1e-9 and REVEALS[f.name] & set(r.health.split(","))
+            ),
+            None,
+        )
+        row = f.to_dict()
+        row["detected_s"] = None if hit is None else round(hit, 3)
+        row["detect_delay_s"] = None if hit is None else round(hit - f.onset_s, 3)
+        out.append(row)
+    return out
+
+
+def _strided_mask(mask: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    """A full-resolution (H, W) mask on the depth's (h, w) grid (any pixel of a cell marks it)."""
+    fy, fx = mask.shape[0] // shape[0], mask.shape[1] // shape[1]
+    m = mask[: shape[0] * fy, : shape[1] * fx].reshape(shape[0], fy, shape[1], fx)
+    return np.asarray(m.any(axis=(1, 3)), dtype=bool)
+
+
+def _failsafe_guidance(
+    failsafe: Failsafe, mode: str, p: np.ndarray, believed: DroneState, goal: np.ndarray, cfg: MissionConfig
+) -> Guidance:
+    """Guidance while the failsafe holds, returns or lands (see :mod:`skyrecon.mission.failsafe`)."""
+    if mode == "return":
+        back = failsafe.way_back(p)
+        if len(back) >= 2:  # the way back was flown, so it is free: the stopping rule's horizon is seen
+            g = guide(back, believed, cfg.verify_horizon_m, cfg)
+            g.speed_limit = min(g.speed_limit, cfg.degraded_speed_mps)
+            return g
+    if mode == "land":
+        g = hover(p, goal)
+        g.carrot, g.speed_limit = failsafe.landing_target(p), 1.0
+        g.look_at = p + np.array([math.cos(believed.yaw), math.sin(believed.yaw), -1.0]) * 5.0
+        return g
+    return hover(p, goal)
+
+
 def _map_update(
     nav: Navigator,
     tracker: MoverTracker | None,
@@ -319,6 +377,84 @@ def _map_update(
             depth_for_map[mf.dynamic_mask] = np.nan
     _, integrate_ms = timed(nav.integrate, depth_for_map, depth.intrinsics, cam_from_world, flown_from)
     return movers_ms, integrate_ms
+
+
+def _sense(
+    injector: FaultInjector | None,
+    health_check: SensorHealth,
+    stereo: StereoDepth,
+    frame,
+    time_s: float,
+    last_loop_ms: float,
+):
+    """What reaches the drone this cycle and what it makes of it: (the delivery, its health, the
+    depth or None, the (left, right) images or None, stereo milliseconds). Saturated (glare)
+    pixels are taken out of the depth; the rest is used."""
+    delivery = (
+        injector.deliver(time_s, frame.left, frame.right)
+        if injector is not None
+        else Delivery(frame.left, frame.right, time_s)
+    )
+    health = health_check.check_frame(time_s, delivery.left, delivery.right, delivery.stamp_s, last_loop_ms)
+    if delivery.left is None or delivery.right is None:
+        return delivery, health, None, None, 0.0
+    depth, ms = timed(stereo.compute, delivery.left, delivery.right)
+    if health.glare_mask is not None:
+        depth.depth_m[_strided_mask(health.glare_mask, depth.depth_m.shape)] = np.nan
+    health = health_check.check_depth(health, depth.measured_fraction)
+    return delivery, health, depth, (delivery.left, delivery.right), ms
+
+
+def _ending(
+    scenario: Scenario,
+    cfg: MissionConfig,
+    state: DroneState,
+    believed: DroneState,
+    mode: str,
+    clearance: float,
+    moving: bool,
+    limit_s: float,
+    failsafe: Failsafe,
+) -> tuple[str, bool, str] | None:
+    """How the mission ends after this cycle, if it does: (reason, success, message)."""
+    t = state.time_s
+    if clearance < cfg.drone_radius_m:
+        what = "a moving obstacle" if moving else "an obstacle"
+        return (
+            "collision",
+            False,
+            f"collision at t = {t:.1f} s near {np.round(state.position, 1).tolist()}: "
+            f"{clearance:.2f} m from {what} (drone radius {cfg.drone_radius_m:g} m)",
+        )
+    if mode == "return" and np.linalg.norm(believed.position - scenario.start) <= cfg.arrival_tolerance_m:
+        return "returned", False, f"returned to the take-off point at t = {t:.1f} s (failsafe)"
+    if mode == "land" and state.position[2] <= cfg.drone_radius_m + 0.35:
+        return (
+            "landed",
+            False,
+            f"landed at t = {t:.1f} s near {np.round(state.position, 1).tolist()} (failsafe)",
+        )
+    if np.linalg.norm(believed.position - scenario.goal) <= cfg.arrival_tolerance_m:
+        miss = float(np.linalg.norm(state.position - scenario.goal))
+        tol = cfg.arrival_tolerance_m + cfg.delivery_tolerance_m
+        if miss <= tol:
+            return "", True, f"arrived in {t:.1f} s"
+        return (
+            "missed_goal",
+            False,
+            f"believed it had arrived at t = {t:.1f} s but was {miss:.1f} m from the goal "
+            f"(pose drift; tolerance {tol:g} m)",
+        )
+    if t >= limit_s:
+        if mode != "fly":
+            return (
+                "hovering",
+                False,
+                f"time limit of {limit_s:.0f} s reached hovering safely ({failsafe.events[-1]['reason']})",
+            )
+        d = float(np.linalg.norm(state.position - scenario.goal))
+        return "timeout", False, f"time limit of {limit_s:.0f} s reached {d:.1f} m from the goal"
+    return None
 
 
 def run_mission(
@@ -353,11 +489,17 @@ def run_mission(
         WorldMonitor(scenario, cfg.voxel_size_m, hit_range) if world is not None or scenario.changes else None
     )
     reach_m = cfg.cruise_speed_mps * cfg.mover_horizon_s + cfg.stopping_distance_m
+    limit_s = cfg.time_limit_for(scenario.straight_line_m)
+    faults = parse_faults(cfg.faults, scenario.seed, limit_s)
+    injector = FaultInjector(faults, scenario.seed) if faults else None
+    # a frozen frame can only be told from a still scene by the sensor noise the injector adds
+    health_check = SensorHealth(budget_ms=1e3 * cfg.latency_budget_s, check_frozen=injector is not None)
+    failsafe = Failsafe(cfg)
+    last_loop_ms = 0.0
     setup_s = time.perf_counter() - t_start
     state = DroneState(
         scenario.start.copy(), np.zeros(3), scenario.start_yaw, math.radians(cfg.camera_pitch_deg)
     )
-    limit_s = cfg.time_limit_for(scenario.straight_line_m)
     records: list[CycleRecord] = []
     plans: list[PlanEvent] = []
     keeper = _FrameKeeper(keep_frames)
@@ -379,6 +521,8 @@ def run_mission(
     lost_cycles, lost_yaw0 = 0, 0.0  # cycles lost since the pose was last trusted, the heading then
     trusted_run = 0  # consecutive cycles with a pose (not lost)
     believed = state
+    reading = PoseReading(state.cam_from_world().inverse().with_frames("world", "left"), TrackingState.OK)
+    est_from_world = Rigid3.identity("est", "world")
     while True:
         true_p = state.position.copy()
         ms: dict[str, float] = {}
@@ -387,19 +531,26 @@ def run_mission(
         scene_now = world.snapshot(state.time_s) if world is not None else scenario.city
         frame = render_stereo(scene_now, rig, true_cam_from_world.with_frames("left", "world"))
         ms["render"] = 1e3 * (time.perf_counter() - t_render)
-        depth, ms["stereo"] = timed(stereo.compute, frame.left, frame.right)
         true_world_from_left = true_cam_from_world.inverse().with_frames("world", "left")
-        reading = pose_source.read(
-            frame.left, frame.right, state.time_s, depth.disparity, true_world_from_left
+        delivery, health, depth, fresh, ms["stereo"] = _sense(
+            injector, health_check, stereo, frame, state.time_s, last_loop_ms
         )
-        ms["pose"] = reading.ms
-        est_from_world = est_from_true(reading.world_from_left, true_world_from_left)
+        ms["pose"] = 0.0
+        if depth is not None and fresh is not None:
+            reading = pose_source.read(
+                fresh[0], fresh[1], state.time_s, depth.disparity, true_world_from_left
+            )
+            ms["pose"] = reading.ms
+            est_from_world = est_from_true(reading.world_from_left, true_world_from_left)
+        # no frame: the pose is carried on by the last estimate of where the estimated world lies
         believed = state if truth else believed_state(state, est_from_world)
         lost = reading.state == TrackingState.LOST
         p = believed.position.copy()
         cam_from_world = reading.world_from_left.inverse().with_frames("cam", "world")
+        mode = failsafe.update(state.time_s, health.trusted, health.reasons, p, nav.map)
         ms["movers"] = ms["integrate"] = 0.0
-        if not lost:  # no map update from a pose that cannot be trusted
+        # no map update from a pose or depth that cannot be trusted; an overrun skips it too
+        if depth is not None and not lost and health.trusted and "overrun" not in health.reasons:
             ms["movers"], ms["integrate"] = _map_update(
                 nav, tracker, depth, cam_from_world, state.time_s, p_prev
             )
@@ -432,7 +583,9 @@ def run_mission(
         momentum = nav.free_along(p, believed.velocity, cfg.verify_horizon_m)
         recovering = lost or lost_cycles > 0  # hold still and look around until the pose holds again
         path_ok = (outcome.clear and not math.isfinite(conflict_m)) or replan_ok
-        if len(rest) >= 2 and path_ok and not recovering:
+        if mode != "fly":
+            verified, g = 0.0, _failsafe_guidance(failsafe, mode, p, believed, scenario.goal, cfg)
+        elif len(rest) >= 2 and path_ok and not recovering:
             verified = nav.verified_distance(rest, cfg.verify_horizon_m, cfg.verify_skip_m)
             g = guide(rest, believed, verified, cfg, momentum)
             if reading.state == TrackingState.DEGRADED and g.speed_limit > cfg.degraded_speed_mps:
@@ -462,6 +615,8 @@ def run_mission(
         )
         new_state = new_believed if truth else true_step(state, believed, new_believed, est_from_world)
         ms["control"] = 1e3 * (time.perf_counter() - t0)
+        if mode == "fly":
+            failsafe.remember(p)
         c_static, c_moving = _truth_clearance(
             scenario, true_p, new_state.position, state.time_s, new_state.time_s
         )
@@ -480,7 +635,7 @@ def run_mission(
             outcome.clear,
             verified,
             g.to_go_m,
-            depth.measured_fraction,
+            0.0 if depth is None else depth.measured_fraction,
             g.speed_limit,
             g.limit.stop_mps if g.limit is not None else 0.0,
             g.limit.reason if g.limit is not None else "hover",
@@ -492,8 +647,11 @@ def run_mission(
             c_moving,
             replan_reason,
             0 if tracker is None else sum(1 for t in tracker.tracks if t.moving),
+            ",".join(health.reasons),
+            mode,
         )
         records.append(rec)
+        last_loop_ms = rec.loop_ms * delivery.cpu_factor  # a starved CPU makes the loop slower
         if monitor is not None:
             monitor.observe(
                 state.time_s,
@@ -504,36 +662,21 @@ def run_mission(
                 nav.map,
                 None if truth else est_from_world,
             )
-        keeper.offer(cycle, frame.left, depth.disparity, replanned)
-        last_frame = FrameSample(cycle, frame.left, depth.disparity)
+        if depth is not None and delivery.left is not None:
+            keeper.offer(cycle, delivery.left, depth.disparity, replanned)
+            last_frame = FrameSample(cycle, delivery.left, depth.disparity)
         if on_cycle is not None:
             on_cycle(rec, nav)
         state, believed = new_state, new_believed
         cycle += 1
-        if clearance < cfg.drone_radius_m:
-            collisions, reason = 1, "collision"
-            what = "a moving obstacle" if c_moving < c_static else "an obstacle"
-            message = (
-                f"collision at t = {state.time_s:.1f} s near {np.round(state.position, 1).tolist()}: "
-                f"{clearance:.2f} m from {what} (drone radius {cfg.drone_radius_m:g} m)"
-            )
-            break
-        if np.linalg.norm(believed.position - scenario.goal) <= cfg.arrival_tolerance_m:
-            miss = float(np.linalg.norm(state.position - scenario.goal))
-            if miss <= cfg.arrival_tolerance_m + cfg.delivery_tolerance_m:
-                success, message = True, f"arrived in {state.time_s:.1f} s"
-            else:
-                reason = "missed_goal"
-                message = (
-                    f"believed it had arrived at t = {state.time_s:.1f} s but was {miss:.1f} m from the goal "
-                    f"(pose drift; tolerance {cfg.arrival_tolerance_m + cfg.delivery_tolerance_m:g} m)"
-                )
-            break
-        if state.time_s >= limit_s:
-            reason = "timeout"
-            message = (
-                f"time limit of {limit_s:.0f} s reached {np.linalg.norm(state.position - scenario.goal):.1f} m "
-                f"from the goal" + (f" (last planning problem: {message})" if message else "")
+        ending = _ending(
+            scenario, cfg, state, believed, mode, clearance, c_moving < c_static, limit_s, failsafe
+        )
+        if ending is not None:
+            reason, success, why = ending
+            collisions = int(reason == "collision")
+            message = why + (
+                f" (last planning problem: {message})" if reason == "timeout" and message else ""
             )
             break
     return MissionResult(
@@ -556,4 +699,6 @@ def run_mission(
         None
         if monitor is None
         else monitor.summary(nav.map, state.time_s, None if truth else est_from_world),
+        fault_report(faults, records),
+        failsafe.events,
     )

@@ -1,0 +1,132 @@
+"""Sensor and computer health, judged from the data the navigator receives (never from the
+simulator's knowledge of what it injected).
+
+Per cycle :meth:`SensorHealth.check` looks at the frame (or its absence), its timestamp, the
+stereo result and the previous cycle's loop time, and says whether the depth is fresh and
+trustworthy, and if not, why:
+
+* ``no_frame``: nothing arrived this cycle;
+* ``stale``: the frame was captured more than ``max_age_s`` ago (latency);
+* ``black``, ``black_left``, ``black_right``: an image is (nearly) uniform black;
+* ``frozen``: the frame is bit-identical to the previous one (a real sensor's noise never
+  repeats, so the camera or its driver is stuck);
+* ``noisy``: the image noise (Immerkaer's estimator) is above ``max_noise``;
+* ``glare``: more than ``max_saturated`` of the image is saturated (the depth there is masked
+  out, the rest is used: glare alone does not stop the drone);
+* ``no_depth``: the images look fine but stereo measured almost nothing;
+* ``overrun``: the previous cycle took longer than the latency budget (the map update is then
+  skipped, the safety checks are not).
+
+Frames and units: seconds, grey levels (0-255), fractions of the image.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+#: Reasons that make the depth of the cycle untrustworthy (the drone stops using it).
+UNTRUSTED = {"no_frame", "stale", "black", "black_left", "black_right", "frozen", "noisy", "no_depth"}
+
+#: Which health reasons reveal which injected fault (for the fault report).
+REVEALS = {
+    "blackout": {"black"},
+    "freeze": {"frozen"},
+    "drop": {"no_frame"},
+    "one-eye": {"black_left", "black_right"},
+    "latency": {"stale"},
+    "cpu": {"overrun"},
+    "glare": {"glare"},
+    "noise": {"noisy"},
+}
+
+
+@dataclass
+class Health:
+    """One cycle's verdict: ``trusted`` (fresh, trustworthy depth), ``reasons`` (see the module
+    docstring) and ``glare_mask`` ((H, W) bool saturated pixels, or None)."""
+
+    trusted: bool
+    reasons: list[str] = field(default_factory=list)
+    glare_mask: np.ndarray | None = None
+
+
+def noise_sigma(gray: np.ndarray) -> float:
+    """Immerkaer's fast noise estimate of a grey image (H, W), grey levels."""
+    g = np.asarray(gray, dtype=np.float32)
+    k = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
+    r = cv2.filter2D(g, -1, k)[1:-1, 1:-1]
+    h, w = g.shape
+    return float(np.sqrt(np.pi / 2) * np.abs(r).sum() / (6.0 * (w - 2) * (h - 2)))
+
+
+@dataclass
+class SensorHealth:
+    """Judges each cycle's data (see the module docstring).
+
+    Attributes:
+        max_age_s: a frame older than this is stale, seconds.
+        black_mean, black_std: an image darker and flatter than this is black, grey levels.
+        max_noise: image noise above this is untrustworthy, grey levels.
+        max_saturated: share of saturated pixels above which glare is reported.
+        min_measured: below this share of measured pixels the depth is missing.
+        budget_ms: the loop's latency budget, milliseconds.
+        check_frozen: look for repeated frames (needs sensor noise: the simulator's noise-free
+            cameras repeat identical frames while the drone hovers).
+    """
+
+    max_age_s: float = 0.15
+    black_mean: float = 12.0
+    black_std: float = 4.0
+    max_noise: float = 6.0
+    max_saturated: float = 0.03
+    min_measured: float = 0.05
+    budget_ms: float = 100.0
+    check_frozen: bool = True
+    _prev: np.ndarray | None = None
+
+    def _black(self, img: np.ndarray) -> bool:
+        small = img[::4, ::4]
+        return bool(small.mean() < self.black_mean and small.std() < self.black_std)
+
+    def check_frame(self, now_s: float, left, right, stamp_s: float, last_loop_ms: float) -> Health:
+        """What the frame itself says, before stereo runs (``left``/``right`` None: no frame)."""
+        reasons = []
+        if last_loop_ms > self.budget_ms:
+            reasons.append("overrun")
+        if left is None or right is None:
+            return Health(False, reasons + ["no_frame"])
+        if now_s - stamp_s > self.max_age_s:
+            reasons.append("stale")
+        bl, br = self._black(left), self._black(right)
+        if bl and br:
+            reasons.append("black")
+        elif bl:
+            reasons.append("black_left")
+        elif br:
+            reasons.append("black_right")
+        probe = left[::7, ::7, 1]
+        if self.check_frozen and self._prev is not None and np.array_equal(probe, self._prev):
+            reasons.append("frozen")
+        self._prev = probe.copy()
+        glare = None
+        if not (bl or br):
+            gray = cv2.cvtColor(left, cv2.COLOR_RGB2GRAY)
+            sat = gray >= 250
+            if sat.mean() > self.max_saturated:
+                reasons.append("glare")
+                # the blob's rim matches wrongly too (each camera sees the flare elsewhere)
+                k = max(3, int(0.04 * gray.shape[1]) | 1)
+                glare = cv2.dilate(sat.view(np.uint8), np.ones((k, k), np.uint8)) > 0
+            if noise_sigma(gray) > self.max_noise:
+                reasons.append("noisy")
+        return Health(not (set(reasons) & UNTRUSTED), reasons, glare)
+
+    def check_depth(self, health: Health, measured_fraction: float) -> Health:
+        """Add what stereo says (``measured_fraction`` of pixels measured) to the frame's verdict."""
+        if health.trusted and measured_fraction < self.min_measured:
+            health.reasons.append("no_depth")
+            health.trusted = False
+        return health
