@@ -17,8 +17,13 @@ stack went away would have left) and corrects it with its own cameras.
 With ``--missions N`` it flies seeds N, N+1, ... in parallel, each in ``seed_NNNN/``, and writes
 ``summary.json``, ``summary.md`` and ``summary.html``.
 
-Exit status: 0 delivered (every mission, with --missions); 1 a mission failed in flight
-(collision or time limit); 2 impossible input (e.g. a goal inside a building): ``report.html``
+With ``--faults`` the cameras and the flight computer fail as told; the drone finds out from
+its data, brakes to a hover, and after 3 s without trustworthy depth returns, lands or hovers
+(``--failsafe``); ``mission.json`` says how it ended (``outcome``) and when each fault was
+detected (``faults``).
+
+Exit status: 0 delivered (every mission, with --missions); 1 a mission was not delivered
+(collision, time limit, or a failsafe return, landing or hover); 2 impossible input (e.g. a goal inside a building): ``report.html``
 still says why.
 """
 
@@ -37,6 +42,7 @@ from skyrecon.mission import MissionConfig
 from skyrecon.mission.batch import fly_and_write, mission_line, run_missions
 from skyrecon.mission.safety import speed_warning
 from skyrecon.progress import progress, progress_enabled
+from skyrecon.sim.faults import parse_faults
 
 EXAMPLES = """  skyrecon demo                                  # one delivery, seed 0, into ./demo_out/
   skyrecon demo --seed 7 --out mission7/
@@ -47,6 +53,8 @@ EXAMPLES = """  skyrecon demo                                  # one delivery, s
   skyrecon demo --prior-map earlier --out stale/   # plans on yesterday's map; a tower is new, a stack gone
   skyrecon demo --seed 7 --prior-map mission7/map --out again/   # reuse the map of an earlier flight
   skyrecon demo --movers off --out still/         # a city where nothing moves
+  skyrecon demo --faults blackout@12+2,one-eye@30 --failsafe land --out faulty/
+  skyrecon demo --faults random --seed 5 --out random_faults/
 """
 
 
@@ -140,6 +148,20 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         help="do not separate and track moving objects (they go into the map like buildings); for comparison",
     )
     p.add_argument(
+        "--faults",
+        metavar="SPEC",
+        help="inject sensor and computer faults: NAME@ONSET[+DURATION][:VALUE], comma-separated "
+        "(blackout, freeze, drop, one-eye, latency, cpu, glare, noise), or 'random' (a seeded mix); "
+        "e.g. blackout@12+2,latency@20+5:0.4",
+    )
+    p.add_argument(
+        "--failsafe",
+        choices=("return", "land", "hover"),
+        default="return",
+        help="what a prolonged loss of trustworthy depth (3 s) triggers: return along the flown track "
+        "to take-off (default), land where it is over ground seen free, or hover",
+    )
+    p.add_argument(
         "--time-limit",
         type=positive_float,
         help="simulated seconds before giving up (default: from the distance)",
@@ -164,6 +186,8 @@ def _config(args):
         prior_map=args.prior_map or "",
         city_changes=bool(args.city_changes or args.prior_map == "earlier"),
         track_movers=not args.no_tracking,
+        faults=args.faults or "",
+        failsafe=args.failsafe,
     )
     if args.city_size is not None:
         scale = min(1.0, args.city_size / cfg.city_size_m)
@@ -227,6 +251,7 @@ def run(args: argparse.Namespace) -> int:
     # steal the cores the stereo threads need (and a shared machine's cores from others).
     os.environ.setdefault("OMP_WAIT_POLICY", "passive")
     cfg = _config(args)
+    parse_faults(cfg.faults)  # a specification that cannot be parsed fails here, in one line
     start = _xyz(args.start, "--start") if args.start else None
     goal = _xyz(args.goal, "--goal") if args.goal else None
     if (start is None) != (goal is None):

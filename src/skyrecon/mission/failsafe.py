@@ -104,8 +104,12 @@ class Failsafe:
 
     def way_back(self, position: np.ndarray) -> np.ndarray:
         """(K, 3) the flown track from ``position`` back to the take-off point, world metres."""
-        back = [np.asarray(position, dtype=np.float64)] + self._track[::-1]
-        return np.array(back)
+        p = np.asarray(position, dtype=np.float64)
+        if not self._track:
+            return p[None].copy()
+        track = np.array(self._track)
+        k = int(np.argmin(np.linalg.norm(track - p, axis=1)))  # where on the track the drone is
+        return np.vstack([p[None], track[k::-1]])
 
     def landing_target(self, position: np.ndarray) -> np.ndarray:
         """(3,) the point straight below ``position`` at touch-down height."""

@@ -8,8 +8,8 @@ trustworthy, and if not, why:
 * ``no_frame``: nothing arrived this cycle;
 * ``stale``: the frame was captured more than ``max_age_s`` ago (latency);
 * ``black``, ``black_left``, ``black_right``: an image is (nearly) uniform black;
-* ``frozen``: the frame is bit-identical to the previous one (a real sensor's noise never
-  repeats, so the camera or its driver is stuck);
+* ``frozen``: the frame is bit-identical to the previous one although the drone moved or
+  turned in between (so the camera or its driver is stuck);
 * ``noisy``: the image noise (Immerkaer's estimator) is above ``max_noise``;
 * ``glare``: more than ``max_saturated`` of the image is saturated (the depth there is masked
   out, the rest is used: glare alone does not stop the drone);
@@ -73,8 +73,6 @@ class SensorHealth:
         max_saturated: share of saturated pixels above which glare is reported.
         min_measured: below this share of measured pixels the depth is missing.
         budget_ms: the loop's latency budget, milliseconds.
-        check_frozen: look for repeated frames (needs sensor noise: the simulator's noise-free
-            cameras repeat identical frames while the drone hovers).
     """
 
     max_age_s: float = 0.15
@@ -84,15 +82,18 @@ class SensorHealth:
     max_saturated: float = 0.03
     min_measured: float = 0.05
     budget_ms: float = 100.0
-    check_frozen: bool = True
     _prev: np.ndarray | None = None
+    _frozen: bool = False
 
     def _black(self, img: np.ndarray) -> bool:
         small = img[::4, ::4]
         return bool(small.mean() < self.black_mean and small.std() < self.black_std)
 
-    def check_frame(self, now_s: float, left, right, stamp_s: float, last_loop_ms: float) -> Health:
-        """What the frame itself says, before stereo runs (``left``/``right`` None: no frame)."""
+    def check_frame(
+        self, now_s: float, left, right, stamp_s: float, last_loop_ms: float, moved: bool = True
+    ) -> Health:
+        """What the frame itself says, before stereo runs (``left``/``right`` None: no frame;
+        ``moved``: the drone moved or turned since the previous frame, by its own estimate)."""
         reasons = []
         if last_loop_ms > self.budget_ms:
             reasons.append("overrun")
@@ -108,7 +109,10 @@ class SensorHealth:
         elif br:
             reasons.append("black_right")
         probe = left[::7, ::7, 1]
-        if self.check_frozen and self._prev is not None and np.array_equal(probe, self._prev):
+        same = self._prev is not None and np.array_equal(probe, self._prev)
+        # once stuck, the camera stays suspect until its image changes (the drone then holds still)
+        self._frozen = bool(same and (moved or self._frozen))
+        if self._frozen:
             reasons.append("frozen")
         self._prev = probe.copy()
         glare = None

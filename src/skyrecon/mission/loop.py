@@ -65,6 +65,10 @@ from skyrecon.perception.movers import MoverSettings, MoverTracker
 from skyrecon.sim import render_stereo
 from skyrecon.sim.faults import Delivery, Fault, FaultInjector, parse_faults
 
+#: Milliseconds the simulated flight computer spends on one cycle (about the loop's median on
+#: 2 cores); a ``cpu`` fault stretches it, and the health check sees the overrun from it.
+NOMINAL_LOOP_MS = 50.0
+
 #: Stages of the loop proper (rendering is the simulator's and is reported apart).
 LOOP_STAGES = ("stereo", "pose", "movers", "integrate", "distance", "check", "replan", "control")
 STAGES = ("render",) + LOOP_STAGES
@@ -386,6 +390,7 @@ def _sense(
     frame,
     time_s: float,
     last_loop_ms: float,
+    moved: bool,
 ):
     """What reaches the drone this cycle and what it makes of it: (the delivery, its health, the
     depth or None, the (left, right) images or None, stereo milliseconds). Saturated (glare)
@@ -395,7 +400,9 @@ def _sense(
         if injector is not None
         else Delivery(frame.left, frame.right, time_s)
     )
-    health = health_check.check_frame(time_s, delivery.left, delivery.right, delivery.stamp_s, last_loop_ms)
+    health = health_check.check_frame(
+        time_s, delivery.left, delivery.right, delivery.stamp_s, last_loop_ms, moved
+    )
     if delivery.left is None or delivery.right is None:
         return delivery, health, None, None, 0.0
     depth, ms = timed(stereo.compute, delivery.left, delivery.right)
@@ -492,8 +499,8 @@ def run_mission(
     limit_s = cfg.time_limit_for(scenario.straight_line_m)
     faults = parse_faults(cfg.faults, scenario.seed, limit_s)
     injector = FaultInjector(faults, scenario.seed) if faults else None
-    # a frozen frame can only be told from a still scene by the sensor noise the injector adds
-    health_check = SensorHealth(budget_ms=1e3 * cfg.latency_budget_s, check_frozen=injector is not None)
+    health_check = SensorHealth(budget_ms=1e3 * cfg.latency_budget_s)
+    moved = False  # the drone moved or turned in the last cycle (a frozen camera's image would not change)
     failsafe = Failsafe(cfg)
     last_loop_ms = 0.0
     setup_s = time.perf_counter() - t_start
@@ -533,7 +540,7 @@ def run_mission(
         ms["render"] = 1e3 * (time.perf_counter() - t_render)
         true_world_from_left = true_cam_from_world.inverse().with_frames("world", "left")
         delivery, health, depth, fresh, ms["stereo"] = _sense(
-            injector, health_check, stereo, frame, state.time_s, last_loop_ms
+            injector, health_check, stereo, frame, state.time_s, last_loop_ms, moved
         )
         ms["pose"] = 0.0
         if depth is not None and fresh is not None:
@@ -600,7 +607,8 @@ def run_mission(
         trusted_run = trusted_run + 1 if not lost else 0
         if trusted_run >= 5:  # a re-initialisation lost again at the next frame is still lost
             lost_cycles = 0
-        stalled = stalled + 1 if believed.speed < 0.05 and g.limit is not None else 0
+        # (a failsafe flies a path it already knows; it does not stop to look around)
+        stalled = stalled + 1 if believed.speed < 0.05 and g.limit is not None and mode == "fly" else 0
         if stalled:
             g.look_at = scan_look_at(g.look_at, p, stalled * cfg.dt)
         brake = g.limit is not None and believed.speed > g.limit.stop_mps + 1e-9
@@ -617,6 +625,8 @@ def run_mission(
         ms["control"] = 1e3 * (time.perf_counter() - t0)
         if mode == "fly":
             failsafe.remember(p)
+        turn = abs(math.remainder(new_believed.yaw - believed.yaw, 2 * math.pi))
+        moved = bool(np.linalg.norm(new_believed.position - believed.position) > 0.02 or turn > 0.002)
         c_static, c_moving = _truth_clearance(
             scenario, true_p, new_state.position, state.time_s, new_state.time_s
         )
@@ -651,7 +661,9 @@ def run_mission(
             mode,
         )
         records.append(rec)
-        last_loop_ms = rec.loop_ms * delivery.cpu_factor  # a starved CPU makes the loop slower
+        # the simulated flight computer spends NOMINAL_LOOP_MS a cycle, stretched by a starved
+        # CPU; judging overruns on it (not on this machine's wall clock) keeps missions deterministic
+        last_loop_ms = NOMINAL_LOOP_MS * delivery.cpu_factor
         if monitor is not None:
             monitor.observe(
                 state.time_s,

@@ -25,6 +25,9 @@
   ``min_clearance_static_m``, ``min_clearance_moving_m``, ``replan_reasons``, ``dynamic``
   (mover detection recall and error, phantom trails, vacated voxels, changes seen) and
   ``prior_map`` (what the cameras changed in the prior);
+* faults (:mod:`skyrecon.sim.faults`, :mod:`skyrecon.mission.failsafe`): ``outcome``
+  (delivered, hovering, returned, landed, collision, timeout, missed_goal), ``faults`` (each
+  injected fault, its onset and when the health check revealed it) and ``failsafe_events``;
 * ``stage_ms``: per stage (render, stereo, integrate, distance, check, replan, control, loop)
   the median, 95th percentile and mean in milliseconds.
 """
@@ -95,6 +98,14 @@ def pose_metrics(result: MissionResult) -> dict:
         "pose_lost_cycles": int(sum(r.pose_state == "lost" for r in recs)),
         "pose_reasons": reasons,
     }
+
+
+def outcome_of(result: MissionResult) -> str:
+    """How the mission ended in one word: ``delivered``, ``hovering``, ``returned``, ``landed``,
+    ``collision``, ``timeout`` (or ``missed_goal``: it believed it had arrived, but drifted)."""
+    if result.success:
+        return "delivered"
+    return result.reason or "timeout"
 
 
 def dynamic_metrics(result: MissionResult) -> dict:
@@ -172,6 +183,9 @@ def mission_metrics(result: MissionResult) -> dict:
         "map_voxels": result.occ_map.counts(),
         **pose_metrics(result),
         **dynamic_metrics(result),
+        "outcome": outcome_of(result),
+        "faults": result.faults,
+        "failsafe_events": result.failsafe_events,
     }
     if not result.success and not m["reason"]:
         m["reason"] = "unknown"

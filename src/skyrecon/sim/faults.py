@@ -13,8 +13,8 @@ mix), or ``none``::
     glare@5+4:0.35         a saturated blob covering 35 % of the image
     noise@18+6:12          sensor noise raised to 12 grey levels (standard deviation)
 
-With any fault injected the simulated cameras also carry their ordinary sensor noise (one grey
-level), as real ones do, so that a frozen frame can be told from a still scene.
+The simulated cameras are noise-free (the ``noise`` fault adds noise): a frozen frame is told
+from a still scene by the drone's own motion (a camera that moved must see a changed image).
 
 The injector changes only what the drone receives; it never tells the drone what it did (the
 navigator must find out from the data, see :mod:`skyrecon.mission.health`).
@@ -41,8 +41,6 @@ FAULTS: dict[str, float | str | None] = {
     "glare": 0.35,
     "noise": 12.0,
 }
-#: Ordinary sensor noise of the simulated cameras when faults are injected, grey levels.
-BASE_NOISE = 1.0
 
 
 @dataclass(frozen=True)
@@ -181,8 +179,9 @@ class FaultInjector:
     def deliver(self, t: float, left: np.ndarray, right: np.ndarray) -> Delivery:
         """The frame the drone receives at time ``t`` from the frame rendered at ``t``."""
         act = {f.name: f for f in self.active(t)}
-        sigma = float(act["noise"].value) if "noise" in act else BASE_NOISE  # type: ignore[arg-type]
-        left, right = self._noise(left, sigma), self._noise(right, sigma)
+        if "noise" in act:
+            sigma = float(act["noise"].value)  # type: ignore[arg-type]
+            left, right = self._noise(left, sigma), self._noise(right, sigma)
         if "glare" in act:
             frac = float(act["glare"].value)  # type: ignore[arg-type]
             h, w = left.shape[:2]
