@@ -116,3 +116,13 @@ def test_bad_fault_spec_is_one_line(tmp_path, capsys):
     code = main(["demo", "--faults", "smoke@3", "--quiet", "--out", str(tmp_path / "o")])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and "blackout" in err[0]
+
+
+def test_report_shows_faults_and_decisions(campaign, tmp_path):
+    from skyrecon.mission.outputs import write_mission_outputs
+
+    r, _ = campaign["return"]
+    doc = write_mission_outputs(r, tmp_path / "m", save_the_map=False)
+    html = (tmp_path / "m" / "report.html").read_text()
+    assert "Faults and failsafes" in html and "back along the flown track" in html
+    assert doc["outcome"] == "returned" and doc["faults"][0]["detected_s"] is not None

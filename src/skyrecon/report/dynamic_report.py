@@ -254,4 +254,68 @@ def dynamic_section(result, metrics: dict, extent) -> list[str]:
     return out
 
 
-__all__ = ["dynamic_section", "movers_image"]
+def faults_section(result, metrics: dict) -> list[str]:
+    """HTML pieces of the faults section: the injected faults and when each was detected, every
+    failsafe decision with its reason, and the timeline of the failsafe mode (empty without faults
+    or decisions)."""
+    m = metrics
+    faults, events = m.get("faults") or [], m.get("failsafe_events") or []
+    if not faults and not events:
+        return []
+    out = [
+        "<h2>Faults and failsafes</h2>",
+        f"<p>Outcome: <b>{html.escape(str(m.get('outcome')))}</b>. The drone judges its data each cycle "
+        "(black, frozen, missing, late, noisy frames; overruns); without trustworthy depth it brakes to a "
+        f"hover, and after {result.config.failsafe_after_s:g} s it acts ({html.escape(result.config.failsafe)}).</p>",
+    ]
+    if faults:
+        rows = [
+            (
+                f"{f['name']}" + (f" ({f['value']})" if f.get("value") is not None else ""),
+                f.get("detect_delay_s"),
+                f"from t = {f['onset_s']} s"
+                + ("" if f.get("duration_s") is None else f" for {f['duration_s']} s")
+                + (
+                    f"; detected at {f['detected_s']} s"
+                    if f.get("detected_s") is not None
+                    else "; not detected"
+                ),
+            )
+            for f in faults
+        ]
+        out += ["<h3>Injected faults (seconds to detection; target <= 0.3)</h3>", _table(rows)]
+    recs = result.records
+    if recs:
+        t = np.array([r.time_s for r in recs])
+        level = {"fly": 0.0, "hold": 1.0, "return": 2.0, "land": 3.0}
+        out.append(
+            _img(
+                series_plot(
+                    t,
+                    [
+                        (
+                            "mode: 0 fly, 1 hold, 2 return, 3 land",
+                            np.array([level.get(r.mode, 0.0) for r in recs]),
+                            RED,
+                        ),
+                        ("speed (m/s)", np.array([r.speed_mps for r in recs]), (20, 150, 60)),
+                        (
+                            "untrusted data",
+                            np.array([0.5 if r.health and r.mode != "fly" else 0.0 for r in recs]),
+                            ORANGE,
+                        ),
+                    ],
+                    "failsafe mode and speed vs. simulated time (s)",
+                    [],
+                    y_max=max(4.0, 1.2 * max(r.speed_mps for r in recs)),
+                ),
+                "failsafe timeline",
+            )
+        )
+    if events:
+        rows = [(f"t = {e['time_s']} s", e["decision"], e["reason"]) for e in events[:80]]
+        out += ["<h3>Every failsafe decision</h3>", _table(rows)]
+    return out
+
+
+__all__ = ["dynamic_section", "faults_section", "movers_image"]

@@ -462,9 +462,9 @@ def render_mission_report(result, metrics: dict, extra_notes: Sequence[str] = ()
 
 
 def _dynamic(result, metrics: dict, extent) -> list[str]:
-    from skyrecon.report.dynamic_report import dynamic_section  # it draws on this module
+    from skyrecon.report.dynamic_report import dynamic_section, faults_section  # they draw on this module
 
-    return dynamic_section(result, metrics, extent)
+    return dynamic_section(result, metrics, extent) + faults_section(result, metrics)
 
 
 def _xyz(p) -> str:
