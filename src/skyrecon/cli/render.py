@@ -179,7 +179,9 @@ def _render_sequence(args, out: Path) -> dict:
     else:
         times_ns = [i * 100_000_000 for i in range(args.frames)]
         bag = out / "flight.mcap" if fmt == "mcap" else out
-        write_stereo_bag(bag, rig, frames(), times_ns, world_from_left, "mcap" if fmt == "mcap" else "sqlite3")
+        write_stereo_bag(
+            bag, rig, frames(), times_ns, world_from_left, "mcap" if fmt == "mcap" else "sqlite3"
+        )
     seconds = time.perf_counter() - t0
     track = np.array([p.t for p in world_from_left])
     plan = top_down_map(city.boxes, tuple(city.extent), [track], getattr(city, "cylinders", None))

@@ -171,7 +171,8 @@ def decode_image(msg: Any, path: Path, topic: str) -> np.ndarray:
     channels = {"rgb8": 3, "bgr8": 3, "mono8": 1, "8uc1": 1, "rgba8": 4, "bgra8": 4, "8uc3": 3}.get(enc)
     if channels is None:
         raise InputError(
-            f"{topic}: image encoding {msg.encoding!r} is not supported (rgb8, bgr8, mono8, rgba8, bgra8)", path
+            f"{topic}: image encoding {msg.encoding!r} is not supported (rgb8, bgr8, mono8, rgba8, bgra8)",
+            path,
         )
     h, w, step = int(msg.height), int(msg.width), int(msg.step)
     data = np.asarray(msg.data, dtype=np.uint8)
@@ -255,7 +256,9 @@ class BagSequence:
                 if t_ns == want[topic] and topic not in got:
                     got[topic] = decode_image(msg, self.root, topic)
         images = []
-        for k, (topic, camera) in enumerate(((self.topics.left, self.rig.left), (self.topics.right, self.rig.right))):
+        for k, (topic, camera) in enumerate(
+            ((self.topics.left, self.rig.left), (self.topics.right, self.rig.right))
+        ):
             assert topic is not None
             if topic not in got:
                 raise InputError(f"{topic}: the image of frame {i} could not be read again", self.root)
@@ -292,9 +295,7 @@ def _check_topics(bag: _Bag, topics: BagTopics) -> tuple[str, str, str, str]:
         if topic not in bag.topics:
             raise InputError(f"no topic {topic} in the bag; its topics: {listing}", bag.path)
         if bag.topics[topic] not in types:
-            raise InputError(
-                f"topic {topic} is {bag.topics[topic]}, expected {' or '.join(types)}", bag.path
-            )
+            raise InputError(f"topic {topic} is {bag.topics[topic]}, expected {' or '.join(types)}", bag.path)
     return topics.left, topics.right, left_info, right_info
 
 
@@ -381,7 +382,9 @@ def read_bag(path: str | Path, topics: BagTopics) -> BagSequence:
         )
     stamps_ns = L[li, 0]
     times = stamps_ns / 1e9
-    seq = BagSequence(root, BagTopics(left, right, left_info, right_info, topics.pose), rig, times, L[li, 1], R[ri, 1])
+    seq = BagSequence(
+        root, BagTopics(left, right, left_info, right_info, topics.pose), rig, times, L[li, 1], R[ri, 1]
+    )
     seq.rectify_maps = maps
     seq.frames_dropped = len(L) - len(li)
     if topics.pose:

@@ -94,6 +94,7 @@ def write_stereo_bag(
     times_ns: Sequence[int],
     world_from_left: Sequence[Rigid3] | None = None,
     storage: str = "sqlite3",
+    pose_times_ns: Sequence[int] | None = None,
 ) -> Path:
     """Write a stereo flight as a bag; built in a temporary directory, then moved into place.
 
@@ -106,6 +107,7 @@ def write_stereo_bag(
         times_ns: frame times, nanoseconds (header stamps and log times).
         world_from_left: pose of the left camera per frame, metres, or None.
         storage: ``"sqlite3"`` or ``"mcap"``.
+        pose_times_ns: stamps of the poses, nanoseconds (default: the frame times).
     Returns:
         The path written.
     """
@@ -130,11 +132,17 @@ def write_stereo_bag(
             conns = {
                 "left": writer.add_connection(t.left, "sensor_msgs/msg/Image", typestore=store),  # type: ignore[arg-type]
                 "right": writer.add_connection(t.right, "sensor_msgs/msg/Image", typestore=store),  # type: ignore[arg-type]
-                "left_info": writer.add_connection(t.left_info, "sensor_msgs/msg/CameraInfo", typestore=store),  # type: ignore[arg-type]
-                "right_info": writer.add_connection(t.right_info, "sensor_msgs/msg/CameraInfo", typestore=store),  # type: ignore[arg-type]
+                "left_info": writer.add_connection(
+                    t.left_info, "sensor_msgs/msg/CameraInfo", typestore=store
+                ),  # type: ignore[arg-type]
+                "right_info": writer.add_connection(
+                    t.right_info, "sensor_msgs/msg/CameraInfo", typestore=store
+                ),  # type: ignore[arg-type]
             }
             if world_from_left is not None:
-                conns["pose"] = writer.add_connection(t.pose, "geometry_msgs/msg/PoseStamped", typestore=store)  # type: ignore[arg-type]
+                conns["pose"] = writer.add_connection(
+                    t.pose, "geometry_msgs/msg/PoseStamped", typestore=store
+                )  # type: ignore[arg-type]
             count = 0
             for i, (left, right) in enumerate(frames):
                 t_ns = int(times_ns[i])
@@ -144,10 +152,12 @@ def write_stereo_bag(
                     "left_info": _camera_info(store, t_ns, "left", P_left, w, h),
                     "right_info": _camera_info(store, t_ns, "right", P_right, w, h),
                 }
-                if world_from_left is not None:
-                    msgs["pose"] = _pose(store, t_ns, world_from_left[i])
                 for key, msg in msgs.items():
                     writer.write(conns[key], t_ns, store.serialize_cdr(msg, msg.__msgtype__))
+                if world_from_left is not None:
+                    tp = t_ns if pose_times_ns is None else int(pose_times_ns[i])
+                    msg = _pose(store, tp, world_from_left[i])
+                    writer.write(conns["pose"], tp, store.serialize_cdr(msg, msg.__msgtype__))
                 count = i + 1
         if count == 0:
             raise InputError("no frames to write")
