@@ -83,3 +83,18 @@ def test_bad_bags_are_one_line_exit_2(flights, tmp_path, capsys):
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and err[0].startswith("error: ") and message in err[0], err
         assert str(args[1]) in err[0]
+
+
+def test_map_writes_laz_and_footprint(flights, tmp_path):
+    laspy = pytest.importorskip("laspy")
+    import json
+
+    out = tmp_path / "map"
+    args = ["map", str(flights["kitti"]), "--voxel-size", "0.5", "--format", "laz", "--out", str(out)]
+    assert main([*args, "--geo-origin", "47.3769", "8.5417", "408", "--quiet"]) == 0
+    assert len(laspy.read(out / "occupied.laz").points) > 0 and not (out / "occupied.ply").exists()
+    doc = json.loads((out / "footprint.geojson").read_text())
+    assert (
+        doc["features"][0]["geometry"]["type"] == "MultiPolygon"
+        and "note" not in doc["features"][0]["properties"]
+    )

@@ -13,7 +13,9 @@ SOURCE is one of:
 * a fused point cloud (``.ply``, world frame) seen from ``--origin X Y Z``.
 
 Writes MAP_DIR with ``map.json`` + ``blocks.npz`` (the map, see ``skyrecon.mapping.storage``),
-``occupied.ply`` (centres of occupied voxels), ``preview.png`` and ``map_summary.json``. The map
+``occupied.ply`` (centres of occupied voxels; ``--format las|laz`` for LAS/LAZ), ``footprint.geojson``
+(occupied columns 2 m above the lowest occupied voxel; lon/lat with ``--geo-origin``), ``preview.png``
+and ``map_summary.json``. The map
 directory is replaced as a whole at the end, so an interrupted run leaves the old map intact.
 """
 
@@ -31,7 +33,7 @@ from typing import Any
 import numpy as np
 
 from skyrecon.cli.bag_options import add_bag_options, bag_topics
-from skyrecon.cli.common import add_command, info, positive_float, positive_int
+from skyrecon.cli.common import add_cloud_format, add_command, info, positive_float, positive_int
 from skyrecon.core.rigid import Rigid3
 from skyrecon.errors import InputError
 from skyrecon.io.depth_dir import iter_depth_maps, sequence_depth_paths
@@ -50,6 +52,7 @@ from skyrecon.mapping import (
     write_map_preview,
     write_octomap_bt,
 )
+from skyrecon.planning.geo_export import write_footprint_geojson
 from skyrecon.progress import progress
 
 EXAMPLES = """  skyrecon map flight/ --out flight_map/ --voxel-size 0.2
@@ -111,6 +114,14 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "marked free, metres (default 0.5; 0 marks only the voxels the track crosses)",
     )
     p.add_argument("--bt", action="store_true", help="also write an OctoMap .bt file (map.bt)")
+    p.add_argument(
+        "--geo-origin",
+        type=float,
+        nargs=3,
+        metavar=("LAT", "LON", "ALT"),
+        help="geographic position of the world origin: footprint.geojson in lon/lat (else local metres)",
+    )
+    add_cloud_format(p)
     add_bag_options(p)
     return p
 
@@ -138,14 +149,14 @@ def run(args: argparse.Namespace) -> int:
         memory_mb=round(occ.memory_bytes() / 1e6, 1),
     )
     out = Path(args.out)
-    n_occ = _write_map_dir(occ, out, summary, track, args.bt)
+    n_occ = _write_map_dir(occ, out, summary, track, args.bt, args.format, args.geo_origin)
     if not args.quiet:
         info(
             f"map of {summary.get('frames', 1)} input(s): {n_occ} occupied, {counts.get('free', 0)} free voxels "
             f"at {args.voxel_size} m in {seconds:.1f} s"
             + (f" ({summary['frames_per_s']:.1f} frames/s)" if "frames_per_s" in summary else "")
         )
-        info(f"wrote {out}/map.json, blocks.npz, occupied.ply, preview.png")
+        info(f"wrote {out}/map.json, blocks.npz, occupied.{args.format}, footprint.geojson, preview.png")
     return 0
 
 
@@ -261,7 +272,13 @@ def _map_cloud(path: Path, args: argparse.Namespace) -> tuple[OccupancyMap, dict
 
 
 def _write_map_dir(
-    occ: OccupancyMap, out: Path, summary: dict[str, Any], track: np.ndarray | None, bt: bool
+    occ: OccupancyMap,
+    out: Path,
+    summary: dict[str, Any],
+    track: np.ndarray | None,
+    bt: bool,
+    fmt: str = "ply",
+    geo_origin: list[float] | None = None,
 ) -> int:
     """Write the map directory ``out`` as a whole (built beside it, then swapped in); returns
     the number of occupied voxels written to ``occupied.ply``."""
@@ -273,7 +290,8 @@ def _write_map_dir(
         save_map(occ, tmp)
         if track is not None:
             write_flown_path(tmp, track, float(summary.get("vehicle_radius_m", 0.0)))
-        n_occ = export_occupied_ply(occ, tmp / "occupied.ply")
+        n_occ = export_occupied_ply(occ, tmp / "occupied.ply", fmt=fmt)
+        write_footprint_geojson(tmp / "footprint.geojson", occ, geo_origin)
         if bt:
             write_octomap_bt(occ, tmp / "map.bt")
         write_map_preview(occ, tmp / "preview.png", [] if track is None else [track])

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from skyrecon.cli.bag_options import add_bag_options, bag_topics
-from skyrecon.cli.common import add_command, info, output_dir, positive_float, positive_int
+from skyrecon.cli.common import add_cloud_format, add_command, info, output_dir, positive_float, positive_int
 from skyrecon.core.stereo_rig import StereoRig
 from skyrecon.errors import InputError
 from skyrecon.eval.stereo_metrics import evaluate_disparity
@@ -29,8 +29,8 @@ from skyrecon.io.calib import read_stereo_calib
 from skyrecon.io.disparity import colorize_depth, colorize_disparity, read_disparity
 from skyrecon.io.images import read_image_with_alpha, write_image
 from skyrecon.io.jsonio import write_json
+from skyrecon.io.las import write_point_cloud
 from skyrecon.io.pfm import write_pfm
-from skyrecon.io.ply import write_ply
 from skyrecon.io.rosbag_input import is_bag
 from skyrecon.io.sequence import StereoSequence, is_sequence_dir
 from skyrecon.io.stereo_input import open_stereo_sequence
@@ -83,6 +83,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "--gt", help="ground-truth disparity (PFM, KITTI 16-bit PNG or Middlebury PGM) to score against"
     )
     p.add_argument("--frames", type=positive_int, help="sequence: process only the first N frames")
+    add_cloud_format(p)
     add_bag_options(p)
     return p
 
@@ -173,7 +174,7 @@ def _run_pair(args: argparse.Namespace, left_path: Path, right_path: Path) -> in
         "rectified_here": rectified_here,
     }
     if rig is not None:
-        summary.update(_write_depth(out, disparity, rig, left, args.min_depth, args.max_depth))
+        summary.update(_write_depth(out, disparity, rig, left, args.min_depth, args.max_depth, args.format))
     if args.gt:
         summary["metrics"] = _score(disparity, args.gt)
     write_json(out / "stereo.json", summary)
@@ -183,7 +184,13 @@ def _run_pair(args: argparse.Namespace, left_path: Path, right_path: Path) -> in
 
 
 def _write_depth(
-    out: Path, disparity: np.ndarray, rig: StereoRig, left: np.ndarray, min_depth: float, max_depth: float
+    out: Path,
+    disparity: np.ndarray,
+    rig: StereoRig,
+    left: np.ndarray,
+    min_depth: float,
+    max_depth: float,
+    fmt: str = "ply",
 ) -> dict[str, Any]:
     """Write ``depth.pfm``, ``depth.png`` and ``points.ply`` (left camera frame of ``rig``, metres).
 
@@ -201,7 +208,7 @@ def _write_depth(
     if colour is not None and colour.dtype != np.uint8:
         colour = (colour // 257).astype(np.uint8)
     cloud = disparity_to_points(disparity, rig, colour, min_depth, max_depth)
-    write_ply(out / "points.ply", cloud)
+    write_point_cloud(out / "points.ply", cloud, fmt)
     return {"points": len(cloud), "baseline_m": rig.baseline_m, "focal_px": rig.left.fx}
 
 

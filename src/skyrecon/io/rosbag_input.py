@@ -249,17 +249,15 @@ class BagSequence:
         """(left, right) rectified images of frame ``i``, (H, W, 3) uint8 RGB."""
         if not -len(self) <= i < len(self):
             raise IndexError(f"frame {i} of a {len(self)}-frame sequence")
-        want = {self.topics.left: int(self.left_log_ns[i]), self.topics.right: int(self.right_log_ns[i])}
+        left_topic, right_topic = str(self.topics.left), str(self.topics.right)
+        want = {left_topic: int(self.left_log_ns[i]), right_topic: int(self.right_log_ns[i])}
         got: dict[str, np.ndarray] = {}
         with _open_bag(self.root) as bag:
             for topic, t_ns, msg in bag.messages(set(want), min(want.values()), max(want.values()) + 1):
                 if t_ns == want[topic] and topic not in got:
                     got[topic] = decode_image(msg, self.root, topic)
         images = []
-        for k, (topic, camera) in enumerate(
-            ((self.topics.left, self.rig.left), (self.topics.right, self.rig.right))
-        ):
-            assert topic is not None
+        for k, (topic, camera) in enumerate(((left_topic, self.rig.left), (right_topic, self.rig.right))):
             if topic not in got:
                 raise InputError(f"{topic}: the image of frame {i} could not be read again", self.root)
             image = got[topic]

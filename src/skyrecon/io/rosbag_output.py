@@ -128,21 +128,15 @@ def write_stereo_bag(
     try:
         plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
         with Writer(tmp / name, version=9, storage_plugin=plugin) as writer:
-            t = TOPICS
-            conns = {
-                "left": writer.add_connection(t.left, "sensor_msgs/msg/Image", typestore=store),  # type: ignore[arg-type]
-                "right": writer.add_connection(t.right, "sensor_msgs/msg/Image", typestore=store),  # type: ignore[arg-type]
-                "left_info": writer.add_connection(
-                    t.left_info, "sensor_msgs/msg/CameraInfo", typestore=store
-                ),  # type: ignore[arg-type]
-                "right_info": writer.add_connection(
-                    t.right_info, "sensor_msgs/msg/CameraInfo", typestore=store
-                ),  # type: ignore[arg-type]
-            }
+            specs = [
+                ("left", TOPICS.left, "sensor_msgs/msg/Image"),
+                ("right", TOPICS.right, "sensor_msgs/msg/Image"),
+                ("left_info", TOPICS.left_info, "sensor_msgs/msg/CameraInfo"),
+                ("right_info", TOPICS.right_info, "sensor_msgs/msg/CameraInfo"),
+            ]
             if world_from_left is not None:
-                conns["pose"] = writer.add_connection(
-                    t.pose, "geometry_msgs/msg/PoseStamped", typestore=store
-                )  # type: ignore[arg-type]
+                specs.append(("pose", TOPICS.pose, "geometry_msgs/msg/PoseStamped"))
+            conns = {key: writer.add_connection(str(topic), ty, typestore=store) for key, topic, ty in specs}
             count = 0
             for i, (left, right) in enumerate(frames):
                 t_ns = int(times_ns[i])

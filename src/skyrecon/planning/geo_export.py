@@ -50,7 +50,10 @@ def _lon_lat_alt(waypoints: Any, origin: Any) -> np.ndarray:
 def path_geojson(waypoints: Any, origin: Any, name: str = "skyrecon path") -> dict[str, Any]:
     """A GeoJSON FeatureCollection with one LineString ``[lon, lat, alt]`` of ``waypoints`` (K, 3)
     world metres, ``origin`` = (lat deg, lon deg, alt m) of the world origin."""
-    coords = [[round(float(v), 9) if k < 2 else round(float(v), 3) for k, v in enumerate(p)] for p in _lon_lat_alt(waypoints, origin)]
+    coords = [
+        [round(float(v), 9) if k < 2 else round(float(v), 3) for k, v in enumerate(p)]
+        for p in _lon_lat_alt(waypoints, origin)
+    ]
     return {
         "type": "FeatureCollection",
         "features": [
@@ -145,7 +148,9 @@ def _inside(p: tuple[float, float], ring: list[tuple[float, float]]) -> bool:
     return inside
 
 
-def footprint_geojson(occ: Any, origin: Any | None = None, min_height_m: float | None = None) -> dict[str, Any]:
+def footprint_geojson(
+    occ: Any, origin: Any | None = None, min_height_m: float | None = None
+) -> dict[str, Any]:
     """The occupied footprint of a map as GeoJSON (see the module docstring).
 
     Args:
@@ -187,17 +192,29 @@ def footprint_geojson(occ: Any, origin: Any | None = None, min_height_m: float |
         "name": "occupied footprint",
         "voxel_size_m": v,
         "min_height_m": round(float(min_height_m), 3),
-        "columns": int(len({tuple(c) for c in np.floor(top[:, :2] / v).astype(int).tolist()})) if len(top) else 0,
+        "columns": int(len({tuple(c) for c in np.floor(top[:, :2] / v).astype(int).tolist()}))
+        if len(top)
+        else 0,
     }
     if origin is None:
-        props["note"] = "local world metres [x east, y north], not longitude/latitude: no geographic origin given"
+        props["note"] = (
+            "local world metres [x east, y north], not longitude/latitude: no geographic origin given"
+        )
     return {
         "type": "FeatureCollection",
-        "features": [{"type": "Feature", "properties": props, "geometry": {"type": "MultiPolygon", "coordinates": polygons}}],
+        "features": [
+            {
+                "type": "Feature",
+                "properties": props,
+                "geometry": {"type": "MultiPolygon", "coordinates": polygons},
+            }
+        ],
     }
 
 
-def write_footprint_geojson(path: str | Path, occ: Any, origin: Any | None = None, min_height_m: float | None = None) -> dict[str, Any]:
+def write_footprint_geojson(
+    path: str | Path, occ: Any, origin: Any | None = None, min_height_m: float | None = None
+) -> dict[str, Any]:
     """Write :func:`footprint_geojson` atomically; returns the document."""
     doc = footprint_geojson(occ, origin, min_height_m)
     write_text_atomic(path, json.dumps(doc, indent=1) + "\n")
