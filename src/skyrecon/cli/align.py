@@ -32,14 +32,15 @@ from typing import Any
 
 import numpy as np
 
-from skyrecon.cli.common import add_command, info, output_dir, positive_float, positive_int
+from skyrecon.cli.common import add_cloud_format, add_command, info, output_dir, positive_float, positive_int
 from skyrecon.core.depth import PointCloud
 from skyrecon.core.reconstruction import Reconstruction
 from skyrecon.core.rigid import orthonormalize
 from skyrecon.errors import InputError
 from skyrecon.io.colmap import read_colmap_text, write_colmap_text
 from skyrecon.io.jsonio import write_json
-from skyrecon.io.ply import read_ply, write_ply
+from skyrecon.io.las import write_point_cloud
+from skyrecon.io.ply import read_ply
 from skyrecon.sfm.align import Sim3
 from skyrecon.sfm.model_align import AlignOptions, AlignResult, align_model, merged_cloud
 from skyrecon.sfm.model_align import match_names as match_names  # re-exported: tests and users import it here
@@ -92,6 +93,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "--merge", action="store_true", help="also write merged.ply: aligned points + reference points"
     )
     p.add_argument("--seed", type=int, default=0, help="seed of RANSAC and ICP subsampling (default 0)")
+    add_cloud_format(p)
     return p
 
 
@@ -256,10 +258,10 @@ def run(args: argparse.Namespace) -> int:
             "coordinates above 100 km: sparse.ply stores float32 (about 1 cm or worse at this size); "
             "sparse/ keeps full precision"
         )
-    write_ply(out / "sparse.ply", cloud_out)
+    write_point_cloud(out / "sparse.ply", cloud_out, args.format)
     files = ["sparse/cameras.txt", "sparse/images.txt", "sparse/points3D.txt", "sparse.ply", "align.json"]
     if args.merge and result.reference_points is not None:
-        write_ply(out / "merged.ply", merged_cloud(aligned, result.reference_points))
+        write_point_cloud(out / "merged.ply", merged_cloud(aligned, result.reference_points), args.format)
         files.append("merged.ply")
     summary = {**result.to_json_dict(), "files": files, "seconds": time.perf_counter() - t_start}
     write_json(out / "align.json", summary)

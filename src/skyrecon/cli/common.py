@@ -91,3 +91,13 @@ def stage(name: str, timings: dict[str, float] | None = None) -> Iterator[None]:
     yield
     if timings is not None:
         timings[name] = time.perf_counter() - t0
+
+
+def add_cloud_format(parser: argparse.ArgumentParser) -> None:
+    """``--format ply|las|laz`` for the point clouds a command writes (see :mod:`skyrecon.io.las`)."""
+    parser.add_argument(
+        "--format",
+        choices=("ply", "las", "laz"),
+        default="ply",
+        help="point cloud files: PLY (default), LAS or LAZ (metres, 1 mm; LAS/LAZ need the 'geo' extra)",
+    )

@@ -8,10 +8,14 @@ SOURCE is one of:
   rig's trusted range; see :mod:`skyrecon.mapping.stereo_sequence`); with ``--depth SUBDIR`` the
   depth maps ``SOURCE/SUBDIR/<frame>.pfm`` are used instead (e.g. ``depth_2`` written by
   ``skyrecon render``) with the plain map settings;
+* a EuRoC/ASL sequence or a ROS bag / MCAP file (``--left-topic``, ``--right-topic``, ``--pose-topic``;
+  see ``skyrecon.io.rosbag_input``), opened like ``skyrecon odometry`` opens it;
 * a fused point cloud (``.ply``, world frame) seen from ``--origin X Y Z``.
 
 Writes MAP_DIR with ``map.json`` + ``blocks.npz`` (the map, see ``skyrecon.mapping.storage``),
-``occupied.ply`` (centres of occupied voxels), ``preview.png`` and ``map_summary.json``. The map
+``occupied.ply`` (centres of occupied voxels; ``--format las|laz`` for LAS/LAZ), ``footprint.geojson``
+(occupied columns 2 m above the lowest occupied voxel; lon/lat with ``--geo-origin``), ``preview.png``
+and ``map_summary.json``. The map
 directory is replaced as a whole at the end, so an interrupted run leaves the old map intact.
 """
 
@@ -28,12 +32,14 @@ from typing import Any
 
 import numpy as np
 
-from skyrecon.cli.common import add_command, info, positive_float, positive_int
+from skyrecon.cli.bag_options import add_bag_options, bag_topics
+from skyrecon.cli.common import add_cloud_format, add_command, info, positive_float, positive_int
 from skyrecon.core.rigid import Rigid3
 from skyrecon.errors import InputError
 from skyrecon.io.depth_dir import iter_depth_maps, sequence_depth_paths
 from skyrecon.io.ply import read_ply
-from skyrecon.io.sequence import StereoSequence, read_sequence
+from skyrecon.io.sequence import StereoSequence
+from skyrecon.io.stereo_input import StereoInput, open_stereo_sequence
 from skyrecon.mapping import (
     MapConfig,
     OccupancyMap,
@@ -46,12 +52,15 @@ from skyrecon.mapping import (
     write_map_preview,
     write_octomap_bt,
 )
+from skyrecon.planning.geo_export import write_footprint_geojson
 from skyrecon.progress import progress
 
 EXAMPLES = """  skyrecon map flight/ --out flight_map/ --voxel-size 0.2
   skyrecon map flight/ --depth depth_2 --out gt_map/        # use depth maps instead of stereo
   skyrecon map flight/ --poses odometry --out vo_map/       # poses from visual odometry
   skyrecon map fused.ply --origin 0 0 30 --out cloud_map/
+  skyrecon map flight.mcap --left-topic /stereo/left/image_raw --right-topic /stereo/right/image_raw \
+      --pose-topic /stereo/left/pose --out bag_map/
 """
 
 
@@ -63,7 +72,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         description=__doc__.split("\n\n")[0].split(": ", 1)[1],
         examples=EXAMPLES,
     )
-    p.add_argument("source", help="sequence directory or .ply point cloud")
+    p.add_argument("source", help="sequence directory (KITTI, EuRoC), ROS bag / .mcap, or .ply point cloud")
     p.add_argument("--out", required=True, help="map directory to write")
     p.add_argument("--voxel-size", type=positive_float, default=0.2, help="voxel edge, metres (default 0.2)")
     p.add_argument(
@@ -105,6 +114,15 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "marked free, metres (default 0.5; 0 marks only the voxels the track crosses)",
     )
     p.add_argument("--bt", action="store_true", help="also write an OctoMap .bt file (map.bt)")
+    p.add_argument(
+        "--geo-origin",
+        type=float,
+        nargs=3,
+        metavar=("LAT", "LON", "ALT"),
+        help="geographic position of the world origin: footprint.geojson in lon/lat (else local metres)",
+    )
+    add_cloud_format(p)
+    add_bag_options(p)
     return p
 
 
@@ -131,32 +149,28 @@ def run(args: argparse.Namespace) -> int:
         memory_mb=round(occ.memory_bytes() / 1e6, 1),
     )
     out = Path(args.out)
-    n_occ = _write_map_dir(occ, out, summary, track, args.bt)
+    n_occ = _write_map_dir(occ, out, summary, track, args.bt, args.format, args.geo_origin)
     if not args.quiet:
         info(
             f"map of {summary.get('frames', 1)} input(s): {n_occ} occupied, {counts.get('free', 0)} free voxels "
             f"at {args.voxel_size} m in {seconds:.1f} s"
             + (f" ({summary['frames_per_s']:.1f} frames/s)" if "frames_per_s" in summary else "")
         )
-        info(f"wrote {out}/map.json, blocks.npz, occupied.ply, preview.png")
+        info(f"wrote {out}/map.json, blocks.npz, occupied.{args.format}, footprint.geojson, preview.png")
     return 0
 
 
 def _map_sequence(root: Path, args: argparse.Namespace) -> tuple[OccupancyMap, dict[str, Any], np.ndarray]:
     """(map, summary, camera track (N, 3) world metres) of a sequence: stereo, or ``--depth`` maps."""
-    seq = read_sequence(root)
+    seq = open_stereo_sequence(root, bag_topics(args))
     n = min(len(seq), args.frames or len(seq))
     odometry_summary: dict[str, Any] | None = None
     if getattr(args, "poses", "file") == "odometry":
         poses, odometry_summary = _odometry_poses(seq, n)
-    elif seq.world_from_left is None:
-        raise InputError(
-            "the sequence has no poses.txt; a map needs one world_from_left_camera pose per frame "
-            "(or estimate them: --poses odometry)",
-            root,
-        )
     else:
-        poses = seq.world_from_left[:n]
+        poses = _known_poses(seq, n)
+    if args.depth is not None and not isinstance(seq.sequence, StereoSequence):
+        raise InputError("--depth reads depth maps of a KITTI-layout sequence; this input has none", root)
     if args.depth is None:
         settings = StereoMapSettings(voxel_size_m=args.voxel_size, max_range_m=args.max_range).with_overrides(
             method=args.method, max_disparity=args.max_disparity, max_depth_error_m=args.max_depth_error
@@ -165,7 +179,8 @@ def _map_sequence(root: Path, args: argparse.Namespace) -> tuple[OccupancyMap, d
         built = map_stereo_sequence(progress(frames, total=n, desc="map frames"), seq.rig, poses, settings)
         occ, timings = built.map, built.timings
     else:
-        depths = iter_depth_maps(sequence_depth_paths(seq, args.depth)[:n], seq.rig.left)
+        assert isinstance(seq.sequence, StereoSequence)
+        depths = iter_depth_maps(sequence_depth_paths(seq.sequence, args.depth)[:n], seq.rig.left)
         config = MapConfig(voxel_size_m=args.voxel_size, max_range_m=args.max_range)
         built_d = map_depth_sequence(
             progress(depths, total=n, desc="map frames"), seq.rig.left, poses, config
@@ -196,23 +211,42 @@ def _map_sequence(root: Path, args: argparse.Namespace) -> tuple[OccupancyMap, d
 _LEVEL_WORLD_FROM_CAM = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 
 
-def _odometry_poses(seq: StereoSequence, n: int) -> tuple[list[Rigid3], dict[str, Any]]:
+def _known_poses(seq: StereoInput, n: int) -> list[Rigid3]:
+    """``world_from_left`` of the first ``n`` frames from the sequence (poses.txt, ground truth, pose topic)."""
+    if seq.world_from_left is None:
+        what = "a --pose-topic" if seq.layout == "rosbag" else "poses.txt"
+        raise InputError(
+            f"the sequence has no poses ({what}); a map needs one world_from_left_camera pose per frame "
+            "(or estimate them: --poses odometry)",
+            seq.root,
+        )
+    missing = [i for i, p in enumerate(seq.world_from_left[:n]) if p is None]
+    if missing:
+        raise InputError(
+            f"{len(missing)} of the {n} frames have no pose (first: frame {missing[0]} at "
+            f"{seq.timestamps_s[missing[0]]:.3f} s); use --frames or --poses odometry",
+            seq.root,
+        )
+    return [p for p in seq.world_from_left[:n] if p is not None]
+
+
+def _odometry_poses(seq: StereoInput, n: int) -> tuple[list[Rigid3], dict[str, Any]]:
     """``world_from_left`` of the first ``n`` frames estimated by stereo visual odometry, and the
-    run's summary. The world: the first pose of ``poses.txt`` when there is one, else a level
+    run's summary. The world: the first known pose of the sequence when there is one, else a level
     camera at the origin looking along +x (z up)."""
     from skyrecon.cli.odometry import make_engine
-    from skyrecon.io.stereo_input import kitti_times
     from skyrecon.odometry.run import run_odometry, summarize_run
 
     if n < 2:
         raise InputError(f"odometry needs at least 2 frames, the sequence has {n}", seq.root)
-    if seq.world_from_left is not None:
-        init = seq.world_from_left[0].with_frames("world", "left")
+    first = seq.world_from_left[0] if seq.world_from_left is not None else None
+    if first is not None:
+        init = first.with_frames("world", "left")
     else:
         init = Rigid3(_LEVEL_WORLD_FROM_CAM, np.zeros(3), "world", "left")
     engine, _ = make_engine(seq.rig, init, True)
     frames = progress((seq.frame(i) for i in range(n)), total=n, desc="odometry", unit="frame")
-    result = run_odometry(engine, frames, kitti_times(seq.root, len(seq))[0][:n])
+    result = run_odometry(engine, frames, seq.timestamps_s[:n])
     summary = summarize_run(result)
     info(
         f"odometry: {n} frames, {summary['distance_m']:.1f} m, {summary['lost']} lost, "
@@ -238,7 +272,13 @@ def _map_cloud(path: Path, args: argparse.Namespace) -> tuple[OccupancyMap, dict
 
 
 def _write_map_dir(
-    occ: OccupancyMap, out: Path, summary: dict[str, Any], track: np.ndarray | None, bt: bool
+    occ: OccupancyMap,
+    out: Path,
+    summary: dict[str, Any],
+    track: np.ndarray | None,
+    bt: bool,
+    fmt: str = "ply",
+    geo_origin: list[float] | None = None,
 ) -> int:
     """Write the map directory ``out`` as a whole (built beside it, then swapped in); returns
     the number of occupied voxels written to ``occupied.ply``."""
@@ -250,7 +290,8 @@ def _write_map_dir(
         save_map(occ, tmp)
         if track is not None:
             write_flown_path(tmp, track, float(summary.get("vehicle_radius_m", 0.0)))
-        n_occ = export_occupied_ply(occ, tmp / "occupied.ply")
+        n_occ = export_occupied_ply(occ, tmp / "occupied.ply", fmt=fmt)
+        write_footprint_geojson(tmp / "footprint.geojson", occ, geo_origin)
         if bt:
             write_octomap_bt(occ, tmp / "map.bt")
         write_map_preview(occ, tmp / "preview.png", [] if track is None else [track])

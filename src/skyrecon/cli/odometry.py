@@ -2,7 +2,8 @@
 
 SEQUENCE is a KITTI odometry layout (``image_2/``, ``image_3/``, ``calib.txt``, optional
 ``poses.txt``/``times.txt``) or a EuRoC/ASL layout (``mav0/cam0``, ``mav0/cam1`` with ``data.csv``
-and ``sensor.yaml``; rectified here). Writes to ``--out``:
+and ``sensor.yaml``; rectified here) or a ROS bag / MCAP file (``--left-topic``, ``--right-topic``,
+optional ``--pose-topic`` as ground truth; see ``skyrecon.io.rosbag_input``). Writes to ``--out``:
 
 * ``poses.txt``: KITTI format, row-major 3x4 ``world_from_left_camera`` per frame (GPS-fused when
   ``--gps`` is given; the plain odometry then goes to ``poses_odometry.txt``). Without
@@ -26,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from skyrecon.cli.bag_options import add_bag_options, bag_topics
 from skyrecon.cli.common import add_command, info, output_dir, positive_int
 from skyrecon.core.rigid import Rigid3
 from skyrecon.core.stereo_rig import StereoRig
@@ -46,6 +48,8 @@ EXAMPLES = """  skyrecon render sequence --frames 100 --out flight/ && skyrecon 
   skyrecon odometry MH_01_easy/ --out vo/ --max-frames 500       # EuRoC/ASL layout (mav0/)
   skyrecon odometry flight/ --out vo/ --gt other_poses.txt --gps gps.csv
   skyrecon odometry flight/ --out vo/ --init-pose gt              # start in the ground truth's world
+  skyrecon odometry flight_bag/ --left-topic /stereo/left/image_raw --right-topic /stereo/right/image_raw \
+      --pose-topic /stereo/left/pose --out vo/                     # ROS 2 bag, ROS 1 .bag or .mcap
 """
 
 
@@ -57,7 +61,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         description=__doc__.split("\n\n")[0].split(": ", 1)[1],
         examples=EXAMPLES,
     )
-    p.add_argument("sequence", help="sequence directory (KITTI or EuRoC/ASL layout)")
+    p.add_argument("sequence", help="sequence directory (KITTI or EuRoC/ASL layout), ROS bag or .mcap")
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--gt", metavar="POSES", help="ground truth: KITTI poses.txt, TUM file or EuRoC data.csv")
     p.add_argument(
@@ -72,6 +76,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     )
     p.add_argument("--max-frames", type=positive_int, help="use only the first N frames")
     p.add_argument("--no-loop-closure", action="store_true", help="pure odometry: no loop closure")
+    add_bag_options(p)
     return p
 
 
@@ -140,7 +145,7 @@ def _metrics(run: OdometryRun, gt: list[Rigid3 | None] | None) -> OdometryMetric
 
 
 def run(args: argparse.Namespace) -> int:
-    seq = open_stereo_sequence(args.sequence)
+    seq = open_stereo_sequence(args.sequence, bag_topics(args))
     out = Path(args.out)
     if out.resolve() == seq.root.resolve():
         raise InputError(

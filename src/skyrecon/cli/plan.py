@@ -3,7 +3,8 @@
 Reads a map written by ``skyrecon map`` and writes ``path.json`` (``{"waypoints": [[x, y, z], ...]}``
 in the world frame, metres, with length and clearance), ``preview.png`` (top view with the path)
 and, with ``--origin LAT LON ALT`` (the world origin's geographic position), a QGroundControl
-mission ``mission.plan``. Unknown space is not flyable unless ``--allow-unknown``. A start or goal
+mission ``mission.plan``, the path as ``path.geojson`` and ``path.kml`` and the map's occupied
+footprint as ``footprint.geojson`` (lon/lat). Unknown space is not flyable unless ``--allow-unknown``. A start or goal
 in unexplored space or within the clearance of an obstacle (where the vehicle was, say) is joined
 to the nearest usable point within ``--snap-radius``; when the map was built by ``skyrecon map`` from
 a flight and no path keeps the clearance, the path retraces the flown track (``flown_path.json``).
@@ -23,6 +24,7 @@ from skyrecon.cli.common import add_command, info, output_dir
 from skyrecon.errors import EstimationError, InputError
 from skyrecon.mapping import load_map, read_flown_path, write_map_preview
 from skyrecon.planning import plan_with_flown_path, write_path_json, write_qgc_plan
+from skyrecon.planning.geo_export import write_footprint_geojson, write_path_geojson, write_path_kml
 
 EXAMPLES = """  skyrecon plan flight_map/ --start 0 0 15 --goal 120 80 20 --out route/
   skyrecon plan flight_map/ --start 0 0 15 --goal 120 80 20 --clearance 3 --max-z 40 --out route/
@@ -116,6 +118,9 @@ def run(args: argparse.Namespace) -> int:
     write_map_preview(occ, out / "preview.png", [result.waypoints])
     if args.origin is not None:
         write_qgc_plan(out / "mission.plan", result.waypoints, args.origin)
+        write_path_geojson(out / "path.geojson", result.waypoints, args.origin)
+        write_path_kml(out / "path.kml", result.waypoints, args.origin)
+        write_footprint_geojson(out / "footprint.geojson", occ, args.origin)
     if not args.quiet:
         straight = float(np.linalg.norm(goal - start))
         info(
@@ -136,5 +141,8 @@ def run(args: argparse.Namespace) -> int:
                 f"note: the {what} lies in {'unexplored space' if move['reason'].endswith('unknown') else 'the clearance of an obstacle'}; "
                 f"the path joins the nearest usable point {move['distance_m']:.1f} m away in a straight line (see path.json 'adjusted')"
             )
-        info(f"wrote {out}/path.json, preview.png" + (", mission.plan" if args.origin is not None else ""))
+        info(
+            f"wrote {out}/path.json, preview.png"
+            + (", mission.plan, path.geojson, path.kml, footprint.geojson" if args.origin is not None else "")
+        )
     return 0

@@ -6,7 +6,12 @@ So that every other command can be tried without data of one's own:
   ``calib.txt`` with KITTI ``P2:``/``P3:`` lines, ``K.txt``, ground-truth ``gt_disparity.pfm``,
   ``gt_depth.pfm``, ``gt_points.ply`` in the left camera frame, ``preview.png``).
 * ``sequence``: a stereo flight in the KITTI-odometry layout (``image_2/``, ``image_3/``,
-  ``calib.txt``, ``poses.txt`` = world_from_left_camera) plus ground-truth depth in ``depth_2/``.
+  ``calib.txt``, ``poses.txt`` = world_from_left_camera) plus ground-truth depth in ``depth_2/``;
+  with ``--format ros2`` instead a ROS 2 bag (OUT is the bag directory: ``metadata.yaml``,
+  ``<OUT name>.db3``), with ``--format mcap`` a single ``OUT/flight.mcap``: images, camera info and
+  poses on the topics of ``skyrecon.io.rosbag_output`` (``/stereo/left/image_raw``,
+  ``/stereo/right/image_raw``, ``/stereo/left/pose``, ...), frames 0.1 s apart from time 0 (the
+  times KITTI assumes without ``times.txt``).
 * ``ring``: a multi-view ring of images around a small scene, cameras as a COLMAP text model
   in ``sparse/`` (what ``skyrecon mvs --cameras`` reads), ground-truth depth in ``depth/``.
 * ``images``: a monocular photo set orbiting a small scene (for two-view and SfM), ``K.txt``
@@ -34,6 +39,7 @@ from skyrecon.io.disparity import colorize_disparity
 from skyrecon.io.images import write_image
 from skyrecon.io.pfm import write_pfm
 from skyrecon.io.ply import write_ply
+from skyrecon.io.rosbag_output import TOPICS, write_stereo_bag
 from skyrecon.io.sequence import write_sequence
 from skyrecon.progress import progress
 from skyrecon.report.figures import contact_sheet, top_down_map
@@ -52,6 +58,7 @@ from skyrecon.sim import (
 EXAMPLES = """  skyrecon render stereo --seed 3 --out scene/
   skyrecon render sequence --frames 60 --out flight/
   skyrecon render sequence --plain --seed 3 --out plain_flight/
+  skyrecon render sequence --frames 60 --format mcap --out flight_mcap/    # flight_mcap/flight.mcap
   skyrecon render ring --views 12 --out ring/
   skyrecon render ring --plain --views 12 --out ring-plain/
   skyrecon render images --views 10 --out photos/
@@ -81,6 +88,12 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--views", type=positive_int, default=12, help="ring/images: number of views (default 12)")
     p.add_argument(
         "--city-size", type=positive_float, default=200.0, help="city side length, metres (default 200)"
+    )
+    p.add_argument(
+        "--format",
+        choices=["kitti", "ros2", "mcap"],
+        default="kitti",
+        help="sequence: KITTI layout (default), a ROS 2 bag directory (sqlite3) or OUT/flight.mcap",
     )
     p.add_argument(
         "--plain",
@@ -160,7 +173,15 @@ def _render_sequence(args, out: Path) -> dict:
             yield frame.left, frame.right
 
     t0 = time.perf_counter()
-    write_sequence(out, rig, frames(), world_from_left)
+    fmt = getattr(args, "format", "kitti")
+    if fmt == "kitti":
+        write_sequence(out, rig, frames(), world_from_left)
+    else:
+        times_ns = [i * 100_000_000 for i in range(args.frames)]
+        bag = out / "flight.mcap" if fmt == "mcap" else out
+        write_stereo_bag(
+            bag, rig, frames(), times_ns, world_from_left, "mcap" if fmt == "mcap" else "sqlite3"
+        )
     seconds = time.perf_counter() - t0
     track = np.array([p.t for p in world_from_left])
     plan = top_down_map(city.boxes, tuple(city.extent), [track], getattr(city, "cylinders", None))
@@ -171,7 +192,14 @@ def _render_sequence(args, out: Path) -> dict:
         ),
     )
     length = float(np.linalg.norm(np.diff(track, axis=0), axis=1).sum()) if len(track) > 1 else 0.0
+    topics = {}
+    if fmt != "kitti":
+        topics = {
+            "bag": str(out / "flight.mcap" if fmt == "mcap" else out),
+            "topics": {"left": TOPICS.left, "right": TOPICS.right, "pose": TOPICS.pose},
+        }
     return {
+        **topics,
         "frames": args.frames,
         "size": f"{args.width}x{args.height}",
         "flight_length_m": round(length, 1),

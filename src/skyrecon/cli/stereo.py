@@ -7,7 +7,8 @@ YAML with distortion and R, T) is rectified first; outputs are then in the recti
 
 For a KITTI-layout sequence directory (``image_2/``, ``image_3/``, ``calib.txt``) it processes
 every frame with one reusable matcher and writes ``disparity/NNNNNN.pfm``, ``depth/NNNNNN.pfm``,
-a few pictures and ``stereo.json`` with frames per second.
+a few pictures and ``stereo.json`` with frames per second. A ROS bag or ``.mcap`` file (with
+``--left-topic``/``--right-topic``) is read the same way, its synchronized pairs as frames ``NNNNNN``.
 """
 
 from __future__ import annotations
@@ -19,7 +20,8 @@ from typing import Any
 
 import numpy as np
 
-from skyrecon.cli.common import add_command, info, output_dir, positive_float, positive_int
+from skyrecon.cli.bag_options import add_bag_options, bag_topics
+from skyrecon.cli.common import add_cloud_format, add_command, info, output_dir, positive_float, positive_int
 from skyrecon.core.stereo_rig import StereoRig
 from skyrecon.errors import InputError
 from skyrecon.eval.stereo_metrics import evaluate_disparity
@@ -27,9 +29,11 @@ from skyrecon.io.calib import read_stereo_calib
 from skyrecon.io.disparity import colorize_depth, colorize_disparity, read_disparity
 from skyrecon.io.images import read_image_with_alpha, write_image
 from skyrecon.io.jsonio import write_json
+from skyrecon.io.las import write_point_cloud
 from skyrecon.io.pfm import write_pfm
-from skyrecon.io.ply import write_ply
-from skyrecon.io.sequence import is_sequence_dir, read_sequence
+from skyrecon.io.rosbag_input import is_bag
+from skyrecon.io.sequence import StereoSequence, is_sequence_dir
+from skyrecon.io.stereo_input import open_stereo_sequence
 from skyrecon.progress import progress
 from skyrecon.report.figures import contact_sheet
 from skyrecon.stereo import create_matcher, disparity_to_depth, disparity_to_points, rectify_rig
@@ -38,6 +42,8 @@ EXAMPLES = """  skyrecon stereo left.png right.png --out out/                   
   skyrecon stereo im0.png im1.png --calib calib.txt --out out/      # + depth.pfm, points.ply
   skyrecon stereo left.png right.png --calib calib.txt --gt disp0.pfm --out out/
   skyrecon stereo flight/ --out flight_depth/ --method skyrecon-fast   # a KITTI-layout sequence
+  skyrecon stereo flight.mcap --left-topic /stereo/left/image_raw --right-topic /stereo/right/image_raw \
+      --frames 1 --out first_pair/                                     # a ROS bag or MCAP file
 """
 
 
@@ -77,6 +83,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "--gt", help="ground-truth disparity (PFM, KITTI 16-bit PNG or Middlebury PGM) to score against"
     )
     p.add_argument("--frames", type=positive_int, help="sequence: process only the first N frames")
+    add_cloud_format(p)
+    add_bag_options(p)
     return p
 
 
@@ -85,9 +93,9 @@ def run(args: argparse.Namespace) -> int:
         path = Path(args.inputs[0])
         if not path.exists():
             raise InputError("not found; give LEFT RIGHT images or a sequence directory", path)
-        if not is_sequence_dir(path):
+        if not (is_sequence_dir(path) or is_bag(path)):
             raise InputError(
-                "is not a stereo sequence directory (image_2/, image_3/, calib.txt); "
+                "is not a stereo sequence directory (image_2/, image_3/, calib.txt) nor a ROS bag; "
                 "for a single pair give both LEFT and RIGHT images",
                 path,
             )
@@ -166,7 +174,7 @@ def _run_pair(args: argparse.Namespace, left_path: Path, right_path: Path) -> in
         "rectified_here": rectified_here,
     }
     if rig is not None:
-        summary.update(_write_depth(out, disparity, rig, left, args.min_depth, args.max_depth))
+        summary.update(_write_depth(out, disparity, rig, left, args.min_depth, args.max_depth, args.format))
     if args.gt:
         summary["metrics"] = _score(disparity, args.gt)
     write_json(out / "stereo.json", summary)
@@ -176,7 +184,13 @@ def _run_pair(args: argparse.Namespace, left_path: Path, right_path: Path) -> in
 
 
 def _write_depth(
-    out: Path, disparity: np.ndarray, rig: StereoRig, left: np.ndarray, min_depth: float, max_depth: float
+    out: Path,
+    disparity: np.ndarray,
+    rig: StereoRig,
+    left: np.ndarray,
+    min_depth: float,
+    max_depth: float,
+    fmt: str = "ply",
 ) -> dict[str, Any]:
     """Write ``depth.pfm``, ``depth.png`` and ``points.ply`` (left camera frame of ``rig``, metres).
 
@@ -194,7 +208,7 @@ def _write_depth(
     if colour is not None and colour.dtype != np.uint8:
         colour = (colour // 257).astype(np.uint8)
     cloud = disparity_to_points(disparity, rig, colour, min_depth, max_depth)
-    write_ply(out / "points.ply", cloud)
+    write_point_cloud(out / "points.ply", cloud, fmt)
     return {"points": len(cloud), "baseline_m": rig.baseline_m, "focal_px": rig.left.fx}
 
 
@@ -229,7 +243,7 @@ def _run_sequence(args: argparse.Namespace, root: Path) -> int:
             "or rectify the frames first and write their calib.txt",
             args.calib,
         )
-    seq = read_sequence(root)
+    seq = open_stereo_sequence(root, bag_topics(args))
     n = min(len(seq), args.frames or len(seq))
     if n == 0:
         raise InputError("the sequence has no frames", root)
@@ -248,7 +262,7 @@ def _run_sequence(args: argparse.Namespace, root: Path) -> int:
         result = matcher.compute(left, right)
         depth = disparity_to_depth(result.disparity, rig)
         compute_s.append(time.perf_counter() - t0)
-        stem = seq.left_paths[i].stem
+        stem = seq.sequence.left_paths[i].stem if isinstance(seq.sequence, StereoSequence) else f"{i:06d}"
         write_pfm(out / "disparity" / f"{stem}.pfm", result.disparity)
         write_pfm(out / "depth" / f"{stem}.pfm", depth)
         if i in sample_at:

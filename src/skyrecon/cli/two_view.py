@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from skyrecon.cli.common import add_command, info, output_dir, positive_float, positive_int
+from skyrecon.cli.common import add_cloud_format, add_command, info, output_dir, positive_float, positive_int
 from skyrecon.core.intrinsics import Intrinsics
 from skyrecon.core.rigid import rotation_angle_deg
 from skyrecon.errors import EstimationError, InputError
@@ -23,7 +23,7 @@ from skyrecon.io.atomic import write_text_atomic
 from skyrecon.io.calib import read_K_txt
 from skyrecon.io.disparity import colorize_disparity
 from skyrecon.io.images import read_image, write_image
-from skyrecon.io.ply import write_ply
+from skyrecon.io.las import write_point_cloud
 from skyrecon.twoview import (
     TwoViewResult,
     TwoViewSettings,
@@ -90,6 +90,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "--baseline", type=positive_float, help="metric distance between the camera centres, metres"
     )
     p.add_argument("--seed", type=int, default=0, help="seed for RANSAC (same seed, same result)")
+    add_cloud_format(p)
     return p
 
 
@@ -125,7 +126,7 @@ def run(args: argparse.Namespace) -> int:
 
     summary = result.to_json_dict()
     write_text_atomic(out / "two_view.json", json.dumps(summary, indent=2, allow_nan=False))
-    _write_models_and_pictures(out, result, image1, image2, args.seed)
+    _write_models_and_pictures(out, result, image1, image2, args.seed, args.format)
     if not args.quiet:
         for warning in result.warnings:
             info(f"warning: {warning}")
@@ -148,7 +149,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _write_models_and_pictures(
-    out: Path, result: TwoViewResult, image1: np.ndarray, image2: np.ndarray, seed: int
+    out: Path, result: TwoViewResult, image1: np.ndarray, image2: np.ndarray, seed: int, fmt: str = "ply"
 ) -> None:
     """sparse.ply, dense.ply and the pictures (matches, epipolar lines, rectified pair, disparity)
     that the result has."""
@@ -164,9 +165,9 @@ def _write_models_and_pictures(
             draw_epipolar_lines(image1, image2, result.F, result.x1[inl], result.x2[inl], seed=seed),
         )
     if len(result.sparse):
-        write_ply(out / "sparse.ply", result.sparse)
+        write_point_cloud(out / "sparse.ply", result.sparse, fmt)
     if result.dense is not None:
-        write_ply(out / "dense.ply", result.dense.cloud)
+        write_point_cloud(out / "dense.ply", result.dense.cloud, fmt)
         if result.dense.left is not None and result.dense.right is not None:
             write_image(out / "rectified.png", draw_rectified_pair(result.dense.left, result.dense.right))
         if result.dense.disparity is not None:

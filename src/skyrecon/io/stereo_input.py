@@ -1,8 +1,10 @@
-"""One way to open a stereo sequence of either layout we read: KITTI odometry or EuRoC/ASL.
+"""One way to open a stereo sequence of any kind we read: KITTI odometry, EuRoC/ASL, or a ROS bag.
 
 :func:`open_stereo_sequence` tells them apart and returns a :class:`StereoInput`: the rectified rig,
 frame times, lazily read rectified frames and the ground truth the sequence carries (KITTI
-``poses.txt``, EuRoC ``state_groundtruth_estimate0``), as ``world_from_left`` per frame.
+``poses.txt``, EuRoC ``state_groundtruth_estimate0``, a bag's pose topic), as ``world_from_left``
+per frame. Bags (ROS 2 directories, ROS 1 ``.bag``, ``.mcap``) need the topics named
+(:class:`skyrecon.io.rosbag_input.BagTopics`).
 
 KITTI times come from ``times.txt`` (one number of seconds per line, as in the KITTI odometry
 dataset) when present, else frames are taken as 10 Hz (KITTI's rate).
@@ -19,6 +21,7 @@ from skyrecon.core.rigid import Rigid3
 from skyrecon.core.stereo_rig import StereoRig
 from skyrecon.errors import InputError
 from skyrecon.io.euroc import EurocSequence, is_euroc_dir, read_euroc
+from skyrecon.io.rosbag_input import BagSequence, BagTopics, is_bag, read_bag
 from skyrecon.io.sequence import StereoSequence, is_sequence_dir, read_sequence
 from skyrecon.io.trajectory import TimedTrajectory, read_trajectory
 
@@ -32,8 +35,8 @@ class StereoInput:
     """A stereo sequence ready for odometry.
 
     Attributes:
-        root: the directory given.
-        layout: ``"kitti"`` or ``"euroc"``.
+        root: the directory (or bag file) given.
+        layout: ``"kitti"``, ``"euroc"`` or ``"rosbag"``.
         rig: the rectified rig, metres.
         timestamps_s: (N,) frame times, seconds.
         world_from_left: ground truth per frame (None entries where it does not cover a frame), or None.
@@ -46,7 +49,7 @@ class StereoInput:
     layout: str
     rig: StereoRig
     timestamps_s: np.ndarray
-    sequence: StereoSequence | EurocSequence
+    sequence: StereoSequence | EurocSequence | BagSequence
     world_from_left: list[Rigid3 | None] | None = None
     gt_source: str = ""
     body_from_left: Rigid3 | None = None
@@ -117,13 +120,20 @@ def kitti_times(root: Path, n: int) -> tuple[np.ndarray, bool]:
     return t, False
 
 
-def open_stereo_sequence(path: str | Path) -> StereoInput:
-    """Open a KITTI-layout or EuRoC-layout stereo sequence directory.
+def open_stereo_sequence(path: str | Path, bag_topics: BagTopics | None = None) -> StereoInput:
+    """Open a KITTI-layout or EuRoC-layout stereo sequence directory, or a ROS bag / MCAP file.
 
+    Args:
+        path: the sequence directory, ROS 2 bag directory, ``.bag`` or ``.mcap`` file.
+        bag_topics: the topics to read from a bag (ignored for the directory layouts).
     Raises:
-        InputError: neither layout, or a file of the layout is bad (named).
+        InputError: none of these, or a file of the layout is bad (named).
     """
     root = Path(path)
+    if root.exists() and is_bag(root):
+        b = read_bag(root, bag_topics or BagTopics())
+        source = f"{b.topics.pose} (pose topic)" if b.world_from_left is not None else ""
+        return StereoInput(root, "rosbag", b.rig, b.timestamps_s, b, b.world_from_left, source)
     if not root.is_dir():
         raise InputError("sequence directory not found; check the path", root)
     if is_euroc_dir(root):
@@ -144,7 +154,7 @@ def open_stereo_sequence(path: str | Path) -> StereoInput:
         gt = list(k.world_from_left) if k.world_from_left is not None else None
         return StereoInput(root, "kitti", k.rig, t, k, gt, "poses.txt" if gt else "", None, assumed)  # type: ignore[arg-type]
     raise InputError(
-        "not a stereo sequence: expected the KITTI layout (image_2/, image_3/, calib.txt) or the "
-        "EuRoC layout (mav0/cam0/data.csv, mav0/cam1/)",
+        "not a stereo sequence: expected the KITTI layout (image_2/, image_3/, calib.txt), the "
+        "EuRoC layout (mav0/cam0/data.csv, mav0/cam1/) or a ROS bag (metadata.yaml, .bag, .mcap)",
         root,
     )

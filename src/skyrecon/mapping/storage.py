@@ -146,8 +146,11 @@ def read_map_files(directory: str | Path) -> StoredBlocks:
     return StoredBlocks(config, coords, logodds)
 
 
-def export_occupied_ply(occ_map: HasOccupiedCenters, path: str | Path, colorize: bool = True) -> int:
-    """Write the centres of the occupied voxels (world frame, metres) as a binary PLY.
+def export_occupied_ply(
+    occ_map: HasOccupiedCenters, path: str | Path, colorize: bool = True, fmt: str = "ply"
+) -> int:
+    """Write the centres of the occupied voxels (world frame, metres) as a binary PLY (or, with
+    ``fmt``, LAS/LAZ at ``path`` with that suffix; see :func:`skyrecon.io.las.write_point_cloud`).
 
     Colours encode height (blue low, red high) when ``colorize``. Returns the number of points.
     """
@@ -157,7 +160,12 @@ def export_occupied_ply(occ_map: HasOccupiedCenters, path: str | Path, colorize:
         z = pts[:, 2]
         s = (z - z.min()) / max(float(np.ptp(z)), 1e-6)
         colors = np.stack([255 * s, 255 * (1 - np.abs(2 * s - 1)), 255 * (1 - s)], 1)
-    write_ply(path, PointCloud(pts, colors))
+    if fmt == "ply":
+        write_ply(path, PointCloud(pts, colors))
+    else:
+        from skyrecon.io.las import write_point_cloud
+
+        write_point_cloud(path, PointCloud(pts, colors), fmt)
     return int(len(pts))
 
 

@@ -1,0 +1,65 @@
+"""Point clouds as PLY, LAS or LAZ: the one writer every command that writes a cloud uses.
+
+LAS/LAZ (ASPRS LAS 1.2, via ``laspy``; LAZ compressed with the ``lazrs`` backend): coordinates in
+metres in the cloud's frame (the world frame for maps and fused clouds), stored as integers with a
+scale of 1 mm and offsets at the cloud's minimum; point format 2 with 16-bit RGB (``c * 257``)
+when the cloud has colours, else format 0. No CRS is written: the coordinates are local metres.
+``laspy``/``lazrs`` are the optional ``geo`` extra, imported only when LAS/LAZ is written.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from skyrecon.core.depth import PointCloud
+from skyrecon.errors import InputError
+from skyrecon.io.atomic import atomic_write
+from skyrecon.io.ply import write_ply
+
+__all__ = ["CLOUD_FORMATS", "GEO_HINT", "write_point_cloud", "write_las"]
+
+CLOUD_FORMATS = ("ply", "las", "laz")
+GEO_HINT = "writing LAS/LAZ needs the 'geo' extra: pip install 'skyrecon[geo]'"
+LAS_SCALE_M = 0.001
+
+
+def write_las(path: str | Path, cloud: PointCloud, compress: bool = False) -> None:
+    """Write ``cloud`` (N points, metres) as LAS, or LAZ when ``compress``, atomically (see the module)."""
+    try:
+        import laspy
+    except ImportError:
+        raise InputError(GEO_HINT, path) from None
+    pts = np.asarray(cloud.points, dtype=np.float64).reshape(-1, 3)
+    if not np.all(np.isfinite(pts)):
+        raise InputError("the cloud has NaN or infinite coordinates", path)
+    has_rgb = cloud.colors is not None
+    header = laspy.LasHeader(point_format=2 if has_rgb else 0, version="1.2")
+    header.scales = np.full(3, LAS_SCALE_M)
+    header.offsets = pts.min(axis=0) if len(pts) else np.zeros(3)
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = pts[:, 0], pts[:, 1], pts[:, 2]
+    if has_rgb:
+        rgb = np.asarray(cloud.colors, dtype=np.uint16) * 257
+        las.red, las.green, las.blue = rgb[:, 0], rgb[:, 1], rgb[:, 2]
+    backend = None
+    if compress:
+        if not laspy.LazBackend.Lazrs.is_available():
+            raise InputError("writing LAZ needs the 'lazrs' backend: pip install 'skyrecon[geo]'", path)
+        backend = laspy.LazBackend.Lazrs
+    with atomic_write(path, "wb") as f:
+        las.write(f, do_compress=compress, laz_backend=backend)
+
+
+def write_point_cloud(path: str | Path, cloud: PointCloud, fmt: str = "ply") -> Path:
+    """Write ``cloud`` as ``fmt`` (``ply``, ``las`` or ``laz``) at ``path`` with its suffix set to the
+    format (``points.ply`` -> ``points.las``); returns the path written."""
+    if fmt not in CLOUD_FORMATS:
+        raise InputError(f"unknown point cloud format {fmt!r}; choose one of {', '.join(CLOUD_FORMATS)}")
+    out = Path(path).with_suffix("." + fmt)
+    if fmt == "ply":
+        write_ply(out, cloud)
+    else:
+        write_las(out, cloud, compress=fmt == "laz")
+    return out
