@@ -26,6 +26,18 @@ The mission also ends on arrival (the drone believes it is within ``arrival_tole
 goal; the delivery counts when it truly is within ``arrival_tolerance_m + delivery_tolerance_m``)
 or at the time limit. Stages 2-7 are "the loop" whose rate is reported (rendering excluded).
 
+A city that moves (:mod:`skyrecon.sim.movers`): the frame is rendered from the scene as it is
+at that instant; the tracker (:mod:`skyrecon.perception.movers`) keeps the movers out of the
+map, and their predicted sweep (keep-out capsules) is checked against the path and avoided by
+every replan (``replan_reason`` "mover"); the true clearance counts the movers at the true time.
+A prior map (:mod:`skyrecon.mission.prior`) seeds the drone's map with weak beliefs.
+
+Faults (:mod:`skyrecon.sim.faults`): what reaches the drone may be black, frozen, missing, late,
+glared or noisy, and a starved CPU stretches the cycle; :mod:`skyrecon.mission.health` judges
+each cycle's data, and :mod:`skyrecon.mission.failsafe` holds, returns or lands when the depth
+cannot be trusted (untrusted depth never reaches the map; an overrun skips the map update, not
+the safety checks).
+
 Everything is deterministic in the scenario: the simulated clock advances by a fixed step, so
 the flown path does not depend on how fast the machine is.
 """
