@@ -30,7 +30,7 @@ Usage:
 Resumable: a mission whose folder has ``mission.json`` is read back (``--fresh`` flies all
 again). Missions side by side share the cores: with ``--parallel 2`` on 2 cores the loop
 latencies are those of a loaded machine. Writes ``OUT/summary.json`` and
-``benchmarks/dynamic/results*.json``.
+``benchmarks/dynamic/results*.json`` (``results_baseline.json`` with ``--baseline``).
 """
 
 from __future__ import annotations
@@ -216,9 +216,8 @@ def main() -> int:
             )
             print(f"  {k}: tracking {fmt(a, 4)} vs off {fmt(b, 4)} (ratio {ratio})")
     result["wall_s"] = round(time.perf_counter() - t0, 1)
-    write_text_atomic(
-        ROOT / "benchmarks" / "dynamic" / f"results{suffix}.json", json.dumps(result, indent=1) + "\n"
-    )
+    name = f"results{suffix}{'_baseline' if args.baseline else ''}.json"  # a baseline run keeps its own file
+    write_text_atomic(ROOT / "benchmarks" / "dynamic" / name, json.dumps(result, indent=1) + "\n")
     write_text_atomic(out / "summary.json", json.dumps({"totals": tot, "missions": rows}, indent=1) + "\n")
     return 0
 
