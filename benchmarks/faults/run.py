@@ -40,6 +40,7 @@ from skyrecon.executor import ProcessExecutor  # noqa: E402
 from skyrecon.io.atomic import write_text_atomic  # noqa: E402
 from skyrecon.mission import MissionConfig  # noqa: E402
 from skyrecon.mission.batch import MissionJob, fly_job, read_mission_json  # noqa: E402
+from skyrecon.mission.config import SMALL_BENCHMARK  # noqa: E402
 
 SAFE_ENDS = ("delivered", "hovering", "returned", "landed")
 
@@ -90,15 +91,7 @@ def main() -> int:
     args = ap.parse_args()
     cfg = MissionConfig(faults="random", failsafe=args.failsafe, pose_source=args.pose_source)
     if args.small:
-        cfg = cfg.with_overrides(
-            width=320,
-            height=240,
-            max_disparity=32,
-            city_size_m=100.0,
-            min_goal_distance_m=50.0,
-            max_goal_distance_m=90.0,
-            map_padding_m=20.0,
-        )
+        cfg = cfg.with_overrides(**SMALL_BENCHMARK, map_padding_m=20.0)
     tag = ("_small" if args.small else "") + ("" if args.failsafe == "return" else f"_{args.failsafe}")
     tag += "" if args.pose_source == "truth" else f"_{args.pose_source}"
     out = Path(args.out + tag)

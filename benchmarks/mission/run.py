@@ -48,6 +48,7 @@ from skyrecon.mission.batch import (  # noqa: E402
     summarize,
     summary_markdown,
 )
+from skyrecon.mission.config import SMALL_BENCHMARK  # noqa: E402
 from skyrecon.report.mission_report import render_summary_report  # noqa: E402
 
 
@@ -86,14 +87,7 @@ def main() -> int:
     if not truth and args.out == str(ROOT / "benchmarks" / "mission" / "out"):
         args.out = str(ROOT / "benchmarks" / "mission" / f"out_{args.pose_source.replace('+', '_')}")
     if args.small:
-        cfg = cfg.with_overrides(
-            width=320,
-            height=240,
-            max_disparity=32,
-            city_size_m=100.0,
-            min_goal_distance_m=50.0,
-            max_goal_distance_m=90.0,
-        )
+        cfg = cfg.with_overrides(**SMALL_BENCHMARK)
     if args.max_altitude is not None:
         cfg = cfg.with_overrides(max_altitude_m=args.max_altitude)
     out = Path(args.out)

@@ -275,6 +275,17 @@ class MissionConfig:
         return cls(**{k: v for k, v in d.items() if k in known})
 
 
+#: The quick missions of the benchmarks' ``--small``: 320x240 images, a 100 m city, 50-90 m deliveries.
+SMALL_BENCHMARK = dict(
+    width=320,
+    height=240,
+    max_disparity=32,
+    city_size_m=100.0,
+    min_goal_distance_m=50.0,
+    max_goal_distance_m=90.0,
+)
+
+
 def small_test_config(**changes) -> MissionConfig:
     """A quick mission for tests and smoke runs: 320x240 images, an 80 m city, 30..50 m deliveries."""
     base = MissionConfig(
