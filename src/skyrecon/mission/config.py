@@ -87,6 +87,8 @@ class MissionConfig:
         track_movers: separate moving objects from the static map and track them
             (:mod:`skyrecon.perception.movers`); the planner keeps clear of their predicted sweep.
         mover_horizon_s: how far ahead a tracked mover's motion is predicted for planning, seconds.
+        mover_margin_m: extra radius of a tracked mover's keep-out capsule, metres (stereo places
+            a small mover at 10-20 m up to a few metres too far along the viewing ray).
     Faults (:mod:`skyrecon.sim.faults`, :mod:`skyrecon.mission.health`, :mod:`skyrecon.mission.failsafe`):
         faults: faults injected into the simulated sensors ("" none; a specification or "random").
         failsafe: what a prolonged loss of trustworthy depth triggers: "return" (back along the
@@ -138,6 +140,7 @@ class MissionConfig:
     prior_map: str = ""
     track_movers: bool = True
     mover_horizon_s: float = 3.0
+    mover_margin_m: float = 1.0
     faults: str = ""
     failsafe: str = "return"
     failsafe_after_s: float = 3.0

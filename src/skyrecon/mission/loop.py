@@ -577,7 +577,7 @@ def run_mission(
         rewritten, ms["distance"] = timed(nav.update_distance)
         t0 = time.perf_counter()
         outcome = nav.check(p, rewritten)
-        keep = tracker.keep_out(cfg.mover_horizon_s) if tracker is not None else None
+        keep = tracker.keep_out(cfg.mover_horizon_s, cfg.mover_margin_m) if tracker is not None else None
         conflict_m = math.inf
         if keep is not None and len(keep) and outcome.clear and len(nav.waypoints):
             conflict_m = nav.mover_conflict(nav.rest(p), keep, reach_m)

@@ -645,12 +645,13 @@ class MoverTracker:
             for t in self._planner_tracks()
         ]
 
-    def keep_out(self, horizon_s: float) -> np.ndarray:
+    def keep_out(self, horizon_s: float, margin_m: float = 0.0) -> np.ndarray:
         """(K, 7) capsules ``[x0, y0, z0, x1, y1, z1, radius]`` the planner must avoid.
 
         One per confirmed moving (or coasting, once moving) track: the segment from its position
         to its predicted position after ``horizon_s`` seconds, radius ``norm(half_size)`` plus
-        ``keep_out_sigmas`` standard deviations of the position predicted at the horizon (metres).
+        ``keep_out_sigmas`` standard deviations of the position predicted at the horizon (capped
+        at ``max_keep_out_margin_m``) plus ``margin_m`` (metres).
         """
         out = []
         for t in self._planner_tracks():
@@ -659,6 +660,6 @@ class MoverTracker:
             Ph = P[:3, :3] + horizon_s * (P[:3, 3:] + P[3:, :3]) + horizon_s**2 * P[3:, 3:]
             sig = float(np.sqrt(max(np.linalg.eigvalsh(Ph).max(), 0.0)))
             margin = min(self.settings.keep_out_sigmas * sig, self.settings.max_keep_out_margin_m)
-            radius = np.linalg.norm(t.half_size) + margin
+            radius = np.linalg.norm(t.half_size) + margin + margin_m
             out.append(np.concatenate([t.position, end, [radius]]))
         return np.array(out, np.float64).reshape(-1, 7)
