@@ -65,6 +65,7 @@ class _Change:
     kind: str
     name: str
     boxes: np.ndarray
+    voxels: np.ndarray  # (M, 3) int64 voxels inside the boxes (they do not move)
     object_ids: set[int] = field(default_factory=set)
     t_in_range: float | None = None
     t_mapped: float | None = None
@@ -102,11 +103,14 @@ class WorldMonitor:
         self.closest: list[dict] = []
         self.changes: list[_Change] = []
         for c in getattr(scenario, "changes", []):
-            self.changes.append(_Change(c.kind, c.name, np.asarray(c.box, dtype=np.float64)[None]))
+            box = np.asarray(c.box, dtype=np.float64)[None]
+            self.changes.append(_Change(c.kind, c.name, box, _voxels_of_boxes(box, self.v)))
         if self.scene is not None:
             for m in self.scene.new_obstacles:
                 tower = m.boxes_at(0.0)[:1]  # the crane's tower; its boom moves
-                self.changes.append(_Change("added", f"{m.name} tower", tower))
+                self.changes.append(
+                    _Change("added", f"{m.name} tower", tower, _voxels_of_boxes(tower, self.v))
+                )
         for ch in self.changes:
             if ch.kind == "added":
                 ch.object_ids = self._object_ids(ch.boxes)
@@ -193,7 +197,7 @@ class WorldMonitor:
 
     def _changes(self, t, cam_position, object_id, occ_map: OccupancyMap, to_est) -> None:
         for ch in self.changes:
-            vox = _voxels_of_boxes(ch.boxes, self.v)
+            vox = ch.voxels
             if len(vox) == 0:
                 continue
             lo = occ_map.log_odds_at(to_est((vox + 0.5) * self.v))

@@ -59,8 +59,9 @@ def _closest_approaches(result) -> list[dict]:
     return sorted(out, key=lambda r: r["distance_m"])
 
 
-def movers_image(result, extent) -> np.ndarray:
-    """The plan view with the movers' true and tracked paths and the closest approaches."""
+def movers_image(result, extent, closest: list[dict] | None = None) -> np.ndarray:
+    """The plan view with the movers' true and tracked paths and the closest approaches
+    (``closest``: :func:`_closest_approaches` of ``result``, computed if None)."""
     sc = result.scenario
     img = overview_image(
         sc.city,
@@ -90,7 +91,7 @@ def movers_image(result, extent) -> np.ndarray:
         for path in mon.track_paths.values():
             if len(path) >= 2:
                 poly(np.array(path)[:, 1:], MAGENTA, 2)
-    for ca in _closest_approaches(result)[:5]:
+    for ca in (_closest_approaches(result) if closest is None else closest)[:5]:
         for p, color in ((ca["drone"], RED), (ca["mover"], CYAN)):
             u, v = np.round(view.px(np.asarray(p)[None, :2])[0]).astype(int)
             cv2.circle(img, (int(u), int(v)), 5, color, 2, cv2.LINE_AA)
@@ -124,7 +125,8 @@ def dynamic_section(result, metrics: dict, extent) -> list[str]:
             "moves out of its map, tracks it and keeps clear of where it is going over the next "
             f"{cfg.mover_horizon_s:g} s.</p>"
         )
-        out += [_legend(), _img(movers_image(result, extent), "movers: true and tracked paths")]
+        closest = _closest_approaches(result)
+        out += [_legend(), _img(movers_image(result, extent, closest), "movers: true and tracked paths")]
         t = np.array([r.time_s for r in recs])
         cm = np.array([r.clearance_moving_m for r in recs])
         cs = np.array([r.clearance_static_m for r in recs])
@@ -149,7 +151,7 @@ def dynamic_section(result, metrics: dict, extent) -> list[str]:
                 round(ca["distance_m"], 2),
                 f"at t = {ca['time_s']:.1f} s (cycle {ca['cycle']})",
             )
-            for ca in _closest_approaches(result)
+            for ca in closest
         ]
         out += ["<h3>Closest approach to each mover (true geometry, true time, metres)</h3>", _table(rows)]
         err = dyn.get("mover_position_error_m") or {}

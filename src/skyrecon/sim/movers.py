@@ -21,7 +21,7 @@ Everything is deterministic in its parameters; :func:`make_movers` draws them fr
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
@@ -523,30 +523,16 @@ class MovingScene:
         Object ids of static boxes are unchanged; cylinder ids shift by the number of mover boxes.
         """
         s = self.static
-        return MoverSnapshot(
-            seed=s.seed,
-            extent=s.extent,
+        same = {f.name: getattr(s, f.name) for f in fields(City) if f.init}  # everything but the boxes
+        same.update(
             boxes=np.concatenate([s.boxes, self.mover_boxes(t)]),
             box_material=self._material,
             box_kind=self._kind,
             box_albedo=self._albedo,
             box_accent=self._accent,
             box_params=self._params,
-            cylinders=s.cylinders,
-            cyl_material=s.cyl_material,
-            cyl_kind=s.cyl_kind,
-            cyl_albedo=s.cyl_albedo,
-            cyl_accent=s.cyl_accent,
-            cyl_params=s.cyl_params,
-            blocks_x=s.blocks_x,
-            blocks_y=s.blocks_y,
-            sidewalk_m=s.sidewalk_m,
-            ground_style=s.ground_style,
-            center=s.center,
-            view_radius_m=s.view_radius_m,
-            time_s=float(t),
-            box_mover=self._box_mover,
         )
+        return MoverSnapshot(**same, time_s=float(t), box_mover=self._box_mover)
 
     def mover_of_object_id(self, snapshot: MoverSnapshot, object_id: np.ndarray) -> np.ndarray:
         """See :func:`mover_of_object_id`."""
