@@ -1,6 +1,6 @@
 """``skyrecon mvs``: dense multi-view stereo with known cameras: depth maps and one fused cloud.
 
-Writes ``fused.ply`` (world frame, colours and normals), ``depth/<image stem>.pfm`` (depth along
+Writes ``fused.ply`` (world frame, colours and normals; ``--format las|laz`` for LAS/LAZ), ``depth/<image stem>.pfm`` (depth along
 the optical axis at the working resolution, metres, NaN unknown), ``mvs.json`` (settings,
 neighbours, depth ranges, timings, warnings), ``mesh.ply`` with ``--mesh``, and pictures:
 ``depth.png`` (every depth map) and ``preview.png`` (the fused cloud seen from the first cameras).
@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from skyrecon.cli.common import add_command, info, output_dir, positive_float, positive_int
+from skyrecon.cli.common import add_cloud_format, add_command, info, output_dir, positive_float, positive_int
 from skyrecon.core import PosedView
 from skyrecon.errors import EstimationError
 from skyrecon.executor import get_executor
@@ -103,6 +103,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         help="ignore image files that no camera refers to (default: an error)",
     )
     p.add_argument("--workers", type=positive_int, help="processes for per-view depth (default: all cores)")
+    add_cloud_format(p)
     p.add_argument("--seed", type=int, default=0, help="seed of every random choice (same seed, same result)")
     return p
 
@@ -132,10 +133,10 @@ def run(args: argparse.Namespace) -> int:
     executor = get_executor("serial") if args.workers == 1 else get_executor(None, args.workers)
     result = run_mvs(views, None, settings, executor=executor)
     if len(result.cloud) == 0:
-        save_mvs_result(result, out, settings)
+        save_mvs_result(result, out, settings, args.format)
         why = "; ".join(result.warnings) or "no depth was consistent across views"
         raise EstimationError(f"no 3D points were reconstructed: {why} (details in {out / 'mvs.json'})")
-    paths = save_mvs_result(result, out, settings)
+    paths = save_mvs_result(result, out, settings, args.format)
     _pictures(result, views, out)
     if not args.quiet:
         for warning in result.warnings:
@@ -146,7 +147,7 @@ def run(args: argparse.Namespace) -> int:
             f"{len(result.cloud)} fused points from {len(result.depth_maps)} depth maps in {t.get('total', 0):.1f} s "
             f"({steps})"
         )
-        written = ["fused.ply", "depth/*.pfm", "mvs.json", "depth.png", "preview.png"]
+        written = [f"fused.{args.format}", "depth/*.pfm", "mvs.json", "depth.png", "preview.png"]
         if "mesh" in paths:
             written.insert(1, "mesh.ply")
         info(f"wrote {out}/" + ", ".join(written))

@@ -10,7 +10,7 @@ A mission folder holds:
 * ``cycles.json``: one record per cycle (pose, speed, per-stage milliseconds, true clearance,
   replanning);
 * ``map/``: the drone's final occupancy map (``skyrecon.mapping.save_map``, compressed) and
-  ``occupied.ply`` (centres of its occupied voxels, world frame);
+  ``occupied.ply`` (centres of its occupied voxels, world frame; ``.las``/``.laz`` with that format);
 * ``overview.png`` and ``report.html`` (self-contained).
 
 A refused mission (impossible input) gets ``mission.json`` with ``success: false`` and the
@@ -37,8 +37,12 @@ FORMAT = "skyrecon.mission"
 VERSION = 1
 
 
-def write_mission_outputs(result: MissionResult, out_dir: str | Path, save_the_map: bool = True) -> dict:
+def write_mission_outputs(
+    result: MissionResult, out_dir: str | Path, save_the_map: bool = True, cloud_format: str = "ply"
+) -> dict:
     """Write every output of a flown mission to ``out_dir`` (created if missing).
+
+    ``cloud_format`` (``ply``, ``las`` or ``laz``) is the format of the map's occupied-voxel cloud.
 
     Returns:
         The metrics dict that was written to ``mission.json`` (with its ``files``).
@@ -77,8 +81,8 @@ def write_mission_outputs(result: MissionResult, out_dir: str | Path, save_the_m
     )
     if save_the_map:
         save_map(result.occ_map, out / "map", compress=True)
-        export_occupied_ply(result.occ_map, out / "map" / "occupied.ply")
-        files.update(map="map/", occupied="map/occupied.ply")
+        export_occupied_ply(result.occ_map, out / "map" / "occupied.ply", fmt=cloud_format)
+        files.update(map="map/", occupied=f"map/occupied.{cloud_format}")
     box = sc.box
     over = overview_image(
         sc.city,
