@@ -290,7 +290,14 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         outcome = fly_and_write(
-            args.seed, out, cfg, start, goal, on_cycle=progress, on_scenario=announce, cloud_format=args.format
+            args.seed,
+            out,
+            cfg,
+            start,
+            goal,
+            on_cycle=progress,
+            on_scenario=announce,
+            cloud_format=args.format,
         )
     finally:
         progress.close()

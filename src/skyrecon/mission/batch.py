@@ -253,7 +253,9 @@ def run_missions(
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    jobs = [MissionJob(int(s), str(out / f"seed_{int(s):04d}"), cfg.to_dict(), quiet, cloud_format) for s in seeds]
+    jobs = [
+        MissionJob(int(s), str(out / f"seed_{int(s):04d}"), cfg.to_dict(), quiet, cloud_format) for s in seeds
+    ]
     ex = executor or get_executor()
     rows = ex.map(fly_job, jobs, desc="missions")
     totals = summarize(rows)

@@ -16,9 +16,9 @@ from typing import Any
 import numpy as np
 
 from skyrecon.io import write_pfm
-from skyrecon.io.las import write_point_cloud
 from skyrecon.io.atomic import write_bytes_atomic
 from skyrecon.io.jsonio import write_json
+from skyrecon.io.las import write_point_cloud
 
 __all__ = ["save_mvs_result", "encode_mesh_ply", "write_mesh_ply"]
 
