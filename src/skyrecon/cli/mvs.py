@@ -4,6 +4,8 @@ Writes ``fused.ply`` (world frame, colours and normals; ``--format las|laz`` for
 the optical axis at the working resolution, metres, NaN unknown), ``mvs.json`` (settings,
 neighbours, depth ranges, timings, warnings), ``mesh.ply`` with ``--mesh``, and pictures:
 ``depth.png`` (every depth map) and ``preview.png`` (the fused cloud seen from the first cameras).
+Each view's depth is kept in ``OUT/workspace/`` as soon as it is computed: a killed run, rerun
+with the same arguments, computes only the views it had not finished.
 """
 
 from __future__ import annotations
@@ -103,6 +105,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         help="ignore image files that no camera refers to (default: an error)",
     )
     p.add_argument("--workers", type=positive_int, help="processes for per-view depth (default: all cores)")
+    p.add_argument(
+        "--workspace",
+        help="where each view's depth is kept as soon as it is computed, so that a killed run resumes "
+        "when rerun with the same arguments (default OUT/workspace)",
+    )
     add_cloud_format(p)
     p.add_argument("--seed", type=int, default=0, help="seed of every random choice (same seed, same result)")
     return p
@@ -131,7 +138,8 @@ def run(args: argparse.Namespace) -> int:
             f"fusion {settings.fusion}, longer side at most {settings.max_image_size or 'full'} px"
         )
     executor = get_executor("serial") if args.workers == 1 else get_executor(None, args.workers)
-    result = run_mvs(views, None, settings, executor=executor)
+    workspace = Path(args.workspace) if args.workspace else out / "workspace"
+    result = run_mvs(views, None, settings, executor=executor, workspace=workspace)
     if len(result.cloud) == 0:
         save_mvs_result(result, out, settings, args.format)
         why = "; ".join(result.warnings) or "no depth was consistent across views"
