@@ -29,6 +29,7 @@ COMMANDS = [
     "odometry",
     "plan",
     "eval",
+    "view",
     "demo",
     "warmup",
 ]
