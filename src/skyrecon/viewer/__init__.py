@@ -7,7 +7,7 @@ Built on a vendored three.js (r149, MIT) inlined into the page: no Python depend
 """
 
 from skyrecon.viewer.html import READY_TITLE, render_page, write_page
-from skyrecon.viewer.load import ACCEPTS, load_scene
+from skyrecon.viewer.load import ACCEPTS, load_scene, map_scene
 from skyrecon.viewer.scene import Polyline, ViewerScene
 from skyrecon.viewer.serve import make_server, server_url
 
@@ -18,6 +18,7 @@ __all__ = [
     "ViewerScene",
     "load_scene",
     "make_server",
+    "map_scene",
     "render_page",
     "server_url",
     "write_page",

@@ -90,6 +90,23 @@ def _load_dir(d: Path) -> ViewerScene:
     raise InputError(f"not an output the viewer reads; it opens {ACCEPTS}", d)
 
 
+def map_scene(
+    title: str,
+    occupied_centers: np.ndarray,
+    voxel_size_m: float,
+    flown: np.ndarray | None = None,
+    planned: np.ndarray | None = None,
+) -> ViewerScene:
+    """The scene of a map and a flight: occupied voxel centres (M, 3) world metres, the flown
+    track and the planned path (each (K, 3) world metres, or None); used for missions' reports."""
+    paths = [
+        Polyline(name, p, rgb)
+        for name, p, rgb in (("flown", flown, FLOWN_RGB), ("planned", planned, PLANNED_RGB))
+        if p is not None and len(p)
+    ]
+    return ViewerScene(title, voxel_centers=occupied_centers, voxel_size_m=voxel_size_m, paths=tuple(paths))
+
+
 def _load_map(d: Path, title: str, paths: tuple[Polyline, ...] = ()) -> ViewerScene:
     from skyrecon.mapping import load_map, read_flown_path
 

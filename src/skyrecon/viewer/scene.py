@@ -112,13 +112,15 @@ class ViewerScene:
         Deterministic for a given ``seed``; the kept points stay in their original order. The
         counts before subsampling stay in ``total_points`` / ``total_voxels``.
         """
+        if max_points < 0 or (len(self.points) <= max_points and len(self.voxel_centers) <= max_points):
+            return self
         rng = np.random.default_rng(seed)
         pts, cols, vox = self.points, self.colors, self.voxel_centers
-        if max_points >= 0 and len(pts) > max_points:
+        if len(pts) > max_points:
             keep = _sample(rng, len(pts), max_points)
             pts = pts[keep]
             cols = None if cols is None else cols[keep]
-        if max_points >= 0 and len(vox) > max_points:
+        if len(vox) > max_points:
             vox = vox[_sample(rng, len(vox), max_points)]
         return replace(
             self,
