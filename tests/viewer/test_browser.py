@@ -33,7 +33,9 @@ def _browser() -> str:
     pytest.skip("no headless Chromium/Chrome found (install Debian's 'chromium' to run this test)")
 
 
-def _run(browser: str, url: str, tmp_path, width: int = 800, height: int = 600) -> tuple[str, str, np.ndarray]:
+def _run(
+    browser: str, url: str, tmp_path, width: int = 800, height: int = 600
+) -> tuple[str, str, np.ndarray]:
     from PIL import Image
 
     shot = tmp_path / "shot.png"
@@ -66,7 +68,7 @@ def _run(browser: str, url: str, tmp_path, width: int = 800, height: int = 600) 
 
 
 def _page_errors(dom: str, log: str) -> list[str]:
-    errors = re.findall(r"<li>(.*?)</li>", dom.split("id=\"errors\"", 1)[1].split("</ul>", 1)[0])
+    errors = re.findall(r"<li>(.*?)</li>", dom.split('id="errors"', 1)[1].split("</ul>", 1)[0])
     for line in log.splitlines():
         if ("CONSOLE" in line or "WebGL" in line) and not any(b in line for b in BENIGN):
             if re.search(r"error|uncaught|invalid|warning: webgl|context lost", line, re.I):

@@ -53,7 +53,9 @@ def test_colmap_model_and_sfm_output(tmp_path):
     _colmap_model(tmp_path / "sfm" / "sparse")
     for path in (tmp_path / "sfm" / "sparse", tmp_path / "sfm"):
         scene = load_scene(path)
-        assert len(scene.points) == 20 and scene.colors is not None and (scene.colors[0] == [10, 20, 30]).all()
+        assert (
+            len(scene.points) == 20 and scene.colors is not None and (scene.colors[0] == [10, 20, 30]).all()
+        )
         segs = scene.camera_segments
         assert segs.shape == (3 * 8, 2, 3)
         # each frustum starts at its camera centre and points along +y (the optical axis)

@@ -66,12 +66,19 @@ def test_page_embeds_centred_float32_with_the_offset():
     np.testing.assert_array_equal(np.frombuffer(blocks["b-colors"], np.uint8).reshape(-1, 3), cloud.colors)
     assert meta["counts"]["points"] == 2000 and meta["color_mode"] == "rgb" and meta["has_rgb"]
     assert meta["paths"] == [
-        {"name": "flown", "color": [1, 2, 3], "count": 5, "length_m": pytest.approx(path_len(pts[:5]), rel=1e-6)}
+        {
+            "name": "flown",
+            "color": [1, 2, 3],
+            "count": 5,
+            "length_m": pytest.approx(path_len(pts[:5]), rel=1e-6),
+        }
     ]
     text = page.decode()
     assert "OrbitControls" in text and "THREE.WebGLRenderer" in text and READY_TITLE in text
     # no network: no external scripts, styles or fetches
-    assert not re.search(r"<script[^>]+src=|<link |https?://(?!www\.w3\.org)", text.split("/* three.min.js */")[0])
+    assert not re.search(
+        r"<script[^>]+src=|<link |https?://(?!www\.w3\.org)", text.split("/* three.min.js */")[0]
+    )
 
 
 def path_len(p):
@@ -91,12 +98,33 @@ def test_cli_save_writes_one_page_atomically(tmp_path, ply_file, capsys):
     assert main(["view", str(ply_file), "--save", str(out), "--max-points", "1000", "--seed", "3"]) == 0
     assert sorted(p.name for p in out.iterdir()) == ["index.html"]  # no temporary file left
     meta, blocks = _blocks((out / "index.html").read_bytes())
-    assert meta["counts"] == {"points": 1000, "total_points": 5000, "voxels": 0, "total_voxels": 0, "cameras": 0}
+    assert meta["counts"] == {
+        "points": 1000,
+        "total_points": 5000,
+        "voxels": 0,
+        "total_voxels": 0,
+        "cameras": 0,
+    }
     assert len(blocks["b-points"]) == 1000 * 12
     err = capsys.readouterr().err
     assert "1,000 points of 5,000" in err and "index.html" in err
     # same seed, same page
-    assert main(["view", str(ply_file), "--save", str(tmp_path / "v2"), "--max-points", "1000", "--seed", "3", "--quiet"]) == 0
+    assert (
+        main(
+            [
+                "view",
+                str(ply_file),
+                "--save",
+                str(tmp_path / "v2"),
+                "--max-points",
+                "1000",
+                "--seed",
+                "3",
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     assert (tmp_path / "v2" / "index.html").read_bytes() == (out / "index.html").read_bytes()
 
 
@@ -104,7 +132,11 @@ def test_cli_save_of_a_map_and_a_mission(tmp_path, map_dir, mission_dir):
     for src, name in ((map_dir, "m"), (mission_dir, "mi")):
         assert main(["view", str(src), "--save", str(tmp_path / name), "--quiet"]) == 0
         meta, blocks = _blocks((tmp_path / name / "index.html").read_bytes())
-        assert meta["counts"]["voxels"] == 96 and meta["voxel_size"] == 0.5 and len(blocks["b-voxels"]) == 96 * 12
+        assert (
+            meta["counts"]["voxels"] == 96
+            and meta["voxel_size"] == 0.5
+            and len(blocks["b-voxels"]) == 96 * 12
+        )
     assert [p["name"] for p in meta["paths"]] == ["flown", "planned"]
 
 
@@ -129,7 +161,9 @@ def test_server_serves_the_page():
         assert re.fullmatch(r"http://127\.0\.0\.1:\d+/", url)
         for u in (url, url + "index.html"):
             with urllib.request.urlopen(u, timeout=10) as r:
-                assert r.status == 200 and r.headers["Content-Type"].startswith("text/html") and r.read() == page
+                assert (
+                    r.status == 200 and r.headers["Content-Type"].startswith("text/html") and r.read() == page
+                )
         with pytest.raises(urllib.error.HTTPError) as e:
             urllib.request.urlopen(url + "secret.txt", timeout=10)
         assert e.value.code == 404
