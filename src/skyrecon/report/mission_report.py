@@ -10,6 +10,10 @@ pictures are drawn with OpenCV (no plotting library needed):
 * a contact sheet of camera frames with their disparity;
 * :func:`series_plot`: loop time, clearance and speed along the mission.
 
+The 3D view of the map and paths is an iframe of ``view/index.html`` beside the report (written by
+:func:`skyrecon.mission.outputs.write_mission_outputs` with :mod:`skyrecon.viewer`; it opens from
+disk too).
+
 World frame z up, metres; north (+y) is up in the plan view.
 """
 
