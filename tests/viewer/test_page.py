@@ -151,6 +151,14 @@ def test_cli_bad_input_exits_2_with_one_line(tmp_path, capsys, bad):
     assert not (tmp_path / "out").exists()
 
 
+def test_cli_save_onto_a_file_exits_2(tmp_path, ply_file, capsys):
+    f = tmp_path / "taken"
+    f.write_text("x")
+    assert main(["view", str(ply_file), "--save", str(f)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--save must be a directory" in err[0] and f.read_text() == "x"
+
+
 def test_server_serves_the_page():
     page = render_page(ViewerScene("s", make_cloud(50).points))
     server = make_server(page, 0)

@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import time
 import webbrowser
+from pathlib import Path
 
 from skyrecon.cli.common import add_command, info, positive_int
 from skyrecon.errors import InputError
@@ -60,6 +61,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     from skyrecon.viewer import load_scene, make_server, render_page, server_url, write_page
 
+    if args.save and Path(args.save).exists() and not Path(args.save).is_dir():
+        raise InputError(
+            "--save must be a directory (index.html is written into it), but a file of that name exists",
+            args.save,
+        )
     t0 = time.perf_counter()
     full = load_scene(args.path)
     if full.is_empty:
