@@ -33,6 +33,7 @@ COMMANDS = [
     "odometry",
     "plan",
     "eval",
+    "view",
     "demo",
     "warmup",
 ]

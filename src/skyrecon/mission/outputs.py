@@ -11,7 +11,9 @@ A mission folder holds:
   replanning);
 * ``map/``: the drone's final occupancy map (``skyrecon.mapping.save_map``, compressed) and
   ``occupied.ply`` (centres of its occupied voxels, world frame; ``.las``/``.laz`` with that format);
-* ``overview.png`` and ``report.html`` (self-contained).
+* ``overview.png`` and ``report.html`` (self-contained);
+* ``view/index.html``: the 3D view of the map, the flown track and the last planned path
+  (:mod:`skyrecon.viewer`, opens from disk), embedded in ``report.html``.
 
 A refused mission (impossible input) gets ``mission.json`` with ``success: false`` and the
 ``reason`` and ``report.html`` saying why.
@@ -32,6 +34,10 @@ from skyrecon.mission.loop import MissionResult
 from skyrecon.mission.metrics import mission_metrics
 from skyrecon.planning import write_path_json
 from skyrecon.report.mission_report import overview_image, render_mission_report, render_refused_report
+from skyrecon.viewer import map_scene, write_page
+
+#: At most this many occupied voxels in the report's 3D view (a uniform subsample beyond).
+VIEW_MAX_VOXELS = 400_000
 
 FORMAT = "skyrecon.mission"
 VERSION = 1
@@ -95,6 +101,15 @@ def write_mission_outputs(
         sc.goal,
     )
     write_image(out / "overview.png", over)
+    view = map_scene(
+        f"mission, seed {sc.seed}",
+        result.occ_map.occupied_centers(),
+        float(result.occ_map.config.voxel_size_m),
+        flown,
+        last_plan,
+    )
+    write_page(view.subsampled(VIEW_MAX_VOXELS, seed=0), out / "view")
+    files["view"] = "view/index.html"
     m["files"] = files
     doc = {
         "format": FORMAT,
@@ -113,7 +128,7 @@ def write_mission_outputs(
         ],
     }
     write_text_atomic(out / "mission.json", dumps_json(doc))
-    write_text_atomic(out / "report.html", render_mission_report(result, m))
+    write_text_atomic(out / "report.html", render_mission_report(result, m, view_src="view/index.html"))
     return m
 
 
