@@ -39,7 +39,7 @@ sys.path.insert(0, str(ROOT / "src"))
 from skyrecon.eval.interrupt import compare_outputs, kill_and_resume  # noqa: E402
 from skyrecon.io.atomic import write_text_atomic  # noqa: E402
 
-ENV = {"SKYRECON_PROGRESS": "0"}
+ENV = {"SKYRECON_PROGRESS": "0", "SKYRECON_CHECKPOINT_S": "1"}  # map: a checkpoint every second
 SIGNALS = [signal.SIGKILL, signal.SIGINT, signal.SIGTERM]
 
 

@@ -126,3 +126,46 @@ def test_report_shows_faults_and_decisions(campaign, tmp_path):
     html = (tmp_path / "m" / "report.html").read_text()
     assert "Faults and failsafes" in html and "back along the flown track" in html
     assert doc["outcome"] == "returned" and doc["faults"][0]["detected_s"] is not None
+
+
+def test_gps_jump_shifts_the_fixes_and_needs_a_gps(tiny_config):
+    f = parse_faults("gps-jump@5+3:30")
+    inj = FaultInjector(f, seed=4)
+    assert inj.needs_gps and not FaultInjector(parse_faults("drop@1")).needs_gps
+    assert np.all(inj.gps_offset(4.9) == 0) and np.all(inj.gps_offset(8.1) == 0)
+    off = inj.gps_offset(6.0)
+    assert np.linalg.norm(off) == pytest.approx(30.0) and off[2] == 0
+    assert np.array_equal(off, FaultInjector(f, seed=4).gps_offset(7.0))  # one direction per fault
+    # random draws GPS faults only for a drone with a GPS
+    assert not any(x.name == "gps-jump" for s in range(40) for x in random_faults(s))
+    assert any(x.name == "gps-jump" for s in range(40) for x in random_faults(s, gps=True))
+    cfg = tiny_config.with_overrides(pose_source="truth", faults="gps-jump@2+1")
+    with pytest.raises(InputError, match="gps\\+odometry"):
+        run_mission(make_scenario(1, cfg), cfg)
+
+
+def test_gps_source_flags_a_rejected_fix(tiny_config):
+    from skyrecon.core import Rigid3
+    from skyrecon.mission.loop import mission_rig
+    from skyrecon.mission.pose_source import GpsOdometryPose, PoseReading
+    from skyrecon.odometry.types import TrackingState
+    from skyrecon.sim import generate_city
+
+    class PerfectOdometry:  # the GPS half is under test: an odometry that tracks exactly
+        def read(self, left, right, time_s, disparity_px, true_world_from_left):
+            return PoseReading(true_world_from_left, TrackingState.OK)
+
+    start = Rigid3(np.eye(3), [0.0, 0.0, 30.0], "world", "left")
+    src = GpsOdometryPose(mission_rig(tiny_config), start, generate_city(0, 60.0), seed=0)
+    src.odometry = PerfectOdometry()  # type: ignore[assignment]
+    src.fix_offset = FaultInjector(parse_faults("gps-jump@3+2:40"), seed=0).gps_offset
+    flagged = []
+    for k in range(60):
+        t = k * 0.1
+        pose = Rigid3(np.eye(3), [t * 2.0, 0.0, 30.0], "world", "left")  # high above the city
+        r = src.read(None, None, t, None, pose)
+        if src.rejected_fix:
+            flagged.append(t)
+        assert np.linalg.norm(r.world_from_left.t - pose.t) < 5.0  # the jump never moved the pose
+    # (the simulated receiver has multipath of its own: fixes may be refused outside the fault too)
+    assert sum(3.0 - 1e-9 <= t < 5.3 for t in flagged) >= 5

@@ -122,3 +122,24 @@ def test_a_wrong_correction_is_recovered_after_persistent_rejections():
     assert fusion_known.resets >= 1
     assert err[t > 45].max() < 4.0, err[t > 45].max()
     assert np.linalg.norm(fused[-1].t - truth[-1].t) < 4.0
+
+
+def test_a_long_jump_is_not_believed_over_an_odometry_that_tracks():
+    """A 25 s multipath episode (longer than reset_after_s): with the odometry tracking through it,
+    the correction stays put; without that word, the fusion re-aligns onto the jumped fixes."""
+    t, truth = _truth()
+    odom = [p.with_frames("odom", "left") for p in truth]
+    fixes = _fixes(t, truth, jump=(20.0, 45.0, 40.0))
+
+    def fly(tracking: bool) -> tuple[np.ndarray, GpsFusion]:
+        fusion = GpsFusion(GpsFusionSettings(), Rigid3.identity("world", "odom"), rotation_known=True)
+        out = [
+            fusion.update(tk, p, [f for f in fixes if tk - 0.1 < f.time_s <= tk], 0.0 if tracking else None)
+            for tk, p in zip(t, odom)
+        ]
+        return np.array([np.linalg.norm(a.t - b.t) for a, b in zip(out, truth)]), fusion
+
+    err, fusion = fly(tracking=True)
+    assert fusion.resets == 0 and err.max() < 4.0, err.max()  # the 40 m jump moved it by metres at most
+    err, fusion = fly(tracking=False)
+    assert fusion.resets >= 1 and err[(t > 40) & (t < 45)].max() > 5.0

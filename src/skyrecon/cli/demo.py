@@ -42,7 +42,7 @@ from skyrecon.mission import MissionConfig
 from skyrecon.mission.batch import fly_and_write, mission_line, run_missions
 from skyrecon.mission.safety import speed_warning
 from skyrecon.progress import progress, progress_enabled
-from skyrecon.sim.faults import parse_faults
+from skyrecon.sim.faults import GPS_FAULTS, parse_faults
 
 EXAMPLES = """  skyrecon demo                                  # one delivery, seed 0, into ./demo_out/
   skyrecon demo --seed 7 --out mission7/
@@ -252,7 +252,9 @@ def run(args: argparse.Namespace) -> int:
     # steal the cores the stereo threads need (and a shared machine's cores from others).
     os.environ.setdefault("OMP_WAIT_POLICY", "passive")
     cfg = _config(args)
-    parse_faults(cfg.faults)  # a specification that cannot be parsed fails here, in one line
+    # a specification that cannot be parsed fails here, in one line
+    if any(f.name in GPS_FAULTS for f in parse_faults(cfg.faults)) and cfg.pose_source != "gps+odometry":
+        raise InputError("a gps-jump fault needs a GPS: add --pose-source gps+odometry")
     start = _xyz(args.start, "--start") if args.start else None
     goal = _xyz(args.goal, "--goal") if args.goal else None
     if (start is None) != (goal is None):

@@ -82,6 +82,7 @@ def interrupt_command(
         text=True,
         env={**os.environ, **(env or {})},
         start_new_session=True,  # its workers form their own group: killed together below
+        preexec_fn=_default_sigint,
     )
     t0 = time.monotonic()
     try:
@@ -97,6 +98,12 @@ def interrupt_command(
     _, err = proc.communicate(timeout=timeout_s)
     name = signal.Signals(sig).name
     return InterruptOutcome(proc.returncode, name, time.monotonic() - t0 if proc.returncode else at_s, err)
+
+
+def _default_sigint() -> None:
+    """In the child before exec: a shell starts background jobs with SIGINT ignored, and Python
+    keeps an ignored SIGINT ignored; restore the default so that Ctrl-C is what it is for a user."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 def output_files(folder: str | Path) -> list[str]:

@@ -15,7 +15,10 @@ trustworthy, and if not, why:
   out, the rest is used: glare alone does not stop the drone);
 * ``no_depth``: the images look fine but stereo measured almost nothing;
 * ``overrun``: the previous cycle took longer than the latency budget (the map update is then
-  skipped, the safety checks are not).
+  skipped, the safety checks are not);
+* ``gps_rejected``: the pose source's GPS fusion refused a fix this cycle as too far from where
+  the odometry says the drone is (a multipath jump): the pose goes on from the odometry; the
+  depth is not affected.
 
 Frames and units: seconds, grey levels (0-255), fractions of the image.
 """
@@ -40,6 +43,7 @@ REVEALS = {
     "cpu": {"overrun"},
     "glare": {"glare"},
     "noise": {"noisy"},
+    "gps-jump": {"gps_rejected"},
 }
 
 

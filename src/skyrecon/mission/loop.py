@@ -52,6 +52,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from skyrecon.core import Rigid3
+from skyrecon.errors import InputError
 from skyrecon.mapping import OccupancyMap
 from skyrecon.mission.config import MissionConfig
 from skyrecon.mission.failsafe import Failsafe
@@ -328,6 +329,23 @@ def _truth_clearance(
     return static, float(scenario.movers.mover_distance(pts, t0 + (t1 - t0) * u).min())
 
 
+def _fault_injector(
+    spec: str, seed: int, limit_s: float, pose_source: PoseSource
+) -> tuple[list[Fault], FaultInjector | None]:
+    """The mission's faults and their injector (None without faults); GPS faults are wired into
+    the pose source's fixes, and refused when it uses no GPS."""
+    uses_gps = hasattr(pose_source, "fix_offset")
+    faults = parse_faults(spec, seed, limit_s, gps=uses_gps)
+    injector = FaultInjector(faults, seed) if faults else None
+    if injector is not None and injector.needs_gps:
+        if not uses_gps:
+            raise InputError(
+                "a gps-jump fault needs a GPS: fly with the gps+odometry pose source (--pose-source gps+odometry)"
+            )
+        pose_source.fix_offset = injector.gps_offset  # type: ignore[attr-defined]
+    return faults, injector
+
+
 def fault_report(faults: list[Fault], records: list[CycleRecord]) -> list[dict]:
     """Each injected fault with its onset and when the navigator's health check first revealed
     it (``detected_s``, None if it never did, e.g. a fault after the mission ended)."""
@@ -511,8 +529,6 @@ def run_mission(
     )
     reach_m = cfg.cruise_speed_mps * cfg.mover_horizon_s + cfg.stopping_distance_m
     limit_s = cfg.time_limit_for(scenario.straight_line_m)
-    faults = parse_faults(cfg.faults, scenario.seed, limit_s)
-    injector = FaultInjector(faults, scenario.seed) if faults else None
     health_check = SensorHealth(budget_ms=1e3 * cfg.latency_budget_s)
     moved = False  # the drone moved or turned in the last cycle (a frozen camera's image would not change)
     failsafe = Failsafe(cfg)
@@ -538,6 +554,7 @@ def run_mission(
             scenario.seed,
             scenario.city,
         )
+    faults, injector = _fault_injector(cfg.faults, scenario.seed, limit_s, pose_source)
     truth = pose_source.name == "truth"
     lost_cycles, lost_yaw0 = 0, 0.0  # cycles lost since the pose was last trusted, the heading then
     trusted_run = 0  # consecutive cycles with a pose (not lost)
@@ -563,6 +580,7 @@ def run_mission(
             )
             ms["pose"] = reading.ms
             est_from_world = est_from_true(reading.world_from_left, true_world_from_left)
+            health.reasons.extend(["gps_rejected"] * bool(getattr(pose_source, "rejected_fix", False)))
         # no frame: the pose is carried on by the last estimate of where the estimated world lies
         believed = state if truth else believed_state(state, est_from_world)
         lost = reading.state == TrackingState.LOST

@@ -29,12 +29,14 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Protocol
 
 import numpy as np
 
 from skyrecon.core import Rigid3, StereoRig
+from skyrecon.io.gps import GpsFix
 from skyrecon.mission.vehicle import DroneState, wrap_angle
 from skyrecon.odometry.engine import OdometrySettings, StereoOdometry
 from skyrecon.odometry.gps import GpsFusion
@@ -147,6 +149,11 @@ class GpsOdometryPose:
         self.fusion = GpsFusion(rotation_known=True)
         self.receiver = UrbanCanyonGps(city, seed)
         self._next_fix_s = 0.0
+        #: optional ``fix_offset(t) -> (3,)`` metres added to the fix taken at ``t`` (fault injection)
+        self.fix_offset: Callable[[float], np.ndarray] | None = None
+        #: the last :meth:`read` refused a GPS fix (gated out by the fusion)
+        self.rejected_fix = False
+        self._tracking_since_s: float | None = None  # the odometry has been OK since then
 
     def read(self, left, right, time_s, disparity_px, true_world_from_left) -> PoseReading:
         r = self.odometry.read(left, right, time_s, disparity_px, true_world_from_left)
@@ -155,9 +162,19 @@ class GpsOdometryPose:
         while self._next_fix_s <= time_s + 1e-9:  # the receiver's own rate
             fix = self.receiver.fix(self._next_fix_s, true_world_from_left.t)
             if fix is not None:
+                if self.fix_offset is not None:
+                    fix = GpsFix(fix.time_s, fix.position + self.fix_offset(fix.time_s), fix.accuracy_m)
                 fixes.append(fix)
             self._next_fix_s += 1.0 / self.receiver.settings.rate_hz
-        fused = self.fusion.update(time_s, r.world_from_left.with_frames("odom", "left"), fixes)
+        if r.state == TrackingState.LOST:  # degraded still tracks (fewer inliers), lost does not
+            self._tracking_since_s = None
+        elif self._tracking_since_s is None:
+            self._tracking_since_s = time_s
+        rejected_before = self.fusion.rejected
+        fused = self.fusion.update(
+            time_s, r.world_from_left.with_frames("odom", "left"), fixes, self._tracking_since_s
+        )
+        self.rejected_fix = self.fusion.rejected > rejected_before
         ms = r.ms + 1e3 * (time.perf_counter() - t0)
         return PoseReading(fused.with_frames("world", "left"), r.state, r.reason, ms)
 

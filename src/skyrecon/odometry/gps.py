@@ -18,7 +18,9 @@ re-fitted whenever fixes arrive:
    Until the flown positions span ``min_span_m`` in two directions only the translation is fitted.
 3. **Recovery**: when every fix has been rejected for ``reset_after_s`` seconds (longer than a
    multipath episode), the correction itself is wrong: it is re-aligned robustly (RANSAC) on those
-   fixes if most of them agree.
+   fixes if most of them agree. When the caller says the odometry tracked without a loss through
+   the whole episode (``tracking_since_s``), a good odometry is believed over a GPS that jumped:
+   the episode must then last ``reset_while_tracking_s``.
 4. **Rate limit**: once initialised, the correction may move the current position by at most
    ``max_correction_mps`` metres per second and turn by ``max_rotation_dps`` degrees per second: a
    bad fit cannot teleport the vehicle, only lean on it.
@@ -59,6 +61,7 @@ class GpsFusionSettings:
     max_rotation_dps: float = 3.0
     irls_iterations: int = 5
     reset_after_s: float = 15.0
+    reset_while_tracking_s: float = 60.0
 
     def __post_init__(self) -> None:
         for name in (
@@ -113,6 +116,7 @@ class GpsFusion:
         self._since_accept_m = 0.0
         self._rejected: deque[tuple[float, np.ndarray, np.ndarray, float]] = deque()
         self.resets = 0
+        self._tracking_since: float | None = None
         self._has_translation = False
         self._has_rotation = self.rotation_known or not self.estimate_rotation
 
@@ -137,11 +141,16 @@ class GpsFusion:
         return sum(not u.accepted for u in self.updates)
 
     def update(
-        self, time_s: float, odom_from_left: Rigid3, fixes: GpsFix | Sequence[GpsFix] | None = None
+        self,
+        time_s: float,
+        odom_from_left: Rigid3,
+        fixes: GpsFix | Sequence[GpsFix] | None = None,
+        tracking_since_s: float | None = None,
     ) -> Rigid3:
         """Advance to a frame at ``time_s`` with the odometry pose ``odom_from_left`` and the fixes
         received since the previous frame (their times may lie between the two frames: the
-        odometry position is interpolated there).
+        odometry position is interpolated there). ``tracking_since_s``: since when the odometry
+        has tracked without a loss (None: unknown), see the module's recovery rule.
 
         Returns:
             ``world_from_left`` of this frame, metres.
@@ -152,6 +161,7 @@ class GpsFusion:
         dt = 0.0 if self._t_prev is None else max(0.0, float(time_s) - self._t_prev)
         fix_list = [] if fixes is None else ([fixes] if isinstance(fixes, GpsFix) else list(fixes))
         any_new = False
+        self._tracking_since = tracking_since_s
         for f in fix_list:
             any_new |= self._consider(f, self._odom_at(f.time_s, time_s, p))
         if any_new:
@@ -194,7 +204,10 @@ class GpsFusion:
                 self._window.popleft()
             return True
         self._rejected.append(entry)
-        if fix.time_s - self._rejected[0][0] >= s.reset_after_s:
+        need = s.reset_after_s
+        if self._tracking_since is not None and self._tracking_since <= self._rejected[0][0]:
+            need = max(need, s.reset_while_tracking_s)
+        if fix.time_s - self._rejected[0][0] >= need:
             return self._reset_from_rejected()
         return False
 

@@ -12,6 +12,8 @@ mix), or ``none``::
     cpu@30+6:3             the loop gets a third of the CPU (its cycles take 3x as long)
     glare@5+4:0.35         a saturated blob covering 35 % of the image
     noise@18+6:12          sensor noise raised to 12 grey levels (standard deviation)
+    gps-jump@25+4:30       GPS fixes jump 30 m sideways (multipath); only with a GPS (the
+                           ``gps+odometry`` pose source), and ``random`` draws it only then
 
 The simulated cameras are noise-free (the ``noise`` fault adds noise): a frozen frame is told
 from a still scene by the drone's own motion (a camera that moved must see a changed image).
@@ -40,7 +42,11 @@ FAULTS: dict[str, float | str | None] = {
     "cpu": 3.0,
     "glare": 0.35,
     "noise": 12.0,
+    "gps-jump": 25.0,
 }
+
+#: Faults of the GPS receiver: they need a pose source that uses GPS.
+GPS_FAULTS = frozenset({"gps-jump"})
 
 
 @dataclass(frozen=True)
@@ -73,12 +79,12 @@ def _bad(spec: str, why: str) -> InputError:
     )
 
 
-def parse_faults(spec: str, seed: int = 0, flight_s: float = 60.0) -> list[Fault]:
+def parse_faults(spec: str, seed: int = 0, flight_s: float = 60.0, gps: bool = False) -> list[Fault]:
     """Faults from a specification (see the module docstring).
 
     Args:
         spec: the specification; ``random`` draws 1-3 faults from ``seed`` within the first
-            ``flight_s`` seconds.
+            ``flight_s`` seconds (GPS faults too when ``gps``: the drone flies with a GPS).
     Raises:
         InputError: one line naming what cannot be parsed and listing the valid names.
     """
@@ -86,7 +92,7 @@ def parse_faults(spec: str, seed: int = 0, flight_s: float = 60.0) -> list[Fault
     if s in ("", "none"):
         return []
     if s == "random":
-        return random_faults(seed, flight_s)
+        return random_faults(seed, flight_s, gps)
     out = []
     for part in s.split(","):
         item = part.strip()
@@ -123,11 +129,11 @@ def parse_faults(spec: str, seed: int = 0, flight_s: float = 60.0) -> list[Fault
     return sorted(out, key=lambda f: f.onset_s)
 
 
-def random_faults(seed: int, flight_s: float = 60.0) -> list[Fault]:
+def random_faults(seed: int, flight_s: float = 60.0, gps: bool = False) -> list[Fault]:
     """1-3 faults drawn from ``seed``: onsets in [5 s, 0.7 flight_s], durations 0.5-6 s (one in
-    five to the end of the flight), values in plausible ranges."""
+    five to the end of the flight), values in plausible ranges; GPS faults only when ``gps``."""
     rng = np.random.default_rng([int(seed), 0xFA17])
-    names = list(FAULTS)
+    names = [n for n in FAULTS if gps or n not in GPS_FAULTS]
     out = []
     for _ in range(int(rng.integers(1, 4))):
         name = names[int(rng.integers(len(names)))]
@@ -139,6 +145,7 @@ def random_faults(seed: int, flight_s: float = 60.0) -> list[Fault]:
             "cpu": float(rng.uniform(1.5, 5.0)),
             "glare": float(rng.uniform(0.1, 0.5)),
             "noise": float(rng.uniform(4.0, 25.0)),
+            "gps-jump": float(rng.uniform(10.0, 60.0)),
         }.get(name)
         out.append(Fault(name, round(onset, 1), dur if math.isinf(dur) else round(dur, 1), value))
     return sorted(out, key=lambda f: f.onset_s)
@@ -165,12 +172,30 @@ class FaultInjector:
 
     def __init__(self, faults: list[Fault], seed: int = 0):
         self.faults = list(faults)
+        self._seed = int(seed)
         self.rng = np.random.default_rng([int(seed), 0x5E5])
         self._last: tuple[np.ndarray, np.ndarray] | None = None
         self._past: deque[tuple[float, np.ndarray, np.ndarray]] = deque(maxlen=64)
 
     def active(self, t: float) -> list[Fault]:
         return [f for f in self.faults if f.active(t)]
+
+    @property
+    def needs_gps(self) -> bool:
+        """Whether a fault is of the GPS receiver (the pose source must use GPS)."""
+        return any(f.name in GPS_FAULTS for f in self.faults)
+
+    def gps_offset(self, t: float) -> np.ndarray:
+        """(3,) metres added to the GPS fix taken at time ``t``: a ``gps-jump`` of its value in a
+        horizontal direction drawn from the seed and the onset (zero when none is active)."""
+        off = np.zeros(3)
+        for f in self.active(t):
+            if f.name == "gps-jump":
+                a = np.random.default_rng([self._seed, int(round(f.onset_s * 10)), 0x6A]).uniform(
+                    0, 2 * math.pi
+                )
+                off += float(f.value) * np.array([math.cos(a), math.sin(a), 0.0])  # type: ignore[arg-type]
+        return off
 
     def _noise(self, img: np.ndarray, sigma: float) -> np.ndarray:
         n = self.rng.normal(0.0, sigma, img.shape[:2])[..., None]
