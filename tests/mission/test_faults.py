@@ -169,3 +169,13 @@ def test_gps_source_flags_a_rejected_fix(tiny_config):
         assert np.linalg.norm(r.world_from_left.t - pose.t) < 5.0  # the jump never moved the pose
     # (the simulated receiver has multipath of its own: fixes may be refused outside the fault too)
     assert sum(3.0 - 1e-9 <= t < 5.3 for t in flagged) >= 5
+
+
+def test_a_starved_cpu_within_budget_is_reported_slow():
+    h = SensorHealth(budget_ms=100.0)
+    img = np.full((48, 64, 3), 128, np.uint8)
+    for _ in range(10):
+        assert "slow" not in h.check_frame(0, img, img, 0, 50.0, moved=False).reasons
+    r = h.check_frame(0, img, img, 0, 80.0, moved=False).reasons  # 1.6x the usual, under the budget
+    assert "slow" in r and "overrun" not in r
+    assert "overrun" in h.check_frame(0, img, img, 0, 150.0, moved=False).reasons

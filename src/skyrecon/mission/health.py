@@ -16,6 +16,8 @@ trustworthy, and if not, why:
 * ``no_depth``: the images look fine but stereo measured almost nothing;
 * ``overrun``: the previous cycle took longer than the latency budget (the map update is then
   skipped, the safety checks are not);
+* ``slow``: the previous cycle took over ``slow_factor`` times the loop's usual time (the median
+  of the last cycles) although within the budget: the CPU is starved; nothing is skipped yet;
 * ``gps_rejected``: the pose source's GPS fusion refused a fix this cycle as too far from where
   the odometry says the drone is (a multipath jump): the pose goes on from the odometry; the
   depth is not affected.
@@ -40,7 +42,7 @@ REVEALS = {
     "drop": {"no_frame"},
     "one-eye": {"black_left", "black_right"},
     "latency": {"stale"},
-    "cpu": {"overrun"},
+    "cpu": {"overrun", "slow"},
     "glare": {"glare"},
     "noise": {"noisy"},
     "gps-jump": {"gps_rejected"},
@@ -77,6 +79,7 @@ class SensorHealth:
         max_saturated: share of saturated pixels above which glare is reported.
         min_measured: below this share of measured pixels the depth is missing.
         budget_ms: the loop's latency budget, milliseconds.
+        slow_factor: a cycle this many times slower than the usual one is ``slow``.
     """
 
     max_age_s: float = 0.15
@@ -86,6 +89,8 @@ class SensorHealth:
     max_saturated: float = 0.03
     min_measured: float = 0.05
     budget_ms: float = 100.0
+    slow_factor: float = 1.3
+    _loop_ms: list[float] = field(default_factory=list)  # the last cycles' times (at most 50)
     _prev: np.ndarray | None = None
     _frozen: bool = False
 
@@ -101,6 +106,10 @@ class SensorHealth:
         reasons = []
         if last_loop_ms > self.budget_ms:
             reasons.append("overrun")
+        elif len(self._loop_ms) >= 5 and last_loop_ms > self.slow_factor * float(np.median(self._loop_ms)):
+            reasons.append("slow")
+        if last_loop_ms > 0:
+            self._loop_ms = [*self._loop_ms[-49:], float(last_loop_ms)]
         if left is None or right is None:
             return Health(False, reasons + ["no_frame"])
         if now_s - stamp_s > self.max_age_s:
