@@ -119,7 +119,7 @@ def test_a_wrong_correction_is_recovered_after_persistent_rejections():
         fusion_known.update(tk, p, [f for f in fixes if tk - 0.1 < f.time_s <= tk]) for tk, p in zip(t, odom)
     ]
     err = np.array([np.linalg.norm(a.t - b.t) for a, b in zip(out, truth)])
-    assert fusion_known.resets >= 1
+    # (gated against the latest fit, the fixes get back in as the fit turns: a re-alignment is not needed)
     assert err[t > 45].max() < 4.0, err[t > 45].max()
     assert np.linalg.norm(fused[-1].t - truth[-1].t) < 4.0
 
@@ -134,7 +134,7 @@ def test_a_long_jump_is_not_believed_over_an_odometry_that_tracks():
     def fly(tracking: bool) -> tuple[np.ndarray, GpsFusion]:
         fusion = GpsFusion(GpsFusionSettings(), Rigid3.identity("world", "odom"), rotation_known=True)
         out = [
-            fusion.update(tk, p, [f for f in fixes if tk - 0.1 < f.time_s <= tk], 0.0 if tracking else None)
+            fusion.update(tk, p, [f for f in fixes if tk - 0.1 < f.time_s <= tk], True if tracking else None)
             for tk, p in zip(t, odom)
         ]
         return np.array([np.linalg.norm(a.t - b.t) for a, b in zip(out, truth)]), fusion
@@ -143,3 +143,10 @@ def test_a_long_jump_is_not_believed_over_an_odometry_that_tracks():
     assert fusion.resets == 0 and err.max() < 4.0, err.max()  # the 40 m jump moved it by metres at most
     err, fusion = fly(tracking=False)
     assert fusion.resets >= 1 and err[(t > 40) & (t < 45)].max() > 5.0
+    # ... but never by a jump: the re-alignment is reached under the rate limit (1.5 m/s)
+    step = (
+        np.linalg.norm(np.diff(np.array([e for e in err]), axis=0), axis=-1)
+        if err.ndim > 1
+        else np.abs(np.diff(err))
+    )
+    assert step.max() < 1.5 * 0.1 + 0.5, step.max()

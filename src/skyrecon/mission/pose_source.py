@@ -153,7 +153,6 @@ class GpsOdometryPose:
         self.fix_offset: Callable[[float], np.ndarray] | None = None
         #: the last :meth:`read` refused a GPS fix (gated out by the fusion)
         self.rejected_fix = False
-        self._tracking_since_s: float | None = None  # the odometry has been OK since then
 
     def read(self, left, right, time_s, disparity_px, true_world_from_left) -> PoseReading:
         r = self.odometry.read(left, right, time_s, disparity_px, true_world_from_left)
@@ -166,13 +165,9 @@ class GpsOdometryPose:
                     fix = GpsFix(fix.time_s, fix.position + self.fix_offset(fix.time_s), fix.accuracy_m)
                 fixes.append(fix)
             self._next_fix_s += 1.0 / self.receiver.settings.rate_hz
-        if r.state == TrackingState.LOST:  # degraded still tracks (fewer inliers), lost does not
-            self._tracking_since_s = None
-        elif self._tracking_since_s is None:
-            self._tracking_since_s = time_s
         rejected_before = self.fusion.rejected
-        fused = self.fusion.update(
-            time_s, r.world_from_left.with_frames("odom", "left"), fixes, self._tracking_since_s
+        fused = self.fusion.update(  # degraded still tracks (fewer inliers), lost does not
+            time_s, r.world_from_left.with_frames("odom", "left"), fixes, r.state != TrackingState.LOST
         )
         self.rejected_fix = self.fusion.rejected > rejected_before
         ms = r.ms + 1e3 * (time.perf_counter() - t0)

@@ -18,12 +18,14 @@ re-fitted whenever fixes arrive:
    Until the flown positions span ``min_span_m`` in two directions only the translation is fitted.
 3. **Recovery**: when every fix has been rejected for ``reset_after_s`` seconds (longer than a
    multipath episode), the correction itself is wrong: it is re-aligned robustly (RANSAC) on those
-   fixes if most of them agree. When the caller says the odometry tracked without a loss through
-   the whole episode (``tracking_since_s``), a good odometry is believed over a GPS that jumped:
-   the episode must then last ``reset_while_tracking_s``.
+   fixes if most of them agree. When the caller says the odometry tracked through the episode
+   (``tracking``; lost in under a quarter of its frames), a good odometry is believed over a GPS
+   that jumped: the episode must then last ``reset_while_tracking_s``. A re-alignment is a new
+   target, reached under the rate limit below like any other correction (never a jump).
 4. **Rate limit**: once initialised, the correction may move the current position by at most
    ``max_correction_mps`` metres per second and turn by ``max_rotation_dps`` degrees per second: a
-   bad fit cannot teleport the vehicle, only lean on it.
+   bad fit cannot teleport the vehicle, only lean on it. Fixes are gated against the latest fit
+   (where the correction is heading), not against the rate-limited one.
 
 Usable online (one :meth:`GpsFusion.update` per frame) and offline (:func:`fuse_trajectory`).
 """
@@ -116,7 +118,9 @@ class GpsFusion:
         self._since_accept_m = 0.0
         self._rejected: deque[tuple[float, np.ndarray, np.ndarray, float]] = deque()
         self.resets = 0
-        self._tracking_since: float | None = None
+        self._tracking_known = False
+        self._episode_frames = self._episode_lost = 0  # frames (and lost ones) since fixes began to fail
+        self._fitted = self.world_from_odom  # the latest fit: what fixes are gated against
         self._has_translation = False
         self._has_rotation = self.rotation_known or not self.estimate_rotation
 
@@ -145,23 +149,29 @@ class GpsFusion:
         time_s: float,
         odom_from_left: Rigid3,
         fixes: GpsFix | Sequence[GpsFix] | None = None,
-        tracking_since_s: float | None = None,
+        tracking: bool | None = None,
     ) -> Rigid3:
         """Advance to a frame at ``time_s`` with the odometry pose ``odom_from_left`` and the fixes
         received since the previous frame (their times may lie between the two frames: the
-        odometry position is interpolated there). ``tracking_since_s``: since when the odometry
-        has tracked without a loss (None: unknown), see the module's recovery rule.
+        odometry position is interpolated there). ``tracking``: whether the odometry tracks at
+        this frame (not lost; None: unknown), see the module's recovery rule.
 
         Returns:
             ``world_from_left`` of this frame, metres.
         """
         p = np.asarray(odom_from_left.t, np.float64)
+        self._fitted = self._fitted if self._has_translation else self.world_from_odom
         if self._p_prev is not None:
             self._since_accept_m += float(np.linalg.norm(p - self._p_prev))
         dt = 0.0 if self._t_prev is None else max(0.0, float(time_s) - self._t_prev)
         fix_list = [] if fixes is None else ([fixes] if isinstance(fixes, GpsFix) else list(fixes))
         any_new = False
-        self._tracking_since = tracking_since_s
+        if self._rejected and tracking is not None:
+            self._episode_frames += 1
+            self._episode_lost += not tracking
+        elif not self._rejected:
+            self._episode_frames = self._episode_lost = 0
+        self._tracking_known = tracking is not None
         for f in fix_list:
             any_new |= self._consider(f, self._odom_at(f.time_s, time_s, p))
         if any_new:
@@ -180,12 +190,13 @@ class GpsFusion:
 
     def _consider(self, fix: GpsFix, p_odom: np.ndarray) -> bool:
         s = self.settings
-        predicted = self.world_from_odom.apply(p_odom)
+        predicted = self._fitted.apply(p_odom)
         innovation = float(np.linalg.norm(fix.position - predicted))
         if not self._has_translation:
             self.world_from_odom = Rigid3(
                 self.world_from_odom.R, self.world_from_odom.t + (fix.position - predicted), "world", "odom"
             )
+            self._fitted = self.world_from_odom
             self._has_translation = True
             gate, ok = math.inf, True
         elif not self._has_rotation:
@@ -205,7 +216,7 @@ class GpsFusion:
             return True
         self._rejected.append(entry)
         need = s.reset_after_s
-        if self._tracking_since is not None and self._tracking_since <= self._rejected[0][0]:
+        if self._tracking_known and self._episode_lost < 0.25 * max(1, self._episode_frames):
             need = max(need, s.reset_while_tracking_s)
         if fix.time_s - self._rejected[0][0] >= need:
             return self._reset_from_rejected()
@@ -235,7 +246,7 @@ class GpsFusion:
             return False
         if inl.sum() < 0.6 * len(src):
             return False
-        self.world_from_odom = Rigid3(R, t, "world", "odom")
+        self._fitted = Rigid3(R, t, "world", "odom")  # the target; the output gets there rate limited
         self._window = deque(w for w, keep in zip(self._rejected, inl) if keep)
         self._rejected.clear()
         self._since_accept_m = 0.0
@@ -304,8 +315,10 @@ class GpsFusion:
         rotating = self.estimate_rotation and not np.allclose(fit.R, self.world_from_odom.R, atol=1e-12)
         if rotating and not self._has_rotation:
             self.world_from_odom = self._first_alignment(fit)  # taken as it is, not rate limited
+            self._fitted = self.world_from_odom
             self._has_rotation = True
             return
+        self._fitted = fit
         prev = self.world_from_odom
         if len(self._window) <= 1:
             self.world_from_odom = fit
