@@ -22,6 +22,14 @@ re-fitted whenever fixes arrive:
    (``tracking``; lost in under a quarter of its frames), a good odometry is believed over a GPS
    that jumped: the episode must then last ``reset_while_tracking_s``. A re-alignment is a new
    target, reached under the rate limit below like any other correction (never a jump).
+Translation only (``estimate_rotation`` False) with ``odometry_drift_fraction`` > 0, step 2 is a
+Kalman filter on the offset instead: its variance grows as the odometry flies (``(fraction)^2 x
+100 m`` per metre: 1 % gives 1 m after 100 m, 2 m after 400 m) and each fix weighs by its stated
+accuracy, inflated for the fixes within ``fix_correlation_s`` of each other (a receiver's errors
+persist for seconds). A good odometry is then moved by the GPS only as far as its own drift
+allows, instead of taking on the fixes' metres of multipath. With ``rotation_known`` the start
+position is taken as known to ``base_sigma_m`` as well (the odometry started from a given pose).
+
 4. **Rate limit**: once initialised, the correction may move the current position by at most
    ``max_correction_mps`` metres per second and turn by ``max_rotation_dps`` degrees per second: a
    bad fit cannot teleport the vehicle, only lean on it. Fixes are gated against the latest fit
@@ -64,6 +72,8 @@ class GpsFusionSettings:
     irls_iterations: int = 5
     reset_after_s: float = 15.0
     reset_while_tracking_s: float = 60.0
+    odometry_drift_fraction: float = 0.0
+    fix_correlation_s: float = 2.0
 
     def __post_init__(self) -> None:
         for name in (
@@ -121,6 +131,15 @@ class GpsFusion:
         self._tracking_known = False
         self._episode_frames = self._episode_lost = 0  # frames (and lost ones) since fixes began to fail
         self._fitted = self.world_from_odom  # the latest fit: what fixes are gated against
+        self._kalman = not self.estimate_rotation and self.settings.odometry_drift_fraction > 0
+        self._kf_t: np.ndarray | None = None  # the Kalman offset (translation only), metres
+        self._kf_var = 0.0  # its variance per axis, m^2
+        self._kf_last_fix_s: float | None = None
+        if self._kalman and self.rotation_known:
+            # the odometry started from a given world pose: its position is known too, to about
+            # base_sigma_m (a home position averaged before take-off), and the fixes refine it
+            self._has_translation = True
+            self._kf_t, self._kf_var = self.world_from_odom.t.copy(), self.settings.base_sigma_m**2
         self._has_translation = False
         self._has_rotation = self.rotation_known or not self.estimate_rotation
 
@@ -162,7 +181,9 @@ class GpsFusion:
         p = np.asarray(odom_from_left.t, np.float64)
         self._fitted = self._fitted if self._has_translation else self.world_from_odom
         if self._p_prev is not None:
-            self._since_accept_m += float(np.linalg.norm(p - self._p_prev))
+            step = float(np.linalg.norm(p - self._p_prev))
+            self._since_accept_m += step
+            self._kf_var += self.settings.odometry_drift_fraction**2 * 100.0 * step
         dt = 0.0 if self._t_prev is None else max(0.0, float(time_s) - self._t_prev)
         fix_list = [] if fixes is None else ([fixes] if isinstance(fixes, GpsFix) else list(fixes))
         any_new = False
@@ -197,6 +218,7 @@ class GpsFusion:
                 self.world_from_odom.R, self.world_from_odom.t + (fix.position - predicted), "world", "odom"
             )
             self._fitted = self.world_from_odom
+            self._kf_t, self._kf_var = self.world_from_odom.t.copy(), fix.accuracy_m**2
             self._has_translation = True
             gate, ok = math.inf, True
         elif not self._has_rotation:
@@ -208,6 +230,8 @@ class GpsFusion:
         self.updates.append(GpsUpdate(fix.time_s, ok, innovation, gate))
         entry = (fix.time_s, p_odom.copy(), fix.position.copy(), fix.accuracy_m)
         if ok:
+            if self._kalman and self._kf_t is not None and math.isfinite(gate):
+                self._kalman_update(fix, p_odom)
             self._window.append(entry)
             self._rejected.clear()
             self._since_accept_m = 0.0
@@ -247,13 +271,28 @@ class GpsFusion:
         if inl.sum() < 0.6 * len(src):
             return False
         self._fitted = Rigid3(R, t, "world", "odom")  # the target; the output gets there rate limited
+        self._kf_t, self._kf_var = np.asarray(t, np.float64).copy(), acc**2
         self._window = deque(w for w, keep in zip(self._rejected, inl) if keep)
         self._rejected.clear()
         self._since_accept_m = 0.0
         self.resets += 1
         return True
 
+    def _kalman_update(self, fix: GpsFix, p_odom: np.ndarray) -> None:
+        """One accepted fix into the offset's Kalman filter (see the module)."""
+        assert self._kf_t is not None
+        s = self.settings
+        gap = math.inf if self._kf_last_fix_s is None else max(1e-3, fix.time_s - self._kf_last_fix_s)
+        r = fix.accuracy_m**2 * max(1.0, s.fix_correlation_s / gap)
+        y = fix.position - (self.world_from_odom.R @ p_odom + self._kf_t)
+        k = self._kf_var / (self._kf_var + r)
+        self._kf_t = self._kf_t + k * y
+        self._kf_var = (1.0 - k) * self._kf_var
+        self._kf_last_fix_s = fix.time_s
+
     def _fit(self) -> Rigid3:
+        if self._kalman and self._kf_t is not None:
+            return Rigid3(self.world_from_odom.R, self._kf_t, "world", "odom")
         s = self.settings
         src = np.array([w[1] for w in self._window])
         dst = np.array([w[2] for w in self._window])
