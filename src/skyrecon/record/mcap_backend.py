@@ -32,7 +32,7 @@ from skyrecon.record.recorder import FileRecorder, RecordSettings, missing_libra
 
 
 def _import_foxglove() -> tuple[Any, Any, Any]:
-    import foxglove  # optional dependency,, imported when a .mcap is recorded
+    import foxglove  # optional dependency: imported when a .mcap is recorded
     import foxglove.channels
     import foxglove.messages
 

@@ -26,7 +26,7 @@ from skyrecon.record.recorder import FileRecorder, RecordSettings, missing_libra
 
 
 def _import_rerun() -> Any:
-    import rerun  # optional dependency,, imported when a .rrd is recorded
+    import rerun  # optional dependency: imported when a .rrd is recorded
 
     return rerun
 
