@@ -8,7 +8,9 @@ timestamp in seconds (the index times 0.1 s when the sequence has none):
   ``image_every`` frames; its depth (and disparity for stereo) every ``depth_every`` frames;
 * ``map/occupied``: the map's occupied voxels every ``map_every`` frames and at the end;
 * ``path/camera``: the camera track so far (at each voxel snapshot and at the end);
-* ``path/truth``: the ground-truth track, when the sequence has one (odometry).
+* odometry: ``camera`` at each frame's online estimate (as above, no depth);
+  ``path/odometry`` the online track every ``map_every`` frames, then the refined one at the end;
+  ``path/fused`` with GPS; ``path/truth`` the ground truth when the sequence has one.
 """
 
 from __future__ import annotations
@@ -104,3 +106,44 @@ def log_trajectory(
         n = len(world_from_cam) - 1
         recorder.set_time(frame_time(timestamps_s, n), n)
         recorder.log_path(name, pts, color)
+
+
+class OdometryRecording:
+    """An ``on_frame`` observer of :func:`~skyrecon.odometry.run.run_odometry` that logs to
+    ``recorder``: the left camera at each frame's online estimate, its image every
+    ``image_every`` frames, the online track every ``map_every`` frames.
+
+    Args:
+        recorder: where to log.
+        camera: the left camera of the rig.
+    """
+
+    def __init__(self, recorder: Recorder, camera: Intrinsics):
+        self.r = recorder
+        self.camera = camera
+        self.track: list[np.ndarray] = []
+
+    def __call__(self, estimate: Any, left: np.ndarray) -> None:
+        """Log one :class:`~skyrecon.odometry.types.FrameEstimate` and its left image."""
+        r, s = self.r, self.r.settings
+        i = int(estimate.index)
+        r.set_time(float(estimate.timestamp_s), i)
+        image = left if i % s.image_every == 0 else None
+        r.log_camera("camera", self.camera, estimate.world_from_left, image)
+        self.track.append(np.asarray(estimate.world_from_left.t, float).copy())
+        if i % s.map_every == 0 and len(self.track) >= 2:
+            r.log_path("path/odometry", np.array(self.track), TRACK_RGB)
+
+    def finish(
+        self,
+        odometry: Sequence[Rigid3],
+        timestamps_s: Sequence[float] | np.ndarray,
+        fused: Sequence[Rigid3] | None = None,
+        truth: Sequence[Rigid3 | None] | None = None,
+    ) -> None:
+        """The refined odometry track, the GPS-fused one and the ground truth, at the last frame."""
+        log_trajectory(self.r, "path/odometry", list(odometry), timestamps_s, TRACK_RGB)
+        if fused is not None:
+            log_trajectory(self.r, "path/fused", list(fused), timestamps_s, (255, 160, 0))
+        if truth is not None:
+            log_trajectory(self.r, "path/truth", list(truth), timestamps_s, TRUTH_RGB)

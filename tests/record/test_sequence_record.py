@@ -1,5 +1,7 @@
-"""``skyrecon map --record`` on a 4-frame rendered flight: every frame's camera and image, depth
-every 5th frame (the first), the occupied voxels at frame 0 and at the end."""
+"""``skyrecon map --record`` and ``skyrecon odometry --record`` on a 4-frame rendered flight.
+
+map: every frame's camera and image, depth every 5th frame (the first), the occupied voxels at
+frame 0 and at the end; odometry: every frame's estimated camera and image, the tracks."""
 
 from __future__ import annotations
 
@@ -56,3 +58,28 @@ def test_map_unknown_extension(flight, tmp_path, capsys):
     assert main(args) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "m.txt" in err and ".rrd" in err
+
+
+def test_odometry_records_rrd_and_mcap(flight, tmp_path):
+    for name in ("vo.rrd", "vo.mcap"):
+        args = [
+            "odometry",
+            str(flight),
+            "--out",
+            str(tmp_path / "vo"),
+            "--quiet",
+            "--record",
+            str(tmp_path / name),
+        ]
+        assert main(args) == 0
+    rows = rrd_rows(tmp_path / "vo.rrd")
+    assert rows[("/world/camera", "Transform3D")] == 4
+    assert rows[("/world/camera/image", "EncodedImage")] == 4
+    assert rows[("/world/path/odometry", "LineStrips3D")] == 1  # the refined track (online: every 20)
+    assert rows[("/world/path/truth", "LineStrips3D")] == 1
+    assert rrd_frames(tmp_path / "vo.rrd", "/world/camera") == [0, 1, 2, 3]
+    topics = mcap_topics(tmp_path / "vo.mcap")
+    assert topics["/camera/image"] == ("foxglove.CompressedImage", 4)
+    assert topics["/tf"] == ("foxglove.FrameTransform", 4)
+    assert topics["/path/odometry"] == ("foxglove.SceneUpdate", 1)
+    assert topics["/path/truth"] == ("foxglove.SceneUpdate", 1)
