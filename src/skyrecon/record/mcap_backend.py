@@ -112,6 +112,8 @@ class McapRecorder(FileRecorder):
     def log_camera(
         self, name: str, intrinsics: Intrinsics, world_from_cam: Rigid3, image: np.ndarray | None = None
     ) -> None:
+        if image is not None and image.shape[1] != intrinsics.width:  # e.g. a thumbnail
+            intrinsics = intrinsics.scaled(image.shape[1] / intrinsics.width)
         name = prepare.topic_name(name)
         f = prepare.downscale_factor(intrinsics.width, self.settings.max_image_width)
         shown = intrinsics.scaled(f) if f < 1.0 else intrinsics

@@ -124,8 +124,9 @@ class Recorder(ABC):
             name: the camera's name (e.g. ``"camera"``, ``"cameras/img_0003"``).
             intrinsics: its pinhole (size ``intrinsics.width`` x ``intrinsics.height``).
             world_from_cam: its pose, world metres.
-            image: (H, W, 3) uint8 RGB or (H, W) uint8 grey, the intrinsics' size; downscaled
-                to ``settings.max_image_width`` and JPEG-compressed.
+            image: (H, W, 3) uint8 RGB or (H, W) uint8 grey (of another size than the
+                intrinsics', e.g. a thumbnail, the pinhole is scaled to it); downscaled to
+                ``settings.max_image_width`` and JPEG-compressed.
         """
 
     @abstractmethod

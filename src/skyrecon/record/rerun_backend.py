@@ -71,6 +71,8 @@ class RerunRecorder(FileRecorder):
     def log_camera(
         self, name: str, intrinsics: Intrinsics, world_from_cam: Rigid3, image: np.ndarray | None = None
     ) -> None:
+        if image is not None and image.shape[1] != intrinsics.width:  # e.g. a thumbnail
+            intrinsics = intrinsics.scaled(image.shape[1] / intrinsics.width)
         path = f"world/{prepare.topic_name(name)}"
         s = self.settings
         f = prepare.downscale_factor(intrinsics.width, s.max_image_width)
