@@ -83,3 +83,21 @@ def test_odometry_records_rrd_and_mcap(flight, tmp_path):
     assert topics["/tf"] == ("foxglove.FrameTransform", 4)
     assert topics["/path/odometry"] == ("foxglove.SceneUpdate", 1)
     assert topics["/path/truth"] == ("foxglove.SceneUpdate", 1)
+
+
+def test_map_without_the_library_says_how_to_install_it(flight, tmp_path, monkeypatch, capsys):
+    import builtins
+
+    real_import = builtins.__import__
+
+    def no_rerun(mod, *args, **kwargs):
+        if mod == "rerun" or mod.startswith("rerun."):
+            raise ImportError("No module named 'rerun'")
+        return real_import(mod, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "__import__", no_rerun)
+    args = ["map", str(flight), "--out", str(tmp_path / "m"), "--record", str(tmp_path / "m.rrd")]
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "pip install 'skyrecon[rerun]'" in err, err
+    assert not list(tmp_path.iterdir())
