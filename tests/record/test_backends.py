@@ -159,3 +159,15 @@ def test_null_recorder_takes_everything():
         r.set_time(1.0, 1)
         r.log_camera("c", K, Rigid3(), np.zeros((48, 64, 3), np.uint8))
         r.log_points("p", np.zeros((3, 3)))
+
+
+def test_depth_units_keep_the_range():
+    from skyrecon.record.prepare import depth_units
+
+    near = np.array([[0.0, 1.2341, 60.0]], np.float32)
+    units, per_m = depth_units(near)
+    assert per_m == 1000.0 and units.dtype == np.uint16 and units.tolist() == [[0, 1234, 60000]]
+    units, per_m = depth_units(near * 10)
+    assert per_m == 100.0 and units[0, 2] == 60000
+    units, per_m = depth_units(near * 1000)
+    assert per_m == 1.0 and units.dtype == np.float32

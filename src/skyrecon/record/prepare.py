@@ -61,6 +61,16 @@ def clean_depth(depth_m: np.ndarray) -> np.ndarray:
     return np.where(np.isfinite(d) & (d > 0), d, np.float32(0.0)).astype(np.float32)
 
 
+def depth_units(depth_m: np.ndarray) -> tuple[np.ndarray, float]:
+    """Depth (0 invalid) as uint16 units and the units per metre: millimetres (1000) when the
+    farthest value fits in 65.535 m, centimetres (100) to 655 m, else float32 metres (1)."""
+    far = float(depth_m.max()) if depth_m.size else 0.0
+    for per_m in (1000.0, 100.0):
+        if far * per_m < 65535:
+            return np.round(depth_m * per_m).astype(np.uint16), per_m
+    return depth_m.astype(np.float32), 1.0
+
+
 def colorize_disparity(disparity_px: np.ndarray, max_disparity: float | None = None) -> np.ndarray:
     """(H, W, 3) uint8 RGB: disparity through the turbo colour map (near warm), invalid black."""
     d = np.asarray(disparity_px, dtype=np.float32)

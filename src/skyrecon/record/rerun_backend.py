@@ -5,7 +5,8 @@ Entities (``NAME`` as given to the recorder, see :mod:`skyrecon.record.recorder`
 * ``world``: the world frame, z up (static view coordinates);
 * ``world/NAME``: a camera's or a body's pose (``Transform3D``, world_from_cam);
 * ``world/NAME/image``: the camera's ``Pinhole`` (OpenCV axes, RDF) and its JPEG image;
-* ``world/NAME/depth``: a ``Pinhole`` of the depth grid and a ``DepthImage`` (metres);
+* ``world/NAME/depth``: a ``Pinhole`` of the depth grid and a ``DepthImage`` (uint16 millimetres,
+  or centimetres beyond 65 m; ``meter`` says which);
 * ``images/NAME/disparity``, ``images/NAME``: 2D images (colourised disparity, thumbnails);
 * ``world/NAME`` for clouds (``Points3D``), voxels (``Boxes3D``) and paths (``LineStrips3D``).
 
@@ -106,7 +107,8 @@ class RerunRecorder(FileRecorder):
         if self._cameras.get(path) != intrinsics:
             self._cameras[path] = intrinsics
             self.stream.log(path, self._pinhole(intrinsics, image_plane_distance=0.5))
-        self.stream.log(path, self.rr.DepthImage(d, meter=1.0, colormap="turbo"))
+        units, meter = prepare.depth_units(d)
+        self.stream.log(path, self.rr.DepthImage(units, meter=meter, colormap="turbo"))
 
     def log_disparity(self, name: str, disparity_px: np.ndarray, max_disparity: float | None = None) -> None:
         rgb = prepare.colorize_disparity(disparity_px, max_disparity)
