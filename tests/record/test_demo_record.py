@@ -38,6 +38,7 @@ def test_demo_records_rrd(tmp_path):
     assert rows[("/world/path/planned", "LineStrips3D")] >= 1
     assert rows[("/world/path/flown", "LineStrips3D")] >= 2
     assert rows[("/world/truth/drone", "Transform3D")] == CYCLES
+    assert rows[("/world/movers/tracked", "Points3D")] == CYCLES  # movers on: tracked every cycle
     assert rrd_frames(tmp_path / "demo.rrd", "/world/drone/camera") == list(range(CYCLES))
 
 
@@ -52,6 +53,7 @@ def test_demo_records_mcap(tmp_path):
     assert topics["/map/occupied"] == ("foxglove.SceneUpdate", 3)
     assert topics["/path/planned"][0] == "foxglove.SceneUpdate"
     assert topics["/tf"] == ("foxglove.FrameTransform", 2 * CYCLES)  # the camera and the true pose
+    assert topics["/movers/tracked"] == ("foxglove.PointCloud", CYCLES)
 
 
 def test_record_refuses_an_unknown_extension_in_one_line(tmp_path, capsys):

@@ -715,6 +715,7 @@ def run_mission(
             depth,
             nav.map,
             plans,
+            tracker.tracks if tracker is not None else None,
         )
         state, believed = new_state, new_believed
         cycle += 1

@@ -9,12 +9,14 @@ believes it is in (its pose estimate), the simulator's truth under ``truth/``:
 * ``map/occupied``: the map's occupied voxels every ``map_every`` cycles and at the end;
 * ``path/planned``: each path the drone decided to follow, when it changes;
 * ``path/flown``: the believed track so far (every 5 cycles and at the end);
+* ``movers/tracked``: the centres of the moving objects the drone tracks (with tracking on);
 * ``truth/drone``: the true pose of the left camera; ``truth/flown``: the true track (only when
   the pose is estimated, i.e. not ``--pose-source truth``).
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -27,6 +29,7 @@ from skyrecon.record.recorder import Recorder
 PLANNED_RGB = (255, 160, 0)
 FLOWN_RGB = (0, 200, 255)
 TRUTH_RGB = (120, 255, 120)
+MOVER_RGB = (255, 40, 40)
 FLOWN_EVERY = 5
 
 
@@ -77,6 +80,7 @@ class MissionRecording:
         depth: Any,
         occ_map: Any,
         plans: list[Any],
+        tracks: Sequence[Any] | None = None,
     ) -> None:
         """Log one cycle.
 
@@ -88,6 +92,8 @@ class MissionRecording:
             depth: the cycle's :class:`~skyrecon.perception.stereo_depth.DepthFrame`, or None.
             occ_map: the drone's :class:`~skyrecon.mapping.OccupancyMap`.
             plans: every :class:`~skyrecon.mission.loop.PlanEvent` so far.
+            tracks: the mover tracker's :class:`~skyrecon.perception.movers.MoverTrack` list
+                (None: no tracking); the moving ones are logged.
         """
         if not self.enabled:
             return
@@ -103,6 +109,9 @@ class MissionRecording:
         if true_world_from_left is not None:
             r.log_pose("truth/drone", true_world_from_left)
             self.true_flown.append(np.asarray(true_world_from_left.t, float).copy())
+        if tracks is not None:
+            moving = np.array([t.position for t in tracks if t.moving], float).reshape(-1, 3)
+            r.log_points("movers/tracked", moving, np.tile(np.array(MOVER_RGB, np.uint8), (len(moving), 1)))
         if len(plans) > self.plans_logged:
             self.plans_logged = len(plans)
             r.log_path("path/planned", plans[-1].waypoints, PLANNED_RGB)
