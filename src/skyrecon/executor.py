@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import signal
 from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from typing import Protocol, TypeVar
@@ -59,7 +60,9 @@ class ProcessExecutor:
             return SerialExecutor().map(fn, items, desc=desc)
         ctx = multiprocessing.get_context("forkserver")
         results: list = [None] * len(items)
-        with ProcessPoolExecutor(max_workers=min(self.workers, len(items)), mp_context=ctx) as pool:
+        with ProcessPoolExecutor(
+            max_workers=min(self.workers, len(items)), mp_context=ctx, initializer=_ignore_sigint
+        ) as pool:
             pending: dict = {}
             next_index = 0
             bar = progress(total=len(items), desc=desc)
@@ -72,13 +75,29 @@ class ProcessExecutor:
                     index = pending.pop(done)
                     results[index] = done.result()  # re-raises the worker's exception
                     bar.update(1)
-            except BaseException:
+            except BaseException as exc:
                 for fut in pending:
                     fut.cancel()
+                if not isinstance(exc, Exception):  # interrupted (Ctrl-C, SIGTERM): stop the workers now
+                    _stop_workers(pool)
                 raise
             finally:
                 bar.close()
         return results
+
+
+def _ignore_sigint() -> None:
+    """Worker initializer: Ctrl-C reaches the whole process group; only the parent handles it
+    (it stops the workers), so workers print no tracebacks of their own."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _stop_workers(pool: ProcessPoolExecutor) -> None:
+    """Terminate a pool's workers at once instead of waiting for their running items."""
+    processes = dict(getattr(pool, "_processes", None) or {})  # private, but the only handle there is
+    pool.shutdown(wait=False, cancel_futures=True)
+    for proc in processes.values():
+        proc.terminate()
 
 
 def _wait_first(pending: dict) -> set:

@@ -95,12 +95,17 @@ def test_concat_baseline_and_named_topology(photos, tmp_path):
                 "adjacent",
                 "--workers",
                 "1",
+                "--format",
+                "las",
                 "--quiet",
             ]
         )
         == 0
     )
-    assert len(read_ply(out / "fused.ply")) > 1000
+    laspy = pytest.importorskip("laspy")
+    las = laspy.read(out / "fused.las")
+    assert len(las.points) > 1000 and not (out / "fused.ply").exists()
+    assert json.loads((out / "mvs.json").read_text())["points"] == len(las.points)
 
 
 def _one_error_line(capsys) -> str:

@@ -13,3 +13,88 @@ def test_written_files_get_the_usual_permissions(tmp_path):
     finally:
         os.umask(mask)
     assert stat.S_IMODE((tmp_path / "a.txt").stat().st_mode) == 0o644
+
+
+def test_a_full_disk_leaves_nothing_and_names_the_file(tmp_path, monkeypatch):
+    import errno
+
+    import pytest
+
+    from skyrecon.io import atomic
+
+    def full(fd):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(atomic.os, "fsync", full)
+    target = tmp_path / "points.ply"
+    with pytest.raises(atomic.DiskFullError, match="disk is full") as info:
+        atomic.write_bytes_atomic(target, b"x" * 1000)
+    assert "points.ply" in str(info.value)
+    assert list(tmp_path.iterdir()) == []  # neither the file nor its temporary
+
+
+def test_a_full_disk_is_one_error_line_from_the_command_line(tmp_path, monkeypatch, capsys):
+    import errno
+
+    from skyrecon.cli.main import main
+    from skyrecon.io import atomic
+
+    def full(fd):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(atomic.os, "fsync", full)
+    out = tmp_path / "scene"
+    assert main(["render", "stereo", "--width", "160", "--height", "120", "--out", str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: ") and "disk is full" in err[0]
+    assert [p for p in out.rglob("*") if p.is_file()] == []
+
+
+def test_a_real_full_disk(tmp_path, capsys):
+    """On a 1 MB tmpfs (needs permission to mount; skipped otherwise)."""
+    import subprocess
+
+    import pytest
+
+    from skyrecon.cli.main import main
+
+    mnt = tmp_path / "small"
+    mnt.mkdir()
+    if subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", "size=1m", "tmpfs", str(mnt)], capture_output=True
+    ).returncode:
+        pytest.skip("cannot mount a small tmpfs here")
+    try:
+        code = main(
+            ["render", "stereo", "--width", "640", "--height", "480", "--out", str(mnt / "s"), "--quiet"]
+        )
+        err = capsys.readouterr().err.strip().splitlines()
+        assert code == 2 and len(err) == 1 and "disk is full" in err[0], err
+        leftovers = [p.name for p in (mnt / "s").rglob("*") if p.is_file()]
+        assert all(not n.startswith(".") for n in leftovers), leftovers  # no temporaries
+    finally:
+        subprocess.run(["umount", str(mnt)], capture_output=True)
+
+
+def test_stale_temporaries_of_dead_runs_are_swept(tmp_path):
+    import os
+    import subprocess
+
+    from skyrecon.io.atomic import sweep_stale_temps
+
+    dead = subprocess.Popen(["true"])
+    dead.wait()
+    (tmp_path / "sub").mkdir()
+    stale = [
+        tmp_path / f".points.ply.{dead.pid}.abc123.tmp",
+        tmp_path / "sub" / f".depth.pfm.{dead.pid}.x_y.tmp",
+    ]
+    mine = tmp_path / f".fused.ply.{os.getpid()}.zzz.tmp"
+    for p in [*stale, mine]:
+        p.write_bytes(b"half")
+    (tmp_path / f".map.{dead.pid}.q1w2").mkdir()  # a directory being built by a dead run
+    keep = [tmp_path / "points.ply", tmp_path / ".hidden_but_mine"]
+    for p in keep:
+        p.write_bytes(b"ok")
+    assert sweep_stale_temps(tmp_path) == 3
+    assert mine.exists() and all(p.exists() for p in keep) and not any(p.exists() for p in stale)

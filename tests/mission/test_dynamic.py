@@ -23,7 +23,7 @@ def moving_flight(tiny_config, tmp_path_factory):
     sc = make_scenario(4, cfg)
     result = run_mission(sc, cfg)
     out = tmp_path_factory.mktemp("moving")
-    doc = write_mission_outputs(result, out)
+    doc = write_mission_outputs(result, out, cloud_format="las")
     return sc, result, doc, out
 
 
@@ -56,6 +56,17 @@ def test_mission_reports_the_dynamic_figures(moving_flight):
     assert doc["scenario"]["movers"] and doc["scenario"]["changes"]
     html = (out / "report.html").read_text()
     assert "A city that moves" in html and "Closest approach" in html
+
+
+def test_the_map_cloud_takes_the_chosen_format(moving_flight):
+    _, result, m, out = moving_flight
+    laspy = pytest.importorskip("laspy")
+    assert m["files"]["occupied"] == "map/occupied.las" and not (out / "map" / "occupied.ply").exists()
+    las = laspy.read(out / "map" / "occupied.las")
+    xyz = np.column_stack([las.x, las.y, las.z])
+    truth = result.occ_map.occupied_centers()
+    assert len(xyz) == len(truth)
+    np.testing.assert_allclose(np.sort(xyz, axis=0), np.sort(truth, axis=0), atol=6e-4)
 
 
 def test_same_seed_same_movers_same_flight(moving_flight, tiny_config):

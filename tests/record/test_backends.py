@@ -145,7 +145,11 @@ def test_missing_library_gives_the_install_line(tmp_path, monkeypatch, name, mod
 
 @pytest.mark.parametrize("name", ["run.rrd", "run.mcap"])
 def test_an_interrupted_run_leaves_no_recording(tmp_path, name):
+    from skyrecon.io.atomic import _TEMP_NAME
+
     with pytest.raises(RuntimeError), open_recorder(tmp_path / name) as r:
+        # named as the other temporaries: one left by a killed run is swept on the next
+        assert _TEMP_NAME.match(r.tmp_path.name) and r.tmp_path.parent == tmp_path
         r.set_time(0.0, 0)
         r.log_path("p", np.zeros((2, 3)))
         raise RuntimeError("interrupted")

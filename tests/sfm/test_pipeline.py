@@ -134,9 +134,17 @@ def test_bad_images_are_left_out_with_reasons(orbit, tmp_path):
     assert "decode" in left["zz_broken.png"]
     assert res.num_registered == 8
     assert "zz_noise.png" in res.note and "left out" in res.warnings[0]
-    out = write_sfm_outputs(tmp_path / "out", res)
+    out = write_sfm_outputs(tmp_path / "out", res, cloud_format="laz")
     summary = json.loads(out["summary.json"].read_text())
     assert set(summary["left_out"]) == set(left)
+    # --format laz: the sparse cloud as LAZ (readable by laspy), no PLY beside it
+    assert "sparse.laz" in out and not (tmp_path / "out" / "sparse.ply").exists()
+    laspy = pytest.importorskip("laspy")
+    las = laspy.read(out["sparse.laz"])
+    xyz = np.column_stack([las.x, las.y, las.z])
+    truth = np.array([p.xyz for p in res.reconstruction.points3d.values()])
+    assert len(xyz) == len(truth)
+    np.testing.assert_allclose(np.sort(xyz, axis=0), np.sort(truth, axis=0), atol=6e-4)
 
 
 def test_input_errors(orbit, tmp_path):

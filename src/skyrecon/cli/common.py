@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from skyrecon.errors import InputError
+from skyrecon.io.atomic import sweep_stale_temps
 
 if TYPE_CHECKING:
     from skyrecon.record import Recorder
@@ -54,11 +55,13 @@ def add_command(subparsers, name: str, help: str, description: str, examples: st
 
 
 def output_dir(path: str | Path) -> Path:
-    """Create the ``--out`` directory if missing; refuse a path that is a file."""
+    """Create the ``--out`` directory if missing; refuse a path that is a file. Temporaries that
+    an earlier, killed run left in it are removed (:func:`skyrecon.io.atomic.sweep_stale_temps`)."""
     p = Path(path)
     if p.exists() and not p.is_dir():
         raise InputError("--out must be a directory, but a file of that name exists", p)
     p.mkdir(parents=True, exist_ok=True)
+    sweep_stale_temps(p)
     return p
 
 

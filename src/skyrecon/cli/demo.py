@@ -36,6 +36,7 @@ import time
 from collections import deque
 
 from skyrecon.cli.common import (
+    add_cloud_format,
     add_command,
     add_record_option,
     info,
@@ -95,6 +96,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument(
         "--workers", type=positive_int, help="parallel missions with --missions (default: CPU count)"
     )
+    add_cloud_format(p)
     p.add_argument("--city-size", type=positive_float, help="side of the city, metres (default 200)")
     p.add_argument("--width", type=positive_int, help="camera image width, pixels (default 640)")
     p.add_argument("--height", type=positive_int, help="camera image height, pixels (default 480)")
@@ -279,7 +281,9 @@ def run(args: argparse.Namespace) -> int:
         seeds = list(range(args.seed, args.seed + args.missions))
         if not args.quiet:
             info(f"flying {len(seeds)} missions (seeds {seeds[0]}..{seeds[-1]}) into {out}/seed_NNNN/")
-        rows, totals = run_missions(seeds, out, cfg, get_executor(workers=args.workers), quiet=args.quiet)
+        rows, totals = run_missions(
+            seeds, out, cfg, get_executor(workers=args.workers), quiet=args.quiet, cloud_format=args.format
+        )
         if not args.quiet:
             info(
                 f"{totals['succeeded']} of {totals['missions']} delivered, {totals['collisions']} collisions; "
@@ -301,7 +305,15 @@ def run(args: argparse.Namespace) -> int:
     with recording(args) as recorder:
         try:
             outcome = fly_and_write(
-                args.seed, out, cfg, start, goal, on_cycle=progress, on_scenario=announce, recorder=recorder
+                args.seed,
+                out,
+                cfg,
+                start,
+                goal,
+                on_cycle=progress,
+                on_scenario=announce,
+                cloud_format=args.format,
+                recorder=recorder,
             )
         finally:
             progress.close()

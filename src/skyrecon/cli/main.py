@@ -1,12 +1,16 @@
 """Entry point of the ``skyrecon`` command.
 
-Exit status: 0 on success, 2 on bad input (one ``error: ...`` line on stderr),
-1 on an internal error, 130 when interrupted. ``--debug`` shows tracebacks.
+Exit status: 0 on success, 2 on bad input or a full disk (one ``error: ...`` line on stderr),
+1 on an internal error, 130 when interrupted (Ctrl-C, SIGINT), 143 when terminated (SIGTERM).
+``--debug`` shows tracebacks. An interrupted command leaves its finished outputs complete and
+the rest unwritten (see :mod:`skyrecon.io.atomic`).
 """
 
 from __future__ import annotations
 
+import errno
 import importlib
+import signal
 import sys
 import traceback
 from collections.abc import Sequence
@@ -29,6 +33,7 @@ COMMANDS = [
     "odometry",
     "plan",
     "eval",
+    "view",
     "demo",
     "warmup",
 ]
@@ -55,10 +60,35 @@ def build_parser() -> OneLineParser:
     return parser
 
 
+class Terminated(BaseException):
+    """Raised in the main thread on SIGTERM, so that the same clean-up as Ctrl-C runs."""
+
+
+def _on_sigterm(signum, frame) -> None:
+    raise Terminated()
+
+
+def _install_sigterm() -> object:
+    """Turn SIGTERM into :class:`Terminated` (main thread only); returns the previous handler."""
+    try:
+        return signal.signal(signal.SIGTERM, _on_sigterm)
+    except ValueError:  # not the main thread (e.g. called from a worker thread): leave it
+        return None
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit status (also used by ``python -m skyrecon``)."""
     argv = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in argv
+    previous = _install_sigterm()
+    try:
+        return _main(argv, debug)
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)  # type: ignore[arg-type]
+
+
+def _main(argv: list[str], debug: bool) -> int:
     try:
         parser = build_parser()
         args = parser.parse_args(argv)
@@ -86,20 +116,42 @@ def main(argv: Sequence[str] | None = None) -> int:
             file=sys.stderr,
         )
         return 130
+    except Terminated:
+        print(
+            "error: terminated (SIGTERM); outputs already written are complete, the rest were not written",
+            file=sys.stderr,
+        )
+        return 143
+    except OSError as exc:
+        if exc.errno not in (errno.ENOSPC, errno.EDQUOT):
+            return _internal_error(exc, debug)
+        if debug:
+            traceback.print_exc()
+        where = f" while writing {exc.filename}" if exc.filename else ""
+        print(
+            f"error: the disk is full{where}; free some space or choose another --out, then run the "
+            "command again (no partial file was left under an output's name)",
+            file=sys.stderr,
+        )
+        return 2
     except MemoryError:
         if debug:
             traceback.print_exc()
         print("error: out of memory; use smaller images or fewer views at a time", file=sys.stderr)
         return 1
     except Exception as exc:  # an internal bug: say so, in one line unless --debug
-        if debug:
-            traceback.print_exc()
-        print(
-            f"internal error: {type(exc).__name__}: {_one_line(exc)} "
-            "(this is a bug in skyrecon; rerun with --debug and report the traceback)",
-            file=sys.stderr,
-        )
-        return 1
+        return _internal_error(exc, debug)
+
+
+def _internal_error(exc: BaseException, debug: bool) -> int:
+    if debug:
+        traceback.print_exc()
+    print(
+        f"internal error: {type(exc).__name__}: {_one_line(exc)} "
+        "(this is a bug in skyrecon; rerun with --debug and report the traceback)",
+        file=sys.stderr,
+    )
+    return 1
 
 
 def _one_line(exc: BaseException) -> str:

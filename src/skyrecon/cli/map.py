@@ -25,7 +25,6 @@ import argparse
 import json
 import os
 import shutil
-import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -44,6 +43,8 @@ from skyrecon.cli.common import (
 )
 from skyrecon.core.rigid import Rigid3
 from skyrecon.errors import InputError
+from skyrecon.io.atomic import make_temp_dir, sweep_stale_temps
+from skyrecon.io.checkpoint import Checkpoint
 from skyrecon.io.depth_dir import iter_depth_maps, sequence_depth_paths
 from skyrecon.io.ply import read_ply
 from skyrecon.io.sequence import StereoSequence
@@ -51,6 +52,7 @@ from skyrecon.io.stereo_input import StereoInput, open_stereo_sequence
 from skyrecon.mapping import (
     MapConfig,
     OccupancyMap,
+    StereoMapper,
     StereoMapSettings,
     export_occupied_ply,
     map_depth_sequence,
@@ -132,10 +134,27 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         metavar=("LAT", "LON", "ALT"),
         help="geographic position of the world origin: footprint.geojson in lon/lat (else local metres)",
     )
+    p.add_argument(
+        "--workspace",
+        help="where a sequence's progress is checkpointed, so that a killed run resumes when rerun with the "
+        "same arguments (default OUT/workspace; removed when the map is written)",
+    )
     add_cloud_format(p)
     add_bag_options(p)
     add_record_option(p)
     return p
+
+
+# Arguments that change only how outputs are written, not the map: left out of the checkpoint key.
+_OUTPUT_ONLY = {"out", "quiet", "debug", "format", "bt", "geo_origin", "workspace", "record", "command"}
+
+
+def _checkpoint(root: Path, args: argparse.Namespace, n: int) -> Checkpoint:
+    """The checkpoint of this run of a sequence (see :mod:`skyrecon.io.checkpoint`)."""
+    workspace = Path(args.workspace) if args.workspace else Path(args.out) / "workspace"
+    key = {k: v for k, v in sorted(vars(args).items()) if k not in _OUTPUT_ONLY and not callable(v)}
+    key.update(source=str(root.resolve()), frames_used=n)
+    return Checkpoint(workspace / "map-checkpoint.pkl", key)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -175,6 +194,8 @@ def _check_and_write(
     )
     out = Path(args.out)
     n_occ = _write_map_dir(occ, out, summary, track, args.bt, args.format, args.geo_origin)
+    if args.workspace:  # (the default workspace went with the old OUT when the new one was swapped in)
+        Checkpoint(Path(args.workspace) / "map-checkpoint.pkl", None).clear()
     if not args.quiet:
         info(
             f"map of {summary.get('frames', 1)} input(s): {n_occ} occupied, {counts.get('free', 0)} free voxels "
@@ -199,19 +220,33 @@ def _map_sequence(
         poses = _known_poses(seq, n)
     if args.depth is not None and not isinstance(seq.sequence, StereoSequence):
         raise InputError("--depth reads depth maps of a KITTI-layout sequence; this input has none", root)
+    ckpt = _checkpoint(root, args, n)
+    saved = ckpt.load()
+    first = saved[0] if saved is not None and 0 < saved[0] < n else 0
+    if first and not args.quiet:
+        info(f"resuming from frame {first} of {n} (checkpoint in {ckpt.path.parent})")
     if args.depth is None:
         settings = StereoMapSettings(voxel_size_m=args.voxel_size, max_range_m=args.max_range).with_overrides(
             method=args.method, max_disparity=args.max_disparity, max_depth_error_m=args.max_depth_error
         )
         observer = MapRecording(recorder, seq.timestamps_s, args.max_disparity) if recorder.enabled else None
-        frames = (seq.frame(i) for i in range(n))
+        mapper = StereoMapper(seq.rig, settings)
+        if first:
+            mapper.restore(saved[1])  # type: ignore[index]
+        frames = (seq.frame(i) for i in range(first, n))
         built = map_stereo_sequence(
-            progress(frames, total=n, desc="map frames"), seq.rig, poses, settings, on_frame=observer
+            progress(frames, total=n, initial=first, desc="map frames"),
+            seq.rig,
+            poses,
+            mapper=mapper,
+            first_frame=first,
+            after_frame=lambda done, m: ckpt.save(done, m.resume_state()) if done < n else None,
+            on_frame=observer,
         )
         occ, timings = built.map, built.timings
     else:
         assert isinstance(seq.sequence, StereoSequence)
-        depths = iter_depth_maps(sequence_depth_paths(seq.sequence, args.depth)[:n], seq.rig.left)
+        depths = iter_depth_maps(sequence_depth_paths(seq.sequence, args.depth)[first:n], seq.rig.left)
         config = MapConfig(voxel_size_m=args.voxel_size, max_range_m=args.max_range)
         observer = (
             MapRecording(recorder, seq.timestamps_s, image_of=lambda i: seq.frame(i)[0])
@@ -219,9 +254,17 @@ def _map_sequence(
             else None
         )
         built_d = map_depth_sequence(
-            progress(depths, total=n, desc="map frames"), seq.rig.left, poses, config, on_frame=observer
+            progress(depths, total=n, initial=first, desc="map frames"),
+            seq.rig.left,
+            poses,
+            config,
+            resume=saved[1] if first else None,  # type: ignore[index]
+            first_frame=first,
+            after_frame=lambda done, b: ckpt.save(done, b) if done < n else None,
+            on_frame=observer,
         )
         occ, timings = built_d.map, built_d.timings
+    summary_ckpt = {"resumed_from_frame": first, "checkpoints_written": ckpt.saves}
     summary = timings.summary()
     summary.pop("frames", None)
     summary = {
@@ -240,6 +283,7 @@ def _map_sequence(
         )
     summary["flown_free_voxels"] = occ.mark_flown_free(track, args.vehicle_radius)
     summary["vehicle_radius_m"] = args.vehicle_radius
+    summary["checkpoint"] = summary_ckpt
     if observer is not None:
         observer.finish(occ)
     return occ, summary, track
@@ -331,7 +375,8 @@ def _write_map_dir(
     if out.exists() and not out.is_dir():
         raise InputError("--out must be a directory, but a file of that name exists", out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    sweep_stale_temps(out.parent, recursive=False)
+    tmp = make_temp_dir(out.parent, out.name)
     try:
         save_map(occ, tmp)
         if track is not None:
@@ -353,7 +398,7 @@ def _replace_dir(new: Path, target: Path) -> None:
     """Put directory ``new`` at ``target``; an existing target is swapped out, then removed."""
     old = None
     if target.exists():
-        old = Path(tempfile.mkdtemp(prefix=f".{target.name}.old.", dir=target.parent))
+        old = make_temp_dir(target.parent, f"{target.name}.old")
         os.rmdir(old)
         os.replace(target, old)
     os.replace(new, target)

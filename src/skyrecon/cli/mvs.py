@@ -1,9 +1,11 @@
 """``skyrecon mvs``: dense multi-view stereo with known cameras: depth maps and one fused cloud.
 
-Writes ``fused.ply`` (world frame, colours and normals), ``depth/<image stem>.pfm`` (depth along
+Writes ``fused.ply`` (world frame, colours and normals; ``--format las|laz`` for LAS/LAZ), ``depth/<image stem>.pfm`` (depth along
 the optical axis at the working resolution, metres, NaN unknown), ``mvs.json`` (settings,
 neighbours, depth ranges, timings, warnings), ``mesh.ply`` with ``--mesh``, and pictures:
 ``depth.png`` (every depth map) and ``preview.png`` (the fused cloud seen from the first cameras).
+Each view's depth is kept in ``OUT/workspace/`` as soon as it is computed: a killed run, rerun
+with the same arguments, computes only the views it had not finished.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from skyrecon.cli.common import (
+    add_cloud_format,
     add_command,
     add_record_option,
     info,
@@ -113,6 +116,12 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         help="ignore image files that no camera refers to (default: an error)",
     )
     p.add_argument("--workers", type=positive_int, help="processes for per-view depth (default: all cores)")
+    p.add_argument(
+        "--workspace",
+        help="where each view's depth is kept as soon as it is computed, so that a killed run resumes "
+        "when rerun with the same arguments (default OUT/workspace)",
+    )
+    add_cloud_format(p)
     p.add_argument("--seed", type=int, default=0, help="seed of every random choice (same seed, same result)")
     add_record_option(p)
     return p
@@ -141,12 +150,13 @@ def run(args: argparse.Namespace) -> int:
             f"fusion {settings.fusion}, longer side at most {settings.max_image_size or 'full'} px"
         )
     executor = get_executor("serial") if args.workers == 1 else get_executor(None, args.workers)
-    result = run_mvs(views, None, settings, executor=executor)
+    workspace = Path(args.workspace) if args.workspace else out / "workspace"
+    result = run_mvs(views, None, settings, executor=executor, workspace=workspace)
     if len(result.cloud) == 0:
-        save_mvs_result(result, out, settings)
+        save_mvs_result(result, out, settings, args.format)
         why = "; ".join(result.warnings) or "no depth was consistent across views"
         raise EstimationError(f"no 3D points were reconstructed: {why} (details in {out / 'mvs.json'})")
-    paths = save_mvs_result(result, out, settings)
+    paths = save_mvs_result(result, out, settings, args.format)
     _pictures(result, views, out)
     with recording(args) as recorder:
         if recorder.enabled:
@@ -160,7 +170,7 @@ def run(args: argparse.Namespace) -> int:
             f"{len(result.cloud)} fused points from {len(result.depth_maps)} depth maps in {t.get('total', 0):.1f} s "
             f"({steps})"
         )
-        written = ["fused.ply", "depth/*.pfm", "mvs.json", "depth.png", "preview.png"]
+        written = [f"fused.{args.format}", "depth/*.pfm", "mvs.json", "depth.png", "preview.png"]
         if "mesh" in paths:
             written.insert(1, "mesh.ply")
         info(f"wrote {out}/" + ", ".join(written))

@@ -6,7 +6,8 @@ in names compared as numbers) and one camera matrix ``K.txt`` for the input imag
 * ``sparse/cameras.txt``, ``sparse/images.txt``, ``sparse/points3D.txt``: COLMAP text model
   (intrinsics at the INPUT image size whatever ``--max-image-size`` is; poses as COLMAP stores
   them: ``cam_from_world`` quaternion + translation; COLMAP's pixel convention);
-* ``sparse.ply``: the coloured points (binary PLY, the model's own frame), with ``--frusta`` also
+* ``sparse.ply``: the coloured points (binary PLY, the model's own frame; ``--format las|laz`` for
+  ``sparse.las``/``sparse.laz``), with ``--frusta`` also
   the camera frusta (red; the first image green);
 * ``transforms.json``: nerfstudio cameras (image paths relative to ``--out``);
 * ``report.html``: reprojection-error histogram, track lengths, top view of cameras and points;
@@ -35,7 +36,15 @@ from typing import Any
 
 import numpy as np
 
-from skyrecon.cli.common import add_command, add_record_option, info, output_dir, positive_int, recording
+from skyrecon.cli.common import (
+    add_cloud_format,
+    add_command,
+    add_record_option,
+    info,
+    output_dir,
+    positive_int,
+    recording,
+)
 from skyrecon.core.intrinsics import Intrinsics
 from skyrecon.errors import InputError, SkyreconError
 from skyrecon.executor import get_executor
@@ -119,6 +128,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         help="worker processes for features and matching (default: all cores, or $SKYRECON_WORKERS)",
     )
     p.add_argument("--frusta", action="store_true", help="add the camera frusta to sparse.ply")
+    add_cloud_format(p)
     p.add_argument(
         "--workspace", help="feature cache directory, reused by later runs (default OUT/workspace)"
     )
@@ -284,6 +294,7 @@ def run(args: argparse.Namespace) -> int:
         frusta=args.frusta,
         image_prefix=_image_prefix(args.images_dir, out),
         title=f"Structure from motion: {Path(args.images_dir).name}",
+        cloud_format=args.format,
     )
     write_s = time.perf_counter() - t0
     warnings = pre_warnings + [w for w in result.warnings if w not in pre_warnings]
@@ -336,7 +347,7 @@ def _say(
         f"reprojection error {err:.2f} px, mean track length {np.mean(tl) if tl else 0:.1f}, in {seconds:.1f} s"
     )
     info(
-        f"wrote {out}/sparse/ (COLMAP text), sparse.ply"
+        f"wrote {out}/sparse/ (COLMAP text), sparse.{args.format}"
         + (" (with frusta)" if args.frusta else "")
         + (", transforms.json" if "transforms.json" in files else "")
         + ", report.html, sfm.json"

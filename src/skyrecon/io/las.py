@@ -18,7 +18,7 @@ from skyrecon.errors import InputError
 from skyrecon.io.atomic import atomic_write
 from skyrecon.io.ply import write_ply
 
-__all__ = ["CLOUD_FORMATS", "GEO_HINT", "write_point_cloud", "write_las"]
+__all__ = ["CLOUD_FORMATS", "GEO_HINT", "write_point_cloud", "write_las", "read_las"]
 
 CLOUD_FORMATS = ("ply", "las", "laz")
 GEO_HINT = "writing LAS/LAZ needs the 'geo' extra: pip install 'skyrecon[geo]'"
@@ -50,6 +50,33 @@ def write_las(path: str | Path, cloud: PointCloud, compress: bool = False) -> No
         backend = laspy.LazBackend.Lazrs
     with atomic_write(path, "wb") as f:
         las.write(f, do_compress=compress, laz_backend=backend)
+
+
+def read_las(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
+    """Read a LAS or LAZ file.
+
+    Returns:
+        points (N, 3) float64 in the file's coordinates (scale and offset applied; metres for
+        skyrecon's files; float64 so georeferenced coordinates keep their precision) and colours
+        (N, 3) uint8 RGB (16-bit values scaled to 0..255) when the point format has them, else None.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("LAS/LAZ file not found; check the path", path)
+    try:
+        import laspy
+    except ImportError:
+        raise InputError("reading LAS/LAZ needs the 'geo' extra: pip install 'skyrecon[geo]'", path) from None
+    try:
+        las = laspy.read(path)
+    except Exception as e:  # laspy raises its own errors and OSError/ValueError for bad files
+        raise InputError(f"unreadable LAS/LAZ file ({e})", path) from None
+    pts = np.stack([np.asarray(las.x), np.asarray(las.y), np.asarray(las.z)], axis=1)
+    colors = None
+    if {"red", "green", "blue"} <= set(las.point_format.dimension_names):
+        rgb = np.stack([np.asarray(las.red), np.asarray(las.green), np.asarray(las.blue)], axis=1)
+        colors = (rgb // 257 if rgb.max(initial=0) > 255 else rgb).astype(np.uint8)
+    return pts.astype(np.float64), colors
 
 
 def write_point_cloud(path: str | Path, cloud: PointCloud, fmt: str = "ply") -> Path:

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import os
 import shutil
-import tempfile
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
@@ -22,6 +21,7 @@ import numpy as np
 from skyrecon.core.rigid import Rigid3, matrix_to_quaternion
 from skyrecon.core.stereo_rig import StereoRig
 from skyrecon.errors import InputError
+from skyrecon.io.atomic import make_temp_dir
 from skyrecon.io.calib import kitti_projections
 from skyrecon.io.rosbag_input import BagTopics, require_rosbags
 
@@ -123,7 +123,7 @@ def write_stereo_bag(
     w, h = rig.left.width, rig.left.height
     parent = path.parent if storage == "mcap" else path
     parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=".bag.", dir=parent))
+    tmp = make_temp_dir(parent, "bag")
     name = path.stem if storage == "mcap" else path.name
     try:
         plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3

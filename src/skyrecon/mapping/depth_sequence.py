@@ -95,6 +95,10 @@ def map_depth_sequence(
     world_from_cam: Sequence[Rigid3 | np.ndarray],
     config: MapConfig | None = None,
     progress: Callable[[int, int], None] | None = None,
+    *,
+    resume: DepthSequenceMap | None = None,
+    first_frame: int = 0,
+    after_frame: Callable[[int, DepthSequenceMap], object] | None = None,
     on_frame: Callable[[MappedFrame], None] | None = None,
 ) -> DepthSequenceMap:
     """Build an occupancy map from depth images of one camera, one frame at a time.
@@ -107,15 +111,20 @@ def map_depth_sequence(
             the poses are refused.
         config: the map's settings.
         progress: optional ``progress(i, n)`` after each frame.
+        resume: go on from this (map, timings) of the frames before ``first_frame`` (e.g. from
+            a checkpoint); ``config`` is then unused.
+        first_frame: index of the first frame ``depths`` yields.
+        after_frame: optional ``after_frame(done, built)`` after each frame (``done`` frames are
+            in the map), e.g. to write a checkpoint.
         on_frame: optional observer called with each :class:`MappedFrame` (not timed).
     Raises:
         InputError: more frames than poses, no frame, bad depth or poses (the message names the frame).
     """
-    occ = OccupancyMap(config)
-    timings = FrameTimings()
+    built = resume if resume is not None else DepthSequenceMap(OccupancyMap(config), FrameTimings())
+    occ, timings = built.map, built.timings
     n = len(world_from_cam)
     frames = iter(depths)
-    i = 0
+    i = first_frame
     while True:
         t0 = time.perf_counter()
         depth = next(frames, None)
@@ -135,6 +144,8 @@ def map_depth_sequence(
         i += 1
         if progress is not None:
             progress(i, n)
+        if after_frame is not None:
+            after_frame(i, built)
     if i == 0:
         raise InputError("no depth frames to build a map from")
-    return DepthSequenceMap(occ, timings)
+    return built

@@ -183,6 +183,15 @@ class StereoMapper:
         )
         self.timings = FrameTimings()
 
+    def resume_state(self) -> tuple[OccupancyMap, FrameSupport | None, FrameTimings]:
+        """What a checkpoint must hold to resume this mapper: the map, the guesses' support
+        (which refers to the map) and the timings (picklable)."""
+        return self.map, self.support, self.timings
+
+    def restore(self, state: tuple[OccupancyMap, FrameSupport | None, FrameTimings]) -> None:
+        """Take back a :meth:`resume_state` (of a mapper with the same rig and settings)."""
+        self.map, self.support, self.timings = state
+
     @property
     def matcher(self) -> Matcher:
         """The stereo matcher (created, and warmed up, on first use)."""
@@ -220,6 +229,10 @@ def map_stereo_sequence(
     world_from_left: Sequence[Rigid3 | np.ndarray],
     settings: StereoMapSettings | None = None,
     progress: Callable[[int, int], None] | None = None,
+    *,
+    mapper: StereoMapper | None = None,
+    first_frame: int = 0,
+    after_frame: Callable[[int, StereoMapper], object] | None = None,
     on_frame: Callable[[MappedFrame], None] | None = None,
     **overrides: Any,
 ) -> StereoMapper:
@@ -233,6 +246,12 @@ def map_stereo_sequence(
             frames beyond the poses are refused.
         settings: :class:`StereoMapSettings`; keyword overrides on top.
         progress: optional ``progress(i, n)`` after each frame.
+        mapper: resume with this mapper (e.g. restored from a checkpoint, see
+            :meth:`StereoMapper.resume_state`) instead of a new one; ``settings`` are then unused.
+        first_frame: index of the first frame ``frames`` yields (the frames before it are
+            already in ``mapper``).
+        after_frame: optional ``after_frame(done, mapper)`` after each frame (``done`` frames
+            are in the map), e.g. to write a checkpoint.
         on_frame: optional observer called with each :class:`MappedFrame` (image, disparity
             and depth; not timed).
     Returns:
@@ -241,11 +260,12 @@ def map_stereo_sequence(
         InputError: more frames than poses, no frame, or bad images / poses (the message names
             the frame).
     """
-    mapper = StereoMapper(rig, settings, **overrides)
+    if mapper is None:
+        mapper = StereoMapper(rig, settings, **overrides)
     _ = mapper.matcher  # build (and warm up) the matcher before the first frame is timed
     n = len(world_from_left)
-    i = -1
-    for i, (left, right) in enumerate(frames):
+    i = first_frame - 1
+    for i, (left, right) in enumerate(frames, start=first_frame):
         if i >= n:
             raise InputError(f"frame {i}: there are only {n} poses; give one world_from_left pose per frame")
         try:
@@ -258,6 +278,8 @@ def map_stereo_sequence(
             on_frame(MappedFrame(i, depth, camera, pose, mapper.map, left, result.disparity))
         if progress is not None:
             progress(i + 1, n)
+        if after_frame is not None:
+            after_frame(i + 1, mapper)
     if i < 0:
         raise InputError("no stereo frames to build a map from")
     return mapper

@@ -78,6 +78,7 @@ def fly_and_write(
     goal=None,
     on_cycle: Callable | None = None,
     on_scenario: Callable | None = None,
+    cloud_format: str = "ply",
     recorder: Recorder | None = None,
 ) -> Outcome:
     """Generate the scenario, fly it and write every output to ``out``.
@@ -90,6 +91,7 @@ def fly_and_write(
         cfg: mission settings.
         on_cycle: progress callback ``(CycleRecord, Navigator)`` per cycle.
         on_scenario: called with the Scenario before take-off.
+        cloud_format: ``ply``, ``las`` or ``laz`` for the map's occupied-voxel cloud.
         recorder: logs the flight for a viewer (:mod:`skyrecon.record`), or None.
     """
     out = Path(out)
@@ -106,7 +108,7 @@ def fly_and_write(
     if on_scenario is not None:
         on_scenario(scenario)
     result = run_mission(scenario, cfg, on_cycle=on_cycle, recorder=recorder)
-    doc = write_mission_outputs(result, out)
+    doc = write_mission_outputs(result, out, cloud_format=cloud_format)
     return Outcome(doc, False, out)
 
 
@@ -144,6 +146,7 @@ class MissionJob:
     out: str
     config: dict
     quiet: bool = False
+    cloud_format: str = "ply"
 
 
 def fly_job(job: MissionJob) -> dict:
@@ -151,7 +154,7 @@ def fly_job(job: MissionJob) -> dict:
     t0 = time.perf_counter()
     cfg = MissionConfig.from_dict(job.config)
     try:
-        outcome = fly_and_write(job.seed, job.out, cfg)
+        outcome = fly_and_write(job.seed, job.out, cfg, cloud_format=job.cloud_format)
         doc = outcome.doc
     except Exception as e:  # noqa: BLE001 - one broken mission must not lose the batch
         doc = {
@@ -233,7 +236,12 @@ def summary_markdown(rows: Sequence[dict], totals: dict) -> str:
 
 
 def run_missions(
-    seeds: Sequence[int], out: str | Path, cfg: MissionConfig, executor=None, quiet: bool = False
+    seeds: Sequence[int],
+    out: str | Path,
+    cfg: MissionConfig,
+    executor=None,
+    quiet: bool = False,
+    cloud_format: str = "ply",
 ) -> tuple[list[dict], dict]:
     """Fly one mission per seed (in parallel through ``executor``) and write the summary.
 
@@ -242,12 +250,15 @@ def run_missions(
         out: the batch folder.
         cfg: settings shared by every mission.
         executor: an :class:`~skyrecon.executor.Executor` (default ``get_executor()``).
+        cloud_format: ``ply``, ``las`` or ``laz`` for each map's occupied-voxel cloud.
     Returns:
         (rows, totals): one summary row per mission, in seed order, and the totals.
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    jobs = [MissionJob(int(s), str(out / f"seed_{int(s):04d}"), cfg.to_dict(), quiet) for s in seeds]
+    jobs = [
+        MissionJob(int(s), str(out / f"seed_{int(s):04d}"), cfg.to_dict(), quiet, cloud_format) for s in seeds
+    ]
     ex = executor or get_executor()
     rows = ex.map(fly_job, jobs, desc="missions")
     totals = summarize(rows)

@@ -10,8 +10,10 @@ A mission folder holds:
 * ``cycles.json``: one record per cycle (pose, speed, per-stage milliseconds, true clearance,
   replanning);
 * ``map/``: the drone's final occupancy map (``skyrecon.mapping.save_map``, compressed) and
-  ``occupied.ply`` (centres of its occupied voxels, world frame);
-* ``overview.png`` and ``report.html`` (self-contained).
+  ``occupied.ply`` (centres of its occupied voxels, world frame; ``.las``/``.laz`` with that format);
+* ``overview.png`` and ``report.html`` (self-contained);
+* ``view/index.html``: the 3D view of the map, the flown track and the last planned path
+  (:mod:`skyrecon.viewer`, opens from disk), embedded in ``report.html``.
 
 A refused mission (impossible input) gets ``mission.json`` with ``success: false`` and the
 ``reason`` and ``report.html`` saying why.
@@ -32,13 +34,21 @@ from skyrecon.mission.loop import MissionResult
 from skyrecon.mission.metrics import mission_metrics
 from skyrecon.planning import write_path_json
 from skyrecon.report.mission_report import overview_image, render_mission_report, render_refused_report
+from skyrecon.viewer import map_scene, write_page
+
+#: At most this many occupied voxels in the report's 3D view (a uniform subsample beyond).
+VIEW_MAX_VOXELS = 400_000
 
 FORMAT = "skyrecon.mission"
 VERSION = 1
 
 
-def write_mission_outputs(result: MissionResult, out_dir: str | Path, save_the_map: bool = True) -> dict:
+def write_mission_outputs(
+    result: MissionResult, out_dir: str | Path, save_the_map: bool = True, cloud_format: str = "ply"
+) -> dict:
     """Write every output of a flown mission to ``out_dir`` (created if missing).
+
+    ``cloud_format`` (``ply``, ``las`` or ``laz``) is the format of the map's occupied-voxel cloud.
 
     Returns:
         The metrics dict that was written to ``mission.json`` (with its ``files``).
@@ -77,8 +87,8 @@ def write_mission_outputs(result: MissionResult, out_dir: str | Path, save_the_m
     )
     if save_the_map:
         save_map(result.occ_map, out / "map", compress=True)
-        export_occupied_ply(result.occ_map, out / "map" / "occupied.ply")
-        files.update(map="map/", occupied="map/occupied.ply")
+        export_occupied_ply(result.occ_map, out / "map" / "occupied.ply", fmt=cloud_format)
+        files.update(map="map/", occupied=f"map/occupied.{cloud_format}")
     box = sc.box
     over = overview_image(
         sc.city,
@@ -91,6 +101,15 @@ def write_mission_outputs(result: MissionResult, out_dir: str | Path, save_the_m
         sc.goal,
     )
     write_image(out / "overview.png", over)
+    view = map_scene(
+        f"mission, seed {sc.seed}",
+        result.occ_map.occupied_centers(),
+        float(result.occ_map.config.voxel_size_m),
+        flown,
+        last_plan,
+    )
+    write_page(view.subsampled(VIEW_MAX_VOXELS, seed=0), out / "view")
+    files["view"] = "view/index.html"
     m["files"] = files
     doc = {
         "format": FORMAT,
@@ -109,7 +128,7 @@ def write_mission_outputs(result: MissionResult, out_dir: str | Path, save_the_m
         ],
     }
     write_text_atomic(out / "mission.json", dumps_json(doc))
-    write_text_atomic(out / "report.html", render_mission_report(result, m))
+    write_text_atomic(out / "report.html", render_mission_report(result, m, view_src="view/index.html"))
     return m
 
 

@@ -17,6 +17,7 @@ import numpy as np
 
 from skyrecon.errors import InputError
 from skyrecon.executor import Executor
+from skyrecon.io.task_cache import map_cached, task_key
 from skyrecon.mvs.frames import WorkingView
 from skyrecon.mvs.pairwise import pairwise_depth
 from skyrecon.mvs.patchmatch import PatchMatchSettings, patchmatch_depth
@@ -131,8 +132,9 @@ def _patchmatch_depths(
     ranges: Sequence[tuple[float, float] | None],
     executor: Executor,
     desc: str | None,
+    cache_dir: str | None = None,
 ) -> list[tuple[int, np.ndarray, TaskTimings, np.ndarray | None]]:
-    """One PatchMatch task per view with sources and a depth range."""
+    """One PatchMatch task per view with sources and a depth range (results kept in ``cache_dir``)."""
     pm = settings.patchmatch
     if pm.threads == 1:
         pm = replace(pm, threads=_executor_threads(executor))
@@ -145,7 +147,9 @@ def _patchmatch_depths(
             tasks.append(
                 (r, PatchMatchTask(slim[r], sources, depth_range, pm, settings.seed * 1_000_003 + r))
             )
-    results = executor.map(_patchmatch_task, [t for _, t in tasks], desc=desc)
+    # the thread count does not change a depth map: a rerun with other workers reuses the cache
+    keys = [task_key(t._replace(settings=replace(t.settings, threads=1)), "patchmatch") for _, t in tasks]
+    results, _ = map_cached(executor, _patchmatch_task, [t for _, t in tasks], keys, cache_dir, desc=desc)
     return [(r, d, tm, c) for (r, _), (d, tm, c) in zip(tasks, results)]
 
 
@@ -157,8 +161,10 @@ def _pairwise_depths(
     executor: Executor,
     desc: str | None,
     points: np.ndarray | None,
+    cache_dir: str | None = None,
 ) -> list[tuple[int, np.ndarray, TaskTimings, np.ndarray | None]]:
-    """One rectified-stereo task per (reference, source) pair whose reference has a depth range."""
+    """One rectified-stereo task per (reference, source) pair whose reference has a depth range
+    (results kept in ``cache_dir``)."""
     slim = [_without_colour(v) for v in views]
     tasks: list[tuple[int, PairwiseTask]] = []
     for r, s in pairs:
@@ -169,7 +175,8 @@ def _pairwise_depths(
             tasks.append(
                 (r, PairwiseTask(slim[r], slim[s], depth_range, settings.matcher, matcher_settings, shared))
             )
-    results = executor.map(_pairwise_task, [t for _, t in tasks], desc=desc)
+    keys = [task_key(t, "pairwise") for _, t in tasks]
+    results, _ = map_cached(executor, _pairwise_task, [t for _, t in tasks], keys, cache_dir, desc=desc)
     return [(r, d, tm, None) for (r, _), (d, tm) in zip(tasks, results)]
 
 
@@ -183,6 +190,7 @@ def estimate_depths(
     *,
     progress: bool = True,
     points: np.ndarray | None = None,
+    cache_dir: str | None = None,
 ) -> DepthEstimates:
     """Depth maps of the views by ``settings.depth_method``.
 
@@ -195,15 +203,17 @@ def estimate_depths(
         executor: where the tasks run.
         progress: show a progress bar.
         points: sparse world points (N, 3) metres that narrow the pairwise disparity search.
+        cache_dir: keep each task's result here and reuse those already there (a resumed run;
+            see :mod:`skyrecon.io.task_cache`); None: no cache.
     Returns:
         DepthEstimates. A pair that cannot be matched gives an all-NaN depth and an ``error``
         in its timings; it does not stop the others.
     """
     desc = "MVS depth" if progress else None
     if settings.depth_method == "patchmatch":
-        results = _patchmatch_depths(views, settings, neighbors, ranges, executor, desc)
+        results = _patchmatch_depths(views, settings, neighbors, ranges, executor, desc, cache_dir)
     else:
-        results = _pairwise_depths(views, settings, pairs, ranges, executor, desc, points)
+        results = _pairwise_depths(views, settings, pairs, ranges, executor, desc, points, cache_dir)
     depths: list[np.ndarray | None] = [None] * len(views)
     costs: list[np.ndarray | None] = [None] * len(views)
     for r, d, _, c in results:

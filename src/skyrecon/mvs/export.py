@@ -15,9 +15,10 @@ from typing import Any
 
 import numpy as np
 
-from skyrecon.io import write_pfm, write_ply
+from skyrecon.io import write_pfm
 from skyrecon.io.atomic import write_bytes_atomic
 from skyrecon.io.jsonio import write_json
+from skyrecon.io.las import write_point_cloud
 
 __all__ = ["save_mvs_result", "encode_mesh_ply", "write_mesh_ply"]
 
@@ -65,8 +66,13 @@ def write_mesh_ply(
     write_bytes_atomic(Path(path), encode_mesh_ply(vertices, faces, colors))
 
 
-def save_mvs_result(result: Any, out_dir: str | Path, settings: Any = None) -> dict[str, Path]:
+def save_mvs_result(
+    result: Any, out_dir: str | Path, settings: Any = None, cloud_format: str = "ply"
+) -> dict[str, Path]:
     """Write an :class:`~skyrecon.mvs.MVSResult` under ``out_dir`` (created if missing).
+
+    ``cloud_format`` (``ply``, ``las`` or ``laz``) is the fused cloud's format (``fused.las`` ...;
+    LAS/LAZ keep positions and colours, not normals). The mesh is always PLY.
 
     Returns:
         The paths written, by role (``fused``, ``depth_dir``, ``mesh``, ``summary``).
@@ -74,11 +80,11 @@ def save_mvs_result(result: Any, out_dir: str | Path, settings: Any = None) -> d
     out = Path(out_dir)
     (out / "depth").mkdir(parents=True, exist_ok=True)
     paths: dict[str, Path] = {
-        "fused": out / "fused.ply",
+        "fused": out / f"fused.{cloud_format}",
         "depth_dir": out / "depth",
         "summary": out / "mvs.json",
     }
-    write_ply(paths["fused"], result.cloud)
+    write_point_cloud(paths["fused"], result.cloud, cloud_format)
     for stem, dm in result.depth_maps.items():
         write_pfm(out / "depth" / f"{stem}.pfm", dm.depth_m)
     if result.mesh is not None:

@@ -102,7 +102,7 @@ class _MVSRun:
 
     Attributes:
         inputs: the cameras given; images: their images (see :func:`run_mvs`).
-        settings, executor, progress: as given to :func:`run_mvs`.
+        settings, executor, progress, workspace: as given to :func:`run_mvs`.
         views: ``load``: the working views (images at the working resolution, scaled intrinsics).
         blank: ``load``: views whose image has no texture (neither references nor sources).
         sparse_points: ``sparse``: (N, 3) triangulated feature points, world metres.
@@ -124,6 +124,7 @@ class _MVSRun:
     settings: MVSSettings
     executor: Executor
     progress: bool
+    workspace: str | None = None
     views: list[WorkingView] = field(default_factory=list)
     blank: list[int] = field(default_factory=list)
     sparse_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
@@ -281,6 +282,7 @@ def _depth(run: _MVSRun) -> None:
         run.executor,
         progress=run.progress,
         points=run.sparse_points,
+        cache_dir=None if run.workspace is None else os.path.join(run.workspace, "depth_tasks"),
     )
     run.depths, run.pair_depths = est.depths, est.pair_depths
     run.diagnostics["depth_task_ms"] = est.task_timings
@@ -427,6 +429,7 @@ def run_mvs(
     settings: MVSSettings = MVSSettings(),
     executor: Executor | None = None,
     progress: bool = True,
+    workspace: str | os.PathLike | None = None,
 ) -> MVSResult:
     """Dense multi-view stereo: per-view depth maps and one fused coloured cloud.
 
@@ -441,6 +444,9 @@ def run_mvs(
         settings: see :class:`MVSSettings`.
         executor: where per-view work runs (default :func:`skyrecon.executor.get_executor`).
         progress: show progress bars (subject to the global progress setting).
+        workspace: a folder where each view's depth is kept as soon as it is computed
+            (``depth_tasks/<hash>.pkl``); a rerun with the same views, images and settings (a
+            killed run resumed, or another fusion) reuses them. None: nothing kept.
     Returns:
         MVSResult (world frame). Problems that leave some views out are listed in
         ``warnings`` with the view names.
@@ -453,7 +459,8 @@ def run_mvs(
     inputs = list(views)
     _check_view_names(inputs)
     with _progress_bars(progress):
-        run = _MVSRun(inputs, images, settings, executor or get_executor(), progress)
+        ws = None if workspace is None else os.fspath(workspace)
+        run = _MVSRun(inputs, images, settings, executor or get_executor(), progress, ws)
         for step in _STEPS:
             if step.wanted(run):
                 t = time.perf_counter()

@@ -242,7 +242,11 @@ class FileRecorder(Recorder):
         super().__init__(settings)
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tmp", dir=self.path.parent)
+        # named as skyrecon.io.atomic names temporaries (hidden, with the pid), so that one left by
+        # a killed run is swept by sweep_stale_temps
+        fd, tmp = tempfile.mkstemp(
+            prefix=f".{self.path.name}.{os.getpid()}.", suffix=".tmp", dir=self.path.parent
+        )
         os.close(fd)
         os.unlink(tmp)  # the backend creates the file itself (foxglove refuses an existing one)
         self.tmp_path = Path(tmp)

@@ -10,6 +10,10 @@ pictures are drawn with OpenCV (no plotting library needed):
 * a contact sheet of camera frames with their disparity;
 * :func:`series_plot`: loop time, clearance and speed along the mission.
 
+The 3D view of the map and paths is an iframe of ``view/index.html`` beside the report (written by
+:func:`skyrecon.mission.outputs.write_mission_outputs` with :mod:`skyrecon.viewer`; it opens from
+disk too).
+
 World frame z up, metres; north (+y) is up in the plan view.
 """
 
@@ -294,13 +298,17 @@ def _timing_table(stage_ms: dict, loop_stages: Sequence[str]) -> str:
     )
 
 
-def render_mission_report(result, metrics: dict, extra_notes: Sequence[str] = ()) -> str:
+def render_mission_report(
+    result, metrics: dict, extra_notes: Sequence[str] = (), view_src: str | None = None
+) -> str:
     """The HTML report of a flown mission.
 
     Args:
         result: a :class:`~skyrecon.mission.loop.MissionResult`.
         metrics: its :func:`~skyrecon.mission.metrics.mission_metrics`.
         extra_notes: lines added under the verdict (e.g. where the outputs are).
+        view_src: relative address of the mission's 3D view page (``view/index.html``, written by
+            :mod:`skyrecon.viewer`), embedded in an iframe under the plan view; None: no 3D view.
     """
     sc, cfg = result.scenario, result.config
     m = metrics
@@ -445,6 +453,7 @@ def render_mission_report(result, metrics: dict, extra_notes: Sequence[str] = ()
         "<h2>Where it flew</h2>",
         _legend(estimated is not None),
         _img(over, "plan view of the mission"),
+        *_view_3d(view_src),
         "<h2>Metrics</h2>",
         _table(rows),
         *_dynamic(result, m, extent),
@@ -459,6 +468,21 @@ def render_mission_report(result, metrics: dict, extra_notes: Sequence[str] = ()
         f"<p><small>{html.escape(settings)}</small></p>",
     ]
     return _page(f"skyrecon mission {sc.seed}", "".join(body))
+
+
+def _view_3d(src: str | None) -> list[str]:
+    """The 3D view section: an iframe of the viewer page (works when the report is opened from disk)."""
+    if not src:
+        return []
+    s = html.escape(src, quote=True)
+    return [
+        "<h2>In 3D</h2>",
+        "<p><small>The drone's final map (occupied voxels, coloured by height), the flown track (red) and "
+        "the last planned path (blue). Drag to orbit, right-drag to pan, wheel to zoom; "
+        f"<a href='{s}'>open full page</a>.</small></p>",
+        f"<iframe src='{s}' title='3D view of the map and the flown path' loading='lazy' "
+        "style='width: 100%; height: 560px; border: 1px solid #ddd;'></iframe>",
+    ]
 
 
 def _dynamic(result, metrics: dict, extent) -> list[str]:

@@ -23,6 +23,7 @@ from skyrecon.geometry.essential import estimate_essential, finalize_pose
 from skyrecon.geometry.homography import estimate_homography
 from skyrecon.geometry.sampling import RansacOptions
 from skyrecon.geometry.triangulation import parallax_angles_deg, triangulate_midpoint
+from skyrecon.io.task_cache import map_cached, task_key
 from skyrecon.sfm._threads import limited_threads
 from skyrecon.sfm.extract import load_features
 from skyrecon.sfm.guided import guided_match
@@ -368,8 +369,12 @@ def run_matching(
     seed: int,
     executor,
     workers: int = 1,
+    cache_dir: str | None = None,
 ) -> list[PairGeometry]:
-    """Match and verify all pairs on the executor; results in the order of ``pairs``."""
+    """Match and verify all pairs on the executor; results in the order of ``pairs``.
+
+    With ``cache_dir``, each chunk's result is kept there as soon as it is computed and reused by
+    a rerun with the same features and settings (see :mod:`skyrecon.io.task_cache`)."""
     seeds = pair_seeds(pairs, seed)
     chunks = chunk_pairs(pairs, 4 * max(1, workers))
     tasks = []
@@ -388,5 +393,6 @@ def run_matching(
             )
         )
         k += len(c)
-    results = executor.map(match_and_verify_chunk, tasks, desc="matching")
+    keys = [task_key(t, "match_and_verify_chunk") for t in tasks]
+    results, _ = map_cached(executor, match_and_verify_chunk, tasks, keys, cache_dir, desc="matching")
     return [g for chunk in results for g in chunk]

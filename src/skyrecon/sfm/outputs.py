@@ -13,7 +13,7 @@ from skyrecon.core.depth import PointCloud
 from skyrecon.core.reconstruction import Reconstruction
 from skyrecon.io.atomic import write_text_atomic
 from skyrecon.io.colmap import write_colmap_text, write_nerfstudio_transforms
-from skyrecon.io.ply import write_ply
+from skyrecon.io.las import write_point_cloud
 from skyrecon.sfm.report import report_html
 from skyrecon.sfm.result import SfMResult
 
@@ -89,6 +89,7 @@ def write_sfm_outputs(
     report: bool = True,
     image_prefix: str = "images/",
     title: str = "Structure from motion",
+    cloud_format: str = "ply",
 ) -> dict[str, Path]:
     """Write everything a run produced into ``out_dir`` (created if missing).
 
@@ -108,6 +109,7 @@ def write_sfm_outputs(
         report: write ``report.html``.
         image_prefix: prefix of the image paths in ``transforms.json``.
         title: title of the report.
+        cloud_format: ``ply``, ``las`` or ``laz`` for the sparse cloud (``sparse.las`` ...).
     Returns:
         name -> path of every file written.
     """
@@ -118,8 +120,8 @@ def write_sfm_outputs(
     write_colmap_text(out / "sparse", rec)
     for f in ("cameras.txt", "images.txt", "points3D.txt"):
         written[f"sparse/{f}"] = out / "sparse" / f
-    write_ply(out / "sparse.ply", sparse_cloud(rec, frusta, frustum_depth))
-    written["sparse.ply"] = out / "sparse.ply"
+    cloud_path = write_point_cloud(out / "sparse.ply", sparse_cloud(rec, frusta, frustum_depth), cloud_format)
+    written[cloud_path.name] = cloud_path
     if rec.images:
         write_nerfstudio_transforms(out / "transforms.json", rec, image_prefix)
         written["transforms.json"] = out / "transforms.json"

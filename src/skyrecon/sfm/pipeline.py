@@ -135,7 +135,8 @@ def run_sfm(
         executor: fans out per-image and per-pair work (default :func:`skyrecon.executor.get_executor`;
             when that is the local process executor, one pool of the same size serves all stages).
         seed: seeds every random choice; a given seed gives the same result.
-        workspace: directory for cached features (reused by later runs); default a temporary
+        workspace: directory for cached features and pair matches (reused by later runs, so a
+            killed run resumes); default a temporary
             directory removed at the end.
     Returns:
         SfMResult. Images that cannot be used (unreadable, wrong size for K, duplicates, too
@@ -360,6 +361,7 @@ def _match_pairs(state: _SfMRun) -> None:
         state.seed,
         state.executor,
         state.workers,
+        str(state.cache_dir.parent / "matches"),
     )
     state.timings["matching"] = time.perf_counter() - t0
     pairs: list[PairGeometry] = []

@@ -1,0 +1,101 @@
+"""Per-task results kept in a run's workspace, so that a killed run resumes without redoing them.
+
+:func:`map_cached` is ``executor.map`` whose every finished result is stored at once, by the
+worker that computed it, as ``<cache_dir>/<key>.pkl`` (written atomically: a kill leaves the
+whole file or none). A rerun finds the results already there and runs only the missing tasks.
+The key of a task is the hash of the task itself (its pickled bytes, with the fields that do not
+change the result replaced by the caller), so any change in its input gives a new key.
+
+Results must be picklable; the files are the run's own, read back only by later runs.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import pickle
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any, TypeVar
+
+from skyrecon.executor import Executor
+from skyrecon.io.atomic import write_bytes_atomic
+
+__all__ = ["map_cached", "task_key"]
+
+T = TypeVar("T")
+R = TypeVar("R")
+
+FORMAT = "skyrecon.task-result.v1"
+
+
+def task_key(task: Any, salt: str = "") -> str:
+    """A hash (32 hex digits) of a picklable task and ``salt`` (e.g. the function's name)."""
+    h = hashlib.sha256(salt.encode())
+    h.update(pickle.dumps(task, protocol=pickle.HIGHEST_PROTOCOL))
+    return h.hexdigest()[:32]
+
+
+def _load(path: Path) -> tuple[bool, Any]:
+    try:
+        with open(path, "rb") as f:
+            doc = pickle.load(f)
+    except Exception:  # noqa: BLE001 - a missing or damaged file only means running the task again
+        return False, None
+    if not isinstance(doc, tuple) or len(doc) != 2 or doc[0] != FORMAT:
+        return False, None
+    return True, doc[1]
+
+
+def _run_and_store(fn: Callable[[T], R], path: str, item: T) -> R:
+    """Worker side: compute, then store the result atomically before returning it."""
+    result = fn(item)
+    write_bytes_atomic(path, pickle.dumps((FORMAT, result), protocol=pickle.HIGHEST_PROTOCOL))
+    return result
+
+
+def map_cached(
+    executor: Executor,
+    fn: Callable[[T], R],
+    items: Sequence[T],
+    keys: Sequence[str],
+    cache_dir: str | Path | None,
+    *,
+    desc: str | None = None,
+) -> tuple[list[R], int]:
+    """``executor.map(fn, items)`` with each result kept under ``cache_dir`` (see the module).
+
+    Args:
+        executor: where the missing tasks run.
+        fn: a picklable (module-level) function of one item.
+        items: the tasks.
+        keys: one key per item (see :func:`task_key`).
+        cache_dir: the cache folder (created when needed); None: no cache, plain ``executor.map``.
+        desc: progress-bar label.
+    Returns:
+        (results in item order, how many came from the cache).
+    """
+    if cache_dir is None:
+        return executor.map(fn, items, desc=desc), 0
+    folder = Path(cache_dir)
+    folder.mkdir(parents=True, exist_ok=True)
+    results: list[Any] = [None] * len(items)
+    missing: list[int] = []
+    for i, key in enumerate(keys):
+        ok, result = _load(folder / f"{key}.pkl")
+        if ok:
+            results[i] = result
+        else:
+            missing.append(i)
+    if missing:
+        # one partial per distinct path, so each task carries its own destination
+        jobs = [functools.partial(_run_and_store, fn, str(folder / f"{keys[i]}.pkl")) for i in missing]
+        computed = executor.map(_call, list(zip(jobs, [items[i] for i in missing])), desc=desc)
+        for i, r in zip(missing, computed):
+            results[i] = r
+    return results, len(items) - len(missing)
+
+
+def _call(job: tuple[Callable[[Any], Any], Any]) -> Any:
+    fn, item = job
+    return fn(item)
