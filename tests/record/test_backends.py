@@ -4,6 +4,10 @@ entities / topics and counts."""
 from __future__ import annotations
 
 import builtins
+import os
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -70,6 +74,17 @@ def test_rerun_recording_reads_back(tmp_path):
                 sizes[col] = len(batch.column(col)[0])
     assert sizes == {"Points3D:positions": 100, "Boxes3D:centers": 10}
     assert not list(tmp_path.glob(".run.rrd.*"))  # no temporary left beside it
+    # the viewer's own check of every archetype against its schema
+    rerun_cli = Path(sys.executable).with_name("rerun")
+    if rerun_cli.exists():
+        proc = subprocess.run(
+            [str(rerun_cli), "rrd", "verify", str(path)],
+            capture_output=True,
+            text=True,
+            env={**os.environ, "RERUN_ANALYTICS": "0"},
+            timeout=120,
+        )
+        assert proc.returncode == 0 and "verified without error" in proc.stdout + proc.stderr, proc.stderr
 
 
 def test_mcap_recording_reads_back(tmp_path):
