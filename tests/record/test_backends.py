@@ -110,13 +110,30 @@ def test_mcap_recording_reads_back(tmp_path):
     assert times == [0, 100_000_000, 200_000_000]  # the recorder's time, nanoseconds
 
 
-def test_mcap_cloud_payload(tmp_path):
-    path = _log_known(tmp_path / "run.mcap")
+def test_mcap_messages_decode_with_their_schemas(tmp_path):
+    """The Foxglove protobuf schemas in the file decode the messages: 100 points, 10 cubes of
+    0.5 m, a 3-point path, the pinhole's K."""
+    pytest.importorskip("mcap_protobuf")
     from mcap.reader import make_reader
+    from mcap_protobuf.decoder import DecoderFactory
 
+    path = _log_known(tmp_path / "run.mcap")
+    got = {}
     with open(path, "rb") as f:
-        sizes = {c.topic: len(m.data) for _, c, m in make_reader(f).iter_messages(topics=["/cloud"])}
-    assert sizes["/cloud"] >= 100 * 16  # 100 packed points (x, y, z float32, rgba)
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        for _, channel, _, msg in reader.iter_decoded_messages(
+            topics=["/cloud", "/map/voxels", "/path/flown", "/camera/calibration"]
+        ):
+            got[channel.topic] = msg
+    cloud = got["/cloud"]
+    assert cloud.frame_id == "world" and len(cloud.data) == 100 * cloud.point_stride == 1600
+    assert [f.name for f in cloud.fields] == ["x", "y", "z", "red", "green", "blue", "alpha"]
+    cubes = got["/map/voxels"].entities[0].cubes
+    assert len(cubes) == 10 and cubes[0].size.x == 0.5
+    assert len(got["/path/flown"].entities[0].lines[0].points) == 3
+    calib = got["/camera/calibration"]
+    assert (calib.width, calib.height, calib.frame_id) == (64, 48, "camera")
+    assert np.allclose(np.reshape(calib.K, (3, 3)), K.K)
 
 
 def test_caps_are_deterministic_and_respected(tmp_path):
