@@ -62,3 +62,20 @@ def test_record_refuses_an_unknown_extension_in_one_line(tmp_path, capsys):
     assert code == 2 and len(err.splitlines()) == 1, err
     assert "x.bag" in err and ".rrd" in err and ".mcap" in err
     assert not (tmp_path / "out").exists()
+
+
+def test_record_is_for_one_mission(tmp_path, capsys):
+    argv = [
+        "demo",
+        *SHORT,
+        "--missions",
+        "2",
+        "--out",
+        str(tmp_path / "o"),
+        "--record",
+        str(tmp_path / "x.rrd"),
+    ]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--record records one mission" in err, err
+    assert not (tmp_path / "x.rrd").exists()
