@@ -8,10 +8,13 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from skyrecon.errors import InputError
 from skyrecon.io.atomic import sweep_stale_temps
+
+if TYPE_CHECKING:
+    from skyrecon.record import Recorder
 
 
 class UsageError(InputError):
@@ -104,3 +107,43 @@ def add_cloud_format(parser: argparse.ArgumentParser) -> None:
         default="ply",
         help="point cloud files: PLY (default), LAS or LAZ (metres, 1 mm; LAS/LAZ need the 'geo' extra)",
     )
+
+
+def add_record_option(parser: argparse.ArgumentParser) -> None:
+    """``--record FILE``: log the run on a timeline for a viewer (see :mod:`skyrecon.record`)."""
+    parser.add_argument(
+        "--record",
+        metavar="FILE",
+        type=record_path,
+        help="log the run on a timeline for a viewer: FILE.rrd for Rerun ('rerun' extra), FILE.mcap "
+        "for Foxglove / Lichtblick ('foxglove' extra); chosen by the extension",
+    )
+
+
+def record_path(text: str) -> str:
+    """A ``--record`` value: a file name ending in ``.rrd`` or ``.mcap``."""
+    from skyrecon.record import check_record_path
+
+    try:
+        check_record_path(text)
+    except InputError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+    return text
+
+
+@contextmanager
+def recording(args: argparse.Namespace) -> Iterator[Recorder]:
+    """The recorder of ``args.record`` (a :class:`~skyrecon.record.NullRecorder` without one),
+    closed (the file moved into place) when the block ends, removed on an error."""
+    from skyrecon.record import open_recorder
+
+    path = getattr(args, "record", None)
+    with open_recorder(path) as recorder:
+        yield recorder
+    if path is not None and not getattr(args, "quiet", False):
+        size = Path(path).stat().st_size
+        info(f"wrote recording {path} ({size / 1e6:.1f} MB; open with {_viewer(path)})")
+
+
+def _viewer(path: str | Path) -> str:
+    return f"'rerun {path}'" if str(path).lower().endswith(".rrd") else "Foxglove or Lichtblick"

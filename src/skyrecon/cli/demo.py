@@ -35,7 +35,16 @@ import sys
 import time
 from collections import deque
 
-from skyrecon.cli.common import add_cloud_format, add_command, info, output_dir, positive_float, positive_int
+from skyrecon.cli.common import (
+    add_cloud_format,
+    add_command,
+    add_record_option,
+    info,
+    output_dir,
+    positive_float,
+    positive_int,
+    recording,
+)
 from skyrecon.errors import InputError
 from skyrecon.executor import get_executor
 from skyrecon.mission import MissionConfig
@@ -55,6 +64,8 @@ EXAMPLES = """  skyrecon demo                                  # one delivery, s
   skyrecon demo --movers off --out still/         # a city where nothing moves
   skyrecon demo --faults blackout@12+2,one-eye@30 --failsafe land --out faulty/
   skyrecon demo --faults random --seed 5 --out random_faults/
+  skyrecon demo --record demo.rrd                 # the flight on a timeline: 'rerun demo.rrd'
+  skyrecon demo --record demo.mcap                # the same for Foxglove / Lichtblick
 """
 
 
@@ -167,6 +178,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         type=positive_float,
         help="simulated seconds before giving up (default: from the distance)",
     )
+    add_record_option(p)
     return p
 
 
@@ -266,6 +278,8 @@ def run(args: argparse.Namespace) -> int:
     if args.missions > 1:
         if start is not None:
             raise InputError("--start/--goal fix one mission; drop them with --missions")
+        if args.record is not None:
+            raise InputError("--record records one mission; drop it with --missions")
         seeds = list(range(args.seed, args.seed + args.missions))
         if not args.quiet:
             info(f"flying {len(seeds)} missions (seeds {seeds[0]}..{seeds[-1]}) into {out}/seed_NNNN/")
@@ -290,19 +304,21 @@ def run(args: argparse.Namespace) -> int:
                 f"{sc.shortest.length_m:.0f} m); the drone has no map yet"
             )
 
-    try:
-        outcome = fly_and_write(
-            args.seed,
-            out,
-            cfg,
-            start,
-            goal,
-            on_cycle=progress,
-            on_scenario=announce,
-            cloud_format=args.format,
-        )
-    finally:
-        progress.close()
+    with recording(args) as recorder:
+        try:
+            outcome = fly_and_write(
+                args.seed,
+                out,
+                cfg,
+                start,
+                goal,
+                on_cycle=progress,
+                on_scenario=announce,
+                cloud_format=args.format,
+                recorder=recorder,
+            )
+        finally:
+            progress.close()
     doc = outcome.doc
     report = os.path.abspath(out / "report.html")
     if outcome.refused:

@@ -32,7 +32,15 @@ from typing import Any
 import numpy as np
 
 from skyrecon.cli.bag_options import add_bag_options, bag_topics
-from skyrecon.cli.common import add_cloud_format, add_command, info, positive_float, positive_int
+from skyrecon.cli.common import (
+    add_cloud_format,
+    add_command,
+    add_record_option,
+    info,
+    positive_float,
+    positive_int,
+    recording,
+)
 from skyrecon.core.rigid import Rigid3
 from skyrecon.errors import InputError
 from skyrecon.io.atomic import make_temp_dir, sweep_stale_temps
@@ -56,6 +64,8 @@ from skyrecon.mapping import (
 )
 from skyrecon.planning.geo_export import write_footprint_geojson
 from skyrecon.progress import progress
+from skyrecon.record import NullRecorder, Recorder
+from skyrecon.record.sequence import MapRecording
 
 EXAMPLES = """  skyrecon map flight/ --out flight_map/ --voxel-size 0.2
   skyrecon map flight/ --depth depth_2 --out gt_map/        # use depth maps instead of stereo
@@ -63,6 +73,7 @@ EXAMPLES = """  skyrecon map flight/ --out flight_map/ --voxel-size 0.2
   skyrecon map fused.ply --origin 0 0 30 --out cloud_map/
   skyrecon map flight.mcap --left-topic /stereo/left/image_raw --right-topic /stereo/right/image_raw \
       --pose-topic /stereo/left/pose --out bag_map/
+  skyrecon map flight/ --out flight_map/ --record map.rrd   # frames, depth, voxels: 'rerun map.rrd'
 """
 
 
@@ -130,6 +141,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     )
     add_cloud_format(p)
     add_bag_options(p)
+    add_record_option(p)
     return p
 
 
@@ -149,12 +161,25 @@ def run(args: argparse.Namespace) -> int:
     source = Path(args.source)
     if not source.exists():
         raise InputError("not found; give a sequence directory or a .ply point cloud", source)
-    t0 = time.perf_counter()
-    if source.is_file() and source.suffix.lower() == ".ply":
-        occ, summary, track = _map_cloud(source, args)
-    else:
-        occ, summary, track = _map_sequence(source, args)
-    seconds = time.perf_counter() - t0
+    with recording(args) as recorder:
+        t0 = time.perf_counter()
+        if source.is_file() and source.suffix.lower() == ".ply":
+            occ, summary, track = _map_cloud(source, args, recorder)
+        else:
+            occ, summary, track = _map_sequence(source, args, recorder)
+        seconds = time.perf_counter() - t0
+        _check_and_write(occ, summary, track, seconds, source, args)
+    return 0
+
+
+def _check_and_write(
+    occ: OccupancyMap,
+    summary: dict[str, Any],
+    track: np.ndarray | None,
+    seconds: float,
+    source: Path,
+    args: argparse.Namespace,
+) -> None:
     counts = occ.counts()
     if counts.get("occupied", 0) == 0:
         raise InputError(
@@ -178,11 +203,14 @@ def run(args: argparse.Namespace) -> int:
             + (f" ({summary['frames_per_s']:.1f} frames/s)" if "frames_per_s" in summary else "")
         )
         info(f"wrote {out}/map.json, blocks.npz, occupied.{args.format}, footprint.geojson, preview.png")
-    return 0
 
 
-def _map_sequence(root: Path, args: argparse.Namespace) -> tuple[OccupancyMap, dict[str, Any], np.ndarray]:
-    """(map, summary, camera track (N, 3) world metres) of a sequence: stereo, or ``--depth`` maps."""
+def _map_sequence(
+    root: Path, args: argparse.Namespace, recorder: Recorder | None = None
+) -> tuple[OccupancyMap, dict[str, Any], np.ndarray]:
+    """(map, summary, camera track (N, 3) world metres) of a sequence: stereo, or ``--depth`` maps;
+    each frame logged to ``recorder`` (:class:`~skyrecon.record.sequence.MapRecording`)."""
+    recorder = recorder or NullRecorder()
     seq = open_stereo_sequence(root, bag_topics(args))
     n = min(len(seq), args.frames or len(seq))
     odometry_summary: dict[str, Any] | None = None
@@ -201,6 +229,7 @@ def _map_sequence(root: Path, args: argparse.Namespace) -> tuple[OccupancyMap, d
         settings = StereoMapSettings(voxel_size_m=args.voxel_size, max_range_m=args.max_range).with_overrides(
             method=args.method, max_disparity=args.max_disparity, max_depth_error_m=args.max_depth_error
         )
+        observer = MapRecording(recorder, seq.timestamps_s, args.max_disparity) if recorder.enabled else None
         mapper = StereoMapper(seq.rig, settings)
         if first:
             mapper.restore(saved[1])  # type: ignore[index]
@@ -212,12 +241,18 @@ def _map_sequence(root: Path, args: argparse.Namespace) -> tuple[OccupancyMap, d
             mapper=mapper,
             first_frame=first,
             after_frame=lambda done, m: ckpt.save(done, m.resume_state()) if done < n else None,
+            on_frame=observer,
         )
         occ, timings = built.map, built.timings
     else:
         assert isinstance(seq.sequence, StereoSequence)
         depths = iter_depth_maps(sequence_depth_paths(seq.sequence, args.depth)[first:n], seq.rig.left)
         config = MapConfig(voxel_size_m=args.voxel_size, max_range_m=args.max_range)
+        observer = (
+            MapRecording(recorder, seq.timestamps_s, image_of=lambda i: seq.frame(i)[0])
+            if recorder.enabled
+            else None
+        )
         built_d = map_depth_sequence(
             progress(depths, total=n, initial=first, desc="map frames"),
             seq.rig.left,
@@ -226,6 +261,7 @@ def _map_sequence(root: Path, args: argparse.Namespace) -> tuple[OccupancyMap, d
             resume=saved[1] if first else None,  # type: ignore[index]
             first_frame=first,
             after_frame=lambda done, b: ckpt.save(done, b) if done < n else None,
+            on_frame=observer,
         )
         occ, timings = built_d.map, built_d.timings
     summary_ckpt = {"resumed_from_frame": first, "checkpoints_written": ckpt.saves}
@@ -248,6 +284,8 @@ def _map_sequence(root: Path, args: argparse.Namespace) -> tuple[OccupancyMap, d
     summary["flown_free_voxels"] = occ.mark_flown_free(track, args.vehicle_radius)
     summary["vehicle_radius_m"] = args.vehicle_radius
     summary["checkpoint"] = summary_ckpt
+    if observer is not None:
+        observer.finish(occ)
     return occ, summary, track
 
 
@@ -300,8 +338,12 @@ def _odometry_poses(seq: StereoInput, n: int) -> tuple[list[Rigid3], dict[str, A
     return result.odometry, brief
 
 
-def _map_cloud(path: Path, args: argparse.Namespace) -> tuple[OccupancyMap, dict[str, Any], None]:
-    """(map, summary, no track) of a point cloud seen from ``--origin``."""
+def _map_cloud(
+    path: Path, args: argparse.Namespace, recorder: Recorder | None = None
+) -> tuple[OccupancyMap, dict[str, Any], None]:
+    """(map, summary, no track) of a point cloud seen from ``--origin``; the cloud and the occupied
+    voxels logged to ``recorder``."""
+    recorder = recorder or NullRecorder()
     if args.origin is None:
         raise InputError(
             "a point cloud needs the sensor position it was seen from: add --origin X Y Z (world, metres)",
@@ -312,6 +354,10 @@ def _map_cloud(path: Path, args: argparse.Namespace) -> tuple[OccupancyMap, dict
         raise InputError("the point cloud is empty", path)
     occ = OccupancyMap(voxel_size_m=args.voxel_size, max_range_m=args.max_range)
     occ.integrate_points(cloud.points.astype(np.float64), np.asarray(args.origin, dtype=np.float64))
+    if recorder.enabled:
+        recorder.set_time(0.0, 0)
+        recorder.log_points("cloud", cloud.points, cloud.colors)
+        recorder.log_voxels("map/occupied", occ.occupied_centers(), occ.voxel_size)
     return occ, {"source": str(path), "frames": 1, "points": len(cloud)}, None
 
 

@@ -17,7 +17,16 @@ from typing import Any
 
 import numpy as np
 
-from skyrecon.cli.common import add_cloud_format, add_command, info, output_dir, positive_float, positive_int
+from skyrecon.cli.common import (
+    add_cloud_format,
+    add_command,
+    add_record_option,
+    info,
+    output_dir,
+    positive_float,
+    positive_int,
+    recording,
+)
 from skyrecon.core import PosedView
 from skyrecon.errors import EstimationError
 from skyrecon.executor import get_executor
@@ -28,12 +37,14 @@ from skyrecon.mvs.planar_prior import PlanarPriorSettings
 from skyrecon.mvs.preview import render_cloud
 from skyrecon.mvs.settings import DEPTH_METHODS, FUSION_METHODS
 from skyrecon.mvs.topology import TOPOLOGIES
+from skyrecon.record.reconstruction import log_mvs
 from skyrecon.report.figures import contact_sheet
 
 EXAMPLES = """  skyrecon mvs fountain/images --cameras fountain/cameras --out fountain_mvs/
   skyrecon mvs temple/ --cameras temple/templeR_par.txt --out temple_mvs/ --max-image-size 640
   skyrecon mvs run/images --cameras run/sparse --out dense/ --mesh      # cameras from skyrecon sfm
   skyrecon mvs rock/images --cameras rock/calib --topology 360 --fusion concat --out rock_concat/
+  skyrecon mvs run/images --cameras run/sparse --out dense/ --record dense.rrd   # 'rerun dense.rrd'
 """
 
 
@@ -112,6 +123,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     )
     add_cloud_format(p)
     p.add_argument("--seed", type=int, default=0, help="seed of every random choice (same seed, same result)")
+    add_record_option(p)
     return p
 
 
@@ -146,6 +158,9 @@ def run(args: argparse.Namespace) -> int:
         raise EstimationError(f"no 3D points were reconstructed: {why} (details in {out / 'mvs.json'})")
     paths = save_mvs_result(result, out, settings, args.format)
     _pictures(result, views, out)
+    with recording(args) as recorder:
+        if recorder.enabled:
+            log_mvs(recorder, views, result)
     if not args.quiet:
         for warning in result.warnings:
             info(f"warning: {warning}")

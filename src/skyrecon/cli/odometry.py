@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from skyrecon.cli.bag_options import add_bag_options, bag_topics
-from skyrecon.cli.common import add_command, info, output_dir, positive_int
+from skyrecon.cli.common import add_command, add_record_option, info, output_dir, positive_int, recording
 from skyrecon.core.rigid import Rigid3
 from skyrecon.core.stereo_rig import StereoRig
 from skyrecon.errors import InputError, SkyreconError
@@ -43,6 +43,7 @@ from skyrecon.odometry.gps import GpsFusion
 from skyrecon.odometry.report import render_odometry_report
 from skyrecon.odometry.run import OdometryEngine, OdometryRun, run_odometry, summarize_run
 from skyrecon.progress import progress
+from skyrecon.record.sequence import OdometryRecording
 
 EXAMPLES = """  skyrecon render sequence --frames 100 --out flight/ && skyrecon odometry flight/ --out vo/
   skyrecon odometry MH_01_easy/ --out vo/ --max-frames 500       # EuRoC/ASL layout (mav0/)
@@ -50,6 +51,7 @@ EXAMPLES = """  skyrecon render sequence --frames 100 --out flight/ && skyrecon 
   skyrecon odometry flight/ --out vo/ --init-pose gt              # start in the ground truth's world
   skyrecon odometry flight_bag/ --left-topic /stereo/left/image_raw --right-topic /stereo/right/image_raw \
       --pose-topic /stereo/left/pose --out vo/                     # ROS 2 bag, ROS 1 .bag or .mcap
+  skyrecon odometry flight/ --out vo/ --record vo.rrd             # poses, images, tracks: 'rerun vo.rrd'
 """
 
 
@@ -77,6 +79,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--max-frames", type=positive_int, help="use only the first N frames")
     p.add_argument("--no-loop-closure", action="store_true", help="pure odometry: no loop closure")
     add_bag_options(p)
+    add_record_option(p)
     return p
 
 
@@ -169,9 +172,13 @@ def run(args: argparse.Namespace) -> int:
                 args.gps,
             )
     frames = progress((seq.frame(i) for i in range(n)), total=n, desc="odometry", unit="frame")
-    result = run_odometry(engine, frames, seq.timestamps_s[:n], fixes, fusion)
-    summary = summarize_run(result)
     gt = seq.world_from_left[:n] if seq.world_from_left is not None else None
+    with recording(args) as recorder:
+        observer = OdometryRecording(recorder, seq.rig.left) if recorder.enabled else None
+        result = run_odometry(engine, frames, seq.timestamps_s[:n], fixes, fusion, on_frame=observer)
+        if observer is not None:
+            observer.finish(result.odometry, result.timestamps_s, result.fused, gt)
+    summary = summarize_run(result)
     metrics = _metrics(result, gt)
     _write_outputs(out, result, summary, metrics, settings, seq, args, gt, fixes, init)
     if not args.quiet:

@@ -36,13 +36,22 @@ from typing import Any
 
 import numpy as np
 
-from skyrecon.cli.common import add_cloud_format, add_command, info, output_dir, positive_int
+from skyrecon.cli.common import (
+    add_cloud_format,
+    add_command,
+    add_record_option,
+    info,
+    output_dir,
+    positive_int,
+    recording,
+)
 from skyrecon.core.intrinsics import Intrinsics
 from skyrecon.errors import InputError, SkyreconError
 from skyrecon.executor import get_executor
 from skyrecon.io.atomic import write_text_atomic
 from skyrecon.io.calib import read_K_txt
 from skyrecon.io.multiview import image_size_from_header
+from skyrecon.record.reconstruction import log_sfm
 from skyrecon.sfm import SfMResult, SfMSettings, run_sfm, write_sfm_outputs
 from skyrecon.sfm._pool import run_scoped_executor
 from skyrecon.sfm.pairs import resolve_pair_mode
@@ -51,6 +60,7 @@ EXAMPLES = """  skyrecon sfm photos/images --camera photos/K.txt --out model/
   skyrecon sfm fountain/images --camera fountain/images/K.txt --max-image-size 1024 --frusta --out fountain_sfm/
   skyrecon sfm flight/frames --camera K.txt --pairing sequential --window 8 --workers 8 --out flight_sfm/
   skyrecon render images --views 10 --out photos/ && skyrecon sfm photos/images --camera photos/K.txt --out model/
+  skyrecon sfm photos/images --camera photos/K.txt --out model/ --record model.mcap   # for Foxglove
 """
 
 #: File name endings read as images (case-insensitive).
@@ -122,6 +132,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument(
         "--workspace", help="feature cache directory, reused by later runs (default OUT/workspace)"
     )
+    add_record_option(p)
     return p
 
 
@@ -301,6 +312,9 @@ def run(args: argparse.Namespace) -> int:
     }
     summary["files"] = sorted([*files, "sfm.json"])
     write_text_atomic(out / "sfm.json", json.dumps(summary, indent=2, allow_nan=False) + "\n")
+    with recording(args) as recorder:
+        if recorder.enabled:
+            log_sfm(recorder, result.reconstruction, paths)
     _say(args, result, warnings, files, out, time.perf_counter() - t_start)
     return 0
 

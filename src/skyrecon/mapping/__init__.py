@@ -14,7 +14,7 @@ Main entry points:
 """
 
 from skyrecon.mapping.config import MapConfig
-from skyrecon.mapping.depth_sequence import DepthSequenceMap, FrameTimings, map_depth_sequence
+from skyrecon.mapping.depth_sequence import DepthSequenceMap, FrameTimings, MappedFrame, map_depth_sequence
 from skyrecon.mapping.distance import DistanceField
 from skyrecon.mapping.occupancy import (
     FREE,
@@ -57,6 +57,7 @@ __all__ = [
     "stereo_hit_range_m",
     "DepthSequenceMap",
     "FrameTimings",
+    "MappedFrame",
     "map_depth_sequence",
     "map_preview_image",
     "write_map_preview",

@@ -49,6 +49,34 @@ class FrameTimings:
 
 
 @dataclass
+class MappedFrame:
+    """One frame just integrated into a map, for an observer (e.g. a recording).
+
+    Attributes:
+        index: frame index from 0.
+        depth_m: (h, w) float32 depth integrated, metres along the optical axis, NaN invalid.
+        camera: the pinhole of ``depth_m``.
+        world_from_cam: the frame's pose (``p_world = R p_cam + t``, metres).
+        map: the map after this frame.
+        image: (H, W, 3) uint8 RGB left image, when the frame has one at hand.
+        disparity: (H, W) float32 disparity of a stereo frame, pixels, NaN invalid.
+    """
+
+    index: int
+    depth_m: np.ndarray
+    camera: Intrinsics
+    world_from_cam: Rigid3
+    map: OccupancyMap
+    image: np.ndarray | None = None
+    disparity: np.ndarray | None = None
+
+
+def as_rigid(pose: Rigid3 | np.ndarray) -> Rigid3:
+    """A pose given as :class:`Rigid3` or a (4, 4) / (3, 4) matrix, as :class:`Rigid3`."""
+    return pose if isinstance(pose, Rigid3) else Rigid3.from_matrix(np.asarray(pose, dtype=np.float64))
+
+
+@dataclass
 class DepthSequenceMap:
     """A map built by :func:`map_depth_sequence`.
 
@@ -71,6 +99,7 @@ def map_depth_sequence(
     resume: DepthSequenceMap | None = None,
     first_frame: int = 0,
     after_frame: Callable[[int, DepthSequenceMap], object] | None = None,
+    on_frame: Callable[[MappedFrame], None] | None = None,
 ) -> DepthSequenceMap:
     """Build an occupancy map from depth images of one camera, one frame at a time.
 
@@ -87,6 +116,7 @@ def map_depth_sequence(
         first_frame: index of the first frame ``depths`` yields.
         after_frame: optional ``after_frame(done, built)`` after each frame (``done`` frames are
             in the map), e.g. to write a checkpoint.
+        on_frame: optional observer called with each :class:`MappedFrame` (not timed).
     Raises:
         InputError: more frames than poses, no frame, bad depth or poses (the message names the frame).
     """
@@ -109,6 +139,8 @@ def map_depth_sequence(
             raise InputError(f"frame {i}: {exc}") from None
         timings.depth_s.append(t1 - t0)
         timings.integrate_s.append(time.perf_counter() - t1)
+        if on_frame is not None:
+            on_frame(MappedFrame(i, depth, camera, as_rigid(world_from_cam[i]), occ))
         i += 1
         if progress is not None:
             progress(i, n)

@@ -57,7 +57,7 @@ from skyrecon.core.rigid import Rigid3
 from skyrecon.core.stereo_rig import StereoRig
 from skyrecon.errors import InputError
 from skyrecon.mapping.config import MapConfig
-from skyrecon.mapping.depth_sequence import FrameTimings
+from skyrecon.mapping.depth_sequence import FrameTimings, MappedFrame, as_rigid
 from skyrecon.mapping.frame_support import FrameSupport
 from skyrecon.mapping.occupancy import IntegrationStats, OccupancyMap
 from skyrecon.perception import PerceptionSettings, StereoDepth
@@ -123,12 +123,14 @@ class StereoFrameResult:
         depth_m: (H, W) float32 depth used, metres along the left optical axis (NaN: none).
         stats: what the integration did.
         depth_s, integrate_s: wall time of stereo + depth and of the map update, seconds.
+        disparity: (H, W) float32 disparity of the matcher, pixels, NaN invalid.
     """
 
     depth_m: np.ndarray
     stats: IntegrationStats
     depth_s: float
     integrate_s: float
+    disparity: np.ndarray | None = None
 
 
 class StereoMapper:
@@ -218,7 +220,7 @@ class StereoMapper:
         t2 = time.perf_counter()
         self.timings.depth_s.append(t1 - t0)
         self.timings.integrate_s.append(t2 - t1)
-        return StereoFrameResult(depth, stats, t1 - t0, t2 - t1)
+        return StereoFrameResult(depth, stats, t1 - t0, t2 - t1, frame.disparity)
 
 
 def map_stereo_sequence(
@@ -231,6 +233,7 @@ def map_stereo_sequence(
     mapper: StereoMapper | None = None,
     first_frame: int = 0,
     after_frame: Callable[[int, StereoMapper], object] | None = None,
+    on_frame: Callable[[MappedFrame], None] | None = None,
     **overrides: Any,
 ) -> StereoMapper:
     """Build an occupancy map from a rectified stereo sequence.
@@ -249,6 +252,8 @@ def map_stereo_sequence(
             already in ``mapper``).
         after_frame: optional ``after_frame(done, mapper)`` after each frame (``done`` frames
             are in the map), e.g. to write a checkpoint.
+        on_frame: optional observer called with each :class:`MappedFrame` (image, disparity
+            and depth; not timed).
     Returns:
         The :class:`StereoMapper`: ``.map`` the map, ``.timings`` the per-frame times.
     Raises:
@@ -264,9 +269,13 @@ def map_stereo_sequence(
         if i >= n:
             raise InputError(f"frame {i}: there are only {n} poses; give one world_from_left pose per frame")
         try:
-            mapper.add_frame(left, right, world_from_left[i])
+            result = mapper.add_frame(left, right, world_from_left[i])
         except InputError as exc:
             raise InputError(f"frame {i}: {exc}") from None
+        if on_frame is not None:
+            pose = as_rigid(world_from_left[i])
+            depth, camera = result.depth_m, mapper.stereo.intrinsics
+            on_frame(MappedFrame(i, depth, camera, pose, mapper.map, left, result.disparity))
         if progress is not None:
             progress(i + 1, n)
         if after_frame is not None:

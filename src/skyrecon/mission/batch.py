@@ -26,6 +26,7 @@ from skyrecon.mission.config import MissionConfig
 from skyrecon.mission.loop import run_mission
 from skyrecon.mission.outputs import write_mission_outputs, write_refused_outputs
 from skyrecon.mission.scenario import ImpossibleMission, make_scenario
+from skyrecon.record import Recorder
 from skyrecon.report.mission_report import render_summary_report
 from skyrecon.sim import generate_city
 
@@ -78,6 +79,7 @@ def fly_and_write(
     on_cycle: Callable | None = None,
     on_scenario: Callable | None = None,
     cloud_format: str = "ply",
+    recorder: Recorder | None = None,
 ) -> Outcome:
     """Generate the scenario, fly it and write every output to ``out``.
 
@@ -90,6 +92,7 @@ def fly_and_write(
         on_cycle: progress callback ``(CycleRecord, Navigator)`` per cycle.
         on_scenario: called with the Scenario before take-off.
         cloud_format: ``ply``, ``las`` or ``laz`` for the map's occupied-voxel cloud.
+        recorder: logs the flight for a viewer (:mod:`skyrecon.record`), or None.
     """
     out = Path(out)
     try:
@@ -104,7 +107,7 @@ def fly_and_write(
         return Outcome(doc, True, out)
     if on_scenario is not None:
         on_scenario(scenario)
-    result = run_mission(scenario, cfg, on_cycle=on_cycle)
+    result = run_mission(scenario, cfg, on_cycle=on_cycle, recorder=recorder)
     doc = write_mission_outputs(result, out, cloud_format=cloud_format)
     return Outcome(doc, False, out)
 

@@ -75,6 +75,8 @@ from skyrecon.mission.world_monitor import WorldMonitor
 from skyrecon.odometry.types import TrackingState
 from skyrecon.perception import StereoDepth
 from skyrecon.perception.movers import MoverSettings, MoverTracker
+from skyrecon.record import NullRecorder, Recorder
+from skyrecon.record.mission import MissionRecording
 from skyrecon.sim import render_stereo
 from skyrecon.sim.faults import Delivery, Fault, FaultInjector, parse_faults
 
@@ -502,6 +504,7 @@ def run_mission(
     on_cycle: Callable[[CycleRecord, Navigator], None] | None = None,
     keep_frames: int = 4,
     pose_source: PoseSource | None = None,
+    recorder: Recorder | None = None,
 ) -> MissionResult:
     """Fly one mission in closed loop (see the module docstring).
 
@@ -511,6 +514,8 @@ def run_mission(
         on_cycle: called after every cycle with its record and the navigator (progress display).
         keep_frames: how many evenly spread camera frames to keep for the report.
         pose_source: where the drone's pose comes from (None: ``cfg.pose_source``).
+        recorder: logs every cycle for a viewer (:mod:`skyrecon.record.mission`); outside the
+            timed stages, so the loop rate is not affected.
     Returns:
         MissionResult (never raises for a failed flight: ``success`` and ``reason`` say how it ended).
     """
@@ -561,6 +566,14 @@ def run_mission(
     believed = state
     reading = PoseReading(state.cam_from_world().inverse().with_frames("world", "left"), TrackingState.OK)
     est_from_world = Rigid3.identity("est", "world")
+    recording = MissionRecording(
+        recorder or NullRecorder(),
+        rig.left,
+        cfg.voxel_size_m,
+        cfg.max_disparity,
+        scenario.start,
+        scenario.goal,
+    )
     while True:
         true_p = state.position.copy()
         ms: dict[str, float] = {}
@@ -711,6 +724,17 @@ def run_mission(
             last_frame = FrameSample(cycle, delivery.left, depth.disparity)
         if on_cycle is not None:
             on_cycle(rec, nav)
+        recording.cycle(
+            cycle,
+            state.time_s,
+            reading.world_from_left,
+            None if truth else true_world_from_left,
+            delivery.left,
+            depth,
+            nav.map,
+            plans,
+            tracker.tracks if tracker is not None else None,
+        )
         state, believed = new_state, new_believed
         cycle += 1
         ending = _ending(
@@ -723,6 +747,7 @@ def run_mission(
                 f" (last planning problem: {message})" if reason == "timeout" and message else ""
             )
             break
+    recording.finish(nav.map)
     return MissionResult(
         scenario,
         cfg,

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import time
 from collections import Counter
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -64,9 +64,12 @@ def run_odometry(
     timestamps_s: Sequence[float] | np.ndarray,
     fixes: Sequence[GpsFix] | None = None,
     fusion: GpsFusion | None = None,
+    on_frame: Callable[[FrameEstimate, np.ndarray], None] | None = None,
 ) -> OdometryRun:
     """Track every frame; with ``fixes``, feed each frame's odometry pose and the fixes received since
-    the previous frame into ``fusion`` (a fresh :class:`GpsFusion` by default)."""
+    the previous frame into ``fusion`` (a fresh :class:`GpsFusion` by default). ``on_frame`` (an
+    observer, e.g. a recording) is called with each frame's estimate and its (H, W, 3) left image,
+    outside the timed ``track`` call."""
     t = np.asarray(timestamps_s, np.float64)
     fix_t = np.array([f.time_s for f in fixes]) if fixes else np.zeros(0)
     if fixes is not None and fusion is None:
@@ -81,6 +84,8 @@ def run_odometry(
         est = engine.track(left, right, float(t[k]))
         track_ms.append(1000.0 * (time.perf_counter() - a))
         estimates.append(est)
+        if on_frame is not None:
+            on_frame(est, left)
         if fixes is not None and fusion is not None:
             hi = int(np.searchsorted(fix_t, t[k], side="right"))
             fused.append(fusion.update(float(t[k]), est.world_from_left, list(fixes[lo:hi])))
