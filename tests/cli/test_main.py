@@ -48,3 +48,47 @@ def test_out_is_a_file(tmp_path, capsys):
     assert main(["render", "stereo", "--out", str(f)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and str(f) in err[0] and "directory" in err[0]
+
+
+@pytest.mark.parametrize(
+    "raised, code, says",
+    [
+        (KeyboardInterrupt(), 130, "interrupted"),
+        ("numba", 130, "interrupted"),  # Ctrl-C inside a compiled kernel surfaces as a SystemError
+        ("sigterm", 143, "terminated"),
+    ],
+)
+def test_interruptions_are_one_line_with_their_exit_status(monkeypatch, capsys, raised, code, says):
+    from skyrecon.cli import main as main_module
+    from skyrecon.cli import warmup
+
+    def run(args):
+        if raised == "numba":
+            try:
+                raise KeyboardInterrupt()
+            except KeyboardInterrupt as e:
+                raise SystemError("<numba function> returned a result with an exception set") from e
+        if raised == "sigterm":
+            raise main_module.Terminated()
+        raise raised
+
+    monkeypatch.setattr(warmup, "run", run)
+    assert main(["warmup"]) == code
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: ") and says in err[0]
+
+
+def test_sigterm_stops_a_command_with_143(tmp_path):
+    import signal
+    import time
+
+    proc = subprocess.Popen(
+        [sys.executable, "-c", "import time, sys; from skyrecon.cli import main as m; "
+         "m.importlib.import_module('skyrecon.cli.warmup').run = lambda a: time.sleep(30); sys.exit(m.main(['warmup']))"],
+        stderr=subprocess.PIPE,
+        text=True,
+    )  # fmt: skip
+    time.sleep(3)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=20)
+    assert proc.returncode == 143 and "terminated" in err

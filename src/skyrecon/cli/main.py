@@ -110,18 +110,8 @@ def _main(argv: list[str], debug: bool) -> int:
             traceback.print_exc()
         print(f"error: {_one_line(exc)}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print(
-            "error: interrupted; outputs already written are complete, the rest were not written",
-            file=sys.stderr,
-        )
-        return 130
-    except Terminated:
-        print(
-            "error: terminated (SIGTERM); outputs already written are complete, the rest were not written",
-            file=sys.stderr,
-        )
-        return 143
+    except (KeyboardInterrupt, Terminated) as exc:
+        return _interrupted(exc)
     except OSError as exc:
         if exc.errno not in (errno.ENOSPC, errno.EDQUOT):
             return _internal_error(exc, debug)
@@ -140,7 +130,29 @@ def _main(argv: list[str], debug: bool) -> int:
         print("error: out of memory; use smaller images or fewer views at a time", file=sys.stderr)
         return 1
     except Exception as exc:  # an internal bug: say so, in one line unless --debug
+        interrupted = _interruption(exc)
+        if interrupted is not None:  # e.g. Numba's SystemError around a Ctrl-C that hit a kernel
+            return _interrupted(interrupted)
         return _internal_error(exc, debug)
+
+
+def _interruption(exc: BaseException) -> BaseException | None:
+    """The Ctrl-C or SIGTERM behind ``exc`` (its cause or context chain), if any."""
+    seen = set()
+    cur: BaseException | None = exc
+    while cur is not None and id(cur) not in seen:
+        if isinstance(cur, (KeyboardInterrupt, Terminated)):
+            return cur
+        seen.add(id(cur))
+        cur = cur.__cause__ or cur.__context__
+    return None
+
+
+def _interrupted(exc: BaseException) -> int:
+    """One line, and the exit status of an interruption: 130 (Ctrl-C) or 143 (SIGTERM)."""
+    what, code = ("terminated (SIGTERM)", 143) if isinstance(exc, Terminated) else ("interrupted", 130)
+    print(f"error: {what}; outputs already written are complete, the rest were not written", file=sys.stderr)
+    return code
 
 
 def _internal_error(exc: BaseException, debug: bool) -> int:
