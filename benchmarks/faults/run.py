@@ -86,7 +86,7 @@ def main() -> int:
     ap.add_argument("--fresh", action="store_true")
     ap.add_argument("--small", action="store_true", help="320x240 images, 100 m city, 50-90 m deliveries")
     ap.add_argument("--failsafe", default="return", choices=("return", "land", "hover"))
-    ap.add_argument("--pose-source", default="truth", choices=("truth", "odometry"))
+    ap.add_argument("--pose-source", default="truth", choices=("truth", "odometry", "gps+odometry"))
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "faults" / "out"))
     args = ap.parse_args()
     cfg = MissionConfig(faults="random", failsafe=args.failsafe, pose_source=args.pose_source)

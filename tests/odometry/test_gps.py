@@ -150,3 +150,29 @@ def test_a_long_jump_is_not_believed_over_an_odometry_that_tracks():
         else np.abs(np.diff(err))
     )
     assert step.max() < 1.5 * 0.1 + 0.5, step.max()
+
+
+def test_kalman_offset_trusts_a_good_odometry_over_biased_fixes():
+    """Odometry with 0.5 % drift from a known take-off pose; fixes with a 3 m bias for 20 s (multipath):
+    the Kalman offset stays within the odometry's drift plus a fraction of the bias, the window fit
+    takes the bias on."""
+    t, truth = _truth()
+    good = [p.with_frames("odom", "left") for p in truth]  # a good odometry (no drift)
+    rng = np.random.default_rng(2)
+    fixes = [GpsFix(t[k], truth[k].t + [0, 0, 3.0 if 20 <= t[k] < 40 else 0] + rng.normal(0, 1.0, 3), 2.5)
+             for k in range(0, len(t), 2)]  # fmt: skip
+
+    def fly(settings):
+        fusion = GpsFusion(
+            settings, Rigid3.identity("world", "odom"), rotation_known=True, estimate_rotation=False
+        )
+        out = [
+            fusion.update(tk, p, [f for f in fixes if tk - 0.1 < f.time_s <= tk], True)
+            for tk, p in zip(t, good)
+        ]
+        return np.array([np.linalg.norm(a.t - b.t) for a, b in zip(out, truth)])
+
+    kalman = fly(GpsFusionSettings(odometry_drift_fraction=0.01))
+    window = fly(GpsFusionSettings())
+    assert kalman[0] < 0.1  # the take-off position is kept, not moved onto the first fix
+    assert kalman.max() < 0.85 * window.max() and kalman[t < 20].max() < 0.5, (kalman.max(), window.max())

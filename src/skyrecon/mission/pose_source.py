@@ -152,7 +152,10 @@ class GpsOdometryPose:
         # and the odometry drifts well under 1 % of the distance: GPS fixes, metres off in a street
         # canyon, only lean on it as far as that drift allows (a Kalman offset, see GpsFusion)
         self.fusion = GpsFusion(
-            GpsFusionSettings(odometry_drift_fraction=0.01), rotation_known=True, estimate_rotation=False
+            # the receiver's bias wanders over tens of seconds: fixes within 30 s are not independent
+            GpsFusionSettings(odometry_drift_fraction=0.01, fix_correlation_s=30.0),
+            rotation_known=True,
+            estimate_rotation=False,
         )
         self.receiver = UrbanCanyonGps(city, seed)
         self._next_fix_s = 0.0

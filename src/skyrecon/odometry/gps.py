@@ -25,8 +25,8 @@ re-fitted whenever fixes arrive:
 Translation only (``estimate_rotation`` False) with ``odometry_drift_fraction`` > 0, step 2 is a
 Kalman filter on the offset instead: its variance grows as the odometry flies (``(fraction)^2 x
 100 m`` per metre: 1 % gives 1 m after 100 m, 2 m after 400 m) and each fix weighs by its stated
-accuracy, inflated for the fixes within ``fix_correlation_s`` of each other (a receiver's errors
-persist for seconds). A good odometry is then moved by the GPS only as far as its own drift
+accuracy (``vertical_accuracy_factor`` times worse vertically, as receivers are), inflated for
+the fixes within ``fix_correlation_s`` of each other (a receiver's errors persist for seconds). A good odometry is then moved by the GPS only as far as its own drift
 allows, instead of taking on the fixes' metres of multipath. With ``rotation_known`` the start
 position is taken as known to ``base_sigma_m`` as well (the odometry started from a given pose).
 
@@ -74,6 +74,7 @@ class GpsFusionSettings:
     reset_while_tracking_s: float = 60.0
     odometry_drift_fraction: float = 0.0
     fix_correlation_s: float = 2.0
+    vertical_accuracy_factor: float = 2.0
 
     def __post_init__(self) -> None:
         for name in (
@@ -133,14 +134,16 @@ class GpsFusion:
         self._fitted = self.world_from_odom  # the latest fit: what fixes are gated against
         self._kalman = not self.estimate_rotation and self.settings.odometry_drift_fraction > 0
         self._kf_t: np.ndarray | None = None  # the Kalman offset (translation only), metres
-        self._kf_var = 0.0  # its variance per axis, m^2
+        self._kf_var = np.zeros(3)  # its variance per axis (x, y, z), m^2
+        self._axis_scale = np.array([1.0, 1.0, self.settings.vertical_accuracy_factor**2])
         self._kf_last_fix_s: float | None = None
+        self._has_translation = False
         if self._kalman and self.rotation_known:
             # the odometry started from a given world pose: its position is known too, to about
             # base_sigma_m (a home position averaged before take-off), and the fixes refine it
             self._has_translation = True
-            self._kf_t, self._kf_var = self.world_from_odom.t.copy(), self.settings.base_sigma_m**2
-        self._has_translation = False
+            self._kf_t = self.world_from_odom.t.copy()
+            self._kf_var = np.full(3, self.settings.base_sigma_m**2)
         self._has_rotation = self.rotation_known or not self.estimate_rotation
 
     # ----- the public step ------------------------------------------------------------------
@@ -218,7 +221,7 @@ class GpsFusion:
                 self.world_from_odom.R, self.world_from_odom.t + (fix.position - predicted), "world", "odom"
             )
             self._fitted = self.world_from_odom
-            self._kf_t, self._kf_var = self.world_from_odom.t.copy(), fix.accuracy_m**2
+            self._kf_t, self._kf_var = self.world_from_odom.t.copy(), fix.accuracy_m**2 * self._axis_scale
             self._has_translation = True
             gate, ok = math.inf, True
         elif not self._has_rotation:
@@ -271,7 +274,7 @@ class GpsFusion:
         if inl.sum() < 0.6 * len(src):
             return False
         self._fitted = Rigid3(R, t, "world", "odom")  # the target; the output gets there rate limited
-        self._kf_t, self._kf_var = np.asarray(t, np.float64).copy(), acc**2
+        self._kf_t, self._kf_var = np.asarray(t, np.float64).copy(), acc**2 * self._axis_scale
         self._window = deque(w for w, keep in zip(self._rejected, inl) if keep)
         self._rejected.clear()
         self._since_accept_m = 0.0
@@ -283,7 +286,7 @@ class GpsFusion:
         assert self._kf_t is not None
         s = self.settings
         gap = math.inf if self._kf_last_fix_s is None else max(1e-3, fix.time_s - self._kf_last_fix_s)
-        r = fix.accuracy_m**2 * max(1.0, s.fix_correlation_s / gap)
+        r = fix.accuracy_m**2 * max(1.0, s.fix_correlation_s / gap) * self._axis_scale
         y = fix.position - (self.world_from_odom.R @ p_odom + self._kf_t)
         k = self._kf_var / (self._kf_var + r)
         self._kf_t = self._kf_t + k * y
