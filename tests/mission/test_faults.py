@@ -181,17 +181,17 @@ def test_a_starved_cpu_within_budget_is_reported_slow():
     assert "overrun" in h.check_frame(0, img, img, 0, 150.0, moved=False).reasons
 
 
-def test_no_way_to_the_goal_for_long_begins_the_failsafe(tiny_config):
+def test_no_progress_to_the_goal_for_long_begins_the_failsafe(tiny_config):
     from skyrecon.mapping import OccupancyMap
     from skyrecon.mission.failsafe import Failsafe
 
     occ = OccupancyMap(voxel_size_m=0.5)
     p = np.array([0.0, 0.0, 10.0])
-    fs = Failsafe(tiny_config.with_overrides(failsafe="return", no_path_failsafe_s=5.0))
-    assert fs.planning(0.0, False, p, occ) == "fly"
-    assert fs.planning(3.0, True, p, occ) == "fly"  # a way was found again: the clock restarts
-    assert fs.planning(4.0, False, p, occ) == "fly" and fs.planning(8.9, False, p, occ) == "fly"
-    assert fs.planning(9.0, False, p, occ) == "return"
-    assert "no way to the goal" in fs.events[-1]["reason"]
-    hover = Failsafe(tiny_config.with_overrides(failsafe="hover", no_path_failsafe_s=5.0))
-    assert hover.planning(0.0, False, p, occ) == "fly" and hover.planning(10.0, False, p, occ) == "fly"
+    fs = Failsafe(tiny_config.with_overrides(failsafe="return", no_progress_failsafe_s=5.0))
+    assert fs.progress(0.0, 50.0, p, occ) == "fly"
+    assert fs.progress(3.0, 48.5, p, occ) == "fly"  # 1.5 m closer: the clock restarts
+    assert fs.progress(7.9, 48.0, p, occ) == "fly"  # dithering half a metre is not progress
+    assert fs.progress(8.0, 49.0, p, occ) == "return"
+    assert "no progress towards the goal" in fs.events[-1]["reason"]
+    hover = Failsafe(tiny_config.with_overrides(failsafe="hover", no_progress_failsafe_s=5.0))
+    assert hover.progress(0.0, 50.0, p, occ) == "fly" and hover.progress(10.0, 50.0, p, occ) == "fly"

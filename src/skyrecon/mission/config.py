@@ -95,8 +95,8 @@ class MissionConfig:
             flown track to take-off), "land" (where it is, over observed free ground) or "hover".
         failsafe_after_s: how long the depth must stay untrustworthy before that, seconds (until
             then the drone holds a hover).
-        no_path_failsafe_s: the planner finding no way to the goal for this long (the goal or
-            the way to it stays blocked in the drone's map) triggers the same action, seconds.
+        no_progress_failsafe_s: no progress towards the goal for this long (the goal or every way
+            to it stays blocked in the drone's map) triggers the same action, seconds.
     """
 
     width: int = 640
@@ -146,7 +146,7 @@ class MissionConfig:
     faults: str = ""
     failsafe: str = "return"
     failsafe_after_s: float = 3.0
-    no_path_failsafe_s: float = 30.0
+    no_progress_failsafe_s: float = 30.0
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -202,8 +202,8 @@ class MissionConfig:
             raise InputError(f"failsafe must be return, land or hover, got {self.failsafe!r}")
         if not self.failsafe_after_s > 0:
             raise InputError(f"failsafe_after_s must be positive, got {self.failsafe_after_s}")
-        if not self.no_path_failsafe_s > 0:
-            raise InputError(f"no_path_failsafe_s must be positive, got {self.no_path_failsafe_s}")
+        if not self.no_progress_failsafe_s > 0:
+            raise InputError(f"no_progress_failsafe_s must be positive, got {self.no_progress_failsafe_s}")
         if not self.mover_horizon_s > 0:
             raise InputError(f"mover_horizon_s must be positive, got {self.mover_horizon_s}")
         if self.time_limit_s is not None and not self.time_limit_s > 0:

@@ -6,9 +6,9 @@ A state machine over the loop's cycles, as PX4 and ArduPilot specify one per fau
 * ``hold``: the depth of this cycle is not trustworthy: the drone uses none of it, brakes to a
   hover within its stopping distance (inside space it has already observed free) and waits;
   when trustworthy depth returns it flies on;
-* after ``failsafe_after_s`` of untrustworthy depth, or ``no_path_failsafe_s`` with no way to the
-  goal (the goal or every way to it stays blocked in the map: the delivery cannot go on), the
-  configured action (``failsafe``):
+* after ``failsafe_after_s`` of untrustworthy depth, or ``no_progress_failsafe_s`` without coming
+  1 m closer to the goal (the goal or every way to it stays blocked in the map: the delivery
+  cannot go on), the configured action (``failsafe``):
   ``return`` (fly back along its own flown track, which its body swept free, at the degraded
   speed, to the take-off point: outcome ``returned``), ``land`` (descend where it is when the
   column below it down to the ground is observed free: outcome ``landed``; otherwise hold), or
@@ -42,7 +42,7 @@ class Failsafe:
     mode: str = "fly"
     events: list[dict] = field(default_factory=list)
     _bad_since: float | None = None
-    _no_path_since: float | None = None
+    _best_to_goal: tuple[float, float] | None = None  # (closest distance to the goal, since when)
     _track: list[np.ndarray] = field(default_factory=list)
 
     def _log(self, t: float, decision: str, reason: str) -> None:
@@ -91,21 +91,24 @@ class Failsafe:
                 )
         return self.mode
 
-    def planning(self, t: float, found: bool, position: np.ndarray, occ: OccupancyMap) -> str:
-        """After this cycle's planning (``found``: a way to the goal is known): a way missing for
-        ``no_path_failsafe_s`` begins the configured action (``hover``: the drone keeps holding)."""
-        if found or self.mode in ("return", "land"):
-            self._no_path_since = None
+    def progress(self, t: float, to_goal_m: float, position: np.ndarray, occ: OccupancyMap) -> str:
+        """After this cycle (``to_goal_m``: the believed distance to the goal, metres): no metre
+        gained for ``no_progress_failsafe_s`` begins the configured action (``hover``: the drone
+        keeps holding). Time in a failsafe hold does not count (its own timer acts)."""
+        if self.mode != "fly" or self._best_to_goal is None or to_goal_m < self._best_to_goal[0] - 1.0:
+            self._best_to_goal = (to_goal_m, t)
             return self.mode
-        if self._no_path_since is None:
-            self._no_path_since = t
-        stuck = t - self._no_path_since
-        if stuck < self.cfg.no_path_failsafe_s or self.cfg.failsafe == "hover":
+        stuck = t - self._best_to_goal[1]
+        if stuck < self.cfg.no_progress_failsafe_s or self.cfg.failsafe == "hover":
             return self.mode
         if self.cfg.failsafe == "land" and not self.column_free(position, occ):
             return self.mode
         self.mode = self.cfg.failsafe
-        self._log(t, self.mode, f"no way to the goal for {stuck:.1f} s: the delivery cannot go on")
+        self._log(
+            t,
+            self.mode,
+            f"no progress towards the goal for {stuck:.1f} s (its way stays blocked): the delivery cannot go on",
+        )
         return self.mode
 
     def column_free(self, position: np.ndarray, occ: OccupancyMap) -> bool:
