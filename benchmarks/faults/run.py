@@ -50,13 +50,16 @@ def totals(docs: list[dict]) -> dict:
     ends: dict[str, int] = {}
     delays: dict[str, list[float]] = {}
     missed: dict[str, int] = {}
+    masked: dict[str, int] = {}
     for d in docs:
         ends[d.get("outcome") or "?"] = ends.get(d.get("outcome") or "?", 0) + 1
         end_t = d.get("flight_time_s") or 0.0
         for f in d.get("faults") or []:
             if f["onset_s"] >= end_t - 0.2:
                 continue  # the mission ended before this fault began
-            if f.get("detected_s") is None:
+            if f.get("masked"):
+                masked[f["name"]] = masked.get(f["name"], 0) + 1  # no frame arrived while it lasted
+            elif f.get("detected_s") is None:
                 missed[f["name"]] = missed.get(f["name"], 0) + 1
             else:
                 delays.setdefault(f["name"], []).append(float(f["detect_delay_s"]))
@@ -73,6 +76,7 @@ def totals(docs: list[dict]) -> dict:
             for k, v in sorted(delays.items())
         },
         "undetected": missed,
+        "masked_by_missing_frames": masked,
         "loop_ms_p99_worst": max(p99) if p99 else None,
         "loop_ms_p99_median": float(np.median(p99)) if p99 else None,
     }

@@ -195,3 +195,18 @@ def test_no_progress_to_the_goal_for_long_begins_the_failsafe(tiny_config):
     assert "no progress towards the goal" in fs.events[-1]["reason"]
     hover = Failsafe(tiny_config.with_overrides(failsafe="hover", no_progress_failsafe_s=5.0))
     assert hover.progress(0.0, 50.0, p, occ) == "fly" and hover.progress(10.0, 50.0, p, occ) == "fly"
+
+
+def test_a_fault_hidden_by_missing_frames_is_masked_not_missed(tiny_config):
+    cfg = tiny_config.with_overrides(
+        pose_source="truth", faults="drop@3+2,freeze@3.5+1,drop@6+1,latency@6.5+2:0.3", time_limit_s=12.0
+    )
+    r = run_mission(make_scenario(1, cfg), cfg)
+    rows = {(f["name"], f["onset_s"]): f for f in mission_metrics(r)["faults"]}
+    if r.records[-1].time_s < 9.0:
+        pytest.skip("the mission ended before the faults")
+    freeze = rows[("freeze", 3.5)]
+    assert freeze["masked"] and freeze["detected_s"] is None  # no frame arrived while it lasted
+    late = rows[("latency", 6.5)]
+    assert not late["masked"] and late["visible_s"] == pytest.approx(7.0, abs=0.11)
+    assert late["detected_s"] is not None and late["detect_delay_s"] <= 0.3

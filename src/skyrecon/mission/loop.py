@@ -348,11 +348,25 @@ def _fault_injector(
     return faults, injector
 
 
+#: Faults that only show in the frames' content: while no frame arrives (a ``drop``) they cannot.
+_IN_THE_FRAMES = {"blackout", "freeze", "one-eye", "latency", "glare", "noise"}
+
+
 def fault_report(faults: list[Fault], records: list[CycleRecord]) -> list[dict]:
     """Each injected fault with its onset and when the navigator's health check first revealed
-    it (``detected_s``, None if it never did, e.g. a fault after the mission ended)."""
+    it (``detected_s``, None if it never did, e.g. a fault after the mission ended).
+
+    A fault that shows only in the frames' content cannot be seen while no frame arrives (another
+    fault, ``drop``, hides it; the drone is already holding for that): ``visible_s`` is the first
+    cycle of the fault with a frame, ``detect_delay_s`` counts from then, and a fault that ended
+    before any frame arrived is ``masked`` (True) rather than undetected."""
     out = []
     for f in faults:
+        during = [r for r in records if f.onset_s - 1e-9 <= r.time_s < f.onset_s + f.duration_s]
+        visible = f.onset_s
+        if f.name in _IN_THE_FRAMES:
+            seen = next((r.time_s for r in during if "no_frame" not in r.health.split(",")), None)
+            visible = f.onset_s if seen is None else max(f.onset_s, seen)
         hit = next(
             (
                 r.time_s
@@ -363,7 +377,14 @@ def fault_report(faults: list[Fault], records: list[CycleRecord]) -> list[dict]:
         )
         row = f.to_dict()
         row["detected_s"] = None if hit is None else round(hit, 3)
-        row["detect_delay_s"] = None if hit is None else round(hit - f.onset_s, 3)
+        row["visible_s"] = round(visible, 3)
+        row["masked"] = bool(
+            f.name in _IN_THE_FRAMES
+            and during
+            and hit is None
+            and all("no_frame" in r.health.split(",") for r in during)
+        )
+        row["detect_delay_s"] = None if hit is None else round(max(0.0, hit - visible), 3)
         out.append(row)
     return out
 

@@ -280,7 +280,7 @@ def faults_section(result, metrics: dict) -> list[str]:
                 + (
                     f"; detected at {f['detected_s']} s"
                     if f.get("detected_s") is not None
-                    else "; not detected"
+                    else ("; no frame arrived while it lasted" if f.get("masked") else "; not detected")
                 ),
             )
             for f in faults
