@@ -78,6 +78,7 @@ def _install_sigterm() -> object:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit status (also used by ``python -m skyrecon``)."""
+    in_process = argv is not None  # called from Python (tests, scripts), not as the program
     argv = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in argv
     previous = _install_sigterm()
@@ -85,7 +86,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         return _main(argv, debug)
     finally:
         if previous is not None:
-            signal.signal(signal.SIGTERM, previous)  # type: ignore[arg-type]
+            # as the program, the work is done: a SIGTERM while the interpreter exits changes nothing
+            after = previous if in_process else signal.SIG_IGN
+            signal.signal(signal.SIGTERM, after)  # type: ignore[arg-type]
 
 
 def _main(argv: list[str], debug: bool) -> int:
