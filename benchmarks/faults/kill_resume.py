@@ -17,7 +17,7 @@ Usage:
   .venv/bin/python benchmarks/faults/kill_resume.py               # 20 points per command
   .venv/bin/python benchmarks/faults/kill_resume.py --points 5 --commands map
 
-Writes ``benchmarks/faults/results_kill_resume.json``.
+Writes ``benchmarks/faults/results_kill_resume.json`` (the commands run replace their entries).
 """
 
 from __future__ import annotations
@@ -128,7 +128,9 @@ def main() -> int:
             flush=True,
         )
     out_json = ROOT / "benchmarks" / "faults" / "results_kill_resume.json"
-    write_text_atomic(out_json, json.dumps(results, indent=2) + "\n")
+    earlier = json.loads(out_json.read_text()) if out_json.is_file() else {}
+    earlier.update(results)  # a run of some commands keeps the others' latest results
+    write_text_atomic(out_json, json.dumps(earlier, indent=2) + "\n")
     print(f"wrote {out_json}")
     return (
         0 if all(r["failed"] == 0 and not r["serial_vs_process_differences"] for r in results.values()) else 1

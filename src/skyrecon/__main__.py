@@ -1,5 +1,5 @@
 import sys
 
-from skyrecon.cli.main import main
+from skyrecon.cli.entry import main
 
 sys.exit(main())
