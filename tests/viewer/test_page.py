@@ -192,6 +192,9 @@ def test_cli_serves_prints_the_address_and_exits_130_on_ctrl_c(tmp_path):
         stderr=subprocess.PIPE,
         text=True,
         env=env,
+        # a shell starts background jobs (CI under nohup, say) with SIGINT ignored, which the child
+        # would inherit: give it the default a user's terminal gives
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
     try:
         url = proc.stdout.readline().strip()
