@@ -163,15 +163,16 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "--faults",
         metavar="SPEC",
         help="inject sensor and computer faults: NAME@ONSET[+DURATION][:VALUE], comma-separated "
-        "(blackout, freeze, drop, one-eye, latency, cpu, glare, noise), or 'random' (a seeded mix); "
-        "e.g. blackout@12+2,latency@20+5:0.4",
+        "(blackout, freeze, drop, one-eye, latency, cpu, glare, noise; gps-jump with --pose-source "
+        "gps+odometry), or 'random' (a seeded mix); e.g. blackout@12+2,latency@20+5:0.4",
     )
     p.add_argument(
         "--failsafe",
         choices=("return", "land", "hover"),
         default="return",
-        help="what a prolonged loss of trustworthy depth (3 s) triggers: return along the flown track "
-        "to take-off (default), land where it is over ground seen free, or hover",
+        help="what a prolonged loss of trustworthy depth (3 s), or 30 s without getting closer to the "
+        "goal, triggers: return along the flown track to take-off (default), land where it is over "
+        "ground seen free, or hover",
     )
     p.add_argument(
         "--time-limit",

@@ -175,11 +175,11 @@ class GpsOdometryPose:
                     fix = GpsFix(fix.time_s, fix.position + self.fix_offset(fix.time_s), fix.accuracy_m)
                 fixes.append(fix)
             self._next_fix_s += 1.0 / self.receiver.settings.rate_hz
-        rejected_before = self.fusion.rejected
+        n_before = len(self.fusion.updates)
         fused = self.fusion.update(  # degraded still tracks (fewer inliers), lost does not
             time_s, r.world_from_left.with_frames("odom", "left"), fixes, r.state != TrackingState.LOST
         )
-        self.rejected_fix = self.fusion.rejected > rejected_before
+        self.rejected_fix = any(not u.accepted for u in self.fusion.updates[n_before:])
         ms = r.ms + 1e3 * (time.perf_counter() - t0)
         return PoseReading(fused.with_frames("world", "left"), r.state, r.reason, ms)
 
