@@ -10,6 +10,7 @@ does the same at 20 points per command.
 
 from __future__ import annotations
 
+import os
 import signal
 import subprocess
 import sys
@@ -25,8 +26,6 @@ ENV = {"SKYRECON_PROGRESS": "0", "SKYRECON_CHECKPOINT_S": "0"}  # checkpoint aft
 
 def _skyrecon(*argv: str) -> float:
     """Run to completion; returns the wall time (s)."""
-    import os
-
     t0 = time.monotonic()
     proc = subprocess.run(
         [sys.executable, "-m", "skyrecon", *argv], capture_output=True, text=True, env={**os.environ, **ENV}

@@ -151,10 +151,15 @@ _OUTPUT_ONLY = {"out", "quiet", "debug", "format", "bt", "geo_origin", "workspac
 
 def _checkpoint(root: Path, args: argparse.Namespace, n: int) -> Checkpoint:
     """The checkpoint of this run of a sequence (see :mod:`skyrecon.io.checkpoint`)."""
-    workspace = Path(args.workspace) if args.workspace else Path(args.out) / "workspace"
     key = {k: v for k, v in sorted(vars(args).items()) if k not in _OUTPUT_ONLY and not callable(v)}
     key.update(source=str(root.resolve()), frames_used=n)
-    return Checkpoint(workspace / "map-checkpoint.pkl", key)
+    return Checkpoint(_checkpoint_path(args), key)
+
+
+def _checkpoint_path(args: argparse.Namespace) -> Path:
+    """Where the map's checkpoint lives: ``--workspace`` or ``OUT/workspace``."""
+    workspace = Path(args.workspace) if args.workspace else Path(args.out) / "workspace"
+    return workspace / "map-checkpoint.pkl"
 
 
 def run(args: argparse.Namespace) -> int:
@@ -195,7 +200,7 @@ def _check_and_write(
     out = Path(args.out)
     n_occ = _write_map_dir(occ, out, summary, track, args.bt, args.format, args.geo_origin)
     if args.workspace:  # (the default workspace went with the old OUT when the new one was swapped in)
-        Checkpoint(Path(args.workspace) / "map-checkpoint.pkl", None).clear()
+        Checkpoint(_checkpoint_path(args), None).clear()
     if not args.quiet:
         info(
             f"map of {summary.get('frames', 1)} input(s): {n_occ} occupied, {counts.get('free', 0)} free voxels "

@@ -182,7 +182,6 @@ class GpsFusion:
             ``world_from_left`` of this frame, metres.
         """
         p = np.asarray(odom_from_left.t, np.float64)
-        self._fitted = self._fitted if self._has_translation else self.world_from_odom
         if self._p_prev is not None:
             step = float(np.linalg.norm(p - self._p_prev))
             self._since_accept_m += step
