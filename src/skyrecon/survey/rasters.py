@@ -146,14 +146,13 @@ def surface_rasters(
     pick = order[starts + np.floor(quantile * (counts - 1)).astype(np.int64)]
     cells = flat_sorted[starts]
 
-    dsm = np.full(height * width, np.nan, np.float32)
-    ortho = np.zeros((height * width, 3), np.uint8)
-    per_cell = np.zeros(height * width, np.int32)
-    dsm[cells] = proj[pick, 2].astype(np.float32)
-    ortho[cells] = rgb[pick]
-    per_cell[cells] = counts
-    dsm = dsm.reshape(height, width)
-    ortho = ortho.reshape(height, width, 3)
+    dsm: np.ndarray = np.full((height, width), np.nan, np.float32)
+    ortho: np.ndarray = np.zeros((height, width, 3), np.uint8)
+    per_cell: np.ndarray = np.zeros((height, width), np.int32)
+    cell_rows, cell_cols = np.divmod(cells, width)
+    dsm[cell_rows, cell_cols] = proj[pick, 2].astype(np.float32)
+    ortho[cell_rows, cell_cols] = rgb[pick]
+    per_cell[cell_rows, cell_cols] = counts
     valid = np.isfinite(dsm)
     if fill_gaps:
         _fill_single_gaps(dsm, ortho, valid)
@@ -164,7 +163,7 @@ def surface_rasters(
         transform=(cell, 0.0, float(west), 0.0, -cell, float(north)),
         epsg=code,
         cell_m=cell,
-        points_per_cell=per_cell.reshape(height, width),
+        points_per_cell=per_cell,
     )
 
 
