@@ -10,7 +10,10 @@ SOURCE is one of:
   ``skyrecon render``) with the plain map settings;
 * a EuRoC/ASL sequence or a ROS bag / MCAP file (``--left-topic``, ``--right-topic``, ``--pose-topic``;
   see ``skyrecon.io.rosbag_input``), opened like ``skyrecon odometry`` opens it;
-* a fused point cloud (``.ply``, world frame) seen from ``--origin X Y Z``.
+* a fused point cloud (``.ply``, world frame) seen from ``--origin X Y Z``;
+* or, with ``--merge MAP_DIR ...`` and no SOURCE, earlier maps of separate flights over the same area
+  (same world frame and voxel size), merged into one by adding their evidence
+  (:func:`skyrecon.mapping.merge.merge_maps`).
 
 Writes MAP_DIR with ``map.json`` + ``blocks.npz`` (the map, see ``skyrecon.mapping.storage``),
 ``occupied.ply`` (centres of occupied voxels; ``--format las|laz`` for LAS/LAZ), ``footprint.geojson``
@@ -62,6 +65,8 @@ from skyrecon.mapping import (
     write_map_preview,
     write_octomap_bt,
 )
+from skyrecon.mapping.merge import merge_maps
+from skyrecon.mapping.occupancy import load_map
 from skyrecon.planning.geo_export import write_footprint_geojson
 from skyrecon.progress import progress
 from skyrecon.record import NullRecorder, Recorder
@@ -74,6 +79,7 @@ EXAMPLES = """  skyrecon map flight/ --out flight_map/ --voxel-size 0.2
   skyrecon map flight.mcap --left-topic /stereo/left/image_raw --right-topic /stereo/right/image_raw \
       --pose-topic /stereo/left/pose --out bag_map/
   skyrecon map flight/ --out flight_map/ --record map.rrd   # frames, depth, voxels: 'rerun map.rrd'
+  skyrecon map --merge monday_map/ tuesday_map/ --out district_map/   # one map from several flights
 """
 
 
@@ -85,7 +91,18 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         description=__doc__.split("\n\n")[0].split(": ", 1)[1],
         examples=EXAMPLES,
     )
-    p.add_argument("source", help="sequence directory (KITTI, EuRoC), ROS bag / .mcap, or .ply point cloud")
+    p.add_argument(
+        "source",
+        nargs="?",
+        help="sequence directory (KITTI, EuRoC), ROS bag / .mcap, or .ply point cloud (none with --merge)",
+    )
+    p.add_argument(
+        "--merge",
+        nargs="+",
+        metavar="MAP_DIR",
+        help="merge these maps of separate flights (same world frame and voxel size) into --out, "
+        "adding their evidence voxel by voxel",
+    )
     p.add_argument("--out", required=True, help="map directory to write")
     p.add_argument("--voxel-size", type=positive_float, default=0.2, help="voxel edge, metres (default 0.2)")
     p.add_argument(
@@ -163,6 +180,12 @@ def _checkpoint_path(args: argparse.Namespace) -> Path:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.merge:
+        if args.source:
+            raise InputError(f"give either SOURCE ({args.source}) or --merge MAP_DIR ..., not both")
+        return _merge(args)
+    if not args.source:
+        raise InputError("give a SOURCE to map (a sequence, bag or .ply) or --merge MAP_DIR ...")
     source = Path(args.source)
     if not source.exists():
         raise InputError("not found; give a sequence directory or a .ply point cloud", source)
@@ -174,6 +197,34 @@ def run(args: argparse.Namespace) -> int:
             occ, summary, track = _map_sequence(source, args, recorder)
         seconds = time.perf_counter() - t0
         _check_and_write(occ, summary, track, seconds, source, args)
+    return 0
+
+
+def _merge(args: argparse.Namespace) -> int:
+    """``--merge``: load every map, add their evidence, write the merged map directory."""
+    t0 = time.perf_counter()
+    dirs = [Path(d) for d in args.merge]
+    out = Path(args.out).resolve()
+    for d in dirs:
+        if d.resolve() == out:
+            raise InputError("--out must not be one of the maps being merged; choose another directory", d)
+    maps = [load_map(d) for d in progress(dirs, desc="loading maps")]
+    merged = merge_maps(maps, [str(d) for d in dirs])
+    summary: dict[str, Any] = {
+        "merged_from": [str(d) for d in dirs],
+        "voxel_size_m": merged.voxel_size,
+        "blocks_per_input": [int(m.grid.count) for m in maps],
+        "blocks": int(merged.grid.count),
+        "occupied_per_input": [int(len(m.occupied_centers())) for m in maps],
+        "note": "flown paths are not merged (each belongs to its own flight); their carved free space is",
+    }
+    del maps
+    n_occ = _write_map_dir(merged, Path(args.out), summary, None, args.bt, args.format, args.geo_origin)
+    if not args.quiet:
+        info(
+            f"merged {len(dirs)} maps into {args.out}: {merged.grid.count} blocks, {n_occ} occupied voxels "
+            f"({time.perf_counter() - t0:.1f} s)",
+        )
     return 0
 
 
