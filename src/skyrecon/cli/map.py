@@ -67,6 +67,8 @@ from skyrecon.mapping import (
 )
 from skyrecon.mapping.merge import merge_maps
 from skyrecon.mapping.occupancy import load_map
+from skyrecon.mapping.tiles import TiledMap, is_tiled_map
+from skyrecon.mapping.tiles import describe as describe_tiled
 from skyrecon.planning.geo_export import write_footprint_geojson
 from skyrecon.progress import progress
 from skyrecon.record import NullRecorder, Recorder
@@ -95,6 +97,13 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "source",
         nargs="?",
         help="sequence directory (KITTI, EuRoC), ROS bag / .mcap, or .ply point cloud (none with --merge)",
+    )
+    p.add_argument(
+        "--tile-size",
+        type=positive_float,
+        metavar="M",
+        help="with --merge: write a tiled map (square tiles of about M metres on disk, loaded on demand by "
+        "'skyrecon plan'), for districts too large to hold in memory at once",
     )
     p.add_argument(
         "--merge",
@@ -186,6 +195,10 @@ def run(args: argparse.Namespace) -> int:
         return _merge(args)
     if not args.source:
         raise InputError("give a SOURCE to map (a sequence, bag or .ply) or --merge MAP_DIR ...")
+    if args.tile_size:
+        raise InputError(
+            "--tile-size goes with --merge: map each flight, then merge the maps into a tiled map"
+        )
     source = Path(args.source)
     if not source.exists():
         raise InputError("not found; give a sequence directory or a .ply point cloud", source)
@@ -208,6 +221,8 @@ def _merge(args: argparse.Namespace) -> int:
     for d in dirs:
         if d.resolve() == out:
             raise InputError("--out must not be one of the maps being merged; choose another directory", d)
+    if args.tile_size:
+        return _merge_to_tiles(args, dirs, t0)
     maps = [load_map(d) for d in progress(dirs, desc="loading maps")]
     merged = merge_maps(maps, [str(d) for d in dirs])
     summary: dict[str, Any] = {
@@ -226,6 +241,54 @@ def _merge(args: argparse.Namespace) -> int:
             f"({time.perf_counter() - t0:.1f} s)",
         )
     return 0
+
+
+def _merge_to_tiles(args: argparse.Namespace, dirs: list[Path], t0: float) -> int:
+    """``--merge ... --tile-size M``: add the maps one at a time into a tiled map (memory: one input
+    map and one tile), built beside ``--out`` and swapped in at the end."""
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise InputError("--out must be a directory, but a file of that name exists", out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    sweep_stale_temps(out.parent, recursive=False)
+    tmp = make_temp_dir(out.parent, out.name)
+    try:
+        tiled = None
+        for d in progress(dirs, desc="merging maps"):
+            if is_tiled_map(d):
+                src = TiledMap.open(d)
+                pieces = ((f"{d}:{k[0]}_{k[1]}", src.region(*_tile_box(src, k))) for k in src.tile_ids())
+                config = src.config
+            else:
+                occ = load_map(d)
+                pieces = (item for item in [(str(d), occ)])
+                config = occ.config
+            if tiled is None:
+                tiled = TiledMap.create(tmp, config, args.tile_size)
+            for name, piece in pieces:
+                tiled.add_map(piece, name)
+        assert tiled is not None
+        summary = {"merged_from": [str(d) for d in dirs], **describe_tiled(tiled)}
+        (tmp / "map_summary.json").write_text(json.dumps(summary, indent=2))
+        _replace_dir(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    if not args.quiet:
+        info(
+            f"merged {len(dirs)} maps into the tiled map {out}: {summary['tiles']} tiles of "
+            f"{summary['tile_size_m']:g} m, {summary['blocks']} blocks ({time.perf_counter() - t0:.1f} s)"
+        )
+    return 0
+
+
+def _tile_box(tiled: TiledMap, key: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """World box (lo, hi) of one tile, all heights, shrunk by a millimetre so neighbours stay out."""
+    lo_z, hi_z = tiled.bounds()[0][2], tiled.bounds()[1][2]
+    size = tiled.tile_size_m
+    lo = np.array([key[0] * size + 1e-3, key[1] * size + 1e-3, lo_z - 1.0])
+    hi = np.array([(key[0] + 1) * size - 1e-3, (key[1] + 1) * size - 1e-3, hi_z + 1.0])
+    return lo, hi
 
 
 def _check_and_write(

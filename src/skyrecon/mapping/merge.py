@@ -57,23 +57,48 @@ def merge_maps(maps: Sequence[OccupancyMap], names: Sequence[str] | None = None)
     cfg = maps[0].config
     B = cfg.block_size
     lo, hi = logit(cfg.clamp_min), logit(cfg.clamp_max)
-    all_coords = np.concatenate([m.grid.block_coords for m in maps]) if maps else np.zeros((0, 3), np.int32)
-    coords = np.unique(all_coords.astype(np.int32), axis=0)
-    total = np.full((len(coords), B**3), np.nan, np.float32)
+    coords = np.zeros((0, 3), np.int32)
+    data = np.zeros((0, B**3), np.float32)
     for m in maps:
         mine = m.grid.block_coords.astype(np.int32)
-        if len(mine) == 0:
+        coords, data = add_block_evidence(coords, data, mine, m.grid.blocks.reshape(len(mine), B**3), lo, hi)
+    return OccupancyMap.from_blocks(cfg, coords, data.reshape(len(coords), B, B, B))
+
+
+def add_block_evidence(
+    coords_a: np.ndarray,
+    data_a: np.ndarray,
+    coords_b: np.ndarray,
+    data_b: np.ndarray,
+    clamp_lo: float,
+    clamp_hi: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The voxel-by-voxel sum of two sets of blocks' log-odds, clamped to [clamp_lo, clamp_hi].
+
+    Args:
+        coords_a, coords_b: (Na, 3), (Nb, 3) int block coordinates (each without repeats).
+        data_a, data_b: (Na, B^3), (Nb, B^3) float32 log-odds, NaN unknown.
+    Returns:
+        ``(coords (N, 3) int32, data (N, B^3) float32)`` over the union of the blocks, sorted by
+        coordinate; a voxel known in one input only keeps that value, unknown in both stays NaN.
+    """
+    ca, cb = np.asarray(coords_a, np.int32).reshape(-1, 3), np.asarray(coords_b, np.int32).reshape(-1, 3)
+    coords = np.unique(np.concatenate([ca, cb]), axis=0)
+    width = data_a.shape[1] if len(data_a) else data_b.shape[1]
+    total = np.full((len(coords), width), np.nan, np.float32)
+    for c, d in ((ca, data_a), (cb, data_b)):
+        if len(c) == 0:
             continue
-        rows = _rows_of(coords, mine)
-        data = m.grid.blocks.reshape(len(mine), B**3)
+        rows = _rows_of(coords, c)
         cur = total[rows]
-        both = np.isfinite(cur) & np.isfinite(data)
-        merged = np.where(np.isfinite(cur), cur, data)
-        merged[both] = cur[both] + data[both]
+        d = np.asarray(d, np.float32)
+        merged = np.where(np.isfinite(cur), cur, d)
+        both = np.isfinite(cur) & np.isfinite(d)
+        merged[both] = cur[both] + d[both]
         total[rows] = merged
     with np.errstate(invalid="ignore"):
-        np.clip(total, lo, hi, out=total)
-    return OccupancyMap.from_blocks(cfg, coords, total.reshape(len(coords), B, B, B))
+        np.clip(total, clamp_lo, clamp_hi, out=total)
+    return coords.astype(np.int32), total
 
 
 def _rows_of(sorted_unique: np.ndarray, queries: np.ndarray) -> np.ndarray:

@@ -722,7 +722,12 @@ class OccupancyMap:
 
     @classmethod
     def load(cls, directory: str | Path) -> OccupancyMap:
-        """Read a map written by :meth:`save`; raises InputError for missing or corrupt files."""
+        """Read a map written by :meth:`save` (or a tiled map, assembled whole: see
+        :mod:`skyrecon.mapping.tiles`); raises InputError for missing or corrupt files."""
+        from skyrecon.mapping.tiles import TiledMap, is_tiled_map  # tiles builds on this module
+
+        if is_tiled_map(directory):
+            return TiledMap.open(directory).to_map()
         stored = read_map_files(directory)
         try:
             return cls.from_blocks(stored.config, stored.coords, stored.log_odds)
