@@ -104,16 +104,13 @@ def add_block_evidence(
 def _rows_of(sorted_unique: np.ndarray, queries: np.ndarray) -> np.ndarray:
     """Row index in ``sorted_unique`` (lexicographically sorted (N, 3), as ``np.unique`` gives) of
     each query (M, 3); every query must be present."""
-    keys = _keys(sorted_unique)
-    q = _keys(queries)
-    rows = np.searchsorted(keys, q)
-    return rows
+    return np.searchsorted(block_keys(sorted_unique), block_keys(queries))
 
 
-def _keys(c: np.ndarray) -> np.ndarray:
+def block_keys(c: np.ndarray) -> np.ndarray:
     """One sortable int64 per block coordinate (21 bits per axis, offset to non-negative),
     ordered as ``np.unique(..., axis=0)`` orders the coordinates."""
-    c = c.astype(np.int64) + (1 << 20)
+    c = np.asarray(c).reshape(-1, 3).astype(np.int64) + (1 << 20)
     if np.any(c < 0) or np.any(c >= (1 << 21)):
         raise InputError("a map's block coordinates lie more than a million blocks from the origin")
     return (c[:, 0] << 42) | (c[:, 1] << 21) | c[:, 2]

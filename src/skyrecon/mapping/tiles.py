@@ -4,14 +4,17 @@ A city district at 0.5 m (1 km x 1 km, 100 m high) is up to 800 million voxels: 
 flight computer or a small server should hold at once. A :class:`TiledMap` keeps the same blocks
 as :class:`~skyrecon.mapping.OccupancyMap` (same voxel grid, same log-odds, NaN unknown), grouped
 into tiles of ``tile_blocks x tile_blocks`` block columns (all heights) and stored one file per tile.
-Only the tiles a query touches are read, through a cache bounded in bytes.
+A query reads only the block coordinates of the tiles it touches and the voxels it asks for: the
+log-odds files are memory-mapped, so a point query anywhere costs a file open and a binary search,
+and a region (for planning) reads only its blocks. Tiles' coordinates stay in a cache bounded in bytes.
 
 Directory layout (``map.json`` is the usual map header with ``"layout": "tiles"``)::
 
     map.json                 {"format": "skyrecon.occupancy", "version": 1, "layout": "tiles",
                               "voxel_size_m", "block_size", "tile_blocks", "config",
                               "tiles": {"tx_ty": {"generation": g, "blocks": n}}, "sources": [...]}
-    tiles/tx_ty.g<g>.npz     coords (N, 3) int32 block coordinates, log_odds (N, B, B, B) float32
+    tiles/tx_ty.g<g>.coords.npy     (N, 3) int32 block coordinates, sorted (x, then y, then z)
+    tiles/tx_ty.g<g>.log_odds.npy   (N, B, B, B) float32 log-odds of those blocks, NaN unknown
 
 Tile ``(tx, ty)`` holds the blocks with ``floor(bx / tile_blocks) == tx`` and likewise for y.
 Adding evidence (:meth:`TiledMap.add_map`, a flight's map) writes every touched tile as a new
@@ -28,7 +31,6 @@ from __future__ import annotations
 import json
 import os
 import re
-import zipfile
 from collections import OrderedDict
 from collections.abc import Iterable, Sequence
 from pathlib import Path
@@ -38,15 +40,14 @@ import numpy as np
 
 from skyrecon.errors import InputError
 from skyrecon.io.atomic import atomic_write, write_text_atomic
-from skyrecon.mapping.blocks import BlockGrid
 from skyrecon.mapping.config import MapConfig, logit
-from skyrecon.mapping.merge import add_block_evidence, check_mergeable
+from skyrecon.mapping.merge import add_block_evidence, block_keys, check_mergeable
 from skyrecon.mapping.occupancy import OccupancyMap
 from skyrecon.mapping.storage import FORMAT, HEADER, VERSION
 
 LAYOUT = "tiles"
 TILES_DIR = "tiles"
-_TILE_FILE = re.compile(r"^(-?\d+)_(-?\d+)\.g(\d+)\.npz$")
+_TILE_FILE = re.compile(r"^(-?\d+)_(-?\d+)\.g(\d+)\.(coords|log_odds)\.npy$")
 
 
 def is_tiled_map(directory: str | Path) -> bool:
@@ -73,7 +74,7 @@ class TiledMap:
         self.config = config
         self.tile_blocks = int(tile_blocks)
         self._header = header
-        self._cache: OrderedDict[tuple[int, int], tuple[BlockGrid, int]] = OrderedDict()
+        self._cache: OrderedDict[tuple[int, int], _Tile] = OrderedDict()
         self._cache_bytes = 0
         self._cache_limit = int(cache_mb * 1e6)
         self.tiles_read = 0
@@ -171,48 +172,42 @@ class TiledMap:
         return lo, hi
 
     # ----- tiles on disk ------------------------------------------------------------------------
-    def _tile_path(self, key: tuple[int, int], generation: int) -> Path:
-        return self.directory / TILES_DIR / f"{key[0]}_{key[1]}.g{generation}.npz"
+    def _tile_paths(self, key: tuple[int, int], generation: int) -> tuple[Path, Path]:
+        stem = self.directory / TILES_DIR / f"{key[0]}_{key[1]}.g{generation}"
+        return stem.with_name(stem.name + ".coords.npy"), stem.with_name(stem.name + ".log_odds.npy")
 
-    def _read_tile(self, key: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
-        """(coords (N, 3) int32, log_odds (N, B^3) float32) of a stored tile; empty when absent."""
-        B = self.block_size
-        entry = self._header["tiles"].get(_key(key))
-        if entry is None:
-            return np.zeros((0, 3), np.int32), np.zeros((0, B**3), np.float32)
-        p = self._tile_path(key, int(entry["generation"]))
-        try:
-            with np.load(p, allow_pickle=False) as z:
-                coords = np.asarray(z["coords"], np.int32)
-                data = np.asarray(z["log_odds"], np.float32).reshape(len(coords), B**3)
-        except (OSError, ValueError, KeyError, zipfile.BadZipFile, EOFError) as e:
-            raise InputError(f"unreadable map tile ({e}); rebuild the map", p) from None
-        self.tiles_read += 1
-        return coords, data
-
-    def _grid(self, key: tuple[int, int]) -> BlockGrid | None:
-        """The tile as a block grid (cached); None when the tile is not stored."""
+    def _tile(self, key: tuple[int, int]) -> _Tile | None:
+        """A stored tile (coordinates in memory, log-odds memory-mapped), cached; None when absent."""
         hit = self._cache.get(key)
         if hit is not None:
             self._cache.move_to_end(key)
-            return hit[0]
-        if _key(key) not in self._header["tiles"]:
+            return hit
+        entry = self._header["tiles"].get(_key(key))
+        if entry is None:
             return None
-        coords, data = self._read_tile(key)
-        grid = BlockGrid.from_blocks(self.block_size, np.nan, coords, data)
-        self._remember(key, grid)
-        return grid
+        B = self.block_size
+        pc, pd = self._tile_paths(key, int(entry["generation"]))
+        try:
+            coords = np.load(pc, allow_pickle=False).astype(np.int32, copy=False)
+            data = np.load(pd, mmap_mode="r", allow_pickle=False)
+            if coords.ndim != 2 or coords.shape[1] != 3 or data.shape != (len(coords), B, B, B):
+                raise ValueError(f"coords {coords.shape} and log_odds {data.shape} do not fit together")
+        except (OSError, ValueError) as e:
+            raise InputError(f"unreadable map tile ({e}); rebuild the map", pd) from None
+        self.tiles_read += 1
+        tile = _Tile(coords, block_keys(coords), data.reshape(len(coords), B**3))
+        self._remember(key, tile)
+        return tile
 
-    def _remember(self, key: tuple[int, int], grid: BlockGrid) -> None:
+    def _remember(self, key: tuple[int, int], tile: _Tile) -> None:
         old = self._cache.pop(key, None)
         if old is not None:
-            self._cache_bytes -= old[1]
-        size = int(grid.nbytes())
-        self._cache[key] = (grid, size)
-        self._cache_bytes += size
+            self._cache_bytes -= old.nbytes
+        self._cache[key] = tile
+        self._cache_bytes += tile.nbytes
         while self._cache_bytes > self._cache_limit and len(self._cache) > 1:
-            _, (_, s) = self._cache.popitem(last=False)
-            self._cache_bytes -= s
+            _, gone = self._cache.popitem(last=False)
+            self._cache_bytes -= gone.nbytes
 
     def drop_cache(self) -> None:
         """Forget every cached tile (the next query reads from disk)."""
@@ -237,8 +232,8 @@ class TiledMap:
             self._write_header()
             return 0
         tiles = self._tiles_of_blocks(coords)
-        order = np.lexsort((tiles[:, 1], tiles[:, 0]))
-        tiles, coords, data = tiles[order], coords[order], data[order]
+        order = np.lexsort((tiles[:, 1], tiles[:, 0]))  # indices only: the blocks are copied tile by tile
+        tiles = tiles[order]
         cuts = np.flatnonzero(np.any(np.diff(tiles, axis=0) != 0, axis=1)) + 1
         lo, hi = logit(self.config.clamp_min), logit(self.config.clamp_max)
         new_entries: dict[str, dict[str, int]] = {}
@@ -247,16 +242,21 @@ class TiledMap:
         try:
             for a, b in zip(np.r_[0, cuts], np.r_[cuts, len(coords)], strict=True):
                 key = (int(tiles[a, 0]), int(tiles[a, 1]))
-                old_c, old_d = self._read_tile(key)
-                c, d = add_block_evidence(old_c, old_d, coords[a:b], data[a:b], lo, hi)
+                old = self._tile(key)
+                old_c = old.coords if old is not None else np.zeros((0, 3), np.int32)
+                old_d = np.asarray(old.data) if old is not None else np.zeros((0, B**3), np.float32)
+                rows = order[a:b]
+                c, d = add_block_evidence(old_c, old_d, coords[rows], data[rows], lo, hi)
+                del old_d
+                self._cache.pop(key, None)  # its memory map is about to be replaced
                 entry = self._header["tiles"].get(_key(key))
                 gen = 0 if entry is None else int(entry["generation"]) + 1
-                p = self._tile_path(key, gen)
-                with atomic_write(p, "wb") as f:
-                    np.savez(f, coords=c, log_odds=d.reshape(len(c), B, B, B))
-                written.append(p)
+                pc, pd = self._tile_paths(key, gen)
+                for path, array in ((pc, c), (pd, d.reshape(len(c), B, B, B))):
+                    with atomic_write(path, "wb") as f:
+                        np.save(f, array, allow_pickle=False)
+                    written.append(path)
                 new_entries[_key(key)] = {"generation": gen, "blocks": int(len(c))}
-                self._remember(key, BlockGrid.from_blocks(B, np.nan, c, d))
                 zmin = min(zmin, int(c[:, 2].min()))
                 zmax = max(zmax, int(c[:, 2].max()))
         except BaseException:
@@ -266,9 +266,10 @@ class TiledMap:
                 self._cache.pop(_parse_key(k), None)
             raise
         old_files = [
-            self._tile_path(_parse_key(k), int(v["generation"]))
+            p
             for k, v in self._header["tiles"].items()
             if k in new_entries
+            for p in self._tile_paths(_parse_key(k), int(v["generation"]))
         ]
         self._header["tiles"].update(new_entries)
         self._header["sources"].append(name)
@@ -288,7 +289,11 @@ class TiledMap:
         tiles_dir = self.directory / TILES_DIR
         if not tiles_dir.is_dir():
             return
-        live = {f"{k}.g{v['generation']}.npz" for k, v in self._header["tiles"].items()}
+        live = {
+            f"{k}.g{v['generation']}.{part}.npy"
+            for k, v in self._header["tiles"].items()
+            for part in ("coords", "log_odds")
+        }
         for entry in os.scandir(tiles_dir):
             if _TILE_FILE.match(entry.name) and entry.name not in live:
                 Path(entry.path).unlink(missing_ok=True)
@@ -300,12 +305,17 @@ class TiledMap:
         vox = np.floor(p / self.voxel_size).astype(np.int64)
         out = np.full(len(p), np.nan, np.float32)
         tiles = np.floor_divide(np.floor_divide(vox[:, :2], self.block_size), self.tile_blocks)
+        blocks = np.floor_divide(vox, self.block_size)
+        local = vox - blocks * self.block_size
+        flat = (local[:, 0] * self.block_size + local[:, 1]) * self.block_size + local[:, 2]
         for key in {(int(a), int(b)) for a, b in tiles}:
-            grid = self._grid(key)
-            if grid is None:
+            tile = self._tile(key)
+            if tile is None:
                 continue
-            sel = (tiles[:, 0] == key[0]) & (tiles[:, 1] == key[1])
-            out[sel] = grid.lookup(vox[sel], fill=np.nan)
+            sel = np.flatnonzero((tiles[:, 0] == key[0]) & (tiles[:, 1] == key[1]))
+            rows = tile.rows(blocks[sel])
+            found = rows >= 0
+            out[sel[found]] = tile.data[rows[found], flat[sel[found]]]
         return out
 
     def is_occupied(self, points: np.ndarray) -> np.ndarray:
@@ -395,11 +405,27 @@ class TiledMap:
         t0, t1 = np.floor_divide(blo[:2], self.tile_blocks), np.floor_divide(bhi[:2], self.tile_blocks)
         if not (t0[0] <= key[0] <= t1[0] and t0[1] <= key[1] <= t1[1]):
             return np.zeros((0, 3), np.int32), np.zeros((0, B**3), np.float32)
-        grid = self._grid(key)
-        assert grid is not None
-        c = grid.block_coords
-        keep = np.all((c >= blo) & (c <= bhi), axis=1)
-        return c[keep], grid.blocks.reshape(len(c), B**3)[keep]
+        tile = self._tile(key)
+        assert tile is not None
+        keep = np.flatnonzero(np.all((tile.coords >= blo) & (tile.coords <= bhi), axis=1))
+        return tile.coords[keep], np.asarray(tile.data[keep])
+
+
+class _Tile:
+    """One tile: its blocks' coordinates (N, 3) int32 and sorted keys (N,) int64 in memory, their
+    log-odds (N, B^3) float32 memory-mapped (read only where asked)."""
+
+    def __init__(self, coords: np.ndarray, keys: np.ndarray, data: np.ndarray):
+        self.coords, self.keys, self.data = coords, keys, data
+        self.nbytes = int(coords.nbytes + keys.nbytes)
+
+    def rows(self, block_coords: np.ndarray) -> np.ndarray:
+        """(M,) row of each block coordinate (M, 3), -1 where the tile lacks it."""
+        q = block_keys(block_coords)
+        r = np.searchsorted(self.keys, q)
+        r = np.minimum(r, max(len(self.keys) - 1, 0))
+        ok = (len(self.keys) > 0) & (self.keys[r] == q) if len(self.keys) else np.zeros(len(q), bool)
+        return np.where(ok, r, -1)
 
 
 def build_tiled_map(
