@@ -29,6 +29,7 @@ import json
 import os
 import shutil
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -46,7 +47,8 @@ from skyrecon.cli.common import (
 )
 from skyrecon.core.rigid import Rigid3
 from skyrecon.errors import InputError
-from skyrecon.io.atomic import make_temp_dir, sweep_stale_temps
+from skyrecon.executor import get_executor
+from skyrecon.io.atomic import make_temp_dir, sweep_stale_temps, write_text_atomic
 from skyrecon.io.checkpoint import Checkpoint
 from skyrecon.io.depth_dir import iter_depth_maps, sequence_depth_paths
 from skyrecon.io.ply import read_ply
@@ -95,14 +97,15 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     )
     p.add_argument(
         "source",
-        nargs="?",
-        help="sequence directory (KITTI, EuRoC), ROS bag / .mcap, or .ply point cloud (none with --merge)",
+        nargs="*",
+        help="sequence directory (KITTI, EuRoC), ROS bag / .mcap, or .ply point cloud (none with --merge); "
+        "several sequences: one flight each, mapped side by side on the executor, then merged",
     )
     p.add_argument(
         "--tile-size",
         type=positive_float,
         metavar="M",
-        help="with --merge: write a tiled map (square tiles of about M metres on disk, loaded on demand by "
+        help="with --merge or several sequences: write a tiled map (square tiles of about M metres on disk, loaded on demand by "
         "'skyrecon plan'), for districts too large to hold in memory at once",
     )
     p.add_argument(
@@ -191,14 +194,17 @@ def _checkpoint_path(args: argparse.Namespace) -> Path:
 def run(args: argparse.Namespace) -> int:
     if args.merge:
         if args.source:
-            raise InputError(f"give either SOURCE ({args.source}) or --merge MAP_DIR ..., not both")
+            raise InputError(f"give either SOURCE ({' '.join(args.source)}) or --merge MAP_DIR ..., not both")
         return _merge(args)
     if not args.source:
         raise InputError("give a SOURCE to map (a sequence, bag or .ply) or --merge MAP_DIR ...")
+    if len(args.source) > 1:
+        return _map_flights(args)
     if args.tile_size:
         raise InputError(
-            "--tile-size goes with --merge: map each flight, then merge the maps into a tiled map"
+            "--tile-size goes with --merge or several sequences: map each flight, then merge the maps into tiles"
         )
+    args.source = args.source[0]
     source = Path(args.source)
     if not source.exists():
         raise InputError("not found; give a sequence directory or a .ply point cloud", source)
@@ -211,6 +217,100 @@ def run(args: argparse.Namespace) -> int:
         seconds = time.perf_counter() - t0
         _check_and_write(occ, summary, track, seconds, source, args)
     return 0
+
+
+@dataclass(frozen=True)
+class _FlightJob:
+    """One sequence of a multi-flight map (a picklable work item)."""
+
+    index: int
+    source: str
+    options: dict[str, Any]
+    out: str
+
+
+def _build_flight(job: _FlightJob) -> dict[str, Any]:
+    """Map one flight into ``job.out`` (a complete map directory, written atomically), unless a
+    previous run already finished it with the same options; returns its summary."""
+    out = Path(job.out)
+    done = out / "flight_done.json"
+    key = {"source": str(Path(job.source).resolve()), "options": job.options}
+    if done.is_file():
+        try:
+            old = json.loads(done.read_text())
+            if old.get("key") == key:
+                return {**old["summary"], "reused": True}
+        except (OSError, ValueError):
+            pass
+    args = argparse.Namespace(**job.options)
+    args.source, args.out, args.quiet = job.source, job.out, True
+    args.workspace = str(out.parent / f"{out.name}-workspace")
+    occ, summary, track = _map_sequence(Path(job.source), args)
+    _write_map_dir(occ, out, summary, track, False)
+    write_text_atomic(done, json.dumps({"key": key, "summary": summary}, default=str) + "\n")
+    shutil.rmtree(args.workspace, ignore_errors=True)
+    return {**summary, "reused": False}
+
+
+def _map_flights(args: argparse.Namespace) -> int:
+    """Several sequences: each flight mapped on its own (side by side on the executor, each into
+    ``WORKSPACE/flights/<k>``, reused when rerun), then merged into ``--out`` (tiled with --tile-size)."""
+    t0 = time.perf_counter()
+    if args.record:
+        raise InputError("--record takes one sequence; record the flights one at a time")
+    sources = [Path(s) for s in args.source]
+    for src in sources:
+        if not src.exists():
+            raise InputError("not found; give sequence directories (or bags)", src)
+        if src.is_file() and src.suffix.lower() == ".ply":
+            raise InputError("several sources must be sequences; map a cloud on its own", src)
+    workspace = Path(args.workspace) if args.workspace else Path(args.out) / "workspace"
+    skip = {
+        "source",
+        "out",
+        "workspace",
+        "merge",
+        "tile_size",
+        "record",
+        "quiet",
+        "debug",
+        "bt",
+        "format",
+        "geo_origin",
+        "command",
+        "func",
+    }
+    options = {k: v for k, v in sorted(vars(args).items()) if k not in skip and not callable(v)}
+    jobs = [
+        _FlightJob(k, str(src), options, str(workspace / "flights" / f"{k:03d}"))
+        for k, src in enumerate(sources)
+    ]
+    summaries = get_executor().map(_build_flight, jobs, desc="flights")
+    dirs = [Path(j.out) for j in jobs]
+    if args.tile_size:
+        code = _merge_to_tiles(args, dirs, t0)
+    else:
+        maps = [load_map(d) for d in dirs]
+        merged = merge_maps(maps, [str(s) for s in sources])
+        summary: dict[str, Any] = {
+            "flights": [
+                {"source": str(s), "frames": f.get("frames"), "reused": f.get("reused")}
+                for s, f in zip(sources, summaries, strict=True)
+            ],
+            "voxel_size_m": merged.voxel_size,
+            "blocks": int(merged.grid.count),
+            "note": "flown paths are not merged (each belongs to its own flight); their carved free space is",
+        }
+        del maps
+        n_occ = _write_map_dir(merged, Path(args.out), summary, None, args.bt, args.format, args.geo_origin)
+        if not args.quiet:
+            info(
+                f"map of {len(sources)} flights: {n_occ} occupied voxels at {args.voxel_size} m "
+                f"in {time.perf_counter() - t0:.1f} s ({sum(1 for f in summaries if f.get('reused'))} reused)"
+            )
+        code = 0
+    shutil.rmtree(workspace, ignore_errors=True)
+    return code
 
 
 def _merge(args: argparse.Namespace) -> int:
