@@ -603,6 +603,10 @@ class OccupancyMap:
         """Bytes held by the map's arrays (including spare capacity)."""
         return self.grid.nbytes() + int(self._dirty.nbytes)
 
+    def __getstate__(self) -> dict:
+        """Pickled without caches other modules keep on the map (the planner's grids)."""
+        return {k: v for k, v in self.__dict__.items() if not k.startswith("_skyrecon_")}
+
     def copy(self) -> OccupancyMap:
         m = OccupancyMap(self.config)
         m.grid = self.grid.copy()

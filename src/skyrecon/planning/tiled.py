@@ -23,7 +23,7 @@ import numpy as np
 from skyrecon.mapping.inputs import check_point3
 from skyrecon.mapping.tiles import TiledMap
 from skyrecon.planning import _geom
-from skyrecon.planning.planner import plan_path
+from skyrecon.planning.planner import Planner
 from skyrecon.planning.result import PlanResult
 
 
@@ -61,7 +61,10 @@ def plan_on_tiles(
     s = check_point3(start, "start")
     g = check_point3(goal, "goal")
     (map_lo, map_hi) = tiled.bounds()
-    lo_z, hi_z = map_lo[2], map_hi[2]
+    # heights the path may use, with room for the clearance: the rest of the column is not loaded
+    reach = clearance_m + 2.0 * tiled.voxel_size * coarse_factor
+    lo_z = max(map_lo[2], float(options.get("min_z", -np.inf)) - reach)
+    hi_z = min(map_hi[2], float(options.get("max_z", np.inf)) + reach)
     read0 = tiled.tiles_read
     # the box around start and goal grows (twice the pad each time) while the way around an
     # obstacle lies outside it, up to the whole map
@@ -70,7 +73,7 @@ def plan_on_tiles(
         lo, hi = _box(s, g, pad, lo_z, hi_z)
         if _cells(lo, hi, tiled.voxel_size) > max_direct_cells:
             break
-        result = plan_path(tiled.region(lo, hi), s, g, clearance_m, snap_radius_m=snap_radius_m, **options)
+        result = _plan(tiled.region(lo, hi), s, g, clearance_m, snap_radius_m, options)
         if result.success or result.reason not in _BOX_TOO_SMALL:
             break
     if result is not None and (
@@ -86,7 +89,7 @@ def plan_on_tiles(
     for pad in _pads(max(pad_m, 4 * coarse_voxel), s, g, map_lo, map_hi):
         lo, hi = _box(s, g, pad, lo_z, hi_z)
         coarse = tiled.coarse(coarse_factor, lo, hi)
-        route = plan_path(coarse, s, g, clearance_m, snap_radius_m=coarse_snap, **options)
+        route = _plan(coarse, s, g, clearance_m, coarse_snap, options)
         if route.success or route.reason not in _BOX_TOO_SMALL:
             break
     t_route = time.perf_counter() - t_route
@@ -110,7 +113,7 @@ def plan_on_tiles(
         # full resolution: every piece may move its ends a little (the user's ends are checked below)
         for pad in list(_pads(pad_m, a, b, map_lo, map_hi))[:3]:
             plo, phi = _box(a, b, pad, lo_z, hi_z)
-            piece = plan_path(tiled.region(plo, phi), a, b, clearance_m, snap_radius_m=coarse_snap, **options)
+            piece = _plan(tiled.region(plo, phi), a, b, clearance_m, coarse_snap, options)
             if piece.success or piece.reason not in _BOX_TOO_SMALL:
                 break
         if not piece.success:
@@ -153,6 +156,16 @@ def plan_on_tiles(
         },
         adjusted=adjusted,
     )
+
+
+def _plan(
+    occ, a: np.ndarray, b: np.ndarray, clearance_m: float, snap_radius_m: float, options: dict
+) -> PlanResult:
+    """One query on a map made for it. A :class:`Planner` of its own (not ``plan_path``'s cache, which
+    keeps every map it has seen alive): its grids go when the query ends."""
+    if occ.grid.count == 0:
+        return PlanResult.failure("start_unknown", "no mapped block around the query")
+    return Planner(occ, clearance_m, **options).plan(a, b, snap_radius_m)
 
 
 _BOX_TOO_SMALL = ("start_enclosed", "goal_enclosed", "no_path")
