@@ -190,7 +190,7 @@ class DaskExecutor:
                 except Exception:  # noqa: BLE001 - the scheduler may be gone already
                     pass
             if not isinstance(exc, Exception):  # Ctrl-C, SIGTERM: stop the local workers now
-                self.close()
+                self._close(restore_logging=False)
             raise
         finally:
             bar.close()
@@ -198,14 +198,30 @@ class DaskExecutor:
 
     def close(self) -> None:
         """Disconnect; shut down the LocalCluster this executor started (idempotent)."""
+        self._close(restore_logging=True)
+
+    def _close(self, restore_logging: bool) -> None:
         client, cluster = self._client, self._cluster
         self._client = self._cluster = None
-        for thing in (client, cluster):
-            if thing is not None:
-                try:
-                    thing.close()
-                except Exception:  # noqa: BLE001 - closing after a lost connection
-                    pass
+        if client is None and cluster is None:
+            return
+        # the workers' goodbyes (and, after Ctrl-C, the scheduler's complaints about the tasks it
+        # was handling, logged later too) are no news to the user: the command says what happened
+        loggers = [logging.getLogger(name) for name in ("distributed", "asyncio")]
+        levels = [lg.level for lg in loggers]
+        for lg in loggers:
+            lg.setLevel(logging.CRITICAL)
+        try:
+            for thing in (client, cluster):
+                if thing is not None:
+                    try:
+                        thing.close()
+                    except Exception:  # noqa: BLE001 - closing after a lost connection
+                        pass
+        finally:
+            if restore_logging:
+                for lg, level in zip(loggers, levels):
+                    lg.setLevel(level)
 
     def __enter__(self) -> DaskExecutor:
         return self
@@ -292,21 +308,11 @@ def _local_cluster(workers: int) -> tuple[Any, Any]:
         env=env,
     )
     try:
+        from skyrecon.executor_dask_plugin import QuietWorker
+
         client = Client(cluster, set_as_default=False)
-        client.run(_ignore_sigint)
+        client.register_plugin(QuietWorker())
     except BaseException:
         cluster.close()
         raise
     return cluster, client
-
-
-def _ignore_sigint() -> None:
-    """In each local worker (run on its main thread): Ctrl-C reaches the whole process group, but
-    only this process handles it (it cancels the tasks and closes the cluster), so the workers
-    print no tracebacks of their own."""
-    import signal
-
-    try:
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
-    except ValueError:  # not the main thread: leave it
-        pass
