@@ -256,7 +256,7 @@ def _drop_overruns(obj):
 def test_demo_missions_same_files_on_every_executor(dask_ex, tmp_path, monkeypatch):
     tiny = small_test_config(width=160, height=120, max_disparity=16, city_size_m=60.0,
                              min_goal_distance_m=20.0, max_goal_distance_m=35.0, map_padding_m=15.0,
-                             time_limit_s=2.0)  # fmt: skip
+                             time_limit_s=1.0)  # fmt: skip
     monkeypatch.setattr(demo_cli, "_config", lambda args: tiny)  # travels to the workers in each job
     files = {}
     for name in EXECUTORS:
