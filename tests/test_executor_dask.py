@@ -60,8 +60,9 @@ def fail_on_three(x: int) -> int:
     return x
 
 
-def die_once(marker: str, x: int) -> int:
+def die_once(marker: str, x: int | np.ndarray) -> int:
     """Kills its worker process the first time item 2 runs (the marker file records it)."""
+    x = int(np.asarray(x).flat[0])
     if x == 2 and not os.path.exists(marker):
         Path(marker).write_text("died")
         os._exit(1)
@@ -94,9 +95,11 @@ def test_large_items_are_scattered_and_give_the_same_answer(dask_ex):
     assert dask_ex.map(total, arrays) == [300_000.0 * k for k in range(3)]
 
 
-def test_a_task_whose_worker_dies_runs_again(dask_ex, tmp_path):
+@pytest.mark.parametrize("size", [1, 300_000])  # the large items are scattered: lost with the worker
+def test_a_task_whose_worker_dies_runs_again(dask_ex, tmp_path, size):
     marker = tmp_path / "died"
-    assert dask_ex.map(functools.partial(die_once, str(marker)), range(4)) == [0, 10, 20, 30]
+    items = [np.full(size, k) for k in range(4)]
+    assert dask_ex.map(functools.partial(die_once, str(marker)), items) == [0, 10, 20, 30]
     assert marker.read_text() == "died"  # the worker did die once
 
 

@@ -18,7 +18,8 @@ time. Dask is an optional extra: ``pip install 'skyrecon[dask]'``.
 Large results: :func:`skyrecon.io.task_cache.map_cached` sees ``results_via_files`` and has each
 worker leave its result in the workspace file it already writes for resume, returning only
 the path (so depth maps do not travel as pickled task results). Items over ``scatter_bytes`` are
-scattered to the cluster rather than embedded in the task graph.
+scattered to the cluster rather than embedded in the task graph (and sent again if the worker
+holding one dies).
 
 Lost workers: a task whose worker dies is run again elsewhere by the scheduler (up to Dask's
 ``distributed.scheduler.allowed-failures`` times, then a :class:`~skyrecon.errors.SkyreconError`
@@ -162,11 +163,14 @@ class DaskExecutor:
         bar = progress(total=len(items), desc=desc)
         nxt = 0
 
+        resubmitted = [0] * len(items)
+
         def submit(i: int) -> None:
             item: Any = items[i]
-            if self.scatter_bytes >= 0 and len(pickle.dumps(item, protocol=5)) > self.scatter_bytes:
+            if _pickled_size(item) > self.scatter_bytes:
                 item = client.scatter(item, hash=False)
-            fut = client.submit(fn, item, key=f"{name}-{run_id}-{i}", pure=False, retries=self.retries)
+            key = f"{name}-{run_id}-{i}-{resubmitted[i]}"
+            fut = client.submit(fn, item, key=key, pure=False, retries=self.retries)
             index[fut] = i
             ready.add(fut)
 
@@ -176,7 +180,14 @@ class DaskExecutor:
                 nxt += 1
             for fut in ready:
                 i = index.pop(fut)
-                results[i] = _result(fut, self.address)
+                value = _result(fut, self.address, resubmittable=resubmitted[i] < _RESUBMITS)
+                if value is _LOST:
+                    # its scattered item was lost with a worker (the scheduler cannot recompute
+                    # scattered data): send the item again
+                    resubmitted[i] += 1
+                    submit(i)
+                    continue
+                results[i] = value
                 fut.release()
                 bar.update(1)
                 if nxt < len(items):
@@ -236,12 +247,37 @@ class DaskExecutor:
             pass
 
 
-def _result(fut: Any, address: str) -> Any:
-    """The future's value; a task that killed its workers too often becomes a SkyreconError."""
+#: times an item is sent again after its scattered copy was lost with a worker
+_RESUBMITS = 3
+
+
+def _pickled_size(item: Any) -> int:
+    """Bytes of ``item`` pickled (0 when the standard pickle cannot: Dask's cloudpickle will)."""
+    try:
+        return len(pickle.dumps(item, protocol=5))
+    except Exception:  # noqa: BLE001 - lambdas and the like
+        return 0
+
+
+_LOST = object()
+
+
+def _result(fut: Any, address: str, resubmittable: bool) -> Any:
+    """The future's value, or ``_LOST`` when the scheduler cancelled it (its scattered input lost
+    with a worker) and it may be sent again; a task that killed its workers too often, or
+    cancelled too often, becomes a SkyreconError."""
     from distributed import KilledWorker
+    from distributed.client import FutureCancelledError
 
     try:
         return fut.result()
+    except FutureCancelledError as exc:
+        if resubmittable:
+            return _LOST
+        raise SkyreconError(
+            f"the Dask scheduler {address} cancelled a task again and again ({exc}): were its workers "
+            "restarted? run the command again"
+        ) from None
     except KilledWorker as exc:
         raise SkyreconError(
             f"a task was lost with its Dask worker again and again ({exc}); the workers of {address} may "
@@ -304,7 +340,7 @@ def _local_cluster(workers: int) -> tuple[Any, Any]:
         threads_per_worker=1,
         processes=True,
         dashboard_address=":0",  # any free port: no clash with another cluster on this machine
-        silence_logs=logging.ERROR,
+        silence_logs=logging.CRITICAL,  # what goes wrong reaches the client, which says it once
         env=env,
     )
     try:
