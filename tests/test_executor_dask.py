@@ -113,6 +113,17 @@ def test_task_cache_results_come_back_through_workspace_files(dask_ex, tmp_path)
     assert again == got and cached == 4
 
 
+def test_joining_a_cluster_checks_that_its_workers_run_this_skyrecon(dask_ex, monkeypatch):
+    with DaskExecutor(scheduler=dask_ex.address) as joined:
+        assert joined.workers == 2 and joined._cluster is None
+        assert joined.map(square_plus, [1, 2]) == [1, 4]
+    import skyrecon.executor_dask as mod
+
+    monkeypatch.setattr(mod, "code_fingerprint", lambda: "0.0.0+000000000000")  # this side only
+    with pytest.raises(InputError, match="run another skyrecon"):
+        DaskExecutor(scheduler=dask_ex.address)
+
+
 def test_close_tears_the_local_cluster_down():
     ex = DaskExecutor(1)
     cluster = ex._cluster
