@@ -1,5 +1,6 @@
 """The Dask executor: its contract (order, errors, lost workers, closing), its command-line options,
-and the same bytes as the serial and process executors for sfm, mvs and ``demo --missions``.
+and the same bytes as the serial and process executors for sfm, mvs, map of several flights and
+``demo --missions``.
 
 One 2-worker ``LocalCluster`` serves the whole module; the commands join it with ``--scheduler``
 (the path a real cluster takes, with its check that the workers run this very skyrecon).
@@ -237,6 +238,50 @@ def test_mvs_same_bytes_on_every_executor(ring, dask_ex, tmp_path):
         code, err = _cli([*argv, "--quiet", *_executor_argv(name, dask_ex)])
         assert code == 0, err
     assert sorted(p.name for p in (outs["dask"] / "depth").glob("*.pfm"))
+    assert compare_outputs(outs["process"], outs["serial"]) == []
+    assert compare_outputs(outs["dask"], outs["serial"]) == []
+
+
+@pytest.fixture(scope="module")
+def flights(tmp_path_factory) -> list[Path]:
+    """Two rendered 5-frame 160x120 stereo flights (for map)."""
+    out = []
+    for seed in (3, 4):
+        d = tmp_path_factory.mktemp(f"dask_flight{seed}")
+        argv = [
+            "render",
+            "sequence",
+            "--frames",
+            "5",
+            "--seed",
+            str(seed),
+            "--width",
+            "160",
+            "--height",
+            "120",
+        ]
+        assert main([*argv, "--out", str(d), "--quiet"]) == 0
+        out.append(d)
+    return out
+
+
+def test_map_of_several_flights_same_bytes_on_every_executor(flights, dask_ex, tmp_path):
+    outs = {}
+    for name in EXECUTORS:
+        outs[name] = tmp_path / name
+        argv = [
+            "map",
+            *map(str, flights),
+            "--depth",
+            "depth_2",
+            "--voxel-size",
+            "0.5",
+            "--out",
+            str(outs[name]),
+        ]
+        code, err = _cli([*argv, "--quiet", *_executor_argv(name, dask_ex)])
+        assert code == 0, err
+    assert (outs["dask"] / "map.json").is_file()
     assert compare_outputs(outs["process"], outs["serial"]) == []
     assert compare_outputs(outs["dask"], outs["serial"]) == []
 
