@@ -39,15 +39,17 @@ from skyrecon.cli.bag_options import add_bag_options, bag_topics
 from skyrecon.cli.common import (
     add_cloud_format,
     add_command,
+    add_executor_options,
     add_record_option,
+    describe_executor,
     info,
+    open_executor,
     positive_float,
     positive_int,
     recording,
 )
 from skyrecon.core.rigid import Rigid3
 from skyrecon.errors import InputError
-from skyrecon.executor import get_executor
 from skyrecon.io.atomic import make_temp_dir, sweep_stale_temps, write_text_atomic
 from skyrecon.io.checkpoint import Checkpoint
 from skyrecon.io.depth_dir import iter_depth_maps, sequence_depth_paths
@@ -84,6 +86,7 @@ EXAMPLES = """  skyrecon map flight/ --out flight_map/ --voxel-size 0.2
       --pose-topic /stereo/left/pose --out bag_map/
   skyrecon map flight/ --out flight_map/ --record map.rrd   # frames, depth, voxels: 'rerun map.rrd'
   skyrecon map --merge monday_map/ tuesday_map/ --out district_map/   # one map from several flights
+  skyrecon map /shared/f1 /shared/f2 /shared/f3 --executor dask --scheduler tcp://head:8786 --out /shared/map/
 """
 
 
@@ -170,6 +173,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     )
     add_cloud_format(p)
     add_bag_options(p)
+    add_executor_options(
+        p, "flights mapped side by side with several sequences (default: all cores, or $SKYRECON_WORKERS)"
+    )
     add_record_option(p)
     return p
 
@@ -279,13 +285,19 @@ def _map_flights(args: argparse.Namespace) -> int:
         "geo_origin",
         "command",
         "func",
+        "workers",  # where the flights are mapped does not change their maps
+        "executor",
+        "scheduler",
     }
     options = {k: v for k, v in sorted(vars(args).items()) if k not in skip and not callable(v)}
     jobs = [
         _FlightJob(k, str(src), options, str(workspace / "flights" / f"{k:03d}"))
         for k, src in enumerate(sources)
     ]
-    summaries = get_executor().map(_build_flight, jobs, desc="flights")
+    with open_executor(args) as executor:
+        if not args.quiet:
+            info(f"mapping {len(jobs)} flights ({describe_executor(executor)})")
+        summaries = executor.map(_build_flight, jobs, desc="flights")
     dirs = [Path(j.out) for j in jobs]
     if args.tile_size:
         code = _merge_to_tiles(args, dirs, t0)
