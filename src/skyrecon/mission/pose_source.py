@@ -119,8 +119,9 @@ class OdometryPose:
 
     @staticmethod
     def loop_settings() -> OdometrySettings:
-        """The odometry settings the delivery loop flies on."""
-        return OdometrySettings(detect_frozen=False, refine_disparity=True)
+        """The odometry settings the delivery loop flies on (loop closure off: its pose-graph solves
+        would add latency spikes to the control loop, not measured against its p99 budget yet)."""
+        return OdometrySettings(detect_frozen=False, refine_disparity=True, loop_closure=False)
 
     def read(self, left, right, time_s, disparity_px, true_world_from_left) -> PoseReading:
         t0 = time.perf_counter()
