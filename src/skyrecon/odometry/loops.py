@@ -158,8 +158,12 @@ class LoopCloser:
         path = 0.0
         if prev is not None and keyframe > 0:
             path = prev.path_m + float(np.linalg.norm(poses[keyframe][:3, 3] - poses[keyframe - 1][:3, 3]))
+        self.add_place(self.db.describe(keyframe, frame, grey, uv, points_cam, path), reinit)
+
+    def add_place(self, place: Place, reinit: bool = False) -> None:
+        """Add a described keyframe (keyframes in order, from 0); ``reinit``: it started a new track."""
         self._reinit.append(reinit)
-        self.db.add(self.db.describe(keyframe, frame, grey, uv, points_cam, path))
+        self.db.add(place)
 
     # ----- search ------------------------------------------------------------------------------
     def _reject(self, cand_frame: int, frame: int, reason: str, **extra: float) -> None:
@@ -223,6 +227,13 @@ class LoopCloser:
         self._searches += 1
         found = self._verified(query, poses)
         # forget loops of keyframes too far back to confirm anything
+        for c in self._recent:
+            if c.keyframe < query.keyframe - self.confirmations and not c.accepted:
+                self._reject(
+                    c.match_frame,
+                    c.frame,
+                    f"unconfirmed: no loop of the next {self.confirmations - 1} keyframe(s) implied the same correction",
+                )
         self._recent = [c for c in self._recent if c.keyframe >= query.keyframe - self.confirmations]
         if found is None:
             return LoopOutcome(None, "")
