@@ -7,10 +7,15 @@ altitude changes, 5 m/s, 10 frames/s, camera pitched down 12 degrees, plus fast-
 camera swings +-45 degrees at up to 90 deg/s for 3 s, twice per 100 m). Rendered with exact poses
 at 640x480 (90 degree field of view, 0.3 m baseline: the delivery drone's rig) and cached as KITTI
 sequences under ``--cache`` (rendering is the slow part; a second run reads the cache).
+Two kinds of flight (``--flights``): ``route``, the random routes above, which never come back to a
+place (``--length-m``, 500 m: 537 m flown with the swings), and ``circuit``, a closed circuit around
+a rectangle of inner streets flown 1.5 times (``--circuit-length-m``, 560 m: the second lap
+revisits about 200 m of the first), same altitude changes and yaw swings (``circuit_path``).
 
 Methods, on the same frames in the same run, both started at the true first pose:
-  skyrecon   ``skyrecon.odometry.engine.StereoOdometry`` (default settings), the trajectory after
-             its refinement (``trajectory()``);
+  skyrecon   ``skyrecon.odometry.engine.StereoOdometry`` (default settings: loop closure on), the
+             trajectory after its refinement and loop closure (``trajectory()``);
+  skyrecon-nolc  the same with ``loop_closure=False``;
   opencv     ``opencv_vo.OpenCVStereoVO``: StereoSGBM depth + goodFeaturesToTrack +
              calcOpticalFlowPyrLK + solvePnPRansac frame to frame (see that file).
 ORB-SLAM3 is not on PyPI and does not build here (no pip wheel, needs Pangolin/OpenCV C++
@@ -22,11 +27,14 @@ Scores (``skyrecon.eval.odometry_metrics``): ATE RMSE after SE(3) alignment, RPE
 absolute errors without alignment (both start at the true pose): "VO abs" (the odometry alone),
 "GPS" (the simulated urban-canyon fixes, ``skyrecon.sim.gps.simulate_gps``: 2 m horizontal / 4 m
 vertical correlated bias, 1 m noise, 20 m multipath jumps) and "GPS+VO" (``skyrecon.odometry.gps``
-fusing the two). The table shows every seed, the worst case over seeds and the ratios
-skyrecon / opencv (below 1 is better for the errors, above 1 for the rate).
+fusing the two); ATE in % of the distance; loops accepted and rejected by loop closure. The table
+shows every seed, the worst case over seeds and the ratios skyrecon / opencv (below 1 is better
+for the errors, above 1 for the rate), one table per kind of flight.
 
 Usage:
-  .venv/bin/python benchmarks/odometry/run.py                    # 3 seeds x 500 m at 640x480
+  .venv/bin/python benchmarks/odometry/run.py                    # 3 seeds x (route, circuit) at 640x480
+  .venv/bin/python benchmarks/odometry/run.py --flights circuit --seeds 1 --out c1.json   # one part,
+  .venv/bin/python benchmarks/odometry/run.py --merge c1.json c2.json r1.json   # ... parts combined
   .venv/bin/python benchmarks/odometry/run.py --quick            # 1 seed, 100 m at 320x240
   .venv/bin/python benchmarks/odometry/run.py --seeds 1 2 --length-m 300 --methods opencv
 Writes benchmarks/odometry/results.json (or --out).
@@ -327,7 +335,24 @@ def main() -> None:
     ap.add_argument("--circuit-length-m", type=float, default=560.0)
     ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "skyrecon_vo_bench")
     ap.add_argument("--out", type=Path, default=Path(__file__).with_name("results.json"))
+    ap.add_argument(
+        "--merge",
+        type=Path,
+        nargs="+",
+        metavar="JSON",
+        help="combine the rows of earlier runs (e.g. one process per seed) into one table and --out",
+    )
     args = ap.parse_args()
+    if args.merge:
+        docs = [json.loads(p.read_text()) for p in args.merge]
+        rows = [r for d in docs for r in d["rows"]]
+        methods = list(dict.fromkeys(m for d in docs for m in d["methods"]))
+        worst_rows = print_table(rows, methods)
+        doc = {**docs[0], "merged_from": [str(p) for p in args.merge], "methods": methods}
+        doc.update(rows=rows, worst=worst_rows)
+        args.out.write_text(json.dumps(doc, indent=2) + "\n")
+        print(f"wrote {args.out}")
+        return
     if args.quick:
         args.seeds, args.length_m, args.size = args.seeds[:1], 100.0, [320, 240]
         args.flights = ["route"]

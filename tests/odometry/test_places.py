@@ -5,7 +5,6 @@ import math
 
 import numpy as np
 import pytest
-
 from scipy.spatial.transform import Rotation
 
 from skyrecon.cli.main import main

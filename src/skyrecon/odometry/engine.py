@@ -19,6 +19,14 @@ disparity as it is with ``refine_disparity=False``) turns features into map poin
 keyframes and their points. Non-keyframe poses are kept relative to their reference keyframe, so
 the window's refinements reach them in :meth:`StereoOdometry.trajectory`.
 
+Loop closure (``loop_closure``, on by default; :mod:`skyrecon.odometry.loops`): each keyframe is
+described (thumbnail, ORB descriptors at its corners with their stereo points) and searched among
+the old keyframes near the current estimate; a loop that passes the two-way PnP check, the drift
+gate and a confirmation by the next keyframe goes into an SE(3) pose graph over the keyframes
+(:mod:`skyrecon.odometry.pose_graph`). The corrected keyframes carry their frames with them, and the
+map points in use and the motion prior move with the newest keyframe, so tracking continues from
+the corrected pose. :meth:`StereoOdometry.loop_report` says what was found, applied and rejected.
+
 Frames: ``world`` is the left camera of the first frame unless ``init_world_from_left`` says
 otherwise; ``left`` is the current left camera (OpenCV axes). Metres, seconds, pixels.
 """
