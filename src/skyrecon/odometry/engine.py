@@ -130,6 +130,9 @@ class OdometrySettings:
             camera or driver on real hardware. In a noise-free simulator a perfectly still drone
             also repeats its frames; turn this off there if it hovers.
         seed: seeds the RANSAC (frame ``i`` uses ``seed + i``).
+        refresh_points: at each keyframe a map point measured again by stereo becomes the
+            inverse-variance mean of its measurements (weights disparity^4), instead of keeping
+            the depth of its first, usually farthest and least precise, measurement.
         loop_closure: place recognition on keyframes, a geometric check and a pose-graph
             optimisation (:mod:`skyrecon.odometry.loops`): when the flight comes back to a place it
             saw, the keyframe poses are corrected and tracking continues from the corrected pose.
@@ -156,6 +159,7 @@ class OdometrySettings:
     refine_disparity: bool = True
     fb_threshold_px: float = 0.7
     min_disparity_px: float = 0.5
+    refresh_points: bool = True
     stereo_row_tolerance_px: float = 0.7
     ransac_threshold_px: float = 2.0
     ransac_iterations: int = 300
@@ -296,6 +300,7 @@ class StereoOdometry:
         self._estimates: list[FrameEstimate] = []
         self._kfs: list[_Keyframe] = []
         self._points: dict[int, np.ndarray] = {}
+        self._point_weight: dict[int, float] = {}
         self._next_id = 0
         self._pyr: Pyramid | None = None
         self._pts = np.zeros((0, 2), np.float32)
@@ -573,11 +578,24 @@ class StereoOdometry:
         """Create map points for features with depth and no point yet; store the keyframe's observations
         (and, with loop closure, its place: descriptors at ``pts`` with their stereo points)."""
         has_d = np.isfinite(d)
-        new = has_d & np.array([i not in self._points for i in ids.tolist()], bool)
+        known = np.array([i in self._points for i in ids.tolist()], bool)
+        new = has_d & ~known
         if np.any(new):
             Xw = self._backproject(pts[new], d[new]) @ T[:3, :3].T + T[:3, 3]
-            for i, X in zip(ids[new].tolist(), Xw):
+            for i, X, di in zip(ids[new].tolist(), Xw, d[new].tolist()):
                 self._points[i] = X
+                self._point_weight[i] = di**4
+        again = has_d & known
+        if self.settings.refresh_points and np.any(again):
+            # a point measured again (usually nearer, so far more precisely: the depth's variance
+            # grows as 1 / disparity^4) is the inverse-variance mean of its measurements; a point
+            # first seen far away would otherwise keep that far, biased depth while the drone closes in
+            Xw = self._backproject(pts[again], d[again]) @ T[:3, :3].T + T[:3, 3]
+            for i, X, di in zip(ids[again].tolist(), Xw, d[again].tolist()):
+                w_old = self._point_weight.get(i, 0.0)
+                w_new = di**4
+                self._points[i] = (w_old * self._points[i] + w_new * X) / (w_old + w_new)
+                self._point_weight[i] = w_old + w_new
         has_pt = np.array([i in self._points for i in ids.tolist()], bool)
         right_uv = pts[has_pt & has_d].astype(np.float64).copy()
         right_uv[:, 0] -= d[has_pt & has_d]
