@@ -572,11 +572,12 @@ class StereoOdometry:
         pts: np.ndarray,
         ids: np.ndarray,
         d: np.ndarray,
-        grey: np.ndarray,
-        reinit: bool,
+        grey: np.ndarray | None = None,
+        reinit: bool = False,
     ) -> None:
         """Create map points for features with depth and no point yet; store the keyframe's observations
-        (and, with loop closure, its place: descriptors at ``pts`` with their stereo points)."""
+        (and, with loop closure and the keyframe's ``grey`` image, its place: descriptors at ``pts``
+        with their stereo points; ``reinit``: the keyframe starts a new track)."""
         has_d = np.isfinite(d)
         known = np.array([i in self._points for i in ids.tolist()], bool)
         new = has_d & ~known
@@ -611,7 +612,7 @@ class StereoOdometry:
                 reinit,
             )
         )
-        if self._loops is not None:
+        if self._loops is not None and grey is not None:
             t0 = time.perf_counter()
             cam = np.full((len(pts), 3), np.nan)
             if np.any(has_d):

@@ -126,7 +126,7 @@ class LoopCloser:
         self.threshold_px = threshold_px
         self.seed = seed
         self.db = PlaceDatabase(image_size, min_path_m=min_path_m, gate_m=gate_m, gate_fraction=gate_fraction)
-        self._reinit: list[bool] = []
+        self._reinit: dict[int, bool] = {}  # keyframe -> it started a new track
         self._odom: dict[int, np.ndarray] = {}  # k -> (4, 4) kf_{k-1}_from_kf_k, fixed once used
         self._loops: list[PoseEdge] = []
         self._recent: list[_Candidate] = []  # verified loops of the last keyframes
@@ -162,7 +162,7 @@ class LoopCloser:
 
     def add_place(self, place: Place, reinit: bool = False) -> None:
         """Add a described keyframe (keyframes in order, from 0); ``reinit``: it started a new track."""
-        self._reinit.append(reinit)
+        self._reinit[place.keyframe] = reinit
         self.db.add(place)
 
     # ----- search ------------------------------------------------------------------------------
@@ -297,7 +297,7 @@ class LoopCloser:
             if Z is None:
                 Z = self._odom[k] = _inv(poses[k - 1]) @ poses[k]
             d = float(np.linalg.norm(Z[:3, 3]))
-            f = REINIT_SIGMA_FACTOR if self._reinit[k] else 1.0
+            f = REINIT_SIGMA_FACTOR if self._reinit.get(k, False) else 1.0
             edges.append(
                 PoseEdge(
                     k - 1 - n0,
