@@ -286,6 +286,21 @@ def test_map_of_several_flights_same_bytes_on_every_executor(flights, dask_ex, t
     assert compare_outputs(outs["dask"], outs["serial"]) == []
 
 
+def test_stereo_sequence_same_bytes_on_every_executor(flights, dask_ex, tmp_path):
+    outs = {}
+    for name in ["in-process", *EXECUTORS]:
+        outs[name] = tmp_path / name
+        argv = ["stereo", str(flights[0]), "--method", "skyrecon-fast", "--out", str(outs[name]), "--quiet"]
+        code, err = _cli(argv + ([] if name == "in-process" else _executor_argv(name, dask_ex)))
+        assert code == 0, err
+    frames = sorted(p.name for p in (outs["dask"] / "disparity").glob("*.pfm"))
+    assert len(frames) == 5
+    for name in EXECUTORS:  # timings aside (stereo.json), every disparity and depth file is the same
+        for sub in ("disparity", "depth"):
+            for f in frames:
+                assert (outs[name] / sub / f).read_bytes() == (outs["in-process"] / sub / f).read_bytes()
+
+
 def _mission_files(out: Path) -> dict[str, object]:
     """Every file of a batch except the pictures and reports that print loop rates; JSON without
     its timing fields."""

@@ -15,13 +15,23 @@ from __future__ import annotations
 
 import argparse
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from skyrecon.cli.bag_options import add_bag_options, bag_topics
-from skyrecon.cli.common import add_cloud_format, add_command, info, output_dir, positive_float, positive_int
+from skyrecon.cli.common import (
+    add_cloud_format,
+    add_command,
+    add_executor_options,
+    info,
+    open_executor,
+    output_dir,
+    positive_float,
+    positive_int,
+)
 from skyrecon.core.stereo_rig import StereoRig
 from skyrecon.errors import InputError
 from skyrecon.eval.stereo_metrics import evaluate_disparity
@@ -30,10 +40,10 @@ from skyrecon.io.disparity import colorize_depth, colorize_disparity, read_dispa
 from skyrecon.io.images import read_image_with_alpha, write_image
 from skyrecon.io.jsonio import write_json
 from skyrecon.io.las import write_point_cloud
-from skyrecon.io.pfm import write_pfm
+from skyrecon.io.pfm import read_pfm, write_pfm
 from skyrecon.io.rosbag_input import is_bag
 from skyrecon.io.sequence import StereoSequence, is_sequence_dir
-from skyrecon.io.stereo_input import open_stereo_sequence
+from skyrecon.io.stereo_input import StereoInput, open_stereo_sequence
 from skyrecon.progress import progress
 from skyrecon.report.figures import contact_sheet
 from skyrecon.stereo import create_matcher, disparity_to_depth, disparity_to_points, rectify_rig
@@ -85,6 +95,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--frames", type=positive_int, help="sequence: process only the first N frames")
     add_cloud_format(p)
     add_bag_options(p)
+    add_executor_options(
+        p,
+        "sequence: frames matched side by side by this many workers (default: one frame after another in "
+        "this process, which measures the real-time rate; any of --executor/--workers/--scheduler fans out)",
+    )
     return p
 
 
@@ -249,27 +264,43 @@ def _run_sequence(args: argparse.Namespace, root: Path) -> int:
         raise InputError("the sequence has no frames", root)
     out = output_dir(args.out)
     rig = seq.rig
-    matcher = create_matcher(
-        args.method, _max_disparity(args, None, rig.left.width), min_disparity=args.min_disparity
-    )
-    compute_s: list[float] = []
+    max_disparity = _max_disparity(args, None, rig.left.width)
+    sample_at = set(np.linspace(0, n - 1, min(3, n)).round().astype(int).tolist())
+    stems = [
+        seq.sequence.left_paths[i].stem if isinstance(seq.sequence, StereoSequence) else f"{i:06d}"
+        for i in range(n)
+    ]
+    fan_out = any(getattr(args, k, None) for k in ("executor", "workers", "scheduler"))
+    if fan_out:
+        chunk = max(1, min(16, -(-n // 8)))
+        jobs = [
+            _FramesJob(
+                str(root),
+                bag_topics(args),
+                args.method,
+                max_disparity,
+                args.min_disparity,
+                a,
+                min(n, a + chunk),
+                str(out),
+            )
+            for a in range(0, n, chunk)
+        ]
+        with open_executor(args) as executor:
+            compute_s = [t for part in executor.map(_match_frames, jobs, desc="stereo frames") for t in part]
+    else:
+        matcher = create_matcher(args.method, max_disparity, min_disparity=args.min_disparity)
+        compute_s = [
+            _match_frame(seq, matcher, i, out, stems[i]) for i in progress(range(n), desc="stereo frames")
+        ]
     samples: list[np.ndarray] = []
     labels: list[str] = []
-    sample_at = set(np.linspace(0, n - 1, min(3, n)).round().astype(int).tolist())
-    for i in progress(range(n), desc="stereo frames"):
-        left, right = seq.frame(i)
-        t0 = time.perf_counter()
-        result = matcher.compute(left, right)
-        depth = disparity_to_depth(result.disparity, rig)
-        compute_s.append(time.perf_counter() - t0)
-        stem = seq.sequence.left_paths[i].stem if isinstance(seq.sequence, StereoSequence) else f"{i:06d}"
-        write_pfm(out / "disparity" / f"{stem}.pfm", result.disparity)
-        write_pfm(out / "depth" / f"{stem}.pfm", depth)
-        if i in sample_at:
-            samples += [left, colorize_disparity(result.disparity)]
-            labels += [f"frame {stem}", f"disparity {stem}"]
+    for i in sorted(sample_at):
+        samples += [seq.frame(i)[0], colorize_disparity(read_pfm(out / "disparity" / f"{stems[i]}.pfm"))]
+        labels += [f"frame {stems[i]}", f"disparity {stems[i]}"]
     write_image(out / "preview.png", contact_sheet(samples, labels, columns=2))
     # the first frame includes one-time set-up (compilation, buffers): report steady state too
+    # (fanned out, each worker's first frame does; the rate is then per worker, not per run)
     steady = compute_s[1:] if len(compute_s) > 1 else compute_s
     summary = {
         "sequence": str(root),
@@ -279,6 +310,7 @@ def _run_sequence(args: argparse.Namespace, root: Path) -> int:
         "fps": round(1.0 / float(np.median(steady)), 2),
         "median_ms_per_frame": round(1000 * float(np.median(steady)), 1),
         "first_frame_ms": round(1000 * compute_s[0], 1),
+        "fanned_out": bool(fan_out),
     }
     write_json(out / "stereo.json", summary)
     if not args.quiet:
@@ -288,3 +320,42 @@ def _run_sequence(args: argparse.Namespace, root: Path) -> int:
         )
         info(f"wrote {out}/disparity/, depth/, preview.png, stereo.json")
     return 0
+
+
+@dataclass(frozen=True)
+class _FramesJob:
+    """Frames ``[first, stop)`` of a sequence to match (a picklable work item)."""
+
+    root: str
+    topics: Any
+    method: str
+    max_disparity: int
+    min_disparity: int
+    first: int
+    stop: int
+    out: str
+
+
+def _match_frames(job: _FramesJob) -> list[float]:
+    """Match a chunk of frames (on a worker): opens the sequence, writes each frame's disparity and
+    depth PFM into ``job.out``; returns the seconds each frame took."""
+    seq = open_stereo_sequence(Path(job.root), job.topics)
+    matcher = create_matcher(job.method, job.max_disparity, min_disparity=job.min_disparity)
+    out = Path(job.out)
+    times = []
+    for i in range(job.first, job.stop):
+        stem = seq.sequence.left_paths[i].stem if isinstance(seq.sequence, StereoSequence) else f"{i:06d}"
+        times.append(_match_frame(seq, matcher, i, out, stem))
+    return times
+
+
+def _match_frame(seq: StereoInput, matcher: Any, i: int, out: Path, stem: str) -> float:
+    """Frame ``i``: disparity and depth PFMs under ``out``; returns the seconds matching and depth took."""
+    left, right = seq.frame(i)
+    t0 = time.perf_counter()
+    result = matcher.compute(left, right)
+    depth = disparity_to_depth(result.disparity, seq.rig)
+    seconds = time.perf_counter() - t0
+    write_pfm(out / "disparity" / f"{stem}.pfm", result.disparity)
+    write_pfm(out / "depth" / f"{stem}.pfm", depth)
+    return seconds
