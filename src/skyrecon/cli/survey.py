@@ -75,6 +75,12 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         help="longer side of the depth maps, pixels (default 640)",
     )
     p.add_argument(
+        "--no-planar-prior",
+        action="store_true",
+        help="faster: leave plain surfaces (flat roofs) without depth instead of giving them the plane "
+        "their surroundings support (holes in the DSM, unknown in the map)",
+    )
+    p.add_argument(
         "--voxel-size", type=positive_float, default=0.5, help="map voxel edge, metres (default 0.5)"
     )
     p.add_argument(
@@ -133,6 +139,7 @@ def run(args: argparse.Namespace) -> int:
         gps_threshold_m=args.gps_threshold,
         seed=args.seed,
         workers=args.workers,
+        planar_prior=not args.no_planar_prior,
     )
     if not args.quiet:
         info(f"{len(photos)} photos in {args.photos_dir}; workspace {workspace}")

@@ -6,7 +6,12 @@ East-North-Up frame (metres, see :mod:`skyrecon.survey.geo`):
 * :func:`georeference_to_gps`: the camera centres against the GPS positions, robustly
   (:func:`skyrecon.sfm.model_align.align_to_positions`, RANSAC + refit). The inlier distance adapts
   to the GPS noise: a generous first fit, then ``3 x`` the median residual (between 1 m and the
-  first threshold); the tags farther off are set aside and named.
+  first threshold); the tags farther off are set aside and named. Camera centres of a survey lie
+  nearly on one plane, so the GPS heights alone fix the model's tilt poorly (a few metres of height
+  noise over the area); for a nadir survey (the cameras' mean viewing direction within 10 degrees of
+  straight down) the tilt is combined with that direction (the photos look straight down on
+  average, as a gimbal keeps them), each weighted by its uncertainty (OpenSfM's "vertical"
+  orientation prior, made a weighted one).
 * :func:`georeference_to_gcps`: each control point triangulated from its pixel observations in the
   registered photos (linear multi-view triangulation in the model frame), then a similarity to the
   points' known positions (robust from 4 points on).
@@ -20,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from skyrecon.core.reconstruction import Reconstruction
+from skyrecon.core.rigid import rotvec_to_matrix
 from skyrecon.errors import EstimationError, InputError
 from skyrecon.sfm.align import Sim3, robust_umeyama, umeyama
 from skyrecon.sfm.model_align import AlignOptions, ModelCentres, align_to_positions
@@ -41,6 +47,7 @@ class Georeference:
         rms_m: RMS of the fit's inlier residuals (GPS centres or control points), metres.
         gcps: per control point: name, observations used, residual (metres) or why it was not used.
         warnings: what the user should check.
+        level: GPS: the nadir prior's numbers (tilt uncertainties, weight, correction), None if unused.
     """
 
     method: str
@@ -51,6 +58,7 @@ class Georeference:
     rms_m: float = float("nan")
     gcps: list[dict[str, Any]] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
+    level: dict[str, Any] | None = None
 
     def to_json_dict(self) -> dict[str, Any]:
         T = self.enu_from_model
@@ -61,6 +69,7 @@ class Georeference:
             "rms_m": self.rms_m,
             "set_aside": self.set_aside,
             "gcps": self.gcps,
+            "nadir_prior": self.level,
             "warnings": self.warnings,
         }
 
@@ -98,18 +107,63 @@ def georeference_to_gps(
         thr = float(np.clip(3.0 * np.median(inl), 1.0, first)) if inl else first
         res = align_to_positions(rec, gps_enu, AlignOptions(max_distance=thr, seed=seed))
     T = res.world_from_model
+    outliers = sorted(res.outliers or [], key=lambda n: -(res.residuals_m or {}).get(n, 0.0))
+    inliers = [n for n in (res.residuals_m or {}) if n not in set(outliers)]
+    T, level = _nadir_level(rec, T, {n: gps_enu[n] for n in inliers if n in gps_enu})
     resid = _gps_residuals(rec, T, gps_enu)
-    outliers = sorted(res.outliers or [], key=lambda n: -resid.get(n, 0.0))
     warnings = list(res.warnings)
-    return Georeference(
+    kept = np.array([resid[n] for n in inliers if n in resid])
+    geo = Georeference(
         "gps",
         T,
         resid,
         {n: resid[n] for n in outliers if n in resid},
         res.inlier_threshold_m,
-        res.residual_rms_m,
+        float(np.sqrt(np.mean(kept**2))) if len(kept) else res.residual_rms_m,
         warnings=warnings,
     )
+    geo.level = level
+    return geo
+
+
+def _nadir_level(
+    rec: Reconstruction, T: Sim3, gps_inliers: dict[str, np.ndarray]
+) -> tuple[Sim3, dict[str, Any] | None]:
+    """``T`` with its tilt combined with the nadir prior (see the module); the prior's numbers, or
+    None when it does not apply (oblique photos, too few cameras)."""
+    ims = [im for im in rec.images.values() if im.name in gps_inliers]
+    if len(ims) < 5:
+        return T, None
+    axes = np.stack([T.R @ im.cam_from_world.R[2] for im in ims])  # optical axes, ENU
+    mean = axes.mean(axis=0)
+    mean /= np.linalg.norm(mean)
+    down = np.array([0.0, 0.0, -1.0])
+    angle = float(np.arccos(np.clip(-mean[2], -1.0, 1.0)))
+    if angle > np.radians(10.0):
+        return T, None
+    centres = np.stack([T.apply(im.center_world) for im in ims])
+    gps = np.stack([gps_inliers[im.name] for im in ims])
+    c0 = centres.mean(axis=0)
+    r2 = float(np.mean(np.sum((centres[:, :2] - c0[:2]) ** 2, axis=1)))
+    sigma_z = float(np.std(centres[:, 2] - gps[:, 2]))
+    sigma_gps = sigma_z / max(np.sqrt(len(ims) * r2 / 2.0), 1e-9)  # tilt uncertainty of the GPS fit, rad
+    spread = float(np.sqrt(np.mean(np.sum((axes[:, :2] - mean[:2]) ** 2, axis=1)) / 2.0))
+    sigma_prior = max(spread, np.radians(0.05)) / np.sqrt(len(ims))  # of the mean direction, rad
+    w = sigma_gps**2 / (sigma_gps**2 + sigma_prior**2)
+    axis = np.cross(mean, down)
+    n = np.linalg.norm(axis)
+    if n < 1e-12:
+        return T, None
+    dR = rotvec_to_matrix(axis / n * angle * w)
+    step = Sim3(dR, c0 - dR @ c0, 1.0)
+    info = {
+        "mean_view_from_nadir_deg": round(float(np.degrees(angle)), 4),
+        "tilt_sigma_gps_deg": round(float(np.degrees(sigma_gps)), 4),
+        "tilt_sigma_prior_deg": round(float(np.degrees(sigma_prior)), 4),
+        "weight": round(float(w), 4),
+        "applied_deg": round(float(np.degrees(angle * w)), 4),
+    }
+    return step @ T, info
 
 
 def triangulate_observations(

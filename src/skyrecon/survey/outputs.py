@@ -23,7 +23,6 @@ from skyrecon.io.atomic import make_temp_dir, sweep_stale_temps, write_text_atom
 from skyrecon.io.colmap import write_colmap_text
 from skyrecon.io.las import write_point_cloud
 from skyrecon.mapping import export_occupied_ply, save_map, write_flown_path, write_map_preview
-from skyrecon.planning.geo_export import write_footprint_geojson
 from skyrecon.report.mission_report import png_data_uri
 from skyrecon.survey.geo import lla_from_enu, projected_from_enu
 from skyrecon.survey.pipeline import SurveyResult
@@ -102,8 +101,9 @@ def survey_json(result: SurveyResult, rasters: SurfaceRasters | None, files: lis
 
 
 def _write_map(result: SurveyResult, out: Path) -> None:
-    """``map/``: the map (``skyrecon plan`` reads it), flown track, occupied voxels, footprint,
-    preview and the geographic origin of its frame; built beside ``out`` and swapped in."""
+    """``map/``: the map (``skyrecon plan`` reads it), flown track, occupied voxels, preview and the
+    geographic origin of its frame; built beside ``out`` and swapped in. (The survey's footprint is
+    ``OUT/footprint.geojson``, from the DSM.)"""
     out.parent.mkdir(parents=True, exist_ok=True)
     sweep_stale_temps(out.parent, recursive=False)
     tmp = make_temp_dir(out.parent, out.name)
@@ -114,7 +114,6 @@ def _write_map(result: SurveyResult, out: Path) -> None:
             write_flown_path(tmp, result.track, 1.0)
         export_occupied_ply(occ, tmp / "occupied.ply")
         o = result.origin
-        write_footprint_geojson(tmp / "footprint.geojson", occ, (o.lat_deg, o.lon_deg, o.alt_m))
         write_map_preview(occ, tmp / "preview.png", [result.track] if len(result.track) else [])
         _json(tmp / GEO_ORIGIN_FILE, {**o.to_json(), "frame": "map world = local East-North-Up metres"})
         counts = occ.counts()

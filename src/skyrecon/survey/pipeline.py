@@ -41,6 +41,7 @@ from skyrecon.io.calib import read_K_txt
 from skyrecon.io.task_cache import task_key
 from skyrecon.mapping import MapConfig, OccupancyMap
 from skyrecon.mvs import MVSResult, MVSSettings, run_mvs
+from skyrecon.mvs.planar_prior import PlanarPriorSettings
 from skyrecon.progress import progress
 from skyrecon.sfm import SfMSettings, run_sfm
 from skyrecon.sfm._pool import run_scoped_executor
@@ -83,6 +84,9 @@ class SurveyOptions:
         gps_threshold_m: fixed inlier distance of the GPS fit (None: adaptive), metres.
         seed: seed of every random choice.
         workers: worker processes (None: all cores).
+        planar_prior: give plain (textureless) surfaces such as flat roofs the plane their
+            surroundings support in the depth maps (:mod:`skyrecon.mvs.planar_prior`); off: faster,
+            such surfaces stay without depth (holes in the DSM, unknown in the map).
     """
 
     sfm_image_size: int | None = 1600
@@ -93,6 +97,7 @@ class SurveyOptions:
     gps_threshold_m: float | None = None
     seed: int = 0
     workers: int | None = None
+    planar_prior: bool = True
 
 
 @dataclass
@@ -101,7 +106,8 @@ class SurveyResult:
 
     Attributes:
         origin: the local frame's geographic origin.
-        camera: the camera the run started from; camera_source: ``"K.txt"`` or ``"exif"``.
+        camera: the camera the run started from; camera_source: ``"K.txt"``, ``"exif"`` (focal
+            length and sensor width) or ``"exif-35mm"`` (35 mm equivalent; refined by SfM).
         metas: the tags of every photo, in input order.
         gps_enu: photo name -> (3,) GPS position in ENU metres (tagged photos).
         model: the SfM model in the ENU frame.
@@ -143,7 +149,8 @@ def _camera(inputs: SurveyInputs, metas: list[PhotoMeta]) -> tuple[Intrinsics, s
     if inputs.camera_txt is not None:
         return read_K_txt(inputs.camera_txt, size[0], size[1]), "K.txt"
     first = next(m for m in metas if (m.width, m.height) == size)
-    return intrinsics_from_meta(first), "exif"
+    exact = first.focal_mm is not None and first.sensor_width_mm is not None
+    return intrinsics_from_meta(first), "exif" if exact else "exif-35mm"
 
 
 def _origin(inputs: SurveyInputs, metas: list[PhotoMeta], gcps: GcpList | None) -> GeoOrigin:
@@ -223,7 +230,10 @@ def _sfm(
 ) -> tuple[Reconstruction, dict[str, str], list[str]]:
     """The SfM model (own gauge), left-out photos and warnings; cached in the workspace."""
     settings = SfMSettings(max_image_size=options.sfm_image_size)
-    if camera_source == "exif":  # EXIF focal lengths are nominal: refine the focal length
+    if camera_source == "exif-35mm":
+        # a 35 mm equivalent is rounded to a millimetre: refine the focal length. (Not otherwise: over
+        # nearly flat ground seen straight down, focal length and flying height trade off, and a
+        # refined focal length moves the cameras more than the tags' focal length is off.)
         settings = replace(settings, bundle=replace(settings.bundle, refine_focal_length=True))
     key = task_key(
         (_file_key(inputs.photos), cam.K.tolist(), settings, pairs.tobytes(), options.seed), "survey-sfm"
@@ -409,7 +419,11 @@ def run_survey(
 
         t = time.perf_counter()
         views = _views(model, inputs)
-        mvs_settings = MVSSettings(max_image_size=options.mvs_image_size, seed=options.seed)
+        mvs_settings = MVSSettings(
+            max_image_size=options.mvs_image_size,
+            seed=options.seed,
+            planar_prior=PlanarPriorSettings(enabled=options.planar_prior),
+        )
         mvs = run_mvs(views, None, mvs_settings, executor=executor, workspace=ws / "mvs")
         warnings.extend(mvs.warnings)
         timings["mvs"] = time.perf_counter() - t
