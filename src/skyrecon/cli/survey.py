@@ -22,7 +22,7 @@ import argparse
 import time
 from pathlib import Path
 
-from skyrecon.cli.common import add_cloud_format, add_command, info, output_dir, positive_float, positive_int
+from skyrecon.cli.common import add_command, info, output_dir, positive_float, positive_int
 from skyrecon.errors import InputError
 
 EXAMPLES = """  skyrecon render survey --photos 16 --out flight/ && skyrecon survey flight/images --out survey/
@@ -98,8 +98,12 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="seed of every random choice (default 0)")
     p.add_argument("--workers", type=positive_int, help="worker processes (default: all cores)")
     p.add_argument("--workspace", help="cache of intermediate work, reused by reruns (default OUT/workspace)")
-    add_cloud_format(p)
-    p.set_defaults(format="laz")
+    p.add_argument(
+        "--format",
+        choices=("laz", "las", "ply"),
+        default="laz",
+        help="the dense cloud: LAZ (default) or LAS in UTM with the CRS, or PLY in the local ENU frame",
+    )
     return p
 
 

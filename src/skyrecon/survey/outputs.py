@@ -177,14 +177,15 @@ def write_survey_outputs(
 # report
 # ----------------------------------------------------------------------------------------------
 def _overlay(result: SurveyResult, rasters: SurfaceRasters) -> np.ndarray:
-    """The orthophoto (scaled to at most 900 px) with the estimated camera positions (blue), their GPS
+    """The orthophoto (scaled to about 900 px, at most 4x up) with the estimated camera positions (blue), their GPS
     tags (grey lines to them) and the set-aside tags (red)."""
     img = rasters.ortho_rgb.copy()
     img[~rasters.valid] = 255
     h, w = img.shape[:2]
-    s = min(1.0, 900.0 / max(h, w)) if max(h, w) > 0 else 1.0
-    if s < 1.0:
-        img = cv2.resize(img, (max(1, int(w * s)), max(1, int(h * s))), interpolation=cv2.INTER_AREA)
+    s = min(4.0, 900.0 / max(h, w, 1))
+    if s != 1.0:
+        interp = cv2.INTER_AREA if s < 1.0 else cv2.INTER_NEAREST
+        img = cv2.resize(img, (max(1, int(w * s)), max(1, int(h * s))), interpolation=interp)
     a, _, c, _, e, f = rasters.transform
 
     def px(enu: np.ndarray) -> np.ndarray:

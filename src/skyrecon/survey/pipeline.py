@@ -10,7 +10,7 @@ Stages (each timed in ``SurveyResult.timings_s``):
    (each photo with its nearest tagged photos and its neighbours in flight order); features and
    matches cached in ``workspace/sfm``, the finished model in ``workspace/sfm_model.pkl``.
 3. ``georef``: the model into the ENU frame (:mod:`skyrecon.survey.georef`), GPS or control points;
-   the origin's height is then moved to the ground (the 2nd percentile of the sparse points).
+   the origin's height is then moved to the ground (the 5th percentile of the sparse points).
 4. ``mvs``: dense depth per photo and the fused cloud (:func:`skyrecon.mvs.run_mvs`), each view's
    depth kept in ``workspace/mvs`` as soon as it is computed.
 5. ``map``: an occupancy map from the depth maps (:class:`skyrecon.mapping.OccupancyMap`), the
@@ -296,9 +296,9 @@ def _georeference(
 
 
 def _ground_shift(model: Reconstruction) -> float:
-    """Height of the ground in the model's ENU frame: the 2nd percentile of the sparse points."""
+    """Height of the ground in the model's ENU frame: the 5th percentile of the sparse points."""
     z = np.array([p.xyz[2] for p in model.points3d.values()])
-    return float(np.percentile(z, 2)) if len(z) else 0.0
+    return float(np.percentile(z, 5)) if len(z) else 0.0
 
 
 def _views(model: Reconstruction, inputs: SurveyInputs) -> list[PosedView]:
