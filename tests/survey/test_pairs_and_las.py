@@ -34,3 +34,9 @@ def test_las_with_crs_keeps_utm_coordinates_to_a_millimetre(tmp_path, fmt):
     assert np.allclose(pts, utm, atol=1e-3)
     assert colors is not None and colors.tolist() == [[255, 0, 0], [0, 128, 255]]
     assert laspy.read(path).header.parse_crs().to_epsg() == 32632
+
+
+def test_small_sets_match_every_pair():
+    pos = [np.array([float(k), 0.0, 0.0]) for k in range(5)]
+    assert len(gps_pairs(pos, neighbors=1, window=1, exhaustive_up_to=5)) == 10
+    assert len(gps_pairs(pos, neighbors=1, window=1, exhaustive_up_to=4)) == 4

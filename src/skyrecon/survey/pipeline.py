@@ -80,6 +80,7 @@ class SurveyOptions:
         mvs_image_size: longer side of the MVS working images (depth maps), pixels.
         pair_neighbors: each photo is matched with this many nearest photos by GPS.
         pair_window: and with this many following photos in flight order.
+        exhaustive_up_to: every pair is matched for sets of at most this many photos.
         voxel_m: occupancy-map voxel edge, metres.
         gps_threshold_m: fixed inlier distance of the GPS fit (None: adaptive), metres.
         seed: seed of every random choice.
@@ -93,6 +94,7 @@ class SurveyOptions:
     mvs_image_size: int = 640
     pair_neighbors: int = 10
     pair_window: int = 3
+    exhaustive_up_to: int = 50
     voxel_m: float = 0.5
     gps_threshold_m: float | None = None
     seed: int = 0
@@ -174,10 +176,13 @@ def _origin(inputs: SurveyInputs, metas: list[PhotoMeta], gcps: GcpList | None) 
     )
 
 
-def gps_pairs(positions: list[np.ndarray | None], neighbors: int, window: int) -> np.ndarray:
+def gps_pairs(
+    positions: list[np.ndarray | None], neighbors: int, window: int, exhaustive_up_to: int = 0
+) -> np.ndarray:
     """Pairs to match for a survey: each tagged photo with its ``neighbors`` nearest tagged photos
     (horizontal GPS distance), and every photo with the next ``window`` photos in flight order (so
-    a photo with a wrong tag still meets its true neighbours).
+    a photo with a wrong tag still meets its true neighbours); every pair when there are at most
+    ``exhaustive_up_to`` photos (as ``skyrecon sfm`` does).
 
     Args:
         positions: per photo, (3,) ENU metres or None (no tag).
@@ -185,6 +190,9 @@ def gps_pairs(positions: list[np.ndarray | None], neighbors: int, window: int) -
         (P, 2) int64 ``i < j`` input indices, unique, sorted.
     """
     n = len(positions)
+    if n <= exhaustive_up_to:
+        i, j = np.triu_indices(n, k=1)
+        return np.stack([i, j], axis=1).astype(np.int64)
     out: set[tuple[int, int]] = set()
     for i in range(n):
         for d in range(1, window + 1):
@@ -382,7 +390,7 @@ def run_survey(
             f"{len(untagged)} photos have no GPS tags ({', '.join(untagged[:5])}{' ...' if len(untagged) > 5 else ''})"
         )
     diag["alt_source"] = sorted({m.alt_source for m in metas if m.alt_source})
-    pairs = gps_pairs(positions, options.pair_neighbors, options.pair_window)
+    pairs = gps_pairs(positions, options.pair_neighbors, options.pair_window, options.exhaustive_up_to)
     diag["pairs"] = int(len(pairs))
     timings["photos"] = time.perf_counter() - t
 
