@@ -13,8 +13,10 @@ Metrics:
   cam err       estimated camera centre (``survey.json`` lat/lon/alt) vs the truth, metres (median, p95)
   dsm ok        share of covered DSM cells within 0.3 m of the true highest surface (synthetic only)
   cloud acc/com accuracy and completeness of ``cloud.laz`` at 0.3 m (synthetic only)
-  wall, peak    wall time of the command (subprocess) and peak memory of its process tree
-                (sum of RSS, sampled every 0.5 s), on the cores given (``--workers``)
+  wall, cpu, peak
+                wall time of the command (subprocess), CPU seconds of its process tree (all
+                workers; cpu / cores is the wall time on that many idle cores, the honest figure
+                on a shared machine) and peak memory of the tree (sum of RSS, sampled every 0.5 s)
 
 OpenDroneMap does not install here: its documentation's hardware table quotes about 16 GB of memory
 for 250 images (and 32 GB for 500); those published figures are printed beside ours, not measured.
@@ -49,10 +51,12 @@ from evaluate import camera_errors, cloud_scores, dsm_errors  # noqa: E402
 ODM_PUBLISHED = {"images": 250, "memory_gb": 16.0, "source": "OpenDroneMap docs, hardware recommendations"}
 
 
-def _tree_rss(pid: int) -> int:
-    """Sum of RSS (bytes) of ``pid`` and its descendants (Linux /proc)."""
+def _tree(pid: int) -> tuple[int, float]:
+    """(sum of RSS bytes, sum of CPU seconds incl. reaped children) of ``pid`` and its descendants (Linux /proc)."""
     children: dict[int, list[int]] = {}
     rss: dict[int, int] = {}
+    cpu: dict[int, float] = {}
+    tck = os.sysconf("SC_CLK_TCK")
     for d in os.listdir("/proc"):
         if not d.isdigit():
             continue
@@ -61,32 +65,44 @@ def _tree_rss(pid: int) -> int:
                 parts = f.read().rsplit(")", 1)[1].split()
             children.setdefault(int(parts[1]), []).append(int(d))
             rss[int(d)] = int(parts[21]) * os.sysconf("SC_PAGE_SIZE")
+            cpu[int(d)] = sum(int(x) for x in parts[11:15]) / tck
         except (OSError, IndexError, ValueError):
             continue
-    total, todo = 0, [pid]
+    total, seconds, todo = 0, 0.0, [pid]
     while todo:
         p = todo.pop()
         total += rss.get(p, 0)
+        seconds += cpu.get(p, 0.0)
         todo.extend(children.get(p, []))
-    return total
+    return total, seconds
 
 
-def run_measured(cmd: list[str]) -> tuple[int, float, float, str]:
-    """(exit status, wall seconds, peak tree RSS GB, stderr tail) of a command."""
+def run_measured(cmd: list[str]) -> tuple[int, float, float, float, str]:
+    """(exit status, wall seconds, peak tree RSS GB, CPU seconds of the tree, stderr tail) of a command.
+
+    CPU seconds do not depend on what else runs on the machine: CPU / cores is the wall time the
+    command would take on that many otherwise idle cores (if it keeps them busy)."""
+    import resource
+
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    peak = [0]
+    peak = [0, 0.0]
 
     def sample() -> None:
         while proc.poll() is None:
-            peak[0] = max(peak[0], _tree_rss(proc.pid))
+            rss, cpu = _tree(proc.pid)
+            peak[0] = max(peak[0], rss)
+            peak[1] = max(peak[1], cpu)
             time.sleep(0.5)
 
     th = threading.Thread(target=sample, daemon=True)
     th.start()
     _, err = proc.communicate()
     th.join()
-    return proc.returncode, time.perf_counter() - t0, peak[0] / 1e9, err[-2000:]
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    return proc.returncode, time.perf_counter() - t0, peak[0] / 1e9, max(cpu, peak[1]), err[-2000:]
 
 
 def skyrecon(*args: str) -> list[str]:
@@ -150,8 +166,15 @@ def one_run(
     cmd = skyrecon(
         "survey", str(root / "images"), "--out", str(out), "--workers", str(workers), "--quiet", *extra
     )
-    rc, wall, peak, err = run_measured(cmd)
-    row: dict[str, Any] = {"scene": label, "rc": rc, "wall_s": round(wall, 1), "peak_gb": round(peak, 2)}
+    rc, wall, peak, cpu, err = run_measured(cmd)
+    row: dict[str, Any] = {
+        "scene": label,
+        "rc": rc,
+        "wall_s": round(wall, 1),
+        "cpu_s": round(cpu, 1),
+        "peak_gb": round(peak, 2),
+        "workers": workers,
+    }
     if rc != 0:
         row["error"] = err.strip().splitlines()[-1] if err.strip() else "failed"
         return row
@@ -203,7 +226,9 @@ def main() -> None:
             rows.append(one_run(name, root, ["--camera", str(root / "K.txt")], args.workers, out_root, False))
             print(json.dumps(rows[-1]), flush=True)
     print()
-    print(f"{'scene':<20}{'cam med/p95 m':>16}{'dsm<=0.3m':>11}{'acc/com':>13}{'wall s':>9}{'peak GB':>9}")
+    print(
+        f"{'scene':<20}{'cam med/p95 m':>16}{'dsm<=0.3m':>11}{'acc/com':>13}{'wall s':>9}{'cpu s':>9}{'peak GB':>9}"
+    )
     for r in rows:
         if r.get("rc"):
             print(f"{r['scene']:<20} failed: {r.get('error')}")
@@ -215,7 +240,9 @@ def main() -> None:
             if "cloud_accuracy@0.3m" in r
             else "n/a"
         )
-        print(f"{r['scene']:<20}{cam:>16}{dsm:>11}{cl:>13}{r['wall_s']:>9.0f}{r['peak_gb']:>9.2f}")
+        print(
+            f"{r['scene']:<20}{cam:>16}{dsm:>11}{cl:>13}{r['wall_s']:>9.0f}{r['cpu_s']:>9.0f}{r['peak_gb']:>9.2f}"
+        )
     print(
         f"OpenDroneMap (published, not measured): about {ODM_PUBLISHED['memory_gb']:.0f} GB of memory for "
         f"{ODM_PUBLISHED['images']} images ({ODM_PUBLISHED['source']})"
