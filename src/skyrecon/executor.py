@@ -2,7 +2,8 @@
 
 Stages call ``executor.map(fn, items)`` and never care where the work runs.
 ``SerialExecutor`` runs in-process (debugging, tiny inputs); ``ProcessExecutor``
-uses local worker processes. A cluster engine plugs in by implementing
+uses local worker processes; ``DaskExecutor`` (:mod:`skyrecon.executor_dask`, the ``dask``
+extra) runs on a Dask cluster or a local one. Another cluster engine plugs in by implementing
 :class:`Executor` (one method) and registering it with :func:`register_executor`.
 
 ``fn`` must be picklable (a module-level function or a ``functools.partial`` of
@@ -105,9 +106,19 @@ def _wait_first(pending: dict) -> set:
     return done
 
 
+def _dask_executor(workers: int | None) -> Executor:
+    """The Dask executor (:mod:`skyrecon.executor_dask`), imported only when asked for: Dask is an
+    optional extra and slow to import. The scheduler comes from ``$SKYRECON_SCHEDULER`` (else a
+    ``LocalCluster`` of ``workers`` processes)."""
+    from skyrecon.executor_dask import DaskExecutor
+
+    return DaskExecutor(workers)
+
+
 _REGISTRY: dict[str, Callable[[int | None], Executor]] = {
     "serial": lambda workers: SerialExecutor(),
     "process": lambda workers: ProcessExecutor(workers),
+    "dask": _dask_executor,
 }
 
 
@@ -121,7 +132,7 @@ def available_executors() -> Sequence[str]:
 
 
 def get_executor(kind: str | None = None, workers: int | None = None) -> Executor:
-    """The executor named ``kind`` (``serial``, ``process`` or a registered one).
+    """The executor named ``kind`` (``serial``, ``process``, ``dask`` or a registered one).
 
     ``None`` reads ``$SKYRECON_EXECUTOR`` and defaults to ``process``; ``workers``
     defaults to ``$SKYRECON_WORKERS`` or the CPU count.

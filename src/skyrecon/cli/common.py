@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from collections.abc import Iterator
@@ -14,7 +15,11 @@ from skyrecon.errors import InputError
 from skyrecon.io.atomic import sweep_stale_temps
 
 if TYPE_CHECKING:
+    from skyrecon.executor import Executor
     from skyrecon.record import Recorder
+
+#: ``--executor`` choices (see :mod:`skyrecon.executor`).
+EXECUTORS = ("serial", "process", "dask")
 
 
 class UsageError(InputError):
@@ -147,3 +152,73 @@ def recording(args: argparse.Namespace) -> Iterator[Recorder]:
 
 def _viewer(path: str | Path) -> str:
     return f"'rerun {path}'" if str(path).lower().endswith(".rrd") else "Foxglove or Lichtblick"
+
+
+def add_executor_options(parser: argparse.ArgumentParser, workers_help: str) -> None:
+    """``--workers N``, ``--executor serial|process|dask`` and ``--scheduler ADDRESS`` for a
+    command that fans work out (see :func:`open_executor`)."""
+    parser.add_argument("--workers", type=positive_int, default=None, help=workers_help)
+    parser.add_argument(
+        "--executor",
+        choices=EXECUTORS,
+        default=None,
+        help="where the fanned-out work runs: serial (this process), process (local worker processes; "
+        "the default, or $SKYRECON_EXECUTOR), dask (a Dask cluster: --scheduler, else a local one "
+        "of --workers processes; needs the 'dask' extra). Same inputs and seed: the same outputs",
+    )
+    parser.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        default=None,
+        help="with --executor dask: join the running Dask scheduler at ADDRESS (tcp://host:8786; "
+        "default $SKYRECON_SCHEDULER, else start a local cluster); the workspace must be on a "
+        "filesystem the workers share",
+    )
+
+
+@contextmanager
+def open_executor(args: argparse.Namespace) -> Iterator[Executor]:
+    """The executor of ``--executor``/``--workers``/``--scheduler``, closed when the block ends
+    (also on errors and Ctrl-C: a local Dask cluster is shut down).
+
+    ``--scheduler`` without ``--executor`` means dask. A local process executor with one worker
+    is the serial one (same results, no process to start).
+
+    Raises:
+        InputError: ``--scheduler`` with another executor, Dask not installed, or an
+            unreachable scheduler (one line naming the address).
+    """
+    from skyrecon.executor import get_executor
+
+    kind = getattr(args, "executor", None)
+    scheduler = getattr(args, "scheduler", None)
+    workers = getattr(args, "workers", None)
+    if scheduler and kind not in (None, "dask"):
+        raise UsageError(f"--scheduler needs --executor dask (got --executor {kind})")
+    if scheduler:
+        kind = "dask"
+    kind = kind or os.environ.get("SKYRECON_EXECUTOR") or "process"
+    if kind == "dask":
+        from skyrecon.executor_dask import DaskExecutor
+
+        executor: Executor = DaskExecutor(workers, scheduler)
+    elif kind == "process" and workers == 1:
+        executor = get_executor("serial")
+    else:
+        executor = get_executor(kind, workers)
+    try:
+        yield executor
+    finally:
+        close = getattr(executor, "close", None)
+        if close is not None:
+            close()
+
+
+def describe_executor(executor: Executor) -> str:
+    """``2 workers``, ``dask, 4 workers at tcp://...`` or ``dask, 2 local workers`` for a summary line."""
+    n = int(getattr(executor, "workers", 1) or 1)
+    count = f"{n} worker{'s' if n != 1 else ''}"
+    if type(executor).__name__ != "DaskExecutor":
+        return count
+    where = getattr(executor, "scheduler", None)
+    return f"dask, {count} at {where}" if where else f"dask, {n} local worker{'s' if n != 1 else ''}"

@@ -38,15 +38,17 @@ from collections import deque
 from skyrecon.cli.common import (
     add_cloud_format,
     add_command,
+    add_executor_options,
     add_record_option,
+    describe_executor,
     info,
+    open_executor,
     output_dir,
     positive_float,
     positive_int,
     recording,
 )
 from skyrecon.errors import InputError
-from skyrecon.executor import get_executor
 from skyrecon.mission import MissionConfig
 from skyrecon.mission.batch import fly_and_write, mission_line, run_missions
 from skyrecon.mission.safety import speed_warning
@@ -57,6 +59,7 @@ EXAMPLES = """  skyrecon demo                                  # one delivery, s
   skyrecon demo --seed 7 --out mission7/
   skyrecon demo --start -57 -15 15 --goal 53 58 15 --out custom/
   skyrecon demo --missions 20 --out many/        # seeds 0..19 in parallel, summary.html
+  skyrecon demo --missions 100 --executor dask --scheduler tcp://head:8786 --out /shared/many/
   skyrecon demo --width 320 --height 240 --city-size 100 --out quick/
   skyrecon demo --speed 15 --baseline 0.6 --out fast/   # a wider rig trusts depth farther: 15 m/s
   skyrecon demo --prior-map earlier --out stale/   # plans on yesterday's map; a tower is new, a stack gone
@@ -93,9 +96,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument(
         "--missions", type=positive_int, default=1, help="fly this many seeds (seed, seed+1, ...) in parallel"
     )
-    p.add_argument(
-        "--workers", type=positive_int, help="parallel missions with --missions (default: CPU count)"
-    )
+    add_executor_options(p, "parallel missions with --missions (default: CPU count, or $SKYRECON_WORKERS)")
     add_cloud_format(p)
     p.add_argument("--city-size", type=positive_float, help="side of the city, metres (default 200)")
     p.add_argument("--width", type=positive_int, help="camera image width, pixels (default 640)")
@@ -282,11 +283,13 @@ def run(args: argparse.Namespace) -> int:
         if args.record is not None:
             raise InputError("--record records one mission; drop it with --missions")
         seeds = list(range(args.seed, args.seed + args.missions))
-        if not args.quiet:
-            info(f"flying {len(seeds)} missions (seeds {seeds[0]}..{seeds[-1]}) into {out}/seed_NNNN/")
-        rows, totals = run_missions(
-            seeds, out, cfg, get_executor(workers=args.workers), quiet=args.quiet, cloud_format=args.format
-        )
+        with open_executor(args) as executor:
+            if not args.quiet:
+                info(
+                    f"flying {len(seeds)} missions (seeds {seeds[0]}..{seeds[-1]}) into {out}/seed_NNNN/ "
+                    f"({describe_executor(executor)})"
+                )
+            rows, totals = run_missions(seeds, out, cfg, executor, quiet=args.quiet, cloud_format=args.format)
         if not args.quiet:
             info(
                 f"{totals['succeeded']} of {totals['missions']} delivered, {totals['collisions']} collisions; "

@@ -10,7 +10,10 @@ SOURCE is one of:
   ``skyrecon render``) with the plain map settings;
 * a EuRoC/ASL sequence or a ROS bag / MCAP file (``--left-topic``, ``--right-topic``, ``--pose-topic``;
   see ``skyrecon.io.rosbag_input``), opened like ``skyrecon odometry`` opens it;
-* a fused point cloud (``.ply``, world frame) seen from ``--origin X Y Z``.
+* a fused point cloud (``.ply``, world frame) seen from ``--origin X Y Z``;
+* or, with ``--merge MAP_DIR ...`` and no SOURCE, earlier maps of separate flights over the same area
+  (same world frame and voxel size), merged into one by adding their evidence
+  (:func:`skyrecon.mapping.merge.merge_maps`).
 
 Writes MAP_DIR with ``map.json`` + ``blocks.npz`` (the map, see ``skyrecon.mapping.storage``),
 ``occupied.ply`` (centres of occupied voxels; ``--format las|laz`` for LAS/LAZ), ``footprint.geojson``
@@ -26,6 +29,7 @@ import json
 import os
 import shutil
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -35,15 +39,18 @@ from skyrecon.cli.bag_options import add_bag_options, bag_topics
 from skyrecon.cli.common import (
     add_cloud_format,
     add_command,
+    add_executor_options,
     add_record_option,
+    describe_executor,
     info,
+    open_executor,
     positive_float,
     positive_int,
     recording,
 )
 from skyrecon.core.rigid import Rigid3
 from skyrecon.errors import InputError
-from skyrecon.io.atomic import make_temp_dir, sweep_stale_temps
+from skyrecon.io.atomic import make_temp_dir, sweep_stale_temps, write_text_atomic
 from skyrecon.io.checkpoint import Checkpoint
 from skyrecon.io.depth_dir import iter_depth_maps, sequence_depth_paths
 from skyrecon.io.ply import read_ply
@@ -62,6 +69,10 @@ from skyrecon.mapping import (
     write_map_preview,
     write_octomap_bt,
 )
+from skyrecon.mapping.merge import merge_maps
+from skyrecon.mapping.occupancy import load_map
+from skyrecon.mapping.tiles import TiledMap, is_tiled_map
+from skyrecon.mapping.tiles import describe as describe_tiled
 from skyrecon.planning.geo_export import write_footprint_geojson
 from skyrecon.progress import progress
 from skyrecon.record import NullRecorder, Recorder
@@ -74,6 +85,8 @@ EXAMPLES = """  skyrecon map flight/ --out flight_map/ --voxel-size 0.2
   skyrecon map flight.mcap --left-topic /stereo/left/image_raw --right-topic /stereo/right/image_raw \
       --pose-topic /stereo/left/pose --out bag_map/
   skyrecon map flight/ --out flight_map/ --record map.rrd   # frames, depth, voxels: 'rerun map.rrd'
+  skyrecon map --merge monday_map/ tuesday_map/ --out district_map/   # one map from several flights
+  skyrecon map /shared/f1 /shared/f2 /shared/f3 --executor dask --scheduler tcp://head:8786 --out /shared/map/
 """
 
 
@@ -85,7 +98,26 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         description=__doc__.split("\n\n")[0].split(": ", 1)[1],
         examples=EXAMPLES,
     )
-    p.add_argument("source", help="sequence directory (KITTI, EuRoC), ROS bag / .mcap, or .ply point cloud")
+    p.add_argument(
+        "source",
+        nargs="*",
+        help="sequence directory (KITTI, EuRoC), ROS bag / .mcap, or .ply point cloud (none with --merge); "
+        "several sequences: one flight each, mapped side by side on the executor, then merged",
+    )
+    p.add_argument(
+        "--tile-size",
+        type=positive_float,
+        metavar="M",
+        help="with --merge or several sequences: write a tiled map (square tiles of about M metres on disk, loaded on demand by "
+        "'skyrecon plan'), for districts too large to hold in memory at once",
+    )
+    p.add_argument(
+        "--merge",
+        nargs="+",
+        metavar="MAP_DIR",
+        help="merge these maps of separate flights (same world frame and voxel size) into --out, "
+        "adding their evidence voxel by voxel",
+    )
     p.add_argument("--out", required=True, help="map directory to write")
     p.add_argument("--voxel-size", type=positive_float, default=0.2, help="voxel edge, metres (default 0.2)")
     p.add_argument(
@@ -141,6 +173,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     )
     add_cloud_format(p)
     add_bag_options(p)
+    add_executor_options(
+        p, "flights mapped side by side with several sequences (default: all cores, or $SKYRECON_WORKERS)"
+    )
     add_record_option(p)
     return p
 
@@ -163,6 +198,19 @@ def _checkpoint_path(args: argparse.Namespace) -> Path:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.merge:
+        if args.source:
+            raise InputError(f"give either SOURCE ({' '.join(args.source)}) or --merge MAP_DIR ..., not both")
+        return _merge(args)
+    if not args.source:
+        raise InputError("give a SOURCE to map (a sequence, bag or .ply) or --merge MAP_DIR ...")
+    if len(args.source) > 1:
+        return _map_flights(args)
+    if args.tile_size:
+        raise InputError(
+            "--tile-size goes with --merge or several sequences: map each flight, then merge the maps into tiles"
+        )
+    args.source = args.source[0]
     source = Path(args.source)
     if not source.exists():
         raise InputError("not found; give a sequence directory or a .ply point cloud", source)
@@ -175,6 +223,184 @@ def run(args: argparse.Namespace) -> int:
         seconds = time.perf_counter() - t0
         _check_and_write(occ, summary, track, seconds, source, args)
     return 0
+
+
+@dataclass(frozen=True)
+class _FlightJob:
+    """One sequence of a multi-flight map (a picklable work item)."""
+
+    index: int
+    source: str
+    options: dict[str, Any]
+    out: str
+
+
+def _build_flight(job: _FlightJob) -> dict[str, Any]:
+    """Map one flight into ``job.out`` (a complete map directory, written atomically), unless a
+    previous run already finished it with the same options; returns its summary."""
+    out = Path(job.out)
+    done = out / "flight_done.json"
+    key = {"source": str(Path(job.source).resolve()), "options": job.options}
+    if done.is_file():
+        try:
+            old = json.loads(done.read_text())
+            if old.get("key") == key:
+                return {**old["summary"], "reused": True}
+        except (OSError, ValueError):
+            pass
+    args = argparse.Namespace(**job.options)
+    args.source, args.out, args.quiet = job.source, job.out, True
+    args.workspace = str(out.parent / f"{out.name}-workspace")
+    occ, summary, track = _map_sequence(Path(job.source), args)
+    _write_map_dir(occ, out, summary, track, False)
+    write_text_atomic(done, json.dumps({"key": key, "summary": summary}, default=str) + "\n")
+    shutil.rmtree(args.workspace, ignore_errors=True)
+    return {**summary, "reused": False}
+
+
+def _map_flights(args: argparse.Namespace) -> int:
+    """Several sequences: each flight mapped on its own (side by side on the executor, each into
+    ``WORKSPACE/flights/<k>``, reused when rerun), then merged into ``--out`` (tiled with --tile-size)."""
+    t0 = time.perf_counter()
+    if args.record:
+        raise InputError("--record takes one sequence; record the flights one at a time")
+    sources = [Path(s) for s in args.source]
+    for src in sources:
+        if not src.exists():
+            raise InputError("not found; give sequence directories (or bags)", src)
+        if src.is_file() and src.suffix.lower() == ".ply":
+            raise InputError("several sources must be sequences; map a cloud on its own", src)
+    workspace = Path(args.workspace) if args.workspace else Path(args.out) / "workspace"
+    skip = {
+        "source",
+        "out",
+        "workspace",
+        "merge",
+        "tile_size",
+        "record",
+        "quiet",
+        "debug",
+        "bt",
+        "format",
+        "geo_origin",
+        "command",
+        "func",
+        "workers",  # where the flights are mapped does not change their maps
+        "executor",
+        "scheduler",
+    }
+    options = {k: v for k, v in sorted(vars(args).items()) if k not in skip and not callable(v)}
+    jobs = [
+        _FlightJob(k, str(src), options, str(workspace / "flights" / f"{k:03d}"))
+        for k, src in enumerate(sources)
+    ]
+    with open_executor(args) as executor:
+        if not args.quiet:
+            info(f"mapping {len(jobs)} flights ({describe_executor(executor)})")
+        summaries = executor.map(_build_flight, jobs, desc="flights")
+    dirs = [Path(j.out) for j in jobs]
+    if args.tile_size:
+        code = _merge_to_tiles(args, dirs, t0)
+    else:
+        maps = [load_map(d) for d in dirs]
+        merged = merge_maps(maps, [str(s) for s in sources])
+        summary: dict[str, Any] = {
+            "flights": [
+                {"source": str(s), "frames": f.get("frames"), "reused": f.get("reused")}
+                for s, f in zip(sources, summaries, strict=True)
+            ],
+            "voxel_size_m": merged.voxel_size,
+            "blocks": int(merged.grid.count),
+            "note": "flown paths are not merged (each belongs to its own flight); their carved free space is",
+        }
+        del maps
+        n_occ = _write_map_dir(merged, Path(args.out), summary, None, args.bt, args.format, args.geo_origin)
+        if not args.quiet:
+            info(
+                f"map of {len(sources)} flights: {n_occ} occupied voxels at {args.voxel_size} m "
+                f"in {time.perf_counter() - t0:.1f} s ({sum(1 for f in summaries if f.get('reused'))} reused)"
+            )
+        code = 0
+    shutil.rmtree(workspace, ignore_errors=True)
+    return code
+
+
+def _merge(args: argparse.Namespace) -> int:
+    """``--merge``: load every map, add their evidence, write the merged map directory."""
+    t0 = time.perf_counter()
+    dirs = [Path(d) for d in args.merge]
+    out = Path(args.out).resolve()
+    for d in dirs:
+        if d.resolve() == out:
+            raise InputError("--out must not be one of the maps being merged; choose another directory", d)
+    if args.tile_size:
+        return _merge_to_tiles(args, dirs, t0)
+    maps = [load_map(d) for d in progress(dirs, desc="loading maps")]
+    merged = merge_maps(maps, [str(d) for d in dirs])
+    summary: dict[str, Any] = {
+        "merged_from": [str(d) for d in dirs],
+        "voxel_size_m": merged.voxel_size,
+        "blocks_per_input": [int(m.grid.count) for m in maps],
+        "blocks": int(merged.grid.count),
+        "occupied_per_input": [int(len(m.occupied_centers())) for m in maps],
+        "note": "flown paths are not merged (each belongs to its own flight); their carved free space is",
+    }
+    del maps
+    n_occ = _write_map_dir(merged, Path(args.out), summary, None, args.bt, args.format, args.geo_origin)
+    if not args.quiet:
+        info(
+            f"merged {len(dirs)} maps into {args.out}: {merged.grid.count} blocks, {n_occ} occupied voxels "
+            f"({time.perf_counter() - t0:.1f} s)",
+        )
+    return 0
+
+
+def _merge_to_tiles(args: argparse.Namespace, dirs: list[Path], t0: float) -> int:
+    """``--merge ... --tile-size M``: add the maps one at a time into a tiled map (memory: one input
+    map and one tile), built beside ``--out`` and swapped in at the end."""
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise InputError("--out must be a directory, but a file of that name exists", out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    sweep_stale_temps(out.parent, recursive=False)
+    tmp = make_temp_dir(out.parent, out.name)
+    try:
+        tiled = None
+        for d in progress(dirs, desc="merging maps"):
+            if is_tiled_map(d):
+                src = TiledMap.open(d)
+                pieces = ((f"{d}:{k[0]}_{k[1]}", src.region(*_tile_box(src, k))) for k in src.tile_ids())
+                config = src.config
+            else:
+                occ = load_map(d)
+                pieces = (item for item in [(str(d), occ)])
+                config = occ.config
+            if tiled is None:
+                tiled = TiledMap.create(tmp, config, args.tile_size)
+            for name, piece in pieces:
+                tiled.add_map(piece, name)
+        assert tiled is not None
+        summary = {"merged_from": [str(d) for d in dirs], **describe_tiled(tiled)}
+        (tmp / "map_summary.json").write_text(json.dumps(summary, indent=2))
+        _replace_dir(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    if not args.quiet:
+        info(
+            f"merged {len(dirs)} maps into the tiled map {out}: {summary['tiles']} tiles of "
+            f"{summary['tile_size_m']:g} m, {summary['blocks']} blocks ({time.perf_counter() - t0:.1f} s)"
+        )
+    return 0
+
+
+def _tile_box(tiled: TiledMap, key: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """World box (lo, hi) of one tile, all heights, shrunk by a millimetre so neighbours stay out."""
+    lo_z, hi_z = tiled.bounds()[0][2], tiled.bounds()[1][2]
+    size = tiled.tile_size_m
+    lo = np.array([key[0] * size + 1e-3, key[1] * size + 1e-3, lo_z - 1.0])
+    hi = np.array([(key[0] + 1) * size - 1e-3, (key[1] + 1) * size - 1e-3, hi_z + 1.0])
+    return lo, hi
 
 
 def _check_and_write(

@@ -20,8 +20,11 @@ import numpy as np
 from skyrecon.cli.common import (
     add_cloud_format,
     add_command,
+    add_executor_options,
     add_record_option,
+    describe_executor,
     info,
+    open_executor,
     output_dir,
     positive_float,
     positive_int,
@@ -29,7 +32,6 @@ from skyrecon.cli.common import (
 )
 from skyrecon.core import PosedView
 from skyrecon.errors import EstimationError
-from skyrecon.executor import get_executor
 from skyrecon.io.disparity import colorize_depth
 from skyrecon.io.images import write_image
 from skyrecon.mvs import MVSResult, MVSSettings, load_views_and_images, run_mvs, save_mvs_result
@@ -45,6 +47,7 @@ EXAMPLES = """  skyrecon mvs fountain/images --cameras fountain/cameras --out fo
   skyrecon mvs run/images --cameras run/sparse --out dense/ --mesh      # cameras from skyrecon sfm
   skyrecon mvs rock/images --cameras rock/calib --topology 360 --fusion concat --out rock_concat/
   skyrecon mvs run/images --cameras run/sparse --out dense/ --record dense.rrd   # 'rerun dense.rrd'
+  skyrecon mvs run/images --cameras run/sparse --executor dask --scheduler tcp://head:8786 --out /shared/dense/
 """
 
 
@@ -115,7 +118,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         action="store_true",
         help="ignore image files that no camera refers to (default: an error)",
     )
-    p.add_argument("--workers", type=positive_int, help="processes for per-view depth (default: all cores)")
+    add_executor_options(p, "workers for per-view depth (default: all cores, or $SKYRECON_WORKERS)")
     p.add_argument(
         "--workspace",
         help="where each view's depth is kept as soon as it is computed, so that a killed run resumes "
@@ -144,14 +147,15 @@ def run(args: argparse.Namespace) -> int:
         changes["planar_prior"] = PlanarPriorSettings(enabled=False)
     settings = MVSSettings.from_names(args.topology, args.fusion, args.mesh, **changes)
     out = output_dir(args.out)
-    if not args.quiet:
-        info(
-            f"{len(views)} views; depth by {settings.depth_method}, topology {settings.topology}, "
-            f"fusion {settings.fusion}, longer side at most {settings.max_image_size or 'full'} px"
-        )
-    executor = get_executor("serial") if args.workers == 1 else get_executor(None, args.workers)
     workspace = Path(args.workspace) if args.workspace else out / "workspace"
-    result = run_mvs(views, None, settings, executor=executor, workspace=workspace)
+    with open_executor(args) as executor:
+        if not args.quiet:
+            info(
+                f"{len(views)} views; depth by {settings.depth_method}, topology {settings.topology}, "
+                f"fusion {settings.fusion}, longer side at most {settings.max_image_size or 'full'} px, "
+                f"{describe_executor(executor)}"
+            )
+        result = run_mvs(views, None, settings, executor=executor, workspace=workspace)
     if len(result.cloud) == 0:
         save_mvs_result(result, out, settings, args.format)
         why = "; ".join(result.warnings) or "no depth was consistent across views"

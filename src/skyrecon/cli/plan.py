@@ -25,8 +25,10 @@ import numpy as np
 from skyrecon.cli.common import add_command, info, output_dir
 from skyrecon.errors import EstimationError, InputError
 from skyrecon.mapping import load_map, read_flown_path, write_map_preview
+from skyrecon.mapping.tiles import TiledMap, is_tiled_map
 from skyrecon.planning import plan_with_flown_path, write_path_json, write_qgc_plan
 from skyrecon.planning.geo_export import write_footprint_geojson, write_path_geojson, write_path_kml
+from skyrecon.planning.tiled import plan_on_tiles
 
 EXAMPLES = """  skyrecon plan flight_map/ --start 0 0 15 --goal 120 80 20 --out route/
   skyrecon plan flight_map/ --start 0 0 15 --goal 120 80 20 --clearance 3 --max-z 40 --out route/
@@ -96,6 +98,8 @@ def run(args: argparse.Namespace) -> int:
     for name, p in (("--start", start), ("--goal", goal)):
         if not np.all(np.isfinite(p)):
             raise InputError(f"{name} must be three finite numbers, got {p.tolist()}")
+    if is_tiled_map(args.map_dir):
+        return _run_tiled(args, start, goal)
     occ = load_map(args.map_dir)
     if args.origin is None:
         args.origin = _map_geo_origin(args.map_dir)
@@ -161,5 +165,53 @@ def run(args: argparse.Namespace) -> int:
         info(
             f"wrote {out}/path.json, preview.png"
             + (", mission.plan, path.geojson, path.kml, footprint.geojson" if args.origin is not None else "")
+        )
+    return 0
+
+
+def _run_tiled(args: argparse.Namespace, start: np.ndarray, goal: np.ndarray) -> int:
+    """Plan on a tiled (district) map: only the tiles around the query are read (see
+    :mod:`skyrecon.planning.tiled`)."""
+    if args.prior_map:
+        raise InputError(
+            "--prior-map is not supported with a tiled map; merge the maps instead (map --merge)"
+        )
+    tiled = TiledMap.open(args.map_dir)
+    result = plan_on_tiles(
+        tiled,
+        start,
+        goal,
+        args.clearance,
+        snap_radius_m=max(0.0, args.snap_radius),
+        allow_unknown=args.allow_unknown,
+        min_z=args.min_z,
+        max_z=args.max_z,
+    )
+    out = output_dir(args.out)
+    write_path_json(out / "path.json", result, start=start, goal=goal)
+    if not result.success:
+        raise EstimationError(
+            f"no path from {start.tolist()} to {goal.tolist()}: {result.message or result.reason}"
+        )
+    if args.origin is not None:
+        write_qgc_plan(out / "mission.plan", result.waypoints, args.origin)
+        write_path_geojson(out / "path.geojson", result.waypoints, args.origin)
+        write_path_kml(out / "path.kml", result.waypoints, args.origin)
+    if not args.quiet:
+        straight = float(np.linalg.norm(goal - start))
+        how = (
+            f"a {result.adjusted['coarse_voxel_m']:g} m route refined in {result.adjusted['pieces']} pieces"
+            if result.adjusted.get("route") == "tiled"
+            else "directly"
+        )
+        info(
+            f"path of {len(result.waypoints)} waypoints, {result.length_m:.1f} m "
+            f"({result.length_m / max(straight, 1e-9):.3f} x straight line), clearance {args.clearance} m, "
+            f"planned {how} on {result.timings.get('tiles_read', 0)} tiles read "
+            f"in {result.timings.get('total', result.timings.get('total_with_tiles', float('nan'))):.1f} s"
+        )
+        info(
+            f"wrote {out}/path.json"
+            + (", mission.plan, path.geojson, path.kml" if args.origin is not None else "")
         )
     return 0

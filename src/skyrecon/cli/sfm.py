@@ -39,15 +39,17 @@ import numpy as np
 from skyrecon.cli.common import (
     add_cloud_format,
     add_command,
+    add_executor_options,
     add_record_option,
+    describe_executor,
     info,
+    open_executor,
     output_dir,
     positive_int,
     recording,
 )
 from skyrecon.core.intrinsics import Intrinsics
 from skyrecon.errors import InputError, SkyreconError
-from skyrecon.executor import get_executor
 from skyrecon.io.atomic import write_text_atomic
 from skyrecon.io.calib import read_K_txt
 from skyrecon.io.multiview import image_size_from_header
@@ -59,6 +61,7 @@ from skyrecon.sfm.pairs import resolve_pair_mode
 EXAMPLES = """  skyrecon sfm photos/images --camera photos/K.txt --out model/
   skyrecon sfm fountain/images --camera fountain/images/K.txt --max-image-size 1024 --frusta --out fountain_sfm/
   skyrecon sfm flight/frames --camera K.txt --pairing sequential --window 8 --workers 8 --out flight_sfm/
+  skyrecon sfm photos/images --camera photos/K.txt --executor dask --scheduler tcp://head:8786 --out /shared/model/
   skyrecon render images --views 10 --out photos/ && skyrecon sfm photos/images --camera photos/K.txt --out model/
   skyrecon sfm photos/images --camera photos/K.txt --out model/ --record model.mcap   # for Foxglove
 """
@@ -121,12 +124,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument(
         "--seed", type=int, default=0, help="seed of every random choice (same seed, same model; default 0)"
     )
-    p.add_argument(
-        "--workers",
-        type=positive_int,
-        default=None,
-        help="worker processes for features and matching (default: all cores, or $SKYRECON_WORKERS)",
-    )
+    add_executor_options(p, "workers for features and matching (default: all cores, or $SKYRECON_WORKERS)")
     p.add_argument("--frusta", action="store_true", help="add the camera frusta to sparse.ply")
     add_cloud_format(p)
     p.add_argument(
@@ -252,23 +250,29 @@ def _run_record(
     }
 
 
-def run(args: argparse.Namespace) -> int:
-    t_start = time.perf_counter()
-    paths = list_images(args.images_dir)
-    cam, size = _camera_for(args.camera, paths)
-    out = output_dir(args.out)
-    workspace = Path(args.workspace) if args.workspace else out / "workspace"
+def _run_pipeline(
+    args: argparse.Namespace,
+    paths: list[Path],
+    cam: Intrinsics,
+    size: tuple[int, int],
+    settings: SfMSettings,
+    base: Any,
+    workspace: Path,
+    t_start: float,
+) -> tuple[SfMResult, int, dict[str, Any], list[str]]:
+    """Run the pipeline on ``base`` (a local process executor kept alive across the stages); on
+    failure write ``sfm.json`` with the error. Returns (result, workers, run record, warnings)."""
+    out = Path(args.out)
     n = len(paths)
-    settings = _settings(args, [p.name for p in paths])
     pairing = settings.pairing.mode
-    executor, release = run_scoped_executor(get_executor(None, args.workers))
+    executor, release = run_scoped_executor(base)
     workers = int(getattr(executor, "workers", 1) or 1)
     pre_warnings = _camera_warnings(cam, args.camera)
     cli = _run_record(args, cam, size, settings, workers, workspace)
     if not args.quiet:
         info(
             f"{n} images ({size[0]}x{size[1]}) in {args.images_dir}; features at "
-            f"{args.max_image_size or 'input'} px, {pairing} pairing, {workers} worker{'s' if workers != 1 else ''}"
+            f"{args.max_image_size or 'input'} px, {pairing} pairing, {describe_executor(executor)}"
         )
     try:
         result = run_sfm(paths, cam, settings, executor=executor, seed=args.seed, workspace=workspace)
@@ -286,6 +290,20 @@ def run(args: argparse.Namespace) -> int:
         raise
     finally:
         release()
+    return result, workers, cli, pre_warnings
+
+
+def run(args: argparse.Namespace) -> int:
+    t_start = time.perf_counter()
+    paths = list_images(args.images_dir)
+    cam, size = _camera_for(args.camera, paths)
+    out = output_dir(args.out)
+    workspace = Path(args.workspace) if args.workspace else out / "workspace"
+    settings = _settings(args, [p.name for p in paths])
+    with open_executor(args) as base:
+        result, _, cli, pre_warnings = _run_pipeline(
+            args, paths, cam, size, settings, base, workspace, t_start
+        )
 
     t0 = time.perf_counter()
     files = write_sfm_outputs(

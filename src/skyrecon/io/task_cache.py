@@ -6,7 +6,10 @@ whole file or none). A rerun finds the results already there and runs only the m
 The key of a task is the hash of the task itself (its pickled bytes, with the fields that do not
 change the result replaced by the caller), so any change in its input gives a new key.
 
-Results must be picklable; the files are the run's own, read back only by later runs.
+Results must be picklable; the files are the run's own, read back only by later runs. An
+executor with ``results_via_files = True`` (the Dask one) gets only the file's path back from
+its workers and reads the result from the file: large arrays then move through the workspace
+(which its workers must share), not through pickled task results.
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, TypeVar
 
+from skyrecon.errors import SkyreconError
 from skyrecon.executor import Executor
 from skyrecon.io.atomic import write_bytes_atomic
 
@@ -52,6 +56,12 @@ def _run_and_store(fn: Callable[[T], R], path: str, item: T) -> R:
     result = fn(item)
     write_bytes_atomic(path, pickle.dumps((FORMAT, result), protocol=pickle.HIGHEST_PROTOCOL))
     return result
+
+
+def _run_and_store_path(fn: Callable[[T], R], path: str, item: T) -> str:
+    """Worker side, results through files: compute and store the result; return only its path."""
+    _run_and_store(fn, path, item)
+    return path
 
 
 def map_cached(
@@ -89,11 +99,23 @@ def map_cached(
             missing.append(i)
     if missing:
         # one partial per distinct path, so each task carries its own destination
-        jobs = [functools.partial(_run_and_store, fn, str(folder / f"{keys[i]}.pkl")) for i in missing]
+        via_files = bool(getattr(executor, "results_via_files", False))
+        store = _run_and_store_path if via_files else _run_and_store
+        jobs = [functools.partial(store, fn, str(folder / f"{keys[i]}.pkl")) for i in missing]
         computed = executor.map(_call, list(zip(jobs, [items[i] for i in missing])), desc=desc)
         for i, r in zip(missing, computed):
-            results[i] = r
+            results[i] = _read_stored(r) if via_files else r
     return results, len(items) - len(missing)
+
+
+def _read_stored(path: str) -> Any:
+    ok, result = _load(Path(path))
+    if not ok:
+        raise SkyreconError(
+            f"a worker stored its result in {path} but this process cannot read it; with a remote "
+            "cluster, put --workspace on a filesystem shared by the workers and this machine"
+        )
+    return result
 
 
 def _call(job: tuple[Callable[[Any], Any], Any]) -> Any:

@@ -603,6 +603,10 @@ class OccupancyMap:
         """Bytes held by the map's arrays (including spare capacity)."""
         return self.grid.nbytes() + int(self._dirty.nbytes)
 
+    def __getstate__(self) -> dict:
+        """Pickled without caches other modules keep on the map (the planner's grids)."""
+        return {k: v for k, v in self.__dict__.items() if not k.startswith("_skyrecon_")}
+
     def copy(self) -> OccupancyMap:
         m = OccupancyMap(self.config)
         m.grid = self.grid.copy()
@@ -722,7 +726,12 @@ class OccupancyMap:
 
     @classmethod
     def load(cls, directory: str | Path) -> OccupancyMap:
-        """Read a map written by :meth:`save`; raises InputError for missing or corrupt files."""
+        """Read a map written by :meth:`save` (or a tiled map, assembled whole: see
+        :mod:`skyrecon.mapping.tiles`); raises InputError for missing or corrupt files."""
+        from skyrecon.mapping.tiles import TiledMap, is_tiled_map  # tiles builds on this module
+
+        if is_tiled_map(directory):
+            return TiledMap.open(directory).to_map()
         stored = read_map_files(directory)
         try:
             return cls.from_blocks(stored.config, stored.coords, stored.log_odds)

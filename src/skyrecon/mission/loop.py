@@ -579,6 +579,7 @@ def run_mission(
             state.cam_from_world().inverse().with_frames("world", "left"),
             scenario.seed,
             scenario.city,
+            max_accel_mps2=cfg.max_accel_mps2,
         )
     faults, injector = _fault_injector(cfg.faults, scenario.seed, limit_s, pose_source)
     truth = pose_source.name == "truth"

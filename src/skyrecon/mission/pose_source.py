@@ -114,13 +114,21 @@ class OdometryPose:
 
     name = "odometry"
 
-    def __init__(self, rig: StereoRig, init_world_from_left: Rigid3, settings=None) -> None:
-        self.odometry = StereoOdometry(rig, settings or self.loop_settings(), init_world_from_left)
+    def __init__(
+        self, rig: StereoRig, init_world_from_left: Rigid3, settings=None, max_accel_mps2: float = 5.0
+    ) -> None:
+        self.odometry = StereoOdometry(
+            rig, settings or self.loop_settings(max_accel_mps2), init_world_from_left
+        )
 
     @staticmethod
-    def loop_settings() -> OdometrySettings:
-        """The odometry settings the delivery loop flies on."""
-        return OdometrySettings(detect_frozen=False, refine_disparity=True)
+    def loop_settings(max_accel_mps2: float = 5.0) -> OdometrySettings:
+        """The odometry settings the delivery loop flies on. The vehicle's acceleration limit bounds
+        how far a pose may leave the motion prediction (twice the limit: the prediction is itself
+        estimated), so a wrong consensus (a turn read as a slide) is refitted or refused, never flown."""
+        return OdometrySettings(
+            detect_frozen=False, refine_disparity=True, max_acceleration_mps2=2.0 * max_accel_mps2
+        )
 
     def read(self, left, right, time_s, disparity_px, true_world_from_left) -> PoseReading:
         t0 = time.perf_counter()
@@ -143,8 +151,10 @@ class GpsOdometryPose:
 
     name = "gps+odometry"
 
-    def __init__(self, rig: StereoRig, init_world_from_left: Rigid3, city, seed: int = 0) -> None:
-        self.odometry = OdometryPose(rig, init_world_from_left)
+    def __init__(
+        self, rig: StereoRig, init_world_from_left: Rigid3, city, seed: int = 0, max_accel_mps2: float = 5.0
+    ) -> None:
+        self.odometry = OdometryPose(rig, init_world_from_left, max_accel_mps2=max_accel_mps2)
         # the odometry starts from the true take-off pose: its world is already level and oriented
         # the drone's attitude is known (it took off level, oriented; an IMU and compass keep it):
         # GPS corrects the position only (fitting a rotation to a few metres of noisy fixes added
@@ -234,16 +244,21 @@ def true_step(
 
 
 def make_pose_source(
-    name: str, rig: StereoRig, init_world_from_left: Rigid3, seed: int = 0, city=None
+    name: str,
+    rig: StereoRig,
+    init_world_from_left: Rigid3,
+    seed: int = 0,
+    city=None,
+    max_accel_mps2: float = 5.0,
 ) -> PoseSource:
     """The pose source called ``name`` (one of :data:`POSE_SOURCES`); ``city`` (the simulated
-    one) is needed by ``gps+odometry``."""
+    one) is needed by ``gps+odometry``; ``max_accel_mps2`` is the vehicle's acceleration limit."""
     if name == "truth":
         return TruthPose()
     if name == "odometry":
-        return OdometryPose(rig, init_world_from_left)
+        return OdometryPose(rig, init_world_from_left, max_accel_mps2=max_accel_mps2)
     if name == "gps+odometry":
         if city is None:
             raise ValueError("the gps+odometry pose source needs the simulated city")
-        return GpsOdometryPose(rig, init_world_from_left, city, seed)
+        return GpsOdometryPose(rig, init_world_from_left, city, seed, max_accel_mps2=max_accel_mps2)
     raise ValueError(f"unknown pose source {name!r}; expected one of {', '.join(POSE_SOURCES)}")

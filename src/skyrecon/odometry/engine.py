@@ -50,7 +50,12 @@ from skyrecon.odometry.frontend import (
 from skyrecon.odometry.pnp import fast_absolute_pose
 from skyrecon.odometry.types import FrameEstimate, TrackingState
 from skyrecon.odometry.window import window_bundle_adjust
-from skyrecon.sfm.pnp import estimate_absolute_pose
+from skyrecon.sfm.pnp import (
+    AbsolutePose,
+    estimate_absolute_pose,
+    refine_absolute_pose,
+    reprojection_errors_px,
+)
 
 __all__ = ["OdometrySettings", "StereoOdometry"]
 
@@ -121,6 +126,14 @@ class OdometrySettings:
             camera or driver on real hardware. In a noise-free simulator a perfectly still drone
             also repeats its frames; turn this off there if it hovers.
         seed: seeds the RANSAC (frame ``i`` uses ``seed + i``).
+        max_acceleration_mps2: when set (a vehicle whose acceleration is known: the delivery loop sets
+            it), a pose farther than ``prediction_tolerance_m + a dt^2 / 2`` from the constant-velocity
+            prediction is not trusted: it is refitted from the prediction on the tracks that agree
+            with it, or the frame fails ("rejected a pose ... from the motion prediction").
+        prediction_tolerance_m: the part of that bound that does not grow with time, metres.
+        refresh_points: at each keyframe a map point measured again by stereo becomes the
+            inverse-variance mean of its measurements (weights disparity^4), instead of keeping
+            the depth of its first, usually farthest and least precise, measurement.
         loop_closure: reserved for place recognition and pose-graph correction (not implemented
             yet: setting it raises ``InputError`` rather than silently doing nothing).
     """
@@ -136,6 +149,7 @@ class OdometrySettings:
     refine_disparity: bool = True
     fb_threshold_px: float = 0.7
     min_disparity_px: float = 0.5
+    refresh_points: bool = True
     stereo_row_tolerance_px: float = 0.7
     ransac_threshold_px: float = 2.0
     ransac_iterations: int = 300
@@ -153,6 +167,8 @@ class OdometrySettings:
     window_iterations: int = 8
     max_speed_mps: float = 40.0
     max_rotation_rate_dps: float = 360.0
+    max_acceleration_mps2: float | None = None
+    prediction_tolerance_m: float = 0.3
     gap_factor: float = 1.8
     detect_frozen: bool = True
     seed: int = 0
@@ -269,6 +285,8 @@ class StereoOdometry:
         self._estimates: list[FrameEstimate] = []
         self._kfs: list[_Keyframe] = []
         self._points: dict[int, np.ndarray] = {}
+        self._point_weight: dict[int, float] = {}
+        self._motion_rejections = 0
         self._next_id = 0
         self._pyr: Pyramid | None = None
         self._pts = np.zeros((0, 2), np.float32)
@@ -511,11 +529,24 @@ class StereoOdometry:
     ) -> None:
         """Create map points for features with depth and no point yet; store the keyframe's observations."""
         has_d = np.isfinite(d)
-        new = has_d & np.array([i not in self._points for i in ids.tolist()], bool)
+        known = np.array([i in self._points for i in ids.tolist()], bool)
+        new = has_d & ~known
         if np.any(new):
             Xw = self._backproject(pts[new], d[new]) @ T[:3, :3].T + T[:3, 3]
-            for i, X in zip(ids[new].tolist(), Xw):
+            for i, X, di in zip(ids[new].tolist(), Xw, d[new].tolist()):
                 self._points[i] = X
+                self._point_weight[i] = di**4
+        again = has_d & known
+        if self.settings.refresh_points and np.any(again):
+            # a point measured again (usually nearer, so far more precisely: the depth's variance
+            # grows as 1 / disparity^4) is the inverse-variance mean of its measurements; a point
+            # first seen far away would otherwise keep that far, biased depth while the drone closes in
+            Xw = self._backproject(pts[again], d[again]) @ T[:3, :3].T + T[:3, 3]
+            for i, X, di in zip(ids[again].tolist(), Xw, d[again].tolist()):
+                w_old = self._point_weight.get(i, 0.0)
+                w_new = di**4
+                self._points[i] = (w_old * self._points[i] + w_new * X) / (w_old + w_new)
+                self._point_weight[i] = w_old + w_new
         has_pt = np.array([i in self._points for i in ids.tolist()], bool)
         right_uv = pts[has_pt & has_d].astype(np.float64).copy()
         right_uv[:, 0] -= d[has_pt & has_d]
@@ -700,9 +731,52 @@ class StereoOdometry:
                         f"trusted frame (limits {s.max_speed_mps:g} m/s, {s.max_rotation_rate_dps:g} deg/s)"
                     )
                     T = None
+                elif s.max_acceleration_mps2 is not None and len(self._trusted) >= 2:
+                    T, pose, failure = self._check_motion(T, pose, T_pred, elapsed, xn, X)
 
         n_inl = pose.num_inliers if (pose is not None and T is not None) else 0
         return _Attempt(pyr, pts, ok, use, pose, T, failure, n_inl)
+
+    def _check_motion(
+        self,
+        T: np.ndarray,
+        pose: AbsolutePose,
+        T_pred: np.ndarray,
+        elapsed: float,
+        xn: np.ndarray,
+        X: np.ndarray,
+    ) -> tuple[np.ndarray | None, AbsolutePose | None, str]:
+        """Hold a pose to the vehicle's dynamics: its position may leave the constant-velocity
+        prediction by at most ``prediction_tolerance_m + a_max * dt^2 / 2``. A pose beyond that
+        (RANSAC locked onto a wrong consensus: a rotation read as a slide near a wall, a passing
+        vehicle) is replaced by the pose refined from the prediction on the tracks the prediction
+        explains, when they are enough; else the frame fails with the reason."""
+        s = self.settings
+        assert s.max_acceleration_mps2 is not None
+        limit = s.prediction_tolerance_m + 0.5 * s.max_acceleration_mps2 * elapsed**2
+        dev = float(np.linalg.norm(T[:3, 3] - T_pred[:3, 3]))
+        if dev <= limit:
+            return T, pose, ""
+        R0 = T_pred[:3, :3].T
+        t0 = -R0 @ T_pred[:3, 3]
+        err = reprojection_errors_px(R0, t0, xn, X, float(self._f[0]))
+        near = err < 4.0 * s.ransac_threshold_px
+        why = f"rejected a pose {dev:.2f} m from the motion prediction (limit {limit:.2f} m)"
+        if int(np.count_nonzero(near)) < s.min_inliers:
+            return None, None, why
+        R, t = refine_absolute_pose(R0, t0, xn[near], X[near], float(self._f[0]), s.ransac_threshold_px / 2)
+        errors = reprojection_errors_px(R, t, xn, X, float(self._f[0]))
+        inliers = errors < s.ransac_threshold_px
+        T_new = np.eye(4)
+        T_new[:3, :3] = R.T
+        T_new[:3, 3] = -R.T @ t
+        if (
+            int(np.count_nonzero(inliers)) < s.min_inliers
+            or float(np.linalg.norm(T_new[:3, 3] - T_pred[:3, 3])) > limit
+        ):
+            return None, None, why
+        self._motion_rejections += 1
+        return T_new, AbsolutePose(R, t, inliers, errors, len(xn)), ""
 
     def _track_frame(
         self,

@@ -25,7 +25,6 @@ Frames and units: world frame (z up), metres.
 from __future__ import annotations
 
 import time
-import weakref
 from collections.abc import Iterator
 from contextlib import contextmanager
 
@@ -519,7 +518,7 @@ def _turning_points(raw: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(raw[keep])
 
 
-_CACHE: weakref.WeakKeyDictionary[OccupancyMap, dict] = weakref.WeakKeyDictionary()
+_CACHE_ATTR = "_skyrecon_planner_cache"
 
 
 def plan_path(
@@ -548,7 +547,9 @@ def plan_path(
     """
     base = occ_map.map if isinstance(occ_map, DistanceField) else occ_map
     key = (id(occ_map), float(clearance_m), tuple(sorted(options.items())))
-    per_map = _CACHE.setdefault(base, {}) if isinstance(base, OccupancyMap) else {}
+    # the cache lives on the map itself: a planner refers to its map, so a module-level weak mapping
+    # from maps to planners would keep every map ever planned on alive; this way both go together
+    per_map = base.__dict__.setdefault(_CACHE_ATTR, {}) if isinstance(base, OccupancyMap) else {}
     hit = per_map.get(key)
     if hit is None or hit[0] != base.version:
         planner = Planner(occ_map, clearance_m, **options)

@@ -1,0 +1,150 @@
+"""Structure from motion on long flights: 250 / 500 / 1000 frames of 1024 px, cost per frame and memory.
+
+The flight: ``sim.flight_poses`` over a 400 m synthetic city (5 m/s, 10 frames/s, turns at the
+intersections, camera pitched 12 degrees down), rendered at 1024x768 (80 degree field of view) as PNG
+once into ``--cache``. For each length N the first N frames go to the command a user runs:
+
+    skyrecon sfm FRAMES/ --camera K.txt --pairing sequential --out OUT/ --quiet
+
+in its own process (``os.wait4`` gives its CPU time and peak memory). Reported per N: wall time, CPU
+time, both per frame, peak resident memory (target <= 4 GB at 1000 frames), registered frames, and
+the camera-centre error against the true poses after a similarity alignment (median and max, % of
+the flight's extent). Targets (issue "Beyond one machine"): cost per frame flat within 20 % from 250
+to 1000 frames, peak memory at most 4 GB at 1000 frames. On a shared machine the wall time is noisy:
+CPU time per frame is what predicts a cluster.
+
+Usage:
+  .venv/bin/python benchmarks/scale/sfm_flight.py                   # 250, 500, 1000 frames
+  .venv/bin/python benchmarks/scale/sfm_flight.py --frames 100 200  # quicker
+Writes benchmarks/scale/sfm_flight_results.json (or --out).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT / "src"))
+
+from skyrecon.core import Intrinsics, Rigid3  # noqa: E402
+from skyrecon.eval.sfm_metrics import evaluate_sfm_poses  # noqa: E402
+from skyrecon.io.colmap import read_colmap_text  # noqa: E402
+from skyrecon.io.images import write_image  # noqa: E402
+
+
+def render_flight(n: int, cache: Path, seed: int, width: int) -> tuple[Path, Intrinsics]:
+    """Render (or reuse) the first ``n`` frames of the flight; returns the frame folder and camera."""
+    from skyrecon.sim import flight_poses, generate_city, render
+
+    height = width * 3 // 4
+    intr = Intrinsics.from_fov(width, height, 80.0)
+    d = cache / f"flight_seed{seed}_{width}px"
+    d.mkdir(parents=True, exist_ok=True)
+    poses_file = d / "cam_from_world.npy"
+    have = np.load(poses_file) if poses_file.is_file() else np.zeros((0, 4, 4))
+    if len(have) < n or not all((d / "frames" / f"frame_{k:04d}.png").is_file() for k in range(n)):
+        city = generate_city(seed, 400.0)
+        poses = flight_poses(city, n, seed, speed_mps=5.0, fps=10.0)
+        (d / "frames").mkdir(exist_ok=True)
+        t0 = time.perf_counter()
+        for k, world_from_cam in enumerate(poses):
+            f = d / "frames" / f"frame_{k:04d}.png"
+            if not f.is_file():
+                write_image(f, render(city, intr, world_from_cam.inverse()).image)
+            if k % 100 == 0:
+                print(f"  rendered {k}/{n} frames ({time.perf_counter() - t0:.0f} s)", flush=True)
+        np.save(poses_file, np.array([p.inverse().matrix for p in poses]))
+    K = intr.K
+    (d / "K.txt").write_text("\n".join(" ".join(f"{v:.6f}" for v in row) for row in K) + "\n")
+    return d, intr
+
+
+def run_one(flight: Path, n: int, out: Path, workers: int | None) -> dict:
+    """``skyrecon sfm`` on the first ``n`` frames, in its own process."""
+    sub = out / f"frames_{n}"
+    sub.mkdir(parents=True, exist_ok=True)
+    for k in range(n):
+        link = sub / f"frame_{k:04d}.png"
+        if not link.exists():
+            link.symlink_to(flight / "frames" / link.name)
+    model = out / f"model_{n}"
+    cmd = [sys.executable, "-m", "skyrecon", "sfm", str(sub), "--camera", str(flight / "K.txt")]
+    cmd += ["--pairing", "sequential", "--out", str(model), "--quiet"]
+    if workers:
+        cmd += ["--workers", str(workers)]
+    env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(cmd, env=env)
+    _, status, usage = os.wait4(proc.pid, 0)
+    wall = time.perf_counter() - t0
+    # the workers' CPU time is in RUSAGE_CHILDREN of the sfm process, not visible here: also count ours
+    if os.waitstatus_to_exitcode(status) != 0:
+        raise SystemExit(f"skyrecon sfm failed on {n} frames (exit {os.waitstatus_to_exitcode(status)})")
+    rec = read_colmap_text(model / "sparse")
+    M = np.load(flight / "cam_from_world.npy")
+    gt = {f"frame_{k:04d}.png": Rigid3.from_matrix(M[k]) for k in range(n)}
+    est = {im.name: im.cam_from_world for im in rec.images.values()}
+    s = evaluate_sfm_poses(est, gt).summary()
+    return {
+        "frames": n,
+        "registered": len(est),
+        "wall_s": wall,
+        "wall_s_per_frame": wall / n,
+        "peak_mb_main_process": usage.ru_maxrss / 1024.0,
+        "center_median_pct": s["center_median_pct"],
+        "center_max_pct": s["center_max_pct"],
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--frames", type=int, nargs="+", default=[250, 500, 1000])
+    ap.add_argument("--width", type=int, default=1024)
+    ap.add_argument("--seed", type=int, default=4)
+    ap.add_argument("--workers", type=int)
+    ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "skyrecon_sfm_scale")
+    ap.add_argument("--out", type=Path, default=Path(__file__).with_name("sfm_flight_results.json"))
+    args = ap.parse_args()
+    flight, _ = render_flight(max(args.frames), args.cache, args.seed, args.width)
+    work = Path(tempfile.mkdtemp(prefix="skyrecon_sfm_scale_"))
+    rows = []
+    for n in sorted(args.frames):
+        before = os.times()
+        row = run_one(flight, n, work, args.workers)
+        after = os.times()
+        row["cpu_s"] = (after.children_user - before.children_user) + (
+            after.children_system - before.children_system
+        )
+        row["cpu_s_per_frame"] = row["cpu_s"] / n
+        rows.append(row)
+        print(
+            f"{n:5d} frames: {row['registered']} registered, wall {row['wall_s']:.0f} s "
+            f"({row['wall_s_per_frame']:.2f} s/frame), CPU {row['cpu_s']:.0f} s ({row['cpu_s_per_frame']:.2f} s/frame), "
+            f"peak {row['peak_mb_main_process']:.0f} MB, centre error median {row['center_median_pct']:.3f} % "
+            f"max {row['center_max_pct']:.3f} % of the extent",
+            flush=True,
+        )
+    base = rows[0]["cpu_s_per_frame"]
+    for r in rows:
+        r["cpu_per_frame_vs_first"] = r["cpu_s_per_frame"] / base
+    print(
+        "CPU per frame relative to the shortest: "
+        + ", ".join(f"{r['frames']}: {r['cpu_per_frame_vs_first']:.2f}" for r in rows)
+    )
+    args.out.write_text(
+        json.dumps({"config": {k: str(v) for k, v in vars(args).items()}, "rows": rows}, indent=2) + "\n"
+    )
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()

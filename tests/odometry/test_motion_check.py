@@ -1,0 +1,58 @@
+"""A pose that leaves the vehicle's dynamics is refitted from the motion prediction or refused."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from skyrecon.core import Rigid3
+from skyrecon.odometry.engine import OdometrySettings, StereoOdometry
+from skyrecon.sfm.pnp import reprojection_errors_px
+from skyrecon.sim import default_rig
+
+
+def _setup(seed: int = 0):
+    rig = default_rig(640, 480, 90.0, 0.3)
+    eng = StereoOdometry(
+        rig, dataclasses.replace(OdometrySettings(), max_acceleration_mps2=10.0), Rigid3.identity()
+    )
+    rng = np.random.default_rng(seed)
+    X = np.column_stack([rng.uniform(-8, 8, 200), rng.uniform(-4, 4, 200), rng.uniform(4, 30, 200)])
+    T_true = np.eye(4)
+    T_true[:3, 3] = [0.05, 0.0, 0.5]  # world_from_left: half a metre forward
+    R, t = T_true[:3, :3].T, -T_true[:3, :3].T @ T_true[:3, 3]
+    P = X @ R.T + t
+    xn = P[:, :2] / P[:, 2:] + rng.normal(0, 0.2 / 320, (200, 2))
+    return eng, X, xn, T_true
+
+
+def test_a_slide_the_vehicle_cannot_make_is_refitted_from_the_prediction():
+    eng, X, xn, T_true = _setup()
+    T_wrong = T_true.copy()
+    T_wrong[:3, 3] += [2.7, 0.0, 0.0]  # 27 m/s sideways within one frame
+    T, pose, why = eng._check_motion(T_wrong, None, T_true, 0.1, xn, X)
+    assert why == "" and T is not None and pose is not None
+    assert np.linalg.norm(T[:3, 3] - T_true[:3, 3]) < 0.05
+    assert pose.num_inliers > 150
+    errors = reprojection_errors_px(pose.R, pose.t, xn, X, 320.0)
+    assert np.median(errors) < 0.5
+
+
+def test_a_pose_within_the_dynamics_passes_unchanged():
+    eng, X, xn, T_true = _setup()
+    T_pred = T_true.copy()
+    T_pred[:3, 3] += [0.1, 0.0, 0.0]  # 10 cm off the prediction: within 0.3 m + a dt^2 / 2
+    T, _, why = eng._check_motion(T_true, None, T_pred, 0.1, xn, X)
+    assert why == "" and T is T_true
+
+
+def test_when_the_prediction_explains_nothing_the_frame_fails_with_the_reason():
+    eng, X, xn, T_true = _setup()
+    T_pred = T_true.copy()
+    T_pred[:3, 3] += [0.0, 0.0, 5.0]  # the prediction itself is far off: no track agrees with it
+    R = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    T_pred[:3, :3] = R
+    T, pose, why = eng._check_motion(T_true, None, T_pred, 0.1, xn, X)
+    assert T is None and pose is None
+    assert "from the motion prediction" in why
