@@ -22,7 +22,15 @@ import argparse
 import time
 from pathlib import Path
 
-from skyrecon.cli.common import add_command, info, output_dir, positive_float, positive_int
+from skyrecon.cli.common import (
+    add_command,
+    add_executor_options,
+    info,
+    open_executor,
+    output_dir,
+    positive_float,
+    positive_int,
+)
 from skyrecon.errors import InputError
 
 EXAMPLES = """  skyrecon render survey --photos 16 --out flight/ && skyrecon survey flight/images --out survey/
@@ -96,7 +104,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         help="GPS tags farther than this from the fit are set aside, metres (default: adaptive)",
     )
     p.add_argument("--seed", type=int, default=0, help="seed of every random choice (default 0)")
-    p.add_argument("--workers", type=positive_int, help="worker processes (default: all cores)")
+    add_executor_options(
+        p, "workers for features, matching and depth (default: all cores, or $SKYRECON_WORKERS)"
+    )
     p.add_argument("--workspace", help="cache of intermediate work, reused by reruns (default OUT/workspace)")
     p.add_argument(
         "--format",
@@ -147,7 +157,8 @@ def run(args: argparse.Namespace) -> int:
     )
     if not args.quiet:
         info(f"{len(photos)} photos in {args.photos_dir}; workspace {workspace}")
-    result = run_survey(inputs, workspace, options)
+    with open_executor(args) as executor:
+        result = run_survey(inputs, workspace, options, executor)
     files = write_survey_outputs(result, out, args.format, args.cell, args.epsg)
     geo = result.georef
     if geo.set_aside:

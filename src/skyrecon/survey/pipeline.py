@@ -191,8 +191,8 @@ def gps_pairs(
     """
     n = len(positions)
     if n <= exhaustive_up_to:
-        i, j = np.triu_indices(n, k=1)
-        return np.stack([i, j], axis=1).astype(np.int64)
+        rows, cols = np.triu_indices(n, k=1)
+        return np.stack([rows, cols], axis=1).astype(np.int64)
     out: set[tuple[int, int]] = set()
     for i in range(n):
         for d in range(1, window + 1):
@@ -394,10 +394,8 @@ def run_survey(
     diag["pairs"] = int(len(pairs))
     timings["photos"] = time.perf_counter() - t
 
-    own_executor = executor is None
-    release = lambda: None  # noqa: E731
-    if executor is None:
-        executor, release = run_scoped_executor(get_executor(None, options.workers))
+    # one local pool for every stage (a plain process executor becomes a persistent pool)
+    executor, release = run_scoped_executor(executor or get_executor(None, options.workers))
     try:
         t = time.perf_counter()
         model0, unregistered, sfm_warnings = _sfm(
@@ -437,8 +435,7 @@ def run_survey(
         timings["mvs"] = time.perf_counter() - t
         diag["mvs_timings_s"] = {k: round(v, 2) for k, v in mvs.timings_s.items()}
     finally:
-        if own_executor:
-            release()
+        release()
 
     t = time.perf_counter()
     order = {p.name: k for k, p in enumerate(inputs.photos)}
