@@ -42,13 +42,17 @@ def test_wrong_tags_are_named_and_do_not_move_the_fit():
     geo = georeference_to_gps(model, gps, seed=0)
     assert set(geo.set_aside) >= set(wrong)
     assert len(set(geo.set_aside) - set(wrong)) <= 2  # a 3-sigma noise draw may join them
-    # as good as a least-squares fit to the right tags only (the best 3 m noise allows)
+    # at least as good as a least-squares fit to the right tags only (the nadir prior fixes the
+    # tilt the tags' height noise leaves loose: these cameras look exactly straight down)
     good = [n for n in names if n not in wrong]
     S = np.stack([model.image_by_name(n).center_world for n in good])
+    T = np.stack([truth[n] for n in good])
     oracle = umeyama(S, np.stack([gps[n] for n in good]), True).transform
-    assert np.abs(geo.enu_from_model.apply(S) - oracle.apply(S)).max() < 0.5
-    err = np.linalg.norm(geo.enu_from_model.apply(S) - np.stack([truth[n] for n in good]), axis=1)
-    assert np.median(err) < 1.5
+    err = np.linalg.norm(geo.enu_from_model.apply(S) - T, axis=1)
+    err_oracle = np.linalg.norm(oracle.apply(S) - T, axis=1)
+    assert np.median(err) <= np.median(err_oracle) + 0.05 and err.max() <= err_oracle.max() + 0.05
+    # (this draw's mean height noise is -1.3 m: no fit to these tags does better than that)
+    assert np.median(err) < 1.5 and geo.level is not None and geo.level["weight"] > 0.9
     assert geo.gps_residuals_m[wrong[0]] > 30
 
 
