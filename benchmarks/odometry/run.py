@@ -7,10 +7,15 @@ altitude changes, 5 m/s, 10 frames/s, camera pitched down 12 degrees, plus fast-
 camera swings +-45 degrees at up to 90 deg/s for 3 s, twice per 100 m). Rendered with exact poses
 at 640x480 (90 degree field of view, 0.3 m baseline: the delivery drone's rig) and cached as KITTI
 sequences under ``--cache`` (rendering is the slow part; a second run reads the cache).
+Two kinds of flight (``--flights``): ``route``, the random routes above, which never come back to a
+place (``--length-m``, 500 m: 537 m flown with the swings), and ``circuit``, a closed circuit around
+a rectangle of inner streets flown 1.5 times (``--circuit-length-m``, 560 m: the second lap
+revisits about 200 m of the first), same altitude changes and yaw swings (``circuit_path``).
 
 Methods, on the same frames in the same run, both started at the true first pose:
-  skyrecon   ``skyrecon.odometry.engine.StereoOdometry`` (default settings), the trajectory after
-             its refinement (``trajectory()``);
+  skyrecon   ``skyrecon.odometry.engine.StereoOdometry`` (default settings: loop closure on), the
+             trajectory after its refinement and loop closure (``trajectory()``);
+  skyrecon-nolc  the same with ``loop_closure=False``;
   opencv     ``opencv_vo.OpenCVStereoVO``: StereoSGBM depth + goodFeaturesToTrack +
              calcOpticalFlowPyrLK + solvePnPRansac frame to frame (see that file).
 ORB-SLAM3 is not on PyPI and does not build here (no pip wheel, needs Pangolin/OpenCV C++
@@ -22,11 +27,14 @@ Scores (``skyrecon.eval.odometry_metrics``): ATE RMSE after SE(3) alignment, RPE
 absolute errors without alignment (both start at the true pose): "VO abs" (the odometry alone),
 "GPS" (the simulated urban-canyon fixes, ``skyrecon.sim.gps.simulate_gps``: 2 m horizontal / 4 m
 vertical correlated bias, 1 m noise, 20 m multipath jumps) and "GPS+VO" (``skyrecon.odometry.gps``
-fusing the two). The table shows every seed, the worst case over seeds and the ratios
-skyrecon / opencv (below 1 is better for the errors, above 1 for the rate).
+fusing the two); ATE in % of the distance; loops accepted and rejected by loop closure. The table
+shows every seed, the worst case over seeds and the ratios skyrecon / opencv (below 1 is better
+for the errors, above 1 for the rate), one table per kind of flight.
 
 Usage:
-  .venv/bin/python benchmarks/odometry/run.py                    # 3 seeds x 500 m at 640x480
+  .venv/bin/python benchmarks/odometry/run.py                    # 3 seeds x (route, circuit) at 640x480
+  .venv/bin/python benchmarks/odometry/run.py --flights circuit --seeds 1 --out c1.json   # one part,
+  .venv/bin/python benchmarks/odometry/run.py --merge c1.json c2.json r1.json   # ... parts combined
   .venv/bin/python benchmarks/odometry/run.py --quick            # 1 seed, 100 m at 320x240
   .venv/bin/python benchmarks/odometry/run.py --seeds 1 2 --length-m 300 --methods opencv
 Writes benchmarks/odometry/results.json (or --out).
@@ -59,7 +67,7 @@ from skyrecon.odometry.gps import GpsFusion  # noqa: E402
 from skyrecon.odometry.run import run_odometry, summarize_run  # noqa: E402
 from skyrecon.sim import generate_city, render_stereo  # noqa: E402
 from skyrecon.sim.gps import simulate_gps  # noqa: E402
-from skyrecon.sim.scenes import default_rig, flight_path, look_from  # noqa: E402
+from skyrecon.sim.scenes import _sample, _Segment, default_rig, flight_path, look_from  # noqa: E402
 
 SPEED_MPS, FPS = 5.0, 10.0
 
@@ -77,17 +85,79 @@ def yaw_swings(s_m: np.ndarray, t_s: np.ndarray, every_m: float = 50.0, rate_dps
     return out
 
 
-def make_flight(seed: int, length_m: float, width: int, height: int, cache: Path) -> Path:
-    """Render (or reuse) the flight of ``seed`` as a KITTI sequence; returns its directory."""
+def circuit_path(
+    city, n: int, seed: int, laps: float = 1.5, altitude_m: float = 16.0, wobble_m: float = 4.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Positions (n, 3) and headings (n,) of a closed circuit around a rectangle of inner streets,
+    flown ``laps`` times at ``SPEED_MPS`` (corners rounded with half the street width), so that the
+    second lap revisits the first one's places. The rectangle is the one whose perimeter is closest
+    to the distance / ``laps`` and that keeps 2.5 m clear of every obstacle; ``seed`` picks the
+    direction and the altitude wobble's phase."""
+    xs, ys = city.street_centers
+    wx, wy = city.street_widths
+    length = (n - 1) * SPEED_MPS / FPS
+    rects = [
+        (i0, i1, j0, j1)
+        for i0 in range(1, len(xs) - 2)
+        for i1 in range(i0 + 1, len(xs) - 1)
+        for j0 in range(1, len(ys) - 2)
+        for j1 in range(j0 + 1, len(ys) - 1)
+    ]
+    perim = [2 * (xs[i1] - xs[i0] + ys[j1] - ys[j0]) for i0, i1, j0, j1 in rects]
+    rng = np.random.default_rng(seed)
+    ccw = bool(rng.integers(2))
+    phase = rng.uniform(0, 2 * np.pi)
+    s = np.arange(n) * SPEED_MPS / FPS
+    for k in np.argsort(np.abs(np.array(perim) - length / laps)):
+        i0, i1, j0, j1 = rects[k]
+        corners = [(i0, j0), (i1, j0), (i1, j1), (i0, j1)]
+        if not ccw:
+            corners = corners[::-1]
+        pts = [np.array([xs[a], ys[b]]) for a, b in corners]
+        radius = [0.5 * min(wx[a], wy[b]) for a, b in corners]
+        segs = []
+        cur = (pts[0] + pts[1]) / 2
+        m = 1
+        while sum(g.length for g in segs) < length + 50.0:
+            c, c_next, prev = pts[m % 4], pts[(m + 1) % 4], pts[(m - 1) % 4]
+            d_in = (c - prev) / np.linalg.norm(c - prev)
+            d_out = (c_next - c) / np.linalg.norm(c_next - c)
+            r = radius[m % 4]
+            p_start = c - d_in * r
+            segs.append(_Segment("line", float(np.linalg.norm(p_start - cur)), cur, d_in))
+            centre = p_start + d_out * r
+            a0 = math.atan2(p_start[1] - centre[1], p_start[0] - centre[0])
+            turn = np.sign(d_in[0] * d_out[1] - d_in[1] * d_out[0])
+            segs.append(_Segment("arc", r * np.pi / 2, centre, np.array([a0, turn * np.pi / 2]), r))
+            cur = c + d_out * r
+            m += 1
+        pos2, yaw = _sample(segs, s)
+        z = altitude_m + wobble_m * np.sin(2 * np.pi * s / 45.0 + phase)
+        pos = np.column_stack([pos2, z])
+        mid = (pos[1:] + pos[:-1]) / 2
+        if np.all(city.distance(np.vstack([pos, mid]), include_ground=True) >= 2.5):
+            return pos, yaw
+    raise RuntimeError(f"city {seed}: no circuit keeps 2.5 m clear of the obstacles")
+
+
+def make_flight(
+    seed: int, length_m: float, width: int, height: int, cache: Path, circuit: bool = False
+) -> Path:
+    """Render (or reuse) the flight of ``seed`` as a KITTI sequence; returns its directory. ``circuit``:
+    the closed circuit of :func:`circuit_path` (revisits its start) instead of a random route."""
     n = int(round(length_m / SPEED_MPS * FPS)) + 1
-    root = cache / f"vo_seed{seed}_{int(length_m)}m_{width}x{height}"
+    kind = "circuit" if circuit else "vo"
+    root = cache / f"{kind}_seed{seed}_{int(length_m)}m_{width}x{height}"
     if is_sequence_dir(root) and (root / "poses.txt").is_file() and len(read_sequence(root)) == n:
         return root
     city = generate_city(seed, 240.0, low_texture_fraction=0.3)
     rig = default_rig(width, height, 90.0, 0.3)
-    pos, yaw = flight_path(
-        city, n, seed, SPEED_MPS, FPS, altitude_m=16.0, altitude_wobble_m=4.0, clearance_m=2.5
-    )
+    if circuit:
+        pos, yaw = circuit_path(city, n, seed)
+    else:
+        pos, yaw = flight_path(
+            city, n, seed, SPEED_MPS, FPS, altitude_m=16.0, altitude_wobble_m=4.0, clearance_m=2.5
+        )
     t = np.arange(n) / FPS
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pos, axis=0), axis=1))])
     yaw = yaw + yaw_swings(s, t)
@@ -114,10 +184,13 @@ def make_engine(method: str, rig, init: Rigid3):
     if method == "opencv":
         return OpenCVStereoVO(rig, max_disparity=128, init_world_from_left=init)
     engine = importlib.import_module("skyrecon.odometry.engine")
-    return engine.StereoOdometry(rig, engine.OdometrySettings(), init)
+    settings = engine.OdometrySettings()  # loop closure on (the default)
+    if method == "skyrecon-nolc":
+        settings = engine.OdometrySettings(loop_closure=False)
+    return engine.StereoOdometry(rig, settings, init)
 
 
-def run_method(method: str, root: Path, seed: int, max_frames: int | None) -> dict:
+def run_method(method: str, root: Path, seed: int, max_frames: int | None, flight: str = "route") -> dict:
     seq = read_sequence(root)
     n = min(len(seq), max_frames or len(seq))
     gt = seq.world_from_left[:n]  # type: ignore[index]
@@ -133,12 +206,22 @@ def run_method(method: str, root: Path, seed: int, max_frames: int | None) -> di
     gps_err = np.array(
         [np.linalg.norm(f.position - gt[min(int(round(f.time_s * FPS)), n - 1)].t) for f in fixes]
     )
+    loops = summary.get("loop_closure") or {}
     return {
+        "flight": flight,
         "method": method,
         "seed": seed,
         "frames": n,
         "path_m": round(m.path_length_m, 1),
         "ate_m": m.ate_rmse_m,
+        "ate_pct": 100.0 * m.ate_rmse_m / max(m.path_length_m, 1e-9),
+        "end_error_m": float(abs_err[-1]),
+        "loops_accepted": loops.get("accepted"),
+        "loops_rejected": loops.get("rejected"),
+        "loop_rejected_reasons": loops.get("rejected_reasons"),
+        "loop_max_correction_m": loops.get("max_correction_m"),
+        "pose_graph_solves": loops.get("pose_graph_solves"),
+        "pose_graph_ms_max": loops.get("pose_graph_ms_max"),
         "rpe100_m": m.rpe_100m["trans_rmse_m"],
         "drift_pct": m.drift_pct,
         "rot_deg_per_100m": m.drift["rotation_deg_per_100m"],
@@ -156,6 +239,7 @@ def run_method(method: str, root: Path, seed: int, max_frames: int | None) -> di
 
 COLUMNS = [
     ("ate_m", "ATE m", "{:.3f}"),
+    ("ate_pct", "ATE %", "{:.3f}"),
     ("rpe100_m", "RPE100 m", "{:.3f}"),
     ("drift_pct", "drift %", "{:.2f}"),
     ("fps", "fps", "{:.1f}"),
@@ -163,6 +247,8 @@ COLUMNS = [
     ("vo_abs_rmse_m", "VO abs m", "{:.2f}"),
     ("gps_rmse_m", "GPS m", "{:.2f}"),
     ("gps_fused_rmse_m", "GPS+VO m", "{:.2f}"),
+    ("loops_accepted", "loops ok", "{:d}"),
+    ("loops_rejected", "loops rej", "{:d}"),
 ]
 HIGHER_IS_BETTER = {"fps"}
 
@@ -173,44 +259,55 @@ def _cell(v, fmt: str) -> str:
     return fmt.format(int(v) if fmt == "{:d}" else v)
 
 
-def worst(rows: list[dict], method: str) -> dict:
-    mine = [r for r in rows if r["method"] == method]
-    out: dict = {"method": method, "seed": "worst"}
+def worst(rows: list[dict], method: str, flight: str) -> dict:
+    mine = [r for r in rows if r["method"] == method and r["flight"] == flight]
+    out: dict = {"flight": flight, "method": method, "seed": "worst"}
     for key, _, _ in COLUMNS:
         vals = [r[key] for r in mine if r[key] is not None]
         if not vals:
             out[key] = None
+        elif key.startswith("loops_"):
+            out[key] = sum(vals)  # loops: the total over seeds
         else:
             out[key] = min(vals) if key in HIGHER_IS_BETTER else max(vals)
     return out
 
 
 def print_table(rows: list[dict], methods: list[str]) -> list[dict]:
-    header = f"{'method':<9} {'seed':>5} {'path m':>7} " + " ".join(f"{h:>9}" for _, h, _ in COLUMNS)
-    print(header)
-    print("-" * len(header))
-    for r in rows:
-        print(
-            f"{r['method']:<9} {r['seed']!s:>5} {r['path_m']:>7} "
-            + " ".join(f"{_cell(r[k], f):>9}" for k, _, f in COLUMNS)
-        )
-    worst_rows = [worst(rows, m) for m in methods]
-    for w in worst_rows:
-        print(
-            f"{w['method']:<9} {'worst':>5} {'':>7} "
-            + " ".join(f"{_cell(w[k], f):>9}" for k, _, f in COLUMNS)
-        )
-    if "skyrecon" in methods and "opencv" in methods:
-        a, b = worst_rows[methods.index("skyrecon")], worst_rows[methods.index("opencv")]
-        ratios = {}
-        for k, _, _ in COLUMNS:
-            if a[k] is not None and b[k] not in (None, 0):
-                ratios[k] = a[k] / b[k]
-        print(
-            f"{'ratio':<9} {'worst':>5} {'':>7} "
-            + " ".join(f"{(f'{ratios[k]:.2f}' if k in ratios else '-'):>9}" for k, _, _ in COLUMNS)
-        )
-        print("(ratio = skyrecon / opencv on the worst case over seeds; < 1 is better except fps)")
+    """Print one table per flight kind (every seed, the worst case, the ratio skyrecon / opencv);
+    returns the worst-case rows."""
+    worst_rows = []
+    for flight in dict.fromkeys(r["flight"] for r in rows):
+        mine = [r for r in rows if r["flight"] == flight]
+        print(f"flights: {flight}")
+        header = f"{'method':<14} {'seed':>5} {'path m':>7} " + " ".join(f"{h:>9}" for _, h, _ in COLUMNS)
+        print(header)
+        print("-" * len(header))
+        for r in mine:
+            print(
+                f"{r['method']:<14} {r['seed']!s:>5} {r['path_m']:>7} "
+                + " ".join(f"{_cell(r[k], f):>9}" for k, _, f in COLUMNS)
+            )
+        here = [worst(rows, m, flight) for m in methods]
+        worst_rows += here
+        for w in here:
+            print(
+                f"{w['method']:<14} {'worst':>5} {'':>7} "
+                + " ".join(f"{_cell(w[k], f):>9}" for k, _, f in COLUMNS)
+            )
+        if "skyrecon" in methods and "opencv" in methods:
+            a, b = here[methods.index("skyrecon")], here[methods.index("opencv")]
+            ratios = {}
+            for k, _, _ in COLUMNS:
+                if not k.startswith("loops_") and a[k] is not None and b[k] not in (None, 0):
+                    ratios[k] = a[k] / b[k]
+            print(
+                f"{'ratio':<14} {'worst':>5} {'':>7} "
+                + " ".join(f"{(f'{ratios[k]:.2f}' if k in ratios else '-'):>9}" for k, _, _ in COLUMNS)
+            )
+        print()
+    print("(ratio = skyrecon / opencv on the worst case over seeds; < 1 is better except fps;")
+    print(" skyrecon: loop closure on, the default; skyrecon-nolc: off; loops: totals over seeds)")
     return worst_rows
 
 
@@ -221,32 +318,72 @@ def main() -> None:
     ap.add_argument("--size", type=int, nargs=2, default=[640, 480], metavar=("W", "H"))
     ap.add_argument("--frames", type=int, help="track only the first N frames of each flight")
     ap.add_argument("--quick", action="store_true", help="1 seed, 100 m, 320x240")
-    ap.add_argument("--methods", nargs="+", default=["skyrecon", "opencv"], choices=["skyrecon", "opencv"])
+    ap.add_argument(
+        "--methods",
+        nargs="+",
+        default=["skyrecon", "skyrecon-nolc", "opencv"],
+        choices=["skyrecon", "skyrecon-nolc", "opencv"],
+    )
+    ap.add_argument(
+        "--flights",
+        nargs="+",
+        default=["route", "circuit"],
+        choices=["route", "circuit"],
+        help="route: random routes that never come back (--length-m); circuit: a closed circuit flown "
+        "1.5 times (--circuit-length-m), the second lap revisits the first",
+    )
+    ap.add_argument("--circuit-length-m", type=float, default=560.0)
     ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "skyrecon_vo_bench")
     ap.add_argument("--out", type=Path, default=Path(__file__).with_name("results.json"))
+    ap.add_argument(
+        "--merge",
+        type=Path,
+        nargs="+",
+        metavar="JSON",
+        help="combine the rows of earlier runs (e.g. one process per seed) into one table and --out",
+    )
     args = ap.parse_args()
+    if args.merge:
+        docs = [json.loads(p.read_text()) for p in args.merge]
+        rows = [r for d in docs for r in d["rows"]]
+        methods = list(dict.fromkeys(m for d in docs for m in d["methods"]))
+        worst_rows = print_table(rows, methods)
+        doc = {**docs[0], "merged_from": [str(p) for p in args.merge], "methods": methods}
+        doc.update(rows=rows, worst=worst_rows)
+        args.out.write_text(json.dumps(doc, indent=2) + "\n")
+        print(f"wrote {args.out}")
+        return
     if args.quick:
         args.seeds, args.length_m, args.size = args.seeds[:1], 100.0, [320, 240]
+        args.flights = ["route"]
     methods = list(args.methods)
-    if "skyrecon" in methods and importlib.util.find_spec("skyrecon.odometry.engine") is None:
+    if importlib.util.find_spec("skyrecon.odometry.engine") is None:
         print("skyrecon.odometry.engine is not available in this checkout: running the baseline only")
-        methods.remove("skyrecon")
+        methods = [m for m in methods if m == "opencv"]
     args.cache.mkdir(parents=True, exist_ok=True)
     rows = []
-    for seed in args.seeds:
-        t0 = time.perf_counter()
-        root = make_flight(seed, args.length_m, args.size[0], args.size[1], args.cache)
-        print(f"seed {seed}: flight ready in {time.perf_counter() - t0:.0f} s ({root})", flush=True)
-        for method in methods:
+    for flight in args.flights:
+        length = args.circuit_length_m if flight == "circuit" else args.length_m
+        for seed in args.seeds:
             t0 = time.perf_counter()
-            rows.append(run_method(method, root, seed, args.frames))
-            print(f"  {method}: {time.perf_counter() - t0:.0f} s", flush=True)
+            root = make_flight(
+                seed, length, args.size[0], args.size[1], args.cache, circuit=flight == "circuit"
+            )
+            print(
+                f"{flight} seed {seed}: flight ready in {time.perf_counter() - t0:.0f} s ({root})", flush=True
+            )
+            for method in methods:
+                t0 = time.perf_counter()
+                rows.append(run_method(method, root, seed, args.frames, flight))
+                print(f"  {method}: {time.perf_counter() - t0:.0f} s", flush=True)
     print()
     worst_rows = print_table(rows, methods)
     doc = {
         "config": {
             "seeds": args.seeds,
             "length_m": args.length_m,
+            "flights": args.flights,
+            "circuit_length_m": args.circuit_length_m,
             "size": args.size,
             "frames": args.frames,
             "speed_mps": SPEED_MPS,

@@ -68,33 +68,69 @@ def flight_poses(
     return poses
 
 
-def phase_flights(args: argparse.Namespace) -> dict:
+def build_flight(job: tuple[int, float, float, float, float, float, int, str]) -> dict:
+    """One survey flight's map (a picklable task: runs on any executor). Returns its summary."""
     from skyrecon.core import Intrinsics
     from skyrecon.mapping import OccupancyMap, save_map
     from skyrecon.sim import generate_city, render
 
-    city = generate_city(args.seed, args.size)
+    index, size, y0, y1, altitude, step, seed, out = job
+    t0 = time.process_time()
+    city = generate_city(seed, size)
     K = Intrinsics.from_fov(320, 240, 90.0)
+    occ = OccupancyMap(voxel_size_m=0.5, max_range_m=80.0)
+    poses = flight_poses(size, (y0, y1), altitude, 50.0, step)
+    for world_from_cam in poses:
+        r = render(city, K, world_from_cam.inverse().with_frames("cam", "world"))
+        occ.integrate_depth(r.depth_m, K, world_from_cam)
+    save_map(occ, out)
+    return {
+        "map": out,
+        "frames": len(poses),
+        "blocks": int(occ.grid.count),
+        "cpu_s": time.process_time() - t0,
+    }
+
+
+def phase_flights(args: argparse.Namespace) -> dict:
+    from skyrecon.executor import get_executor
+
     edges = np.linspace(-args.size / 2, args.size / 2, args.flights + 1)
-    out = []
+    jobs = [
+        (
+            f,
+            args.size,
+            edges[f],
+            edges[f + 1],
+            args.altitude,
+            args.step,
+            args.seed,
+            str(Path(args.work) / f"flight_{f}"),
+        )
+        for f in range(args.flights)
+    ]
     t0 = time.perf_counter()
-    frames = 0
-    for f in range(args.flights):
-        occ = OccupancyMap(voxel_size_m=0.5, max_range_m=80.0)
-        poses = flight_poses(args.size, (edges[f], edges[f + 1]), args.altitude, 50.0, args.step)
-        for world_from_cam in poses:
-            r = render(city, K, world_from_cam.inverse().with_frames("cam", "world"))
-            occ.integrate_depth(r.depth_m, K, world_from_cam)
-        frames += len(poses)
-        d = Path(args.work) / f"flight_{f}"
-        save_map(occ, d)
-        out.append(str(d))
+    executor = get_executor(args.executor, args.workers)
+    try:
+        rows = executor.map(build_flight, jobs, desc="flights")
+    finally:
+        close = getattr(executor, "close", None)
+        if close is not None:
+            close()
+    for r in rows:
         print(
-            f"  flight {f + 1}/{args.flights}: {len(poses)} frames, {occ.grid.count} blocks "
-            f"({time.perf_counter() - t0:.0f} s)",
+            f"  flight {r['map']}: {r['frames']} frames, {r['blocks']} blocks, {r['cpu_s']:.0f} s CPU",
             flush=True,
         )
-    return {"maps": out, "frames": frames, "seconds": time.perf_counter() - t0, "peak_mb": _peak_mb()}
+    return {
+        "maps": [r["map"] for r in rows],
+        "frames": sum(r["frames"] for r in rows),
+        "seconds": time.perf_counter() - t0,
+        "cpu_s": sum(r["cpu_s"] for r in rows),
+        "executor": args.executor,
+        "workers": args.workers,
+        "peak_mb": _peak_mb(),
+    }
 
 
 def phase_queries(args: argparse.Namespace) -> dict:
@@ -241,6 +277,10 @@ def main() -> None:
     ap.add_argument("--queries", type=int, default=1000)
     ap.add_argument("--plans", type=int, default=3)
     ap.add_argument("--seed", type=int, default=5)
+    ap.add_argument(
+        "--executor", default="serial", help="where the flights are mapped: serial, process, dask"
+    )
+    ap.add_argument("--workers", type=int, default=1, help="workers of the executor (default 1)")
     ap.add_argument("--work", default=None)
     ap.add_argument("--keep", action="store_true")
     ap.add_argument("--out", type=Path, default=Path(__file__).with_name("district_results.json"))
@@ -256,6 +296,11 @@ def main() -> None:
     try:
         print(f"district {args.size:g} m, {args.flights} flights (work folder {args.work})", flush=True)
         flights = run_phase("flights", args)
+        print(
+            f"flights: {flights['frames']} frames in {flights['seconds']:.0f} s wall, {flights['cpu_s']:.0f} s CPU "
+            f"({args.executor}, {args.workers} worker(s))",
+            flush=True,
+        )
         merge = merge_phase(args, flights["maps"])
         print(
             f"merge: {merge['seconds']:.1f} s, peak {merge['peak_mb']:.0f} MB, {merge['tiles']} tiles, "

@@ -34,6 +34,7 @@ import importlib.util
 import logging
 import os
 import pickle
+import time
 import uuid
 from collections.abc import Callable, Iterable
 from pathlib import Path
@@ -86,6 +87,21 @@ def code_fingerprint() -> str:
         h.update(path.relative_to(root).as_posix().encode())
         h.update(path.read_bytes())
     return f"{skyrecon.__version__}+{h.hexdigest()[:12]}"
+
+
+def _scatter(client: Any, item: Any, attempts: int = 6) -> Any:
+    """``client.scatter(item)``, tried again when the worker it went to has just died (its
+    connection closes under the scatter: OSError/CommClosedError); the cluster replaces the worker."""
+    for attempt in range(attempts):
+        try:
+            return client.scatter(item, hash=False)
+        except OSError:
+            if attempt == attempts - 1:
+                raise SkyreconError(
+                    f"could not send a work item to the cluster's workers ({attempts} tries): are they alive?"
+                ) from None
+            time.sleep(0.25 * (attempt + 1))
+    raise AssertionError("unreachable")
 
 
 class DaskExecutor:
@@ -168,7 +184,7 @@ class DaskExecutor:
         def submit(i: int) -> None:
             item: Any = items[i]
             if _pickled_size(item) > self.scatter_bytes:
-                item = client.scatter(item, hash=False)
+                item = _scatter(client, item)
             key = f"{name}-{run_id}-{i}-{resubmitted[i]}"
             fut = client.submit(fn, item, key=key, pure=False, retries=self.retries)
             index[fut] = i

@@ -10,8 +10,13 @@ optional ``--pose-topic`` as ground truth; see ``skyrecon.io.rosbag_input``). Wr
   ``--init-pose`` the world is the first frame's left camera (OpenCV axes).
 * ``trajectory.txt``: the same poses in TUM format (``timestamp tx ty tz qx qy qz qw``, for ``evo``).
 * ``odometry.json``: settings, summary (frames, rate, lost/degraded counts with reasons, timing
-  percentiles), metrics against ground truth, GPS statistics, one record per frame.
+  percentiles, loop closure: loops accepted and rejected with reasons, largest correction), metrics
+  against ground truth, GPS statistics, one record per frame.
 * ``report.html``: trajectory top view, speed, features, tracking-state timeline.
+
+Loop closure is on (``--no-loop-closure`` turns it off): when the flight comes back to a place it
+saw, the keyframes are corrected by a pose-graph optimisation and ``poses.txt`` holds the corrected
+trajectory; a loop that fails a check is dropped and reported, never applied.
 
 Ground truth: ``--gt`` (KITTI poses.txt by frame, TUM or EuRoC csv by time), else what the sequence
 carries (KITTI ``poses.txt``, EuRoC ``state_groundtruth_estimate0``).
@@ -190,6 +195,12 @@ def run(args: argparse.Namespace) -> int:
             d = metrics.drift_pct
             line += f"; ATE {metrics.ate_rmse_m:.3f} m, drift " + (
                 f"{d:.2f} %" if d is not None else "n/a (< 25 m)"
+            )
+        lc = summary.get("loop_closure")
+        if lc and lc.get("enabled"):
+            line += (
+                f"; loops {lc['accepted']} accepted, {lc['rejected']} rejected"
+                f" (largest correction {lc['max_correction_m']:.2f} m)"
             )
         if "gps" in summary:
             g = summary["gps"]

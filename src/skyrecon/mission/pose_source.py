@@ -125,9 +125,14 @@ class OdometryPose:
     def loop_settings(max_accel_mps2: float = 5.0) -> OdometrySettings:
         """The odometry settings the delivery loop flies on. The vehicle's acceleration limit bounds
         how far a pose may leave the motion prediction (twice the limit: the prediction is itself
-        estimated), so a wrong consensus (a turn read as a slide) is refitted or refused, never flown."""
+        estimated), so a wrong consensus (a turn read as a slide) is refitted or refused, never flown.
+        Loop closure is off: its pose-graph solves would add latency spikes to the control loop, and
+        a delivery rarely comes back to where it has been."""
         return OdometrySettings(
-            detect_frozen=False, refine_disparity=True, max_acceleration_mps2=2.0 * max_accel_mps2
+            detect_frozen=False,
+            refine_disparity=True,
+            max_acceleration_mps2=2.0 * max_accel_mps2,
+            loop_closure=False,
         )
 
     def read(self, left, right, time_s, disparity_px, true_world_from_left) -> PoseReading:

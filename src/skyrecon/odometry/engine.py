@@ -19,6 +19,14 @@ disparity as it is with ``refine_disparity=False``) turns features into map poin
 keyframes and their points. Non-keyframe poses are kept relative to their reference keyframe, so
 the window's refinements reach them in :meth:`StereoOdometry.trajectory`.
 
+Loop closure (``loop_closure``, on by default; :mod:`skyrecon.odometry.loops`): each keyframe is
+described (thumbnail, ORB descriptors at its corners with their stereo points) and searched among
+the old keyframes near the current estimate; a loop that passes the two-way PnP check, the drift
+gate and a confirmation by the next keyframe goes into an SE(3) pose graph over the keyframes
+(:mod:`skyrecon.odometry.pose_graph`). The corrected keyframes carry their frames with them, and the
+map points in use and the motion prior move with the newest keyframe, so tracking continues from
+the corrected pose. :meth:`StereoOdometry.loop_report` says what was found, applied and rejected.
+
 Frames: ``world`` is the left camera of the first frame unless ``init_world_from_left`` says
 otherwise; ``left`` is the current left camera (OpenCV axes). Metres, seconds, pixels.
 """
@@ -47,6 +55,7 @@ from skyrecon.odometry.frontend import (
     stereo_match,
     track_points,
 )
+from skyrecon.odometry.loops import LoopCloser
 from skyrecon.odometry.pnp import fast_absolute_pose
 from skyrecon.odometry.types import FrameEstimate, TrackingState
 from skyrecon.odometry.window import window_bundle_adjust
@@ -134,8 +143,19 @@ class OdometrySettings:
         refresh_points: at each keyframe a map point measured again by stereo becomes the
             inverse-variance mean of its measurements (weights disparity^4), instead of keeping
             the depth of its first, usually farthest and least precise, measurement.
-        loop_closure: reserved for place recognition and pose-graph correction (not implemented
-            yet: setting it raises ``InputError`` rather than silently doing nothing).
+        loop_closure: place recognition on keyframes, a geometric check and a pose-graph
+            optimisation (:mod:`skyrecon.odometry.loops`): when the flight comes back to a place it
+            saw, the keyframe poses are corrected and tracking continues from the corrected pose.
+            A loop that fails any check is dropped (and reported in :meth:`StereoOdometry.loop_report`),
+            never applied.
+        loop_min_inliers: a loop needs at least this many PnP inliers, both ways (and as many
+            descriptor matches to be tried).
+        loop_min_path_m: candidates are at least this many metres of flight back.
+        loop_gate_m, loop_gate_fraction: candidates lie within ``loop_gate_m + loop_gate_fraction *
+            path`` of the current estimate, and the correction a loop implies must be as small
+            (``path``: metres flown since the candidate; the drift is a fraction of a percent).
+        loop_confirmations: a loop is applied once this many keyframes in a row (the current one
+            included) found loops implying the same correction (1: no confirmation).
     """
 
     max_features: int = 300
@@ -172,7 +192,12 @@ class OdometrySettings:
     gap_factor: float = 1.8
     detect_frozen: bool = True
     seed: int = 0
-    loop_closure: bool = False
+    loop_closure: bool = True
+    loop_min_inliers: int = 40
+    loop_min_path_m: float = 40.0
+    loop_gate_m: float = 3.0
+    loop_gate_fraction: float = 0.03
+    loop_confirmations: int = 2
 
     def __post_init__(self) -> None:
         if self.max_features < 10:
@@ -187,8 +212,8 @@ class OdometrySettings:
             raise InputError("klt_window_px must be at least 5 and klt_levels non-negative")
         if self.pnp_refinement not in ("lm", "robust"):
             raise InputError(f"pnp_refinement must be 'lm' or 'robust', got {self.pnp_refinement!r}")
-        if self.loop_closure:
-            raise InputError("loop_closure is not implemented yet")
+        if self.loop_min_inliers < 8 or self.loop_confirmations < 1:
+            raise InputError("loop_min_inliers must be at least 8 and loop_confirmations at least 1")
 
 
 @dataclass
@@ -202,6 +227,8 @@ class _Keyframe:
     obs_uv: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     right_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     right_uv: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    reinit: bool = False  # started a new track (its pose chained by the motion prior)
+    path_m: float = 0.0  # distance flown from the first keyframe, metres (estimate at creation)
 
 
 @dataclass
@@ -301,6 +328,21 @@ class StereoOdometry:
         # the trusted poses behind the motion prior: (timestamp, world_from_left 4x4)
         self._trusted: list[tuple[float, np.ndarray]] = []
         self._lost_count = 0
+        self._place_ms = 0.0
+        self._loops: LoopCloser | None = None
+        if settings.loop_closure:
+            self._loops = LoopCloser(
+                (L.fx, L.fy),
+                (L.cx, L.cy),
+                self._size,
+                min_inliers=settings.loop_min_inliers,
+                min_path_m=settings.loop_min_path_m,
+                gate_m=settings.loop_gate_m,
+                gate_fraction=settings.loop_gate_fraction,
+                confirmations=settings.loop_confirmations,
+                threshold_px=settings.ransac_threshold_px,
+                seed=settings.seed,
+            )
 
     # ----- public ------------------------------------------------------------------------
     @property
@@ -309,7 +351,12 @@ class StereoOdometry:
         return list(self._estimates)
 
     def trajectory(self) -> list[Rigid3]:
-        """The best current ``world_from_left`` of every frame given so far (window refinements included)."""
+        """The best current ``world_from_left`` of every frame given so far (window refinements and
+        loop-closure corrections included; loops found since the last pose-graph solve are solved first)."""
+        if self._loops is not None:
+            poses = self._loops.finish([kf.world_from_left for kf in self._kfs])
+            if poses is not None:
+                self._apply_correction(poses)
         out = []
         for rec in self._frames:
             T = (
@@ -319,6 +366,13 @@ class StereoOdometry:
             )
             out.append(_rigid(T))
         return out
+
+    def loop_report(self) -> dict:
+        """Loop-closure diagnostics: searches, loops accepted and rejected (with reasons), pose-graph
+        solves and the largest correction (see :meth:`skyrecon.odometry.loops.LoopCloser.report`)."""
+        if self._loops is None:
+            return {"enabled": False}
+        return self._loops.report()
 
     def track(
         self, left: np.ndarray, right: np.ndarray, timestamp_s: float, disparity_px: np.ndarray | None = None
@@ -494,7 +548,7 @@ class StereoOdometry:
         ids = np.arange(self._next_id, self._next_id + len(pts), dtype=np.int64)
         self._next_id += len(pts)
         self._pyr, self._pts, self._ids = pyr, pts, ids
-        self._add_keyframe(index, T, pts, ids, d)
+        self._add_keyframe(index, T, pts, ids, d, grey, reinit)
         self._set_anchor(index, grey)
         self._record(T, len(self._kfs) - 1)
         self._trust(ts, T)  # after a loss: chained to the last trusted pose, the velocity kept
@@ -525,9 +579,18 @@ class StereoOdometry:
         self._anchor_pts = self._pts.copy()
 
     def _add_keyframe(
-        self, index: int, T: np.ndarray, pts: np.ndarray, ids: np.ndarray, d: np.ndarray
+        self,
+        index: int,
+        T: np.ndarray,
+        pts: np.ndarray,
+        ids: np.ndarray,
+        d: np.ndarray,
+        grey: np.ndarray | None = None,
+        reinit: bool = False,
     ) -> None:
-        """Create map points for features with depth and no point yet; store the keyframe's observations."""
+        """Create map points for features with depth and no point yet; store the keyframe's observations
+        (and, with loop closure and the keyframe's ``grey`` image, its place: descriptors at ``pts``
+        with their stereo points; ``reinit``: the keyframe starts a new track)."""
         has_d = np.isfinite(d)
         known = np.array([i in self._points for i in ids.tolist()], bool)
         new = has_d & ~known
@@ -559,8 +622,24 @@ class StereoOdometry:
                 pts[has_pt].astype(np.float64),
                 ids[has_pt & has_d].copy(),
                 right_uv,
+                reinit,
             )
         )
+        if self._loops is not None and grey is not None:
+            t0 = time.perf_counter()
+            cam = np.full((len(pts), 3), np.nan)
+            if np.any(has_d):
+                cam[has_d] = self._backproject(pts[has_d], d[has_d])
+            self._loops.add_keyframe(
+                len(self._kfs) - 1,
+                index,
+                grey,
+                pts.astype(np.float64),
+                cam,
+                [k.world_from_left for k in self._kfs],
+                reinit,
+            )
+            self._place_ms = (time.perf_counter() - t0) * 1e3
 
     # ----- tracking ------------------------------------------------------------------------------
     def _guess(self, T_pred: np.ndarray, T_last: np.ndarray, has_pt: np.ndarray) -> np.ndarray:
@@ -789,6 +868,7 @@ class StereoOdometry:
         timings: dict[str, float],
     ) -> FrameEstimate:
         s = self.settings
+        loop_message = ""
         T_pred = self._predict(ts)
         t_last, T_last = self._trusted[-1]
         widen = bool(gap) or self._lost_count > 0
@@ -905,7 +985,7 @@ class StereoOdometry:
             guess_d = self._predicted_disparity(T)
             d = self._disparities(pyr, right, disparity_px, self._pts, guess_d)
             timings["stereo"] = (time.perf_counter() - t0) * 1e3
-            self._add_keyframe(index, T, self._pts, self._ids, d)
+            self._add_keyframe(index, T, self._pts, self._ids, d, grey, False)
             self._set_anchor(index, grey)
             n_stereo = self._kfs[-1].n_points
             if s.window_keyframes >= 3 and len(self._kfs) >= 3:
@@ -914,6 +994,14 @@ class StereoOdometry:
                 timings["window_ba"] = (time.perf_counter() - t0) * 1e3
                 T = self._kfs[-1].world_from_left
                 self._trusted[-1] = (ts, T.copy())
+            if self._loops is not None:
+                t0 = time.perf_counter()
+                outcome = self._loops.search([kf.world_from_left for kf in self._kfs])
+                if outcome.poses is not None:
+                    self._apply_correction(outcome.poses)
+                    T = self._kfs[-1].world_from_left
+                loop_message = outcome.message
+                timings["loop"] = (time.perf_counter() - t0) * 1e3 + self._place_ms
         self._record(T, len(self._kfs) - 1)
         depth_med = self._median_depth(T, self._ids)
         sigma = rms / float(self._f[0]) * depth_med / math.sqrt(max(n_inl, 1)) * 3.0
@@ -931,7 +1019,25 @@ class StereoOdometry:
             reprojection_rms_px=rms,
             timings_ms=timings,
             position_sigma_m=sigma,
+            loop=loop_message,
         )
+
+    def _apply_correction(self, poses: np.ndarray) -> None:
+        """Move every keyframe to its pose-graph pose (``poses`` (K, 4, 4) ``world_from_left``); the
+        map points still in use and the motion prior's poses move with the newest keyframe, so that
+        tracking continues from the corrected pose."""
+        last = self._kfs[-1]
+        C = poses[-1] @ _inv(last.world_from_left)  # world_from_world correction of the newest keyframe
+        for kf, P in zip(self._kfs, poses):
+            kf.world_from_left = P.copy()
+        ids = set(self._ids.tolist())
+        for kf in self._kfs[-max(self.settings.window_keyframes, 1) :]:
+            ids.update(kf.obs_ids.tolist())
+        for i in ids:
+            X = self._points.get(i)
+            if X is not None:
+                self._points[i] = C[:3, :3] @ X + C[:3, 3]
+        self._trusted = [(t, C @ T) for t, T in self._trusted]
 
     def _median_depth(self, T: np.ndarray, ids: np.ndarray) -> float:
         pts = [self._points[i] for i in ids.tolist() if i in self._points]

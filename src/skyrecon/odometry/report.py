@@ -7,7 +7,7 @@ drawn with OpenCV like :mod:`skyrecon.report.mission_report`).
 * speed along the flight (estimate and ground truth);
 * features: stereo, tracked, PnP inliers per frame;
 * the tracking-state timeline (ok green, degraded orange, lost red) and the reasons;
-* the metrics and timings tables.
+* the metrics and timings tables, and what loop closure did.
 """
 
 from __future__ import annotations
@@ -249,13 +249,29 @@ def render_odometry_report(
                 ),
             ]
         )
+    loop_html = ""
+    lc = summary.get("loop_closure")
+    if lc and lc.get("enabled"):
+        why = "; ".join(f"{k}: {v}" for k, v in lc.get("rejected_reasons", {}).items()) or "none"
+        loop_html = "<h2>Loop closure</h2>" + _table(
+            [
+                ("searches", lc["searches"], "keyframes searched for a revisited place"),
+                ("accepted / rejected", f"{lc['accepted']} / {lc['rejected']}", f"rejected: {why}"),
+                ("pose-graph solves", lc["pose_graph_solves"], f"longest {lc['pose_graph_ms_max']} ms"),
+                (
+                    "largest correction",
+                    lc["max_correction_m"],
+                    f"metres ({lc['max_correction_deg']:.3f} degrees)",
+                ),
+            ]
+        )
     legend = "".join(
         f"<span><i class='sw' style='background: rgb{c}'></i>{html.escape(s)}</span>"
         for s, c in _STATE_COLOURS.items()
     )
     body = (
         f"<h1>Stereo visual odometry</h1><p><small>{html.escape(source)}</small></p>"
-        f"<h2>Summary</h2>{_table(rows)}<h2>Against ground truth</h2>{metric_html}{gps_html}"
+        f"<h2>Summary</h2>{_table(rows)}<h2>Against ground truth</h2>{metric_html}{gps_html}{loop_html}"
         f"<h2>Trajectory (top view)</h2>{_img(top, 'trajectory')}"
         f"<h2>Speed</h2>{_img(speed, 'speed')}<h2>Features</h2>{_img(feats, 'features')}"
         f"<h2>Tracking state</h2><p class='legend'>{legend}</p>{_img(timeline, 'states')}{reasons}"

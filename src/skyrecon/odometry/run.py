@@ -42,6 +42,7 @@ class OdometryRun:
         fused: GPS-fused ``world_from_left`` per frame (None without GPS); online values, as a vehicle
             would have had them.
         fusion: the fusion state with its per-fix log (None without GPS).
+        loops: the engine's loop-closure diagnostics (``loop_report()``), None when it has none.
     """
 
     estimates: list[FrameEstimate]
@@ -51,6 +52,7 @@ class OdometryRun:
     seconds: float
     fused: list[Rigid3] | None = None
     fusion: GpsFusion | None = None
+    loops: dict[str, Any] | None = None
 
     @property
     def poses(self) -> list[Rigid3]:
@@ -95,6 +97,7 @@ def run_odometry(
     odometry = list(engine.trajectory())[:n] if n else []
     if len(odometry) != n:  # an engine that refines nothing: its per-frame answers
         odometry = [e.world_from_left for e in estimates]
+    loop_report = getattr(engine, "loop_report", None)
     return OdometryRun(
         estimates,
         [p.with_frames("world", "left") for p in odometry],
@@ -103,6 +106,7 @@ def run_odometry(
         seconds,
         fused if fixes is not None else None,
         fusion,
+        loop_report() if callable(loop_report) else None,
     )
 
 
@@ -148,6 +152,8 @@ def summarize_run(run: OdometryRun) -> dict[str, Any]:
         "track_ms": percentiles(run.track_ms),
         "stage_ms": {s: percentiles([e.timings_ms.get(s, np.nan) for e in est]) for s in stages},
     }
+    if run.loops is not None:
+        out["loop_closure"] = run.loops
     if run.fusion is not None:
         f = run.fusion
         out["gps"] = {
