@@ -31,6 +31,7 @@ COMMANDS = [
     "mvs",
     "map",
     "odometry",
+    "survey",
     "plan",
     "eval",
     "view",

@@ -17,6 +17,8 @@ the map).
 from __future__ import annotations
 
 import argparse
+import json
+from pathlib import Path
 
 import numpy as np
 
@@ -73,9 +75,22 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         type=float,
         nargs=3,
         metavar=("LAT", "LON", "ALT"),
-        help="geographic position of the world origin (degrees, degrees, metres AMSL) for mission.plan",
+        help="geographic position of the world origin (degrees, degrees, metres AMSL) for mission.plan "
+        "(default: MAP_DIR/geo_origin.json when the map has one, e.g. from 'skyrecon survey')",
     )
     return p
+
+
+def _map_geo_origin(map_dir: str) -> list[float] | None:
+    """(lat, lon, alt) of a map's world origin from ``MAP_DIR/geo_origin.json`` (``skyrecon survey``), or None."""
+    path = Path(map_dir) / "geo_origin.json"
+    if not path.is_file():
+        return None
+    try:
+        d = json.loads(path.read_text())
+        return [float(d["lat"]), float(d["lon"]), float(d["alt"])]
+    except (ValueError, KeyError, TypeError):
+        raise InputError("unreadable geographic origin; rewrite it or pass --origin", path) from None
 
 
 def run(args: argparse.Namespace) -> int:
@@ -86,6 +101,8 @@ def run(args: argparse.Namespace) -> int:
     if is_tiled_map(args.map_dir):
         return _run_tiled(args, start, goal)
     occ = load_map(args.map_dir)
+    if args.origin is None:
+        args.origin = _map_geo_origin(args.map_dir)
     prior_note = ""
     if args.prior_map:
         prior = load_map(args.prior_map)

@@ -16,6 +16,10 @@ So that every other command can be tried without data of one's own:
   in ``sparse/`` (what ``skyrecon mvs --cameras`` reads), ground-truth depth in ``depth/``.
 * ``images``: a monocular photo set orbiting a small scene (for two-view and SfM), ``K.txt``
   and ground-truth cameras in ``gt_sparse/``.
+* ``survey``: a lawn-mower aerial survey of the city (for ``skyrecon survey``): nadir JPEGs in
+  ``images/`` with EXIF GPS around ``--origin`` (noise ``--gps-noise``, a few grossly wrong tags),
+  focal length and sensor width; ``cameras_true.txt``, ``gt_sparse/``, ``K.txt``, ``gcp_list.txt``
+  (OpenDroneMap format, UTM) and ``survey_truth.json``.
 
 Each writes ``scene.json`` with the seed and settings that regenerate it.
 """
@@ -62,6 +66,7 @@ EXAMPLES = """  skyrecon render stereo --seed 3 --out scene/
   skyrecon render ring --views 12 --out ring/
   skyrecon render ring --plain --views 12 --out ring-plain/
   skyrecon render images --views 10 --out photos/
+  skyrecon render survey --photos 100 --width 1600 --height 1200 --out survey_photos/
 """
 
 
@@ -73,7 +78,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         description=__doc__.split("\n\n")[0] + " Pick what to render:",
         examples=EXAMPLES,
     )
-    p.add_argument("kind", choices=["stereo", "sequence", "ring", "images"], help="what to render")
+    p.add_argument("kind", choices=["stereo", "sequence", "ring", "images", "survey"], help="what to render")
     p.add_argument("--out", required=True, help="output directory (created if missing)")
     p.add_argument("--seed", type=int, default=0, help="city seed; same seed, same scene (default 0)")
     p.add_argument("--width", type=positive_int, default=640, help="image width in pixels (default 640)")
@@ -101,6 +106,40 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         help="low-texture surfaces: stereo/sequence a city of plain and glass facades on plain grey "
         "ground; ring/images plain grey ground, plain walls and one glass face",
     )
+    g = p.add_argument_group("survey")
+    g.add_argument(
+        "--photos", type=positive_int, help="survey: about this many photos (default: cover the city)"
+    )
+    g.add_argument(
+        "--altitude",
+        type=positive_float,
+        default=80.0,
+        help="survey: height above ground, metres (default 80)",
+    )
+    g.add_argument(
+        "--overlap",
+        type=float,
+        nargs=2,
+        default=(0.8, 0.7),
+        metavar=("FORWARD", "SIDE"),
+        help="survey: forward and side overlap of the photos (default 0.8 0.7)",
+    )
+    g.add_argument(
+        "--gps-noise", type=float, default=3.0, help="survey: horizontal GPS noise sigma, metres (default 3)"
+    )
+    g.add_argument(
+        "--wrong-tags", type=int, help="survey: photos with a grossly wrong tag (default 2 %%, at least 1)"
+    )
+    g.add_argument(
+        "--tilt", type=float, default=2.0, help="survey: random camera tilt sigma, degrees (default 2)"
+    )
+    g.add_argument(
+        "--origin",
+        type=float,
+        nargs=3,
+        metavar=("LAT", "LON", "ALT"),
+        help="survey: geographic position of the city's origin (default 47.3769 8.5417 408)",
+    )
     return p
 
 
@@ -114,6 +153,7 @@ def run(args: argparse.Namespace) -> int:
         "sequence": _render_sequence,
         "ring": _render_ring,
         "images": _render_images,
+        "survey": _render_survey,
     }[args.kind](args, out)
     settings = {k: v for k, v in vars(args).items() if k not in ("command", "debug", "quiet", "out")}
     write_text_atomic(
@@ -259,3 +299,29 @@ def _render_images(args, out: Path) -> dict:
         "size": f"{args.width}x{args.height}",
         "ground_truth_cameras": str(out / "gt_sparse"),
     }
+
+
+# ----- survey --------------------------------------------------------------------
+def _render_survey(args, out: Path) -> dict:
+    from skyrecon.sim.survey import DEFAULT_ORIGIN, SurveySettings, survey_views, write_survey
+
+    if args.hfov == 90.0:  # the generic default: a survey camera's lens instead (8.8 mm on 13.2 mm)
+        args.hfov = 73.7
+    hfov = args.hfov
+    settings = SurveySettings(
+        width=args.width,
+        height=args.height,
+        hfov_deg=hfov,
+        altitude_m=args.altitude,
+        forward_overlap=args.overlap[0],
+        side_overlap=args.overlap[1],
+        photos=args.photos,
+        tilt_deg=args.tilt,
+        gps_sigma_m=args.gps_noise,
+        wrong_tags=args.wrong_tags,
+        origin=tuple(args.origin) if args.origin else DEFAULT_ORIGIN,
+        seed=args.seed,
+    )
+    city = generate_city(args.seed, size_m=args.city_size, plain=args.plain)
+    plan = survey_views(city, settings)
+    return write_survey(out, city, plan)

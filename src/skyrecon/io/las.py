@@ -3,7 +3,10 @@
 LAS/LAZ (ASPRS LAS 1.2, via ``laspy``; LAZ compressed with the ``lazrs`` backend): coordinates in
 metres in the cloud's frame (the world frame for maps and fused clouds), stored as integers with a
 scale of 1 mm and offsets at the cloud's minimum; point format 2 with 16-bit RGB (``c * 257``)
-when the cloud has colours, else format 0. No CRS is written: the coordinates are local metres.
+when the cloud has colours, else format 0. No CRS is written by default: the coordinates are local
+metres. With ``crs`` (georeferenced coordinates, e.g. UTM from ``skyrecon survey``) the file is LAS
+1.4, point format 7 (RGB) or 6, with the coordinate system as an OGC WKT VLR, and ``points``
+may be given in float64 so that large projected coordinates keep millimetres.
 ``laspy``/``lazrs`` are the optional ``geo`` extra, imported only when LAS/LAZ is written.
 """
 
@@ -25,17 +28,39 @@ GEO_HINT = "writing LAS/LAZ needs the 'geo' extra: pip install 'skyrecon[geo]'"
 LAS_SCALE_M = 0.001
 
 
-def write_las(path: str | Path, cloud: PointCloud, compress: bool = False) -> None:
-    """Write ``cloud`` (N points, metres) as LAS, or LAZ when ``compress``, atomically (see the module)."""
+def write_las(
+    path: str | Path,
+    cloud: PointCloud,
+    compress: bool = False,
+    crs: object | None = None,
+    points: np.ndarray | None = None,
+) -> None:
+    """Write ``cloud`` (N points, metres) as LAS, or LAZ when ``compress``, atomically (see the module).
+
+    Args:
+        crs: the coordinate system of the points (anything ``pyproj.CRS.from_user_input`` reads,
+            e.g. ``"EPSG:32632"``), written as a WKT VLR; None: no CRS (local metres).
+        points: (N, 3) float64 coordinates to write instead of ``cloud.points`` (float32), same order.
+    """
     try:
         import laspy
     except ImportError:
         raise InputError(GEO_HINT, path) from None
-    pts = np.asarray(cloud.points, dtype=np.float64).reshape(-1, 3)
+    pts = np.asarray(cloud.points if points is None else points, dtype=np.float64).reshape(-1, 3)
+    if len(pts) != len(cloud.points):
+        raise InputError(f"{len(pts)} coordinates for a cloud of {len(cloud.points)} points", path)
     if not np.all(np.isfinite(pts)):
         raise InputError("the cloud has NaN or infinite coordinates", path)
     has_rgb = cloud.colors is not None
-    header = laspy.LasHeader(point_format=2 if has_rgb else 0, version="1.2")
+    if crs is None:
+        header = laspy.LasHeader(point_format=2 if has_rgb else 0, version="1.2")
+    else:
+        try:
+            import pyproj
+        except ImportError:
+            raise InputError(GEO_HINT, path) from None
+        header = laspy.LasHeader(point_format=7 if has_rgb else 6, version="1.4")
+        header.add_crs(pyproj.CRS.from_user_input(crs))
     header.scales = np.full(3, LAS_SCALE_M)
     header.offsets = pts.min(axis=0) if len(pts) else np.zeros(3)
     las = laspy.LasData(header)
@@ -79,14 +104,21 @@ def read_las(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
     return pts.astype(np.float64), colors
 
 
-def write_point_cloud(path: str | Path, cloud: PointCloud, fmt: str = "ply") -> Path:
+def write_point_cloud(
+    path: str | Path,
+    cloud: PointCloud,
+    fmt: str = "ply",
+    crs: object | None = None,
+    points: np.ndarray | None = None,
+) -> Path:
     """Write ``cloud`` as ``fmt`` (``ply``, ``las`` or ``laz``) at ``path`` with its suffix set to the
-    format (``points.ply`` -> ``points.las``); returns the path written."""
+    format (``points.ply`` -> ``points.las``); returns the path written. ``crs`` and float64
+    ``points``: see :func:`write_las` (LAS/LAZ only; a PLY gets ``cloud`` as it is)."""
     if fmt not in CLOUD_FORMATS:
         raise InputError(f"unknown point cloud format {fmt!r}; choose one of {', '.join(CLOUD_FORMATS)}")
     out = Path(path).with_suffix("." + fmt)
     if fmt == "ply":
         write_ply(out, cloud)
     else:
-        write_las(out, cloud, compress=fmt == "laz")
+        write_las(out, cloud, compress=fmt == "laz", crs=crs, points=points)
     return out

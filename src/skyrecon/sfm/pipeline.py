@@ -123,6 +123,7 @@ def run_sfm(
     executor: Executor | None = None,
     seed: int = 0,
     workspace: str | Path | None = None,
+    pairs: np.ndarray | None = None,
 ) -> SfMResult:
     """Recover every camera's pose and a sparse coloured 3D model from photos or flight frames.
 
@@ -138,6 +139,9 @@ def run_sfm(
         workspace: directory for cached features and pair matches (reused by later runs, so a
             killed run resumes); default a temporary
             directory removed at the end.
+        pairs: (P, 2) input-image indices of the pairs to match, instead of
+            ``settings.pairing`` (e.g. photos near each other by GPS); pairs with an unusable
+            image are dropped.
     Returns:
         SfMResult. Images that cannot be used (unreadable, wrong size for K, duplicates, too
         little texture, no overlap, failed registration) are left out and listed with the reason;
@@ -184,6 +188,7 @@ def run_sfm(
         cache_dir,
         resolve_pair_mode(settings.pair_mode, names, settings.pairing),
         t_total,
+        given_pairs=None if pairs is None else np.asarray(pairs, np.int64).reshape(-1, 2),
     )
     try:
         with limited_threads(1):
@@ -216,6 +221,7 @@ class _SfMRun:
         tracks: feature tracks over the usable images (``tracks`` step).
         cameras, camera_of_image: distinct cameras and (n,) index of each image's camera.
         mapped: the mapper's output (``map`` step).
+        given_pairs: (P, 2) input-index pairs to match instead of selecting them, or None.
     """
 
     paths: list[Path]
@@ -244,6 +250,7 @@ class _SfMRun:
     cameras: list[Intrinsics] = field(default_factory=list)
     camera_of_image: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     mapped: MapperOutput | None = None
+    given_pairs: np.ndarray | None = None
 
     @property
     def n(self) -> int:
@@ -328,6 +335,11 @@ def _leave_out_unusable(state: _SfMRun) -> None:
 def _select_pairs(state: _SfMRun) -> None:
     """The pairs of usable images to match (exhaustive, sequential or retrieval)."""
     t0 = time.perf_counter()
+    if state.given_pairs is not None:
+        state.selection = _given_selection(state.given_pairs, state.usable)
+        state.timings["pairs"] = time.perf_counter() - t0
+        state.diagnostics["pairing"] = {"mode": "given", "num_pairs": int(len(state.selection.pairs))}
+        return
     paths_c = [state.extracted[k].cache_path for k in state.usable]
     pairing = state.settings.pairing
     sel = select_pairs(
@@ -343,6 +355,17 @@ def _select_pairs(state: _SfMRun) -> None:
         "num_pairs": int(len(sel.pairs)),
         "num_loop_pairs": sel.num_loop_pairs,
     }
+
+
+def _given_selection(pairs: np.ndarray, usable: list[int]) -> PairSelection:
+    """The given input-index pairs as a selection over the usable images (others dropped)."""
+    pos = np.full(int(max(usable, default=0)) + 1, -1, np.int64)
+    pos[usable] = np.arange(len(usable))
+    p = pairs[(pairs.min(axis=1) >= 0) & (pairs.max(axis=1) < len(pos))] if len(pairs) else pairs
+    a, b = pos[p[:, 0]], pos[p[:, 1]]
+    keep = (a >= 0) & (b >= 0) & (a != b)
+    sel = np.unique(np.stack([np.minimum(a, b), np.maximum(a, b)], axis=1)[keep], axis=0)
+    return PairSelection(sel.reshape(-1, 2).astype(np.int64), "given")
 
 
 def _match_pairs(state: _SfMRun) -> None:
