@@ -84,11 +84,14 @@ def test_sigterm_stops_a_command_with_143(tmp_path):
 
     proc = subprocess.Popen(
         [sys.executable, "-c", "import time, sys; from skyrecon.cli import main as m; "
-         "m.importlib.import_module('skyrecon.cli.warmup').run = lambda a: time.sleep(30); sys.exit(m.main(['warmup']))"],
+         "m.importlib.import_module('skyrecon.cli.warmup').run = "
+         "lambda a: (print('ready', file=sys.stderr, flush=True), time.sleep(30)); sys.exit(m.main(['warmup']))"],
         stderr=subprocess.PIPE,
         text=True,
     )  # fmt: skip
-    time.sleep(3)
+    # wait until the command runs (its handlers are installed), however slow the start on a busy machine
+    assert proc.stderr is not None and proc.stderr.readline().strip() == "ready"
+    time.sleep(0.2)
     proc.send_signal(signal.SIGTERM)
     _, err = proc.communicate(timeout=20)
     assert proc.returncode == 143 and "terminated" in err

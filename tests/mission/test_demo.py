@@ -64,7 +64,12 @@ def test_mission_delivers_without_touching_the_true_city(flight):
     assert m["min_clearance_m"] == pytest.approx(
         min(m["min_clearance_static_m"], m["min_clearance_moving_m"] or np.inf), abs=1e-3
     )
-    assert np.linalg.norm(track[-1] - np.array(m["scenario"]["goal"])) <= m["config"]["arrival_tolerance_m"]
+    # it stops where it believes the goal is: on its own odometry the truth may be off by the drift,
+    # which the delivery allows up to delivery_tolerance_m (and reports as drift_m)
+    allowed = m["config"]["arrival_tolerance_m"]
+    if m["pose_source"] != "truth":
+        allowed += m["config"]["delivery_tolerance_m"]
+    assert np.linalg.norm(track[-1] - np.array(m["scenario"]["goal"])) <= allowed
     assert np.allclose(track[0], m["scenario"]["start"])
     # the straight line was blocked, and the drone did not wander
     assert m["shortest_feasible_m"] >= m["straight_line_m"]
