@@ -302,19 +302,11 @@ def _map_flights(args: argparse.Namespace) -> int:
     if args.tile_size:
         code = _merge_to_tiles(args, dirs, t0)
     else:
-        maps = [load_map(d) for d in dirs]
-        merged = merge_maps(maps, [str(s) for s in sources])
-        summary: dict[str, Any] = {
-            "flights": [
-                {"source": str(s), "frames": f.get("frames"), "reused": f.get("reused")}
-                for s, f in zip(sources, summaries, strict=True)
-            ],
-            "voxel_size_m": merged.voxel_size,
-            "blocks": int(merged.grid.count),
-            "note": "flown paths are not merged (each belongs to its own flight); their carved free space is",
-        }
-        del maps
-        n_occ = _write_map_dir(merged, Path(args.out), summary, None, args.bt, args.format, args.geo_origin)
+        flights = [
+            {"source": str(s), "frames": f.get("frames"), "reused": f.get("reused")}
+            for s, f in zip(sources, summaries, strict=True)
+        ]
+        _, n_occ = _merge_and_write(args, dirs, [str(s) for s in sources], {"flights": flights})
         if not args.quiet:
             info(
                 f"map of {len(sources)} flights: {n_occ} occupied voxels at {args.voxel_size} m "
@@ -335,10 +327,26 @@ def _merge(args: argparse.Namespace) -> int:
             raise InputError("--out must not be one of the maps being merged; choose another directory", d)
     if args.tile_size:
         return _merge_to_tiles(args, dirs, t0)
+    blocks, n_occ = _merge_and_write(
+        args, dirs, [str(d) for d in dirs], {"merged_from": [str(d) for d in dirs]}
+    )
+    if not args.quiet:
+        info(
+            f"merged {len(dirs)} maps into {args.out}: {blocks} blocks, {n_occ} occupied voxels "
+            f"({time.perf_counter() - t0:.1f} s)",
+        )
+    return 0
+
+
+def _merge_and_write(
+    args: argparse.Namespace, dirs: list[Path], names: list[str], summary: dict[str, Any]
+) -> tuple[int, int]:
+    """Load the maps in ``dirs``, add their evidence and write the map directory ``--out`` (its summary
+    starts with ``summary``); returns (blocks, occupied voxels written)."""
     maps = [load_map(d) for d in progress(dirs, desc="loading maps")]
-    merged = merge_maps(maps, [str(d) for d in dirs])
-    summary: dict[str, Any] = {
-        "merged_from": [str(d) for d in dirs],
+    merged = merge_maps(maps, names)
+    summary = {
+        **summary,
         "voxel_size_m": merged.voxel_size,
         "blocks_per_input": [int(m.grid.count) for m in maps],
         "blocks": int(merged.grid.count),
@@ -347,12 +355,7 @@ def _merge(args: argparse.Namespace) -> int:
     }
     del maps
     n_occ = _write_map_dir(merged, Path(args.out), summary, None, args.bt, args.format, args.geo_origin)
-    if not args.quiet:
-        info(
-            f"merged {len(dirs)} maps into {args.out}: {merged.grid.count} blocks, {n_occ} occupied voxels "
-            f"({time.perf_counter() - t0:.1f} s)",
-        )
-    return 0
+    return int(merged.grid.count), n_occ
 
 
 def _merge_to_tiles(args: argparse.Namespace, dirs: list[Path], t0: float) -> int:

@@ -130,17 +130,10 @@ def run(args: argparse.Namespace) -> int:
         min_z=args.min_z,
         max_z=args.max_z,
     )
-    out = output_dir(args.out)
-    write_path_json(out / "path.json", result, start=start, goal=goal)
-    if not result.success:
-        raise EstimationError(
-            f"no path from {start.tolist()} to {goal.tolist()}: {result.message or result.reason}"
-        )
+    out = _write_path(args, result, start, goal)
     write_map_preview(occ, out / "preview.png", [result.waypoints])
     if args.origin is not None:
-        write_qgc_plan(out / "mission.plan", result.waypoints, args.origin)
-        write_path_geojson(out / "path.geojson", result.waypoints, args.origin)
-        write_path_kml(out / "path.kml", result.waypoints, args.origin)
+        _write_route_files(out, result.waypoints, args.origin)
         write_footprint_geojson(out / "footprint.geojson", occ, args.origin)
     if not args.quiet:
         straight = float(np.linalg.norm(goal - start))
@@ -187,16 +180,9 @@ def _run_tiled(args: argparse.Namespace, start: np.ndarray, goal: np.ndarray) ->
         min_z=args.min_z,
         max_z=args.max_z,
     )
-    out = output_dir(args.out)
-    write_path_json(out / "path.json", result, start=start, goal=goal)
-    if not result.success:
-        raise EstimationError(
-            f"no path from {start.tolist()} to {goal.tolist()}: {result.message or result.reason}"
-        )
+    out = _write_path(args, result, start, goal)
     if args.origin is not None:
-        write_qgc_plan(out / "mission.plan", result.waypoints, args.origin)
-        write_path_geojson(out / "path.geojson", result.waypoints, args.origin)
-        write_path_kml(out / "path.kml", result.waypoints, args.origin)
+        _write_route_files(out, result.waypoints, args.origin)
     if not args.quiet:
         straight = float(np.linalg.norm(goal - start))
         how = (
@@ -215,3 +201,21 @@ def _run_tiled(args: argparse.Namespace, start: np.ndarray, goal: np.ndarray) ->
             + (", mission.plan, path.geojson, path.kml" if args.origin is not None else "")
         )
     return 0
+
+
+def _write_path(args: argparse.Namespace, result, start: np.ndarray, goal: np.ndarray):
+    """``path.json`` in ``--out`` (also for a failed query, with its reason); raises when there is no path."""
+    out = output_dir(args.out)
+    write_path_json(out / "path.json", result, start=start, goal=goal)
+    if not result.success:
+        raise EstimationError(
+            f"no path from {start.tolist()} to {goal.tolist()}: {result.message or result.reason}"
+        )
+    return out
+
+
+def _write_route_files(out, waypoints: np.ndarray, origin) -> None:
+    """The route for a ground station and GIS: ``mission.plan``, ``path.geojson``, ``path.kml``."""
+    write_qgc_plan(out / "mission.plan", waypoints, origin)
+    write_path_geojson(out / "path.geojson", waypoints, origin)
+    write_path_kml(out / "path.kml", waypoints, origin)

@@ -18,7 +18,6 @@ geodetic). Altitudes are relative to the home position (= the origin; MAVLink fr
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 
 import numpy as np
@@ -26,10 +25,7 @@ import numpy as np
 from skyrecon.errors import InputError
 from skyrecon.io.atomic import write_text_atomic
 from skyrecon.planning.result import PlanResult
-
-WGS84_A = 6378137.0
-WGS84_F = 1.0 / 298.257223563
-WGS84_E2 = WGS84_F * (2.0 - WGS84_F)
+from skyrecon.survey.geo import GeoOrigin, ecef_from_lla, lla_from_ecef, lla_from_enu
 
 MAV_CMD_NAV_WAYPOINT = 16
 MAV_CMD_NAV_LAND = 21
@@ -59,36 +55,16 @@ def _origin(origin_lat_lon_alt) -> tuple[float, float, float]:
 
 def geodetic_to_ecef(lat_deg: float, lon_deg: float, h_m: float) -> np.ndarray:
     """(3,) ECEF metres of a WGS-84 point (latitude, longitude in degrees, ellipsoidal height)."""
-    la, lo = math.radians(lat_deg), math.radians(lon_deg)
-    n = WGS84_A / math.sqrt(1.0 - WGS84_E2 * math.sin(la) ** 2)
-    return np.array(
-        [
-            (n + h_m) * math.cos(la) * math.cos(lo),
-            (n + h_m) * math.cos(la) * math.sin(lo),
-            (n * (1.0 - WGS84_E2) + h_m) * math.sin(la),
-        ]
-    )
+    return ecef_from_lla(lat_deg, lon_deg, h_m)[0]
 
 
 def ecef_to_geodetic(xyz: np.ndarray) -> np.ndarray:
     """(N, 3) latitude (deg), longitude (deg), ellipsoidal height (m) of ECEF points (N, 3) metres."""
-    p = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
-    x, y, z = p[:, 0], p[:, 1], p[:, 2]
-    lon = np.arctan2(y, x)
-    r = np.hypot(x, y)
-    lat = np.arctan2(z, r * (1.0 - WGS84_E2))
-    h = np.zeros_like(lat)
-    for _ in range(8):
-        n = WGS84_A / np.sqrt(1.0 - WGS84_E2 * np.sin(lat) ** 2)
-        h = r / np.cos(lat) - n
-        lat = np.arctan2(z, r * (1.0 - WGS84_E2 * n / (n + h)))
-    n = WGS84_A / np.sqrt(1.0 - WGS84_E2 * np.sin(lat) ** 2)
-    h = r / np.cos(lat) - n
-    return np.stack([np.degrees(lat), np.degrees(lon), h], axis=1)
+    return np.stack(lla_from_ecef(xyz), axis=1)
 
 
 def enu_to_geodetic(enu_m: np.ndarray, origin_lat_lon_alt) -> np.ndarray:
-    """Local East-North-Up points to WGS-84.
+    """Local East-North-Up points to WGS-84 (see :mod:`skyrecon.survey.geo`).
 
     Args:
         enu_m: (N, 3) east, north, up metres from the origin (the skyrecon world frame).
@@ -97,18 +73,7 @@ def enu_to_geodetic(enu_m: np.ndarray, origin_lat_lon_alt) -> np.ndarray:
         (N, 3) latitude (deg), longitude (deg), altitude (m; same datum as the origin's).
     """
     lat0, lon0, alt0 = _origin(origin_lat_lon_alt)
-    e = np.asarray(enu_m, dtype=np.float64).reshape(-1, 3)
-    la, lo = math.radians(lat0), math.radians(lon0)
-    # columns: east, north, up unit vectors in ECEF
-    R = np.array(
-        [
-            [-math.sin(lo), -math.sin(la) * math.cos(lo), math.cos(la) * math.cos(lo)],
-            [math.cos(lo), -math.sin(la) * math.sin(lo), math.cos(la) * math.sin(lo)],
-            [0.0, math.cos(la), math.sin(la)],
-        ]
-    )
-    ecef = geodetic_to_ecef(lat0, lon0, alt0) + e @ R.T
-    return ecef_to_geodetic(ecef)
+    return np.stack(lla_from_enu(GeoOrigin(lat0, lon0, alt0), enu_m), axis=1)
 
 
 def write_path_json(path: str | Path, result: PlanResult | np.ndarray, **extra) -> None:
