@@ -372,7 +372,7 @@ def _merge_to_tiles(args: argparse.Namespace, dirs: list[Path], t0: float) -> in
         for d in progress(dirs, desc="merging maps"):
             if is_tiled_map(d):
                 src = TiledMap.open(d)
-                pieces = ((f"{d}:{k[0]}_{k[1]}", src.region(*_tile_box(src, k))) for k in src.tile_ids())
+                pieces = ((f"{d}:{k[0]}_{k[1]}", src.tile_map(k)) for k in src.tile_ids())
                 config = src.config
             else:
                 occ = load_map(d)
@@ -395,15 +395,6 @@ def _merge_to_tiles(args: argparse.Namespace, dirs: list[Path], t0: float) -> in
             f"{summary['tile_size_m']:g} m, {summary['blocks']} blocks ({time.perf_counter() - t0:.1f} s)"
         )
     return 0
-
-
-def _tile_box(tiled: TiledMap, key: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
-    """World box (lo, hi) of one tile, all heights, shrunk by a millimetre so neighbours stay out."""
-    lo_z, hi_z = tiled.bounds()[0][2], tiled.bounds()[1][2]
-    size = tiled.tile_size_m
-    lo = np.array([key[0] * size + 1e-3, key[1] * size + 1e-3, lo_z - 1.0])
-    hi = np.array([(key[0] + 1) * size - 1e-3, (key[1] + 1) * size - 1e-3, hi_z + 1.0])
-    return lo, hi
 
 
 def _check_and_write(

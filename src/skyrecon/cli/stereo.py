@@ -266,10 +266,7 @@ def _run_sequence(args: argparse.Namespace, root: Path) -> int:
     rig = seq.rig
     max_disparity = _max_disparity(args, None, rig.left.width)
     sample_at = set(np.linspace(0, n - 1, min(3, n)).round().astype(int).tolist())
-    stems = [
-        seq.sequence.left_paths[i].stem if isinstance(seq.sequence, StereoSequence) else f"{i:06d}"
-        for i in range(n)
-    ]
+    stems = [_stem(seq, i) for i in range(n)]
     fan_out = any(getattr(args, k, None) for k in ("executor", "workers", "scheduler"))
     if fan_out:
         chunk = max(1, min(16, -(-n // 8)))
@@ -344,9 +341,13 @@ def _match_frames(job: _FramesJob) -> list[float]:
     out = Path(job.out)
     times = []
     for i in range(job.first, job.stop):
-        stem = seq.sequence.left_paths[i].stem if isinstance(seq.sequence, StereoSequence) else f"{i:06d}"
-        times.append(_match_frame(seq, matcher, i, out, stem))
+        times.append(_match_frame(seq, matcher, i, out, _stem(seq, i)))
     return times
+
+
+def _stem(seq: StereoInput, i: int) -> str:
+    """The name frame ``i``'s outputs take: its left image's stem, else its index."""
+    return seq.sequence.left_paths[i].stem if isinstance(seq.sequence, StereoSequence) else f"{i:06d}"
 
 
 def _match_frame(seq: StereoInput, matcher: Any, i: int, out: Path, stem: str) -> float:

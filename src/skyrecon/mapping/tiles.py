@@ -32,7 +32,7 @@ import json
 import os
 import re
 from collections import OrderedDict
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -339,6 +339,14 @@ class TiledMap:
         B = self.block_size
         return OccupancyMap.from_blocks(self.config, c, d.reshape(len(c), B, B, B))
 
+    def tile_map(self, key: tuple[int, int]) -> OccupancyMap:
+        """An in-memory map of one stored tile's blocks (all heights)."""
+        tile = self._tile(key)
+        B = self.block_size
+        if tile is None:
+            return OccupancyMap(self.config)
+        return OccupancyMap.from_blocks(self.config, tile.coords, np.asarray(tile.data).reshape(-1, B, B, B))
+
     def to_map(self) -> OccupancyMap:
         """Every tile in one in-memory map (for maps that fit in memory)."""
         lo, hi = self.bounds()
@@ -422,24 +430,10 @@ class _Tile:
     def rows(self, block_coords: np.ndarray) -> np.ndarray:
         """(M,) row of each block coordinate (M, 3), -1 where the tile lacks it."""
         q = block_keys(block_coords)
-        r = np.searchsorted(self.keys, q)
-        r = np.minimum(r, max(len(self.keys) - 1, 0))
-        ok = (len(self.keys) > 0) & (self.keys[r] == q) if len(self.keys) else np.zeros(len(q), bool)
-        return np.where(ok, r, -1)
-
-
-def build_tiled_map(
-    directory: str | Path,
-    maps: Iterable[tuple[str, OccupancyMap]],
-    config: MapConfig,
-    tile_size_m: float = 64.0,
-) -> TiledMap:
-    """Create a tiled map in ``directory`` and add each ``(name, map)`` in turn (one in memory at a time
-    when ``maps`` is a generator)."""
-    tiled = TiledMap.create(directory, config, tile_size_m)
-    for name, occ in maps:
-        tiled.add_map(occ, name)
-    return tiled
+        if len(self.keys) == 0:
+            return np.full(len(q), -1, np.int64)
+        r = np.minimum(np.searchsorted(self.keys, q), len(self.keys) - 1)
+        return np.where(self.keys[r] == q, r, -1)
 
 
 def _key(key: tuple[int, int]) -> str:
