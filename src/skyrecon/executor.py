@@ -96,6 +96,11 @@ def _ignore_sigint() -> None:
 def _stop_workers(pool: ProcessPoolExecutor) -> None:
     """Terminate a pool's workers at once instead of waiting for their running items."""
     processes = dict(getattr(pool, "_processes", None) or {})  # private, but the only handle there is
+    # items still queued for the killed workers must not hold the exit: the queue's feeder thread
+    # blocks on a full pipe nobody reads, and interpreter exit joins it (a hang seen in CI on mvs)
+    call_queue = getattr(pool, "_call_queue", None)
+    if call_queue is not None:
+        call_queue.cancel_join_thread()
     pool.shutdown(wait=False, cancel_futures=True)
     for proc in processes.values():
         proc.terminate()
