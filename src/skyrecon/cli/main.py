@@ -87,9 +87,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         return _main(argv, debug)
     finally:
         if previous is not None:
-            # as the program, the work is done: a SIGTERM while the interpreter exits changes nothing
-            after = previous if in_process else signal.SIG_IGN
-            signal.signal(signal.SIGTERM, after)  # type: ignore[arg-type]
+            # as the program, the work is done: a SIGTERM or Ctrl-C while the interpreter exits
+            # (joining the pool's threads, flushing) changes nothing, and must not kill it silently
+            # with status -2 after its outputs are complete
+            signal.signal(signal.SIGTERM, previous if in_process else signal.SIG_IGN)  # type: ignore[arg-type]
+            if not in_process:
+                signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _main(argv: list[str], debug: bool) -> int:
