@@ -28,6 +28,11 @@ class MissionConfig:
         max_disparity: disparity search bound, pixels (nearest depth ``f B / max_disparity``).
         camera_pitch_deg: the camera looks this far below the direction of travel, degrees.
         max_camera_pitch_deg: bound of the camera's pitch either way, degrees.
+        max_camera_pitch_up_deg: the camera's axis never rises more than this above the horizon,
+            degrees, however steep the climb: pitched up at open sky the odometry loses its
+            features (seed 9 of the mission benchmark lost its pose at 20-29 degrees up) and the
+            depth sees nothing to map; at 5 degrees the image still spans from 32 degrees below
+            the horizon (73.7 degree vertical field of view) to 42 above, the climb's path included.
         depth_stride: the depth image is subsampled by this factor before integration (the
             fast matcher works at half resolution anyway).
     Map:
@@ -60,6 +65,9 @@ class MissionConfig:
         verify_skip_m: the first metres of the path ahead count as observed (the drone is there,
             and that close the tube lies outside the camera's field of view).
         arrival_tolerance_m: the mission succeeds within this distance of the goal, metres.
+        goal_staging_radius_m: when the map puts the goal closer to an obstacle than the clearance,
+            the drone flies to the nearest clear point within this distance of it and looks again
+            from there (see ``Navigator.staging_point``), metres.
         time_limit_s: simulated time limit; None: ``60 s + 4 x straight distance / cruise speed``.
     Pose (:mod:`skyrecon.mission.pose_source`):
         pose_source: where the drone's pose comes from: "truth" (the simulator's exact pose),
@@ -107,6 +115,7 @@ class MissionConfig:
     max_disparity: int = 64
     camera_pitch_deg: float = 8.0
     max_camera_pitch_deg: float = 30.0
+    max_camera_pitch_up_deg: float = 5.0
     depth_stride: int = 2
     voxel_size_m: float = 0.5
     max_range_m: float = 20.0
@@ -127,6 +136,7 @@ class MissionConfig:
     verify_radius_m: float = 1.0
     verify_skip_m: float = 1.5
     arrival_tolerance_m: float = 1.0
+    goal_staging_radius_m: float = 8.0
     time_limit_s: float | None = None
     pose_source: str = "truth"
     degraded_speed_mps: float = 2.0

@@ -137,7 +137,8 @@ def step(
     ``max_yaw_rate_deg_s``; the drone moves only while the camera looks within
     ``max_heading_error_deg`` of its direction of motion (slower the larger the error), at most
     ``speed_limit``, its velocity changing by at most ``max_accel_mps2 * dt``. The camera
-    pitches towards the look-at point (plus ``camera_pitch_deg``), within ``max_camera_pitch_deg``.
+    pitches towards the look-at point (plus ``camera_pitch_deg``), within ``max_camera_pitch_deg``
+    down and ``max_camera_pitch_up_deg`` up (never at open sky).
 
     With ``brake`` the drone brakes at ``max_accel_mps2`` along its current velocity instead (the
     stopping rule's response when it is faster than it can stop in the space ahead: braking in a
@@ -184,5 +185,6 @@ def step(
         )
     climb = math.atan2(q[2], max(q_h, 1e-6)) if float(np.linalg.norm(q)) > 0.3 else 0.0
     lim = math.radians(cfg.max_camera_pitch_deg)
-    pitch = float(np.clip(math.radians(cfg.camera_pitch_deg) - climb, -lim, lim))
+    up = math.radians(min(cfg.max_camera_pitch_up_deg, cfg.max_camera_pitch_deg))
+    pitch = float(np.clip(math.radians(cfg.camera_pitch_deg) - climb, -up, lim))
     return DroneState(p + v * dt, v, yaw, pitch, state.time_s + dt)
