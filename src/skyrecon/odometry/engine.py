@@ -74,7 +74,11 @@ class OdometrySettings:
     """How the odometry runs.
 
     Attributes:
-        max_features: features kept per frame (corners are topped up on keyframes).
+        max_features: features kept per frame (corners are topped up on keyframes). More
+            features, spread finer, average the tracks' sub-pixel errors (the drift is mostly a
+            slow heading error): on the six flights of ``benchmarks/odometry`` (no loop closure)
+            the worst drift is 0.350 % (mean 0.305) with 300 on an 8x6 grid, 0.309 with 500,
+            0.298 with 700, 0.280 with 1000, 0.291 (mean 0.244) with 700 on 10x8.
         grid: (columns, rows) of the detection grid that keeps features spread.
         min_corner_distance_px: minimum distance between corners, pixels.
         klt_window_px: KLT window side, pixels.
@@ -158,8 +162,8 @@ class OdometrySettings:
             included) found loops implying the same correction (1: no confirmation).
     """
 
-    max_features: int = 300
-    grid: tuple[int, int] = (8, 6)
+    max_features: int = 700
+    grid: tuple[int, int] = (10, 8)
     min_corner_distance_px: float = 8.0
     klt_window_px: int = 15
     klt_levels: int = 3
