@@ -48,7 +48,7 @@ def test_step_brakes_within_its_limit_and_pitches_towards_the_target():
     assert n.speed == np.float64(6.0 - cfg.max_accel_mps2 * cfg.dt)
     n = step(DroneState(np.zeros(3), np.zeros(3), 0.0, 0.0), np.array([5.0, 0.0, 5.0]), 6.0, cfg)
     assert n.pitch_down < 0  # looks up a climb
-    assert math.isclose(n.pitch_down, -math.radians(cfg.max_camera_pitch_up_deg))  # never at the sky
+    assert math.isclose(n.pitch_down, -math.radians(cfg.max_camera_pitch_deg))  # 45 deg up, clamped
     n = step(DroneState(np.zeros(3), np.zeros(3), 0.0, 0.0), np.array([5.0, 0.0, -5.0]), 6.0, cfg)
     assert math.isclose(n.pitch_down, math.radians(cfg.max_camera_pitch_deg))  # down a descent
 

@@ -28,11 +28,6 @@ class MissionConfig:
         max_disparity: disparity search bound, pixels (nearest depth ``f B / max_disparity``).
         camera_pitch_deg: the camera looks this far below the direction of travel, degrees.
         max_camera_pitch_deg: bound of the camera's pitch either way, degrees.
-        max_camera_pitch_up_deg: the camera's axis never rises more than this above the horizon,
-            degrees, however steep the climb: pitched up at open sky the odometry loses its
-            features (seed 9 of the mission benchmark lost its pose at 20-29 degrees up) and the
-            depth sees nothing to map; at 5 degrees the image still spans from 32 degrees below
-            the horizon (73.7 degree vertical field of view) to 42 above, the climb's path included.
         depth_stride: the depth image is subsampled by this factor before integration (the
             fast matcher works at half resolution anyway).
     Map:
@@ -115,7 +110,6 @@ class MissionConfig:
     max_disparity: int = 64
     camera_pitch_deg: float = 8.0
     max_camera_pitch_deg: float = 30.0
-    max_camera_pitch_up_deg: float = 5.0
     depth_stride: int = 2
     voxel_size_m: float = 0.5
     max_range_m: float = 20.0
