@@ -56,3 +56,31 @@ def test_when_the_prediction_explains_nothing_the_frame_fails_with_the_reason():
     T, pose, why = eng._check_motion(T_true, None, T_pred, 0.1, xn, X)
     assert T is None and pose is None
     assert "from the motion prediction" in why
+
+
+def test_a_drone_that_stopped_while_its_frames_were_lost_is_not_held_to_its_old_speed(flight):
+    """5 m/s for 10 frames, 3 black frames, then hovering where the frames stopped: the pose
+    re-initialised after the loss is chained at the old speed (a guess), and the measured poses that
+    follow say the drone stands still. They must be believed; held to the old speed they were
+    rejected one after another, each rejection re-initialising at that speed again, and the estimate
+    ran away (90 m in one mission)."""
+    from tests.odometry.test_engine import _run
+
+    frames = list(range(10)) + [10] * 20
+    hover = dataclasses.replace(
+        flight,
+        left=[flight.left[k] for k in frames],
+        right=[flight.right[k] for k in frames],
+        disparity=[flight.disparity[k] for k in frames],
+        world_from_left=[flight.world_from_left[k] for k in frames],
+    )
+    black = np.zeros_like(flight.left[0])
+    # as the delivery loop flies it: a hovering drone's frames may repeat exactly (no frozen check)
+    settings = dataclasses.replace(OdometrySettings(), max_acceleration_mps2=10.0, detect_frozen=False)
+    vo, est = _run(hover, settings, replace={k: (lambda k: (black, black)) for k in (10, 11, 12)})
+    reinit = next(k for k, e in enumerate(est) if e.reinitialised)
+    assert reinit == 13
+    after = [e.state.value for e in est[reinit + 1 :]]
+    assert after.count("lost") == 0, [e.reason for e in est[reinit + 1 :]]
+    drift = [np.linalg.norm(e.world_from_left.t - hover.world_from_left[k].t) for k, e in enumerate(est)]
+    assert drift[-1] - drift[reinit + 1] < 0.3, drift[reinit:]

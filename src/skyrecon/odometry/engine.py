@@ -331,6 +331,7 @@ class StereoOdometry:
         self._dts: list[float] = []
         # the trusted poses behind the motion prior: (timestamp, world_from_left 4x4)
         self._trusted: list[tuple[float, np.ndarray]] = []
+        self._velocity_measured = True  # False after a re-initialisation until a pose is measured
         self._lost_count = 0
         self._place_ms = 0.0
         self._loops: LoopCloser | None = None
@@ -556,6 +557,11 @@ class StereoOdometry:
         self._set_anchor(index, grey)
         self._record(T, len(self._kfs) - 1)
         self._trust(ts, T)  # after a loss: chained to the last trusted pose, the velocity kept
+        # ... as a guess only: the vehicle may have braked while the frames were lost, so the next
+        # pose is not held to that velocity (a hovering drone whose every measured pose was
+        # rejected as "far from the prediction" re-initialised at the old speed, frame after
+        # frame, and its estimate ran away by 90 m: mission seed 0)
+        self._velocity_measured = not reinit
         lost_before = self._lost_count
         self._lost_count = 0
         state, reason = TrackingState.OK, ""
@@ -814,7 +820,7 @@ class StereoOdometry:
                         f"trusted frame (limits {s.max_speed_mps:g} m/s, {s.max_rotation_rate_dps:g} deg/s)"
                     )
                     T = None
-                elif s.max_acceleration_mps2 is not None and len(self._trusted) >= 2:
+                elif s.max_acceleration_mps2 is not None and len(self._trusted) >= 2 and self._velocity_measured:
                     T, pose, failure = self._check_motion(T, pose, T_pred, elapsed, xn, X)
 
         n_inl = pose.num_inliers if (pose is not None and T is not None) else 0
@@ -962,6 +968,7 @@ class StereoOdometry:
         recovered = self._lost_count
         self._lost_count = 0
         self._trust(ts, T)
+        self._velocity_measured = True
 
         # keyframe decision
         kf = self._kfs[-1]
