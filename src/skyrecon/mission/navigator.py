@@ -252,7 +252,10 @@ class Navigator:
         (every ``1 / dt`` checks) while the drone waits there looking at it."""
         if self.staged_at is None:
             return False
-        if float(np.linalg.norm(np.asarray(position, np.float64) - self.staged_at)) > self.cfg.arrival_tolerance_m:
+        if (
+            float(np.linalg.norm(np.asarray(position, np.float64) - self.staged_at))
+            > self.cfg.arrival_tolerance_m
+        ):
             return False
         self._staged_checks += 1
         return self._staged_checks % max(1, int(round(1.0 / self.cfg.dt))) == 1

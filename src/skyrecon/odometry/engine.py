@@ -820,7 +820,11 @@ class StereoOdometry:
                         f"trusted frame (limits {s.max_speed_mps:g} m/s, {s.max_rotation_rate_dps:g} deg/s)"
                     )
                     T = None
-                elif s.max_acceleration_mps2 is not None and len(self._trusted) >= 2 and self._velocity_measured:
+                elif (
+                    s.max_acceleration_mps2 is not None
+                    and len(self._trusted) >= 2
+                    and self._velocity_measured
+                ):
                     T, pose, failure = self._check_motion(T, pose, T_pred, elapsed, xn, X)
 
         n_inl = pose.num_inliers if (pose is not None and T is not None) else 0
