@@ -135,28 +135,3 @@ def test_guidance_brakes_before_unobserved_space_and_looks_at_it():
     h = hover(np.zeros(3), np.array([10.0, 0, 0]))
     assert h.speed_limit == 0.0 and h.to_go_m == 10.0
 
-
-def test_a_goal_mapped_too_close_to_an_obstacle_is_approached_from_a_staging_point():
-    cfg = MissionConfig()
-    nav = _box_navigator(cfg, goal=(12.0, 4.0, 14.0))
-    _look(nav, 13.0)  # a wall 1 m behind the goal (stereo from afar puts such false walls near goals)
-    nav.update_distance()
-    start = np.array([0.0, 4.0, 14.0])
-    r, how = nav.replan(start)
-    assert r.success and how == "stage"
-    end = nav.waypoints[-1]
-    assert np.allclose(nav.waypoints[0], start) and np.allclose(end, nav.staged_at)
-    assert 0.0 < np.linalg.norm(end - nav.goal) <= cfg.goal_staging_radius_m
-    grid = nav.planner.grid_for(end, end)
-    assert grid.distance(end[None])[0] >= nav.planner.threshold  # the staging point is at the full clearance
-    # on the way there the path is followed; at the staging point the goal is tried again once a second
-    assert not nav.staging_reached(start)
-    tries = [not nav.check(end, np.zeros((0, 3), np.int32)).clear for _ in range(int(round(2.0 / cfg.dt)))]
-    assert sum(tries) == 2 and tries[0]
-    # the wall turns out not to be there: seen up close, the goal is clear and the path ends at it
-    for _ in range(20):
-        _look(nav, np.inf, 1)
-    nav.update_distance()
-    r, how = nav.replan(end)
-    assert r.success and how == "plan" and nav.staged_at is None
-    assert np.allclose(nav.waypoints[-1], nav.goal)

@@ -60,9 +60,6 @@ class MissionConfig:
         verify_skip_m: the first metres of the path ahead count as observed (the drone is there,
             and that close the tube lies outside the camera's field of view).
         arrival_tolerance_m: the mission succeeds within this distance of the goal, metres.
-        goal_staging_radius_m: when the map puts the goal closer to an obstacle than the clearance,
-            the drone flies to the nearest clear point within this distance of it and looks again
-            from there (see ``Navigator.staging_point``), metres.
         time_limit_s: simulated time limit; None: ``60 s + 4 x straight distance / cruise speed``.
     Pose (:mod:`skyrecon.mission.pose_source`):
         pose_source: where the drone's pose comes from: "truth" (the simulator's exact pose),
@@ -130,7 +127,6 @@ class MissionConfig:
     verify_radius_m: float = 1.0
     verify_skip_m: float = 1.5
     arrival_tolerance_m: float = 1.0
-    goal_staging_radius_m: float = 8.0
     time_limit_s: float | None = None
     pose_source: str = "truth"
     degraded_speed_mps: float = 2.0

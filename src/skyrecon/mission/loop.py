@@ -211,9 +211,8 @@ def _finite(v: float, nd: int = 3) -> float | None:
 @dataclass
 class PlanEvent:
     """A path the drone decided to follow: at ``cycle``, ``waypoints`` (K, 3) world metres;
-    ``kind`` is "initial", "replan", "escape" (planned from a nearby point at the full
-    clearance because the drone was too close to a freshly mapped obstacle) or "stage" (to a
-    clear point near a goal the map puts too close to an obstacle, to look at it again)."""
+    ``kind`` is "initial", "replan" or "escape" (planned from a nearby point at the full
+    clearance because the drone was too close to a freshly mapped obstacle)."""
 
     cycle: int
     waypoints: np.ndarray
@@ -647,7 +646,7 @@ def run_mission(
             r, how = nav.replan(p, keep)
             replan_ok = r.success
             if r.success:
-                kind = "initial" if not plans else (how if how in ("escape", "stage") else "replan")
+                kind = "initial" if not plans else ("escape" if how == "escape" else "replan")
                 plans.append(PlanEvent(cycle, r.waypoints.copy(), kind, r.reason))
             else:
                 message = r.message

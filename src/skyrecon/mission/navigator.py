@@ -61,12 +61,6 @@ class CheckOutcome:
     tolerated: bool = False
 
 
-#: plan failures where the drone cannot start where it is (it escapes first, see ``Navigator.replan``)
-_START_PROBLEMS = ("start_too_close", "start_in_obstacle", "start_enclosed")
-#: plan failures where the goal cannot be used as it is mapped (it stages first, see ``staging_point``)
-_GOAL_PROBLEMS = ("goal_too_close", "goal_in_obstacle", "goal_enclosed")
-
-
 class Navigator:
     """The drone's map and planner for one mission.
 
@@ -109,10 +103,6 @@ class Navigator:
             self.df, cfg.clearance_m, allow_unknown=True, min_z=cfg.min_altitude_m, max_z=cfg.max_altitude_m
         )
         self.replanner = Replanner(self.planner, self.goal)
-        #: (3,) the staging point the current path ends at (the goal itself was mapped too close to
-        #: an obstacle, see :meth:`staging_point`), or None when the path ends at the goal
-        self.staged_at: np.ndarray | None = None
-        self._staged_checks = 0
 
     # ----- sensing -----------------------------------------------------------------------
     def integrate(
@@ -149,7 +139,7 @@ class Navigator:
         where the distance field changed, see ``Replanner.check``). A path the Replanner finds
         blocked is kept when it stays within ``replan_tolerance_m`` of the clearance (see
         :meth:`clear_at`)."""
-        if len(self.replanner.waypoints) == 0 or self.staging_reached(position):
+        if len(self.replanner.waypoints) == 0:
             return CheckOutcome(False, True, 0)
         clear, k, checked = self.replanner.check(position, rewritten)
         if not clear:
@@ -190,17 +180,14 @@ class Navigator:
 
         When the drone is too close to a mapped obstacle for the planner to start there
         (``start_too_close``, ``start_in_obstacle``, ``start_enclosed``), the plan starts at the
-        :meth:`escape_point` instead and the path leads there first. When the goal is mapped too
-        close to an obstacle (``goal_too_close``, ``goal_in_obstacle``, ``goal_enclosed``), the
-        path ends at the :meth:`staging_point` instead, and the goal is tried again from there.
+        :meth:`escape_point` instead and the path leads there first.
 
         Args:
             keep_out: (K, 7) capsules of the tracked movers' predicted sweep
                 (:mod:`skyrecon.planning.keep_out`), kept clear like obstacles for this plan.
         Returns:
             The PlanResult (its waypoints start at ``position``) and how it was planned:
-            "plan", "escape" or "stage" (to a staging point near a goal mapped too close to an
-            obstacle, see :meth:`staging_point`; after an escape it says "escape").
+            "plan" or "escape".
         """
         p = np.asarray(position, dtype=np.float64)
         with self.planner.avoiding(keep_out, p, self.goal):
@@ -208,57 +195,18 @@ class Navigator:
 
     def _replan(self, p: np.ndarray, escape_radius_m: float) -> tuple[PlanResult, str]:
         r = self.replanner.replan(p)
-        if r.success:
-            self.staged_at = None
+        if r.success or r.reason not in ("start_too_close", "start_in_obstacle", "start_enclosed"):
             return r, "plan"
-        start, how, r2 = p, "plan", r
-        if r.reason in _START_PROBLEMS:
-            esc = self.escape_point(p, escape_radius_m)
-            if esc is None:
-                return r, "plan"
-            start, how = esc, "escape"
-            r2 = self.planner.plan(esc, self.goal)
-        stage = None
-        if not r2.success and r2.reason in _GOAL_PROBLEMS:
-            stage = self.staging_point(start)
-            if stage is not None:
-                r2 = self.planner.plan(start, stage)
+        esc = self.escape_point(p, escape_radius_m)
+        if esc is None:
+            return r, "plan"
+        r2 = self.planner.plan(esc, self.goal)
         if not r2.success:
             return r, "plan"
-        if how == "escape":
-            r2.waypoints = np.vstack([p[None], r2.waypoints])
-            r2.length_m = float(np.linalg.norm(np.diff(r2.waypoints, axis=0), axis=1).sum())
+        r2.waypoints = np.vstack([p[None], r2.waypoints])
+        r2.length_m = float(np.linalg.norm(np.diff(r2.waypoints, axis=0), axis=1).sum())
         self.replanner.waypoints = r2.waypoints
-        self.staged_at = stage
-        self._staged_checks = 0
-        return r2, ("stage" if stage is not None and how == "plan" else how)
-
-    def staging_point(self, start: np.ndarray) -> np.ndarray | None:
-        """Where to wait when the goal itself is mapped too close to an obstacle: the nearest point
-        within ``goal_staging_radius_m`` of the goal at the full clearance (on the side of ``start``
-        (3,) among equally near ones), or None.
-
-        Stereo seen from afar puts spurious obstacles near a goal (at 15-20 m a one-pixel disparity
-        error at half resolution moves a point by metres) and a drone hovering there, looking at
-        the same wrong match, only confirms them. From the staging point, a few metres away, the
-        goal is seen up close: a false obstacle is carved free and the next replan reaches the
-        goal; a real one keeps the drone waiting there until the give-up failsafe ends the mission.
-        """
-        return self.planner.nearest_clear_point(self.goal, self.cfg.goal_staging_radius_m, toward=start)
-
-    def staging_reached(self, position: np.ndarray) -> bool:
-        """Whether a path that ends at a staging point (see :meth:`staging_point`) is flown
-        (within ``arrival_tolerance_m`` of its end): time to try the goal again, once a second
-        (every ``1 / dt`` checks) while the drone waits there looking at it."""
-        if self.staged_at is None:
-            return False
-        if (
-            float(np.linalg.norm(np.asarray(position, np.float64) - self.staged_at))
-            > self.cfg.arrival_tolerance_m
-        ):
-            return False
-        self._staged_checks += 1
-        return self._staged_checks % max(1, int(round(1.0 / self.cfg.dt))) == 1
+        return r2, "escape"
 
     def mover_conflict(self, rest: np.ndarray, keep_out: np.ndarray | None, reach_m: float) -> float:
         """Where the path ahead meets a mover's predicted sweep.
