@@ -134,4 +134,3 @@ def test_guidance_brakes_before_unobserved_space_and_looks_at_it():
     assert guide(rest, s, 1.0, cfg).speed_limit == 0.0  # within the buffer: stop
     h = hover(np.zeros(3), np.array([10.0, 0, 0]))
     assert h.speed_limit == 0.0 and h.to_go_m == 10.0
-
