@@ -331,7 +331,7 @@ class StereoOdometry:
         self._dts: list[float] = []
         # the trusted poses behind the motion prior: (timestamp, world_from_left 4x4)
         self._trusted: list[tuple[float, np.ndarray]] = []
-        self._velocity_measured = True  # False after a re-initialisation until a pose is measured
+        self._velocity_measured = True  # the prior's velocity comes from measured poses (see _trust)
         self._lost_count = 0
         self._place_ms = 0.0
         self._loops: LoopCloser | None = None
@@ -451,9 +451,15 @@ class StereoOdometry:
         step[:3, 3] = rel[:3, 3] * s
         return T1 @ step
 
-    def _trust(self, ts: float, T: np.ndarray) -> None:
+    def _trust(self, ts: float, T: np.ndarray, measured: bool = True) -> None:
+        """Add a pose to the motion prior. ``measured`` False: a guess (a re-initialisation chains
+        the last trusted pose at the old velocity), so the next pose is not held to that velocity
+        (the vehicle may have braked while the frames were lost: a hovering drone whose every
+        measured pose was rejected as "far from the prediction" re-initialised at the old speed,
+        frame after frame, and its estimate ran away by 90 m in mission seed 0)."""
         self._trusted.append((ts, T.copy()))
         del self._trusted[:-2]
+        self._velocity_measured = measured
 
     # ----- outcomes ---------------------------------------------------------------------------
     def _record(self, T: np.ndarray, keyframe: int) -> None:
@@ -556,12 +562,7 @@ class StereoOdometry:
         self._add_keyframe(index, T, pts, ids, d, grey, reinit)
         self._set_anchor(index, grey)
         self._record(T, len(self._kfs) - 1)
-        self._trust(ts, T)  # after a loss: chained to the last trusted pose, the velocity kept
-        # ... as a guess only: the vehicle may have braked while the frames were lost, so the next
-        # pose is not held to that velocity (a hovering drone whose every measured pose was
-        # rejected as "far from the prediction" re-initialised at the old speed, frame after
-        # frame, and its estimate ran away by 90 m: mission seed 0)
-        self._velocity_measured = not reinit
+        self._trust(ts, T, measured=not reinit)  # after a loss: chained to the last trusted pose
         lost_before = self._lost_count
         self._lost_count = 0
         state, reason = TrackingState.OK, ""
@@ -972,7 +973,6 @@ class StereoOdometry:
         recovered = self._lost_count
         self._lost_count = 0
         self._trust(ts, T)
-        self._velocity_measured = True
 
         # keyframe decision
         kf = self._kfs[-1]
