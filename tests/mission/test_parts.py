@@ -46,10 +46,18 @@ def test_step_brakes_within_its_limit_and_pitches_towards_the_target():
     s = DroneState(np.zeros(3), np.array([6.0, 0, 0]), 0.0, 0.0)
     n = step(s, np.array([0.2, 0.0, 0.0]), 6.0, cfg)
     assert n.speed == np.float64(6.0 - cfg.max_accel_mps2 * cfg.dt)
-    n = step(DroneState(np.zeros(3), np.zeros(3), 0.0, 0.0), np.array([5.0, 0.0, 5.0]), 6.0, cfg)
-    assert n.pitch_down < 0  # looks up a climb
-    assert math.isclose(n.pitch_down, -math.radians(cfg.max_camera_pitch_deg))  # 45 deg up, clamped
-    n = step(DroneState(np.zeros(3), np.zeros(3), 0.0, 0.0), np.array([5.0, 0.0, -5.0]), 6.0, cfg)
+    tilt = math.radians(cfg.max_camera_pitch_rate_deg_s) * cfg.dt  # the gimbal's slew per cycle
+    still = DroneState(np.zeros(3), np.zeros(3), 0.0, 0.0)
+    n = step(still, np.array([5.0, 0.0, 5.0]), 6.0, cfg)
+    assert math.isclose(n.pitch_down, -tilt)  # starts to look up a climb, no faster than the gimbal
+    for _ in range(10):
+        n = step(DroneState(np.zeros(3), np.zeros(3), 0.0, n.pitch_down), np.array([5.0, 0.0, 5.0]), 6.0, cfg)
+    assert math.isclose(n.pitch_down, -math.radians(cfg.max_camera_pitch_up_deg))  # 45 deg up, clamped
+    n = still
+    for _ in range(10):
+        n = step(
+            DroneState(np.zeros(3), np.zeros(3), 0.0, n.pitch_down), np.array([5.0, 0.0, -5.0]), 6.0, cfg
+        )
     assert math.isclose(n.pitch_down, math.radians(cfg.max_camera_pitch_deg))  # down a descent
 
 
@@ -134,3 +142,17 @@ def test_guidance_brakes_before_unobserved_space_and_looks_at_it():
     assert guide(rest, s, 1.0, cfg).speed_limit == 0.0  # within the buffer: stop
     h = hover(np.zeros(3), np.array([10.0, 0, 0]))
     assert h.speed_limit == 0.0 and h.to_go_m == 10.0
+
+
+def test_a_wall_beyond_the_hit_range_empties_the_space_before_it_but_is_not_an_obstacle():
+    """The drone's map marks obstacles only within the stereo rig's trusted range; a wall seen
+    farther is not placed (its depth is metres uncertain) but the air in front of it is free."""
+    cfg = MissionConfig()
+    box = MapBox(np.array([-8.0, -8.0, 8.0]), (96, 32, 32), cfg.voxel_size_m)
+    nav = Navigator(cfg, box, np.array([30.0, 4.0, 14.0]), cfg.max_range_m, hit_range_m=12.0)
+    _look(nav, 16.0)
+    assert nav.map.counts()["occupied"] == 0
+    path = np.array([[0.0, 4.0, 14.0], [30.0, 4.0, 14.0]])
+    assert nav.verified_distance(path, 20.0, 1.5) >= 14.0  # free up to the wall, beyond the hit range
+    _look(nav, 10.0)  # nearer: now it is an obstacle
+    assert nav.map.counts()["occupied"] > 0

@@ -5,6 +5,7 @@ from skyrecon.core import StereoRig
 from skyrecon.core.rigid import rotation_angle_deg
 from skyrecon.errors import InputError
 from skyrecon.odometry import FrameEstimate, TrackingState
+from skyrecon.odometry.checks import to_grey
 from skyrecon.odometry.engine import OdometrySettings, StereoOdometry
 from skyrecon.sim import default_rig
 
@@ -230,3 +231,63 @@ def test_a_sudden_rotation_is_not_lost(jerky):
             assert TrackingState.LOST in states[retry]
             assert any(e.reinitialised for e in est)
             assert rotation_angle_deg(est[-1].world_from_left.R.T @ jerky.world_from_left[-1].R) < 2.0
+
+
+def test_a_restarted_track_keeps_the_predicted_rotation_when_the_views_do_not_overlap(city, flight):
+    """After a loss the new track's rotation is measured from the last trusted image when the two
+    views share enough of the scene (a pure-rotation fit in RANSAC); a turn of 70 degrees leaves
+    too little in common, and the fit on the few chance agreements turned the estimate 99 degrees.
+    Then the motion prior's rotation is kept."""
+    from tests.odometry.conftest import _render
+
+    vo = StereoOdometry(flight.rig, OdometrySettings(), flight.world_from_left[0])
+    for k in range(10):
+        vo.track(flight.left[k], flight.right[k], flight.timestamps[k])
+    T_last = flight.world_from_left[9].matrix
+    T_pred = flight.world_from_left[10].matrix
+    for deg, measured in ((12.0, True), (70.0, False)):
+        yaw = np.radians(deg)
+        turn = np.array([[np.cos(yaw), 0.0, np.sin(yaw)], [0.0, 1.0, 0.0], [-np.sin(yaw), 0.0, np.cos(yaw)]])
+        true = flight.world_from_left[10]
+        turned = type(true)(true.R @ turn, true.t, "world", "left")
+        grey = to_grey(_render(city, flight.rig, [turned]).left[0])
+        T = vo._relocate_rotation(grey, T_pred, T_last)
+        if measured:
+            assert rotation_angle_deg(T[:3, :3].T @ turned.R) < 1.0
+        else:
+            assert np.array_equal(T, T_pred)
+
+
+def test_with_a_gyro_a_track_restarted_after_a_turn_in_the_dark_keeps_its_heading(city, flight):
+    """Three black frames while the camera turns 70 degrees: nothing in the new view can be found
+    in the old one, so without a gyro the new track's rotation is an extrapolation, tens of
+    degrees off. With the gyro's rotation per frame it is right, and the reason says so."""
+    from tests.odometry.conftest import _render
+
+    true = flight.world_from_left[13]
+    yaw = np.radians(70.0)
+    turn = np.array([[np.cos(yaw), 0.0, np.sin(yaw)], [0.0, 1.0, 0.0], [-np.sin(yaw), 0.0, np.cos(yaw)]])
+    turned = type(true)(true.R @ turn, true.t, "world", "left")
+    view = _render(city, flight.rig, [turned])
+    black = np.zeros_like(flight.left[0])
+    poses = [p.R for p in flight.world_from_left[:13]] + [turned.R]
+
+    def run(with_gyro: bool):
+        vo = StereoOdometry(flight.rig, OdometrySettings(), flight.world_from_left[0])
+        for k in range(14):
+            left, right = (flight.left[k], flight.right[k]) if k < 10 else (black, black)
+            if k == 13:
+                left, right = view.left[0], view.right[0]
+            gyro = poses[k - 1].T @ poses[k] if (with_gyro and k > 0) else None
+            est = vo.track(left, right, flight.timestamps[k], gyro_prev_from_cur=gyro)
+        return est
+
+    without, with_gyro = run(False), run(True)
+    assert without.reinitialised and rotation_angle_deg(without.world_from_left.R.T @ turned.R) > 20.0
+    assert with_gyro.reinitialised and "by the gyro's rotation" in with_gyro.reason, with_gyro.reason
+    assert rotation_angle_deg(with_gyro.world_from_left.R.T @ turned.R) < 0.5
+    assert np.linalg.norm(with_gyro.position - turned.t) < 0.5
+    with pytest.raises(InputError, match="gyro"):
+        StereoOdometry(flight.rig).track(
+            flight.left[0], flight.right[0], 0.0, gyro_prev_from_cur=np.ones((3, 3))
+        )

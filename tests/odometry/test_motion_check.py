@@ -84,3 +84,36 @@ def test_a_drone_that_stopped_while_its_frames_were_lost_is_not_held_to_its_old_
     assert after.count("lost") == 0, [e.reason for e in est[reinit + 1 :]]
     drift = [np.linalg.norm(e.world_from_left.t - hover.world_from_left[k].t) for k, e in enumerate(est)]
     assert drift[-1] - drift[reinit + 1] < 0.3, drift[reinit:]
+
+
+def test_a_refused_pose_is_accepted_when_the_next_frame_measures_the_same_motion():
+    """The prediction itself can be what is wrong (a poor pose let through bent the velocity):
+    a pose refused in one frame and one that follows on from it in the next are two measurements
+    that agree; the second is accepted (flagged, velocity measured afresh). One that does not
+    follow on from it stays refused."""
+    from skyrecon.sfm.pnp import estimate_absolute_pose
+
+    eng, X, xn, T_true = _setup()
+    pose = estimate_absolute_pose(xn, X, 320.0, min_inliers=20)
+    T_last = np.eye(4)
+    eng._trusted = [(0.0, T_last.copy()), (0.1, T_last)]
+    T_pred = T_last.copy()
+    T_pred[:3, 3] = [0.0, 0.0, 0.5]  # 5 m/s forward, as the prior believes
+    T_first = T_pred.copy()
+    T_first[:3, 3] += [1.0, 0.0, 0.0]  # measured 1 m to the side of the prediction
+    T, p, why = eng._confirm_refused(7, 0.2, T_first, pose, T_pred, 0.1, "refused")
+    assert T is None and p is None and why == "refused"  # one measurement alone is not enough
+    T_next = T_first.copy()
+    T_next[:3, 3] += [0.0, 0.0, 0.5]  # the next frame: the same 5 m/s on from the refused pose
+    T_pred_next = T_pred.copy()
+    T_pred_next[:3, 3] += [0.0, 0.0, 0.5]
+    T, p, why = eng._confirm_refused(8, 0.3, T_next, pose, T_pred_next, 0.2, "refused")
+    assert T is T_next and p is pose and why == ""
+    assert "agrees with the one measured in the frame before" in eng._refused_note
+    # a measurement that does not follow on from the refused one stays refused
+    eng2, *_ = _setup()
+    eng2._trusted = eng._trusted
+    eng2._confirm_refused(7, 0.2, T_first, pose, T_pred, 0.1, "refused")
+    T_far = T_next.copy()
+    T_far[:3, 3] += [0.0, 1.5, 0.0]
+    assert eng2._confirm_refused(8, 0.3, T_far, pose, T_pred_next, 0.2, "refused")[0] is None

@@ -17,7 +17,7 @@ from skyrecon.perception import (
     texture_masks,
 )
 from skyrecon.sim import default_rig, flight_poses, generate_city, render_stereo
-from skyrecon.stereo import create_matcher, disparity_to_depth, plane_supported_fill, to_grey
+from skyrecon.stereo import create_matcher, disparity_to_depth, plane_supported_fill, to_grey, trusted_range_m
 
 
 @pytest.fixture(scope="module")
@@ -95,7 +95,13 @@ def test_hit_range_of_the_presets(pair):
     assert mapping.hit_range_m(rig, 0.5, 40.0) == pytest.approx(stereo_hit_range_m(rig, 0.5, 40.0))
     assert mapping.hit_range_m(rig, 0.5, 40.0) < 40.0
     assert mapping.hit_range_m(rig, 0.5, 10.0) == 10.0
-    assert PerceptionSettings.flight().hit_range_m(rig, 0.5, 20.0) == 20.0  # the map's range decides
+    # the delivery loop's half-resolution matcher: 0.5 px of disparity error, 3 voxels of depth error
+    assert PerceptionSettings.flight().hit_range_m(rig, 0.5, 20.0) == pytest.approx(
+        min(20.0, trusted_range_m(rig, 1.5, 0.5))
+    )
+    flight_rig = default_rig(640, 480, 90.0, 0.3)
+    assert PerceptionSettings.flight().hit_range_m(flight_rig, 0.5, 20.0) == pytest.approx(16.97, abs=0.01)
+    assert PerceptionSettings.flight(max_depth_error_voxels=None).hit_range_m(flight_rig, 0.5, 20.0) == 20.0
     assert PerceptionSettings.mapping(max_depth_error_m=100.0).hit_range_m(rig, 0.5, 40.0) == 40.0
 
 

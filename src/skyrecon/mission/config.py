@@ -27,12 +27,21 @@ class MissionConfig:
         matcher: stereo matcher name (``skyrecon.stereo.create_matcher``).
         max_disparity: disparity search bound, pixels (nearest depth ``f B / max_disparity``).
         camera_pitch_deg: the camera looks this far below the direction of travel, degrees.
-        max_camera_pitch_deg: bound of the camera's pitch either way, degrees.
+        max_camera_pitch_deg: bound of the camera's pitch down, degrees.
+        max_camera_pitch_up_deg: bound of the camera's pitch up, degrees: enough to see a climb's
+            path, not so much that the sky fills the view (at 30 degrees up only the lowest few
+            degrees of a 74 degree vertical field of view lie below the horizon: the odometry kept
+            a handful of features, all along the bottom edge, and drifted).
+        max_camera_pitch_rate_deg_s: the gimbal tilts the camera at most this fast, degrees/s
+            (an unlimited tilt jumped 36-46 degrees in one frame when a climb began or ended,
+            and the odometry lost every feature it tracked).
         depth_stride: the depth image is subsampled by this factor before integration (the
             fast matcher works at half resolution anyway).
     Map:
         voxel_size_m: occupancy voxel edge, metres.
-        max_range_m: depth beyond this carves free space only (stereo is unreliable farther).
+        max_range_m: depth beyond this carves free space up to it only (stereo is unreliable
+            farther); obstacles are marked only within the rig's trusted range, at most this
+            (:func:`skyrecon.mission.perception.flight_perception`, about 17 m by default).
         map_padding_m: the map covers the city plus this much on every side, metres.
     Planner:
         clearance_m: distance the planner keeps from mapped obstacles, metres (the planner adds
@@ -107,6 +116,8 @@ class MissionConfig:
     max_disparity: int = 64
     camera_pitch_deg: float = 8.0
     max_camera_pitch_deg: float = 30.0
+    max_camera_pitch_up_deg: float = 15.0
+    max_camera_pitch_rate_deg_s: float = 90.0
     depth_stride: int = 2
     voxel_size_m: float = 0.5
     max_range_m: float = 20.0
@@ -165,6 +176,7 @@ class MissionConfig:
             "cruise_speed_mps",
             "max_accel_mps2",
             "max_yaw_rate_deg_s",
+            "max_camera_pitch_rate_deg_s",
             "drone_radius_m",
             "cycle_hz",
             "arrival_tolerance_m",
@@ -174,6 +186,8 @@ class MissionConfig:
         for name in positive:
             if not getattr(self, name) > 0:
                 raise InputError(f"mission setting {name} must be positive, got {getattr(self, name)}")
+        if not 0 <= self.max_camera_pitch_up_deg <= 90 or not 0 <= self.max_camera_pitch_deg <= 90:
+            raise InputError("the camera's pitch bounds must lie in [0, 90] degrees")
         if not self.hfov_deg < 170:
             raise InputError(f"hfov_deg must be below 170 degrees, got {self.hfov_deg}")
         if self.width < 64 or self.height < 48:

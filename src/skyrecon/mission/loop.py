@@ -60,6 +60,7 @@ from skyrecon.mission.guidance import Guidance, guide, hover, recovery_look_at, 
 from skyrecon.mission.health import REVEALS, SensorHealth
 from skyrecon.mission.navigator import Navigator, timed
 from skyrecon.mission.perception import flight_perception, mission_rig
+from skyrecon.mission.perception import hit_range_m as mission_hit_range_m
 from skyrecon.mission.pose_source import (
     PoseReading,
     PoseSource,
@@ -545,9 +546,12 @@ def run_mission(
     perception = flight_perception(cfg)
     stereo = StereoDepth(rig, perception)
     _ = stereo.matcher  # build (and warm up) the matcher before the first cycle
-    hit_range = perception.hit_range_m(rig, cfg.voxel_size_m, cfg.max_range_m)
+    # obstacles are marked within the rig's trusted range; farther depth carves free space only
+    hit_range = mission_hit_range_m(cfg)
     prior = mission_prior(scenario, cfg)
-    nav = Navigator(cfg, scenario.box, scenario.goal, hit_range, prior=prior)
+    nav = Navigator(cfg, scenario.box, scenario.goal, cfg.max_range_m, prior=prior, hit_range_m=hit_range)
+    # movers are told from the static map where it holds obstacles (farther, a static surface's
+    # points fall in space carved free and would pass for movers)
     tracker = MoverTracker(MoverSettings(max_range_m=hit_range)) if cfg.track_movers else None
     world = scenario.movers
     monitor = (

@@ -42,6 +42,7 @@ from skyrecon.odometry.engine import OdometrySettings, StereoOdometry
 from skyrecon.odometry.gps import GpsFusion, GpsFusionSettings
 from skyrecon.odometry.types import TrackingState
 from skyrecon.sim.gps import UrbanCanyonGps
+from skyrecon.sim.gyro import SimulatedGyro
 
 POSE_SOURCES = ("odometry", "truth", "gps+odometry")
 
@@ -106,20 +107,36 @@ class OdometryPose:
     directly its bias is a scale error. The frozen-frame check is off: the noise-free simulator
     repeats identical frames while the drone hovers.
 
+    The camera's rotation between frames comes from the flight controller's gyro (and the
+    gimbal's angles), simulated with a consumer MEMS gyro's errors (:mod:`skyrecon.sim.gyro`): it is
+    the odometry's rotation prior, so a quick turn or a tilt of the gimbal does not lose the tracks,
+    and a track restarted after a loss keeps the right heading. The position comes from the
+    cameras alone. Without the gyro (``gyro=False``) a restart after a turn in the dark carried
+    the extrapolated rotation, tens of degrees off, into the rest of the flight.
+
     Args:
         rig: the loop's rectified rig.
         init_world_from_left: the pose at take-off (the first frame), frames ``("world", "left")``.
         settings: odometry settings (None: :meth:`loop_settings`).
+        seed: seeds the simulated gyro.
+        gyro: feed the gyro's rotation to the odometry.
     """
 
     name = "odometry"
 
     def __init__(
-        self, rig: StereoRig, init_world_from_left: Rigid3, settings=None, max_accel_mps2: float = 5.0
+        self,
+        rig: StereoRig,
+        init_world_from_left: Rigid3,
+        settings=None,
+        max_accel_mps2: float = 5.0,
+        seed: int = 0,
+        gyro: bool = True,
     ) -> None:
         self.odometry = StereoOdometry(
             rig, settings or self.loop_settings(max_accel_mps2), init_world_from_left
         )
+        self.gyro = SimulatedGyro(seed=seed) if gyro else None
 
     @staticmethod
     def loop_settings(max_accel_mps2: float = 5.0) -> OdometrySettings:
@@ -140,8 +157,9 @@ class OdometryPose:
         )
 
     def read(self, left, right, time_s, disparity_px, true_world_from_left) -> PoseReading:
+        turn = None if self.gyro is None else self.gyro.measure(time_s, true_world_from_left)
         t0 = time.perf_counter()
-        est = self.odometry.track(left, right, time_s, disparity_px)
+        est = self.odometry.track(left, right, time_s, disparity_px, turn)
         ms = 1e3 * (time.perf_counter() - t0)
         return PoseReading(est.world_from_left.with_frames("world", "left"), est.state, est.reason, ms)
 
@@ -163,7 +181,7 @@ class GpsOdometryPose:
     def __init__(
         self, rig: StereoRig, init_world_from_left: Rigid3, city, seed: int = 0, max_accel_mps2: float = 5.0
     ) -> None:
-        self.odometry = OdometryPose(rig, init_world_from_left, max_accel_mps2=max_accel_mps2)
+        self.odometry = OdometryPose(rig, init_world_from_left, max_accel_mps2=max_accel_mps2, seed=seed)
         # the odometry starts from the true take-off pose: its world is already level and oriented
         # the drone's attitude is known (it took off level, oriented; an IMU and compass keep it):
         # GPS corrects the position only (fitting a rotation to a few metres of noisy fixes added
@@ -265,7 +283,7 @@ def make_pose_source(
     if name == "truth":
         return TruthPose()
     if name == "odometry":
-        return OdometryPose(rig, init_world_from_left, max_accel_mps2=max_accel_mps2)
+        return OdometryPose(rig, init_world_from_left, max_accel_mps2=max_accel_mps2, seed=seed)
     if name == "gps+odometry":
         if city is None:
             raise ValueError("the gps+odometry pose source needs the simulated city")

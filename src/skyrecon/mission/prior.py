@@ -60,13 +60,10 @@ class PriorMap:
     known_fraction: float
     occupied: np.ndarray
 
-    def seed_map(self, cfg: MissionConfig, max_range_m: float) -> OccupancyMap:
-        """The drone's starting map: the prior's weak beliefs over the box (blocks popped)."""
-        m = OccupancyMap.from_dense_log_odds(
-            self.log_odds,
-            self.box.origin,
-            MapConfig(voxel_size_m=cfg.voxel_size_m, max_range_m=max_range_m),
-        )
+    def seed_map(self, config: MapConfig) -> OccupancyMap:
+        """The drone's starting map with ``config`` (voxel size, ranges): the prior's weak beliefs
+        over the box (blocks popped)."""
+        m = OccupancyMap.from_dense_log_odds(self.log_odds, self.box.origin, config)
         m.pop_changed_blocks()
         m.pop_changed_blocks(occupied_only=True)
         return m

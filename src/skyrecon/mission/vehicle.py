@@ -137,10 +137,12 @@ def step(
     ``max_yaw_rate_deg_s``; the drone moves only while the camera looks within
     ``max_heading_error_deg`` of its direction of motion (slower the larger the error), at most
     ``speed_limit``, its velocity changing by at most ``max_accel_mps2 * dt``. The camera
-    pitches towards the look-at point (plus ``camera_pitch_deg``), within ``max_camera_pitch_deg``
-    either way: up too, since a climb's path must be seen before it is flown (capping the pitch
-    at 5 degrees up was tried: seed 4 of the mission benchmark then hovered for 30 s under a
-    climb it could not look at).
+    pitches towards the look-at point (plus ``camera_pitch_deg``) at most
+    ``max_camera_pitch_rate_deg_s``, within ``max_camera_pitch_deg`` down and
+    ``max_camera_pitch_up_deg`` up: up too, since a climb's path must be seen before it is flown
+    (capping the pitch at 5 degrees up was tried: seed 4 of the mission benchmark then hovered for
+    30 s under a climb it could not look at), but not 30 degrees (the sky filled the view and the
+    odometry drifted: 15 was chosen on mission seeds 1, 4, 9 and 19).
 
     With ``brake`` the drone brakes at ``max_accel_mps2`` along its current velocity instead (the
     stopping rule's response when it is faster than it can stop in the space ahead: braking in a
@@ -186,6 +188,13 @@ def step(
             else state.velocity
         )
     climb = math.atan2(q[2], max(q_h, 1e-6)) if float(np.linalg.norm(q)) > 0.3 else 0.0
-    lim = math.radians(cfg.max_camera_pitch_deg)
-    pitch = float(np.clip(math.radians(cfg.camera_pitch_deg) - climb, -lim, lim))
+    target = float(
+        np.clip(
+            math.radians(cfg.camera_pitch_deg) - climb,
+            -math.radians(cfg.max_camera_pitch_up_deg),
+            math.radians(cfg.max_camera_pitch_deg),
+        )
+    )
+    max_tilt = math.radians(cfg.max_camera_pitch_rate_deg_s) * dt
+    pitch = state.pitch_down + float(np.clip(target - state.pitch_down, -max_tilt, max_tilt))
     return DroneState(p + v * dt, v, yaw, pitch, state.time_s + dt)

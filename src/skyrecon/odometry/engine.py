@@ -332,7 +332,13 @@ class StereoOdometry:
         # the trusted poses behind the motion prior: (timestamp, world_from_left 4x4)
         self._trusted: list[tuple[float, np.ndarray]] = []
         self._velocity_measured = True  # the prior's velocity comes from measured poses (see _trust)
+        # the gyro's rotation since the last trusted frame, left_trusted_from_left_now (None: no gyro)
+        self._gyro_since_trusted: np.ndarray | None = None
+        self._gyro_active = False  # this frame came with a gyro rotation
         self._lost_count = 0
+        # poses measured but refused by the motion check, by frame (see _confirm_refused)
+        self._refused: dict[int, tuple[float, np.ndarray]] = {}
+        self._refused_note = ""
         self._place_ms = 0.0
         self._loops: LoopCloser | None = None
         if settings.loop_closure:
@@ -380,7 +386,12 @@ class StereoOdometry:
         return self._loops.report()
 
     def track(
-        self, left: np.ndarray, right: np.ndarray, timestamp_s: float, disparity_px: np.ndarray | None = None
+        self,
+        left: np.ndarray,
+        right: np.ndarray,
+        timestamp_s: float,
+        disparity_px: np.ndarray | None = None,
+        gyro_prev_from_cur: np.ndarray | None = None,
     ) -> FrameEstimate:
         """Estimate the pose of one stereo frame.
 
@@ -389,6 +400,13 @@ class StereoOdometry:
             timestamp_s: the frame's time, seconds, increasing from frame to frame.
             disparity_px: optional (H, W) float32 left disparity (``x_right = x_left - d``, NaN
                 invalid); when given it supplies the features' depth instead of sparse stereo.
+            gyro_prev_from_cur: optional (3, 3) rotation of the left camera since the previous
+                frame given (``left_prev_from_left_cur``) as a gyro measures it (the IMU's rates
+                integrated and turned into the camera's axes). When given with every frame it
+                replaces the constant-angular-velocity guess of the motion prior: the search for the
+                tracks starts where the turn put them, and across lost frames (and the new track a
+                loss ends in) the rotation is the gyro's, not an extrapolation. The position comes
+                from the cameras alone.
         Returns:
             :class:`FrameEstimate` (also appended to :attr:`estimates`).
         Raises:
@@ -409,6 +427,19 @@ class StereoOdometry:
             raise InputError(f"timestamps must increase: {ts} after {self._last_time}")
         index = len(self._frames)
         timings: dict[str, float] = {}
+        self._gyro_active = gyro_prev_from_cur is not None
+        if gyro_prev_from_cur is None:
+            self._gyro_since_trusted = None  # a gap in the gyro: extrapolate until the next trusted frame
+        else:
+            g = np.asarray(gyro_prev_from_cur, dtype=np.float64)
+            if (
+                g.shape != (3, 3)
+                or not np.all(np.isfinite(g))
+                or not np.allclose(g @ g.T, np.eye(3), atol=1e-6)
+            ):
+                raise InputError("the gyro rotation must be a finite (3, 3) rotation matrix")
+            if self._gyro_since_trusted is not None:
+                self._gyro_since_trusted = self._gyro_since_trusted @ g
         grey = to_grey(left)
         frozen = self.settings.detect_frozen and is_frozen(grey, self._last_input)
         self._last_input = grey
@@ -437,19 +468,24 @@ class StereoOdometry:
 
     # ----- motion prior -----------------------------------------------------------------------
     def _predict(self, ts: float) -> np.ndarray:
-        """Constant-velocity ``world_from_left`` at time ``ts`` from the last two trusted poses."""
+        """Constant-velocity ``world_from_left`` at time ``ts`` from the last two trusted poses;
+        its rotation is the gyro's since the last trusted frame when the gyro is given."""
         if not self._trusted:
             return self._init.copy()
         t1, T1 = self._trusted[-1]
         if len(self._trusted) < 2:
-            return T1.copy()
-        t0, T0 = self._trusted[-2]
-        rel = _inv(T0) @ T1
-        s = (ts - t1) / max(t1 - t0, 1e-6)
-        step = np.eye(4)
-        step[:3, :3] = rotvec_to_matrix(matrix_to_rotvec(rel[:3, :3]) * s)
-        step[:3, 3] = rel[:3, 3] * s
-        return T1 @ step
+            out = T1.copy()
+        else:
+            t0, T0 = self._trusted[-2]
+            rel = _inv(T0) @ T1
+            s = (ts - t1) / max(t1 - t0, 1e-6)
+            step = np.eye(4)
+            step[:3, :3] = rotvec_to_matrix(matrix_to_rotvec(rel[:3, :3]) * s)
+            step[:3, 3] = rel[:3, 3] * s
+            out = T1 @ step
+        if self._gyro_since_trusted is not None:
+            out[:3, :3] = T1[:3, :3] @ self._gyro_since_trusted
+        return out
 
     def _trust(self, ts: float, T: np.ndarray, measured: bool = True) -> None:
         """Add a pose to the motion prior. ``measured`` False: a guess (a re-initialisation chains
@@ -460,6 +496,7 @@ class StereoOdometry:
         self._trusted.append((ts, T.copy()))
         del self._trusted[:-2]
         self._velocity_measured = measured
+        self._gyro_since_trusted = np.eye(3) if self._gyro_active else None
 
     # ----- outcomes ---------------------------------------------------------------------------
     def _record(self, T: np.ndarray, keyframe: int) -> None:
@@ -558,6 +595,7 @@ class StereoOdometry:
             return est
         ids = np.arange(self._next_id, self._next_id + len(pts), dtype=np.int64)
         self._next_id += len(pts)
+        how = "the gyro's rotation" if self._gyro_since_trusted is not None else "constant velocity"
         self._pyr, self._pts, self._ids = pyr, pts, ids
         self._add_keyframe(index, T, pts, ids, d, grey, reinit)
         self._set_anchor(index, grey)
@@ -570,7 +608,7 @@ class StereoOdometry:
             state = TrackingState.DEGRADED
             reason = (
                 f"re-initialised after {lost_before} lost frame(s): pose chained to the last trusted one "
-                "by constant velocity" + (f" ({why})" if why else "")
+                f"by {how}" + (f" ({why})" if why else "")
             )
         return FrameEstimate(
             index=index,
@@ -699,7 +737,8 @@ class StereoOdometry:
         """``T_pred`` with its rotation measured from the last trusted image to ``grey``: fresh
         corners tracked (seeded by the dominant image shift) and a pure-rotation fit in RANSAC
         (the translation over a frame or two is small against the depths). ``T_pred`` unchanged
-        when the fit fails."""
+        when the fit fails or explains less than a third of the tracks: the image shift alone is
+        no measurement (two views that barely overlap gave rotations 60-100 degrees off)."""
         assert self._pyr is not None
         prev = self._pyr.image
         s = self.settings
@@ -709,7 +748,7 @@ class StereoOdometry:
             prev, np.zeros((0, 2), np.float32), s.max_features, s.grid, s.min_corner_distance_px
         )
         if len(pts) < s.min_inliers:
-            return T_rot
+            return T_pred
         rays0 = np.column_stack([(pts - self._c) / self._f, np.ones(len(pts))])
         g = rays0 @ R_rel.T
         front = g[:, 2] > 1e-3
@@ -724,7 +763,7 @@ class StereoOdometry:
             s.fb_threshold_px,
         )
         if np.count_nonzero(ok) < s.min_inliers:
-            return T_rot
+            return T_pred
         a = rays0[ok] / np.linalg.norm(rays0[ok], axis=1, keepdims=True)
         b = np.column_stack(
             [(cur[ok].astype(np.float64) - self._c) / self._f, np.ones(int(np.count_nonzero(ok)))]
@@ -744,8 +783,8 @@ class StereoOdometry:
             inl = np.linalg.norm(a @ R.T - b, axis=1) < tol
             if inl.sum() > best.sum():
                 best = inl
-        if best.sum() < s.min_inliers:
-            return T_rot
+        if best.sum() < max(s.min_inliers, len(a) / 3):
+            return T_pred
         R = fit(np.flatnonzero(best))
         out = T_pred.copy()
         out[:3, :3] = T_last[:3, :3] @ R.T
@@ -826,10 +865,54 @@ class StereoOdometry:
                     and len(self._trusted) >= 2
                     and self._velocity_measured
                 ):
+                    T_measured, pose_measured = T, pose
                     T, pose, failure = self._check_motion(T, pose, T_pred, elapsed, xn, X)
+                    if T is None:
+                        T, pose, failure = self._confirm_refused(
+                            index, ts, T_measured, pose_measured, T_pred, elapsed, failure
+                        )
 
         n_inl = pose.num_inliers if (pose is not None and T is not None) else 0
         return _Attempt(pyr, pts, ok, use, pose, T, failure, n_inl)
+
+    def _confirm_refused(
+        self,
+        index: int,
+        ts: float,
+        T: np.ndarray,
+        pose: AbsolutePose,
+        T_pred: np.ndarray,
+        elapsed: float,
+        why: str,
+    ) -> tuple[np.ndarray | None, AbsolutePose | None, str]:
+        """A measured pose the motion check refused (:meth:`_check_motion`) is accepted after all
+        when the pose measured and refused in the frame before leads to it within the same
+        tolerance: two consecutive measurements agree, so the prediction is what went wrong (a
+        poor pose accepted within the tolerance bent the velocity, and refitting each later frame
+        onto the bent prediction held mission seed 9's estimate 1.5 m off until it re-initialised
+        there). Refused means the prediction explains too few tracks to be refitted on them; the
+        measurement must have at least ``good_inliers``. The frame is flagged degraded and the
+        velocity is measured afresh from it."""
+        s = self.settings
+        assert s.max_acceleration_mps2 is not None
+        before = self._refused.get(index - 1)
+        self._refused = {k: v for k, v in self._refused.items() if k == index - 1}
+        self._refused.setdefault(index, (ts, T.copy()))
+        if before is None or not self._trusted or pose.num_inliers < s.good_inliers:
+            return None, None, why
+        t_before, T_before = before
+        dt = max(ts - t_before, 1e-6)
+        v = (T_pred[:3, 3] - self._trusted[-1][1][:3, 3]) / max(elapsed, 1e-6)  # the prior's velocity
+        limit = s.prediction_tolerance_m + 0.5 * s.max_acceleration_mps2 * dt**2
+        dev = float(np.linalg.norm(T[:3, 3] - (T_before[:3, 3] + v * dt)))
+        turn = math.degrees(rotation_angle(T_before[:3, :3].T @ T[:3, :3]))
+        if dev > limit or turn > s.max_rotation_rate_dps * dt:
+            return None, None, why
+        self._refused_note = (
+            f"accepted a pose {float(np.linalg.norm(T[:3, 3] - T_pred[:3, 3])):.2f} m from the motion "
+            "prediction: it agrees with the one measured in the frame before"
+        )
+        return T, pose, ""
 
     def _check_motion(
         self,
@@ -884,6 +967,7 @@ class StereoOdometry:
     ) -> FrameEstimate:
         s = self.settings
         loop_message = ""
+        self._refused_note = ""
         T_pred = self._predict(ts)
         t_last, T_last = self._trusted[-1]
         widen = bool(gap) or self._lost_count > 0
@@ -917,8 +1001,9 @@ class StereoOdometry:
             )
             if wide.T is not None and (att.T is None or wide.n_inliers > att.n_inliers):
                 att = wide
-            if att.T is None or att.n_inliers < s.good_inliers:
+            if (att.T is None or att.n_inliers < s.good_inliers) and self._gyro_since_trusted is None:
                 # still not found: seed the search with the rotation read off the image's dominant shift
+                # (with a gyro the prediction already holds the measured rotation)
                 assert self._pyr is not None
                 T_rot = self._rotation_from_shift(global_shift(self._pyr.image, grey), T_pred, T_last)
                 wide = self._attempt(
@@ -941,8 +1026,11 @@ class StereoOdometry:
         if T is None or pose is None:
             if self._lost_count > 0:
                 # the map could not be found again: start a new track here, chained by the prior,
-                # its rotation measured against the last trusted image (a jerk breaks the prior)
-                T_re = self._relocate_rotation(grey, T_pred, T_last)
+                # its rotation the gyro's or else measured against the last trusted image (a jerk
+                # breaks the constant-velocity prior)
+                T_re = T_pred
+                if self._gyro_since_trusted is None:
+                    T_re = self._relocate_rotation(grey, T_pred, T_last)
                 return self._initialise(
                     index, ts, grey, right, disparity_px, T_re, timings, reinit=True, why=failure
                 )
@@ -970,9 +1058,13 @@ class StereoOdometry:
             reasons.append(f"poor inlier spread ({cover:.0%} of the image grid)")
         if gap:
             reasons.append(gap)
+        confirmed = self._refused_note
+        if confirmed:
+            reasons.append(confirmed)
+            self._refused_note = ""
         recovered = self._lost_count
         self._lost_count = 0
-        self._trust(ts, T)
+        self._trust(ts, T, measured=not confirmed)  # after a confirmed jump the old velocity is void
 
         # keyframe decision
         kf = self._kfs[-1]
