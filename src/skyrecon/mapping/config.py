@@ -32,7 +32,9 @@ class MapConfig:
         max_hit_range_m: measurements farther than this but within ``max_range_m`` carve free
             space up to the measured surface and give no hit (a sensor whose depth is too
             uncertain there to place obstacles, yet good enough to see that the space in front
-            is empty); None: ``max_range_m``.
+            is empty); None: ``max_range_m``. Only for depth that is too uncertain to place an
+            obstacle but never measured too far: depth measured too far carves through the
+            surface (the delivery loop therefore ends its map at the trusted range instead).
         min_range_m: measurements nearer than this are ignored.
         grazing_cap_voxels: depth integration marks as hit the voxels that overlap the local
             surface plane; where the view grazes the surface that band is cut to this many

@@ -40,8 +40,8 @@ class MissionConfig:
     Map:
         voxel_size_m: occupancy voxel edge, metres.
         max_range_m: depth beyond this carves free space up to it only (stereo is unreliable
-            farther); obstacles are marked only within the rig's trusted range, at most this
-            (:func:`skyrecon.mission.perception.flight_perception`, about 17 m by default).
+            farther); the map's range is the rig's trusted range, at most this
+            (:func:`skyrecon.mission.perception.hit_range_m`, about 17 m by default).
         map_padding_m: the map covers the city plus this much on every side, metres.
     Planner:
         clearance_m: distance the planner keeps from mapped obstacles, metres (the planner adds

@@ -546,10 +546,14 @@ def run_mission(
     perception = flight_perception(cfg)
     stereo = StereoDepth(rig, perception)
     _ = stereo.matcher  # build (and warm up) the matcher before the first cycle
-    # obstacles are marked within the rig's trusted range; farther depth carves free space only
+    # the map's range is the rig's trusted range: nearer depth marks obstacles and carves free
+    # space; farther depth carves free space up to it only. (Carving farther, up to a far surface
+    # whose depth is metres uncertain, cut through real surfaces measured too far: their points,
+    # seen again from nearer, then lay in "free" space and passed for movers; truth seed 15 hovered
+    # 30 s behind such a phantom.)
     hit_range = mission_hit_range_m(cfg)
     prior = mission_prior(scenario, cfg)
-    nav = Navigator(cfg, scenario.box, scenario.goal, cfg.max_range_m, prior=prior, hit_range_m=hit_range)
+    nav = Navigator(cfg, scenario.box, scenario.goal, hit_range, prior=prior)
     # movers are told from the static map where it holds obstacles (farther, a static surface's
     # points fall in space carved free and would pass for movers)
     tracker = MoverTracker(MoverSettings(max_range_m=hit_range)) if cfg.track_movers else None

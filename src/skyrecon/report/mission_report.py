@@ -439,8 +439,8 @@ def render_mission_report(
 
     settings = (
         f"{cfg.width}x{cfg.height} stereo, {cfg.hfov_deg:g}° hfov, baseline {cfg.baseline_m:g} m, "
-        f"{cfg.matcher} (max disparity {cfg.max_disparity}); voxels {cfg.voxel_size_m:g} m, free space to "
-        f"{cfg.max_range_m:g} m, obstacles to {hit_range_m(cfg):.1f} m; clearance {cfg.clearance_m:g} m; altitude {cfg.min_altitude_m:g}–"
+        f"{cfg.matcher} (max disparity {cfg.max_disparity}); voxels {cfg.voxel_size_m:g} m, map range "
+        f"{hit_range_m(cfg):.1f} m (trusted depth); clearance {cfg.clearance_m:g} m; altitude {cfg.min_altitude_m:g}–"
         f"{cfg.max_altitude_m:g} m; cruise {cfg.cruise_speed_mps:g} m/s, {cfg.max_accel_mps2:g} m/s², "
         f"{cfg.max_yaw_rate_deg_s:g}°/s; drone radius {cfg.drone_radius_m:g} m"
     )
