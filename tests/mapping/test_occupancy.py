@@ -83,29 +83,6 @@ def test_max_range_carves_up_to_the_range_without_hits():
     assert m.counts()["occupied"] == 0
 
 
-def test_beyond_the_hit_range_depth_carves_up_to_the_surface_without_hits():
-    """A measurement between the hit range and the map's range empties the space in front of
-    the surface (as far as it is, not only up to the hit range) and leaves the surface unknown."""
-    m = OccupancyMap(voxel_size_m=0.25, max_range_m=20.0, max_hit_range_m=6.0)
-    assert m.config.hit_range_m == 6.0
-    st = m.integrate_depth(wall_depth(10.0), CAM, POSE)
-    assert st.hit_updates == 0 and m.counts()["occupied"] == 0
-    assert np.all(m.state_at(np.array([[x, 0.05, 0.05] for x in (1.0, 5.5, 8.0, 9.0)])) == FREE)
-    assert np.all(m.state_at(np.array([[x, 0.05, 0.05] for x in (10.1, 12.0)])) == UNKNOWN)
-    # nearer than the hit range the same wall is marked
-    st = m.integrate_depth(wall_depth(5.0), CAM, POSE)
-    assert st.hit_updates > 0 and m.state_at(np.array([[5.1, 0.05, 0.05]]))[0] == OCCUPIED
-    # point clouds follow the same rule
-    p = OccupancyMap(voxel_size_m=0.5, max_range_m=20.0, max_hit_range_m=6.0)
-    origin = np.array([0.25, 0.25, 0.25])
-    p.integrate_points(np.array([[10.25, 0.25, 0.25], [0.25, 4.25, 0.25]]), origin)
-    assert p.state_at(np.array([[10.25, 0.25, 0.25], [8.25, 0.25, 0.25]])).tolist() == [UNKNOWN, FREE]
-    assert p.state_at(np.array([[0.25, 4.25, 0.25]]))[0] == OCCUPIED
-    assert MapConfig(max_range_m=10.0, max_hit_range_m=30.0).hit_range_m == 10.0
-    with pytest.raises(InputError, match="max_hit_range"):
-        MapConfig(max_hit_range_m=0.0)
-
-
 def test_invalid_depth_is_ignored_and_inf_means_nothing_within_range():
     m = OccupancyMap(voxel_size_m=0.25, max_range_m=8.0)
     m.integrate_depth(np.full((CAM.height, CAM.width), np.nan, np.float32), CAM, POSE)

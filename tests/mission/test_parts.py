@@ -142,17 +142,3 @@ def test_guidance_brakes_before_unobserved_space_and_looks_at_it():
     assert guide(rest, s, 1.0, cfg).speed_limit == 0.0  # within the buffer: stop
     h = hover(np.zeros(3), np.array([10.0, 0, 0]))
     assert h.speed_limit == 0.0 and h.to_go_m == 10.0
-
-
-def test_a_wall_beyond_the_hit_range_empties_the_space_before_it_but_is_not_an_obstacle():
-    """The drone's map marks obstacles only within the stereo rig's trusted range; a wall seen
-    farther is not placed (its depth is metres uncertain) but the air in front of it is free."""
-    cfg = MissionConfig()
-    box = MapBox(np.array([-8.0, -8.0, 8.0]), (96, 32, 32), cfg.voxel_size_m)
-    nav = Navigator(cfg, box, np.array([30.0, 4.0, 14.0]), cfg.max_range_m, hit_range_m=12.0)
-    _look(nav, 16.0)
-    assert nav.map.counts()["occupied"] == 0
-    path = np.array([[0.0, 4.0, 14.0], [30.0, 4.0, 14.0]])
-    assert nav.verified_distance(path, 20.0, 1.5) >= 14.0  # free up to the wall, beyond the hit range
-    _look(nav, 10.0)  # nearer: now it is an obstacle
-    assert nav.map.counts()["occupied"] > 0

@@ -64,23 +64,7 @@ def _range_plane(plane, lo, hi, r, c, zmax):
 
 @njit(cache=True)
 def _prepare_row(
-    r,
-    depth,
-    dirs,
-    ray_norm,
-    R_wc,
-    fx,
-    fy,
-    min_range,
-    max_range,
-    hit_range,
-    half,
-    worst,
-    eps,
-    cap,
-    plane,
-    lo,
-    hi,
+    r, depth, dirs, ray_norm, R_wc, fx, fy, min_range, max_range, half, worst, eps, cap, plane, lo, hi
 ):
     """One image row of :func:`prepare_depth`."""
     H, W = depth.shape
@@ -121,11 +105,11 @@ def _prepare_row(
             Hf = worst * nn
         o = d * d + eps * nn
         zfree = (o - Hf) / (d + g)
-        if d * n > hit_range:
+        if d * n > max_range:
             if zfree >= zmax:  # the range, not the surface, ends the free space
                 _range_plane(plane, lo, hi, r, c, zmax)
                 continue
-            Hh = -1.0  # beyond the hit range: free space up to the surface, no hits
+            Hh = -1.0  # beyond range: no hits
         else:
             Hh = min(Hf, cap * d / n)  # |s| / |n| = along-ray distance * cos, cos = d / (|n| |r|)
         plane[r, c, 0] = nx
@@ -143,7 +127,7 @@ def _prepare_row(
 
 
 @njit(cache=True, parallel=True)
-def prepare_depth(depth, dirs, ray_norm, R_wc, fx, fy, min_range, max_range, hit_range, voxel, eps, cap):
+def prepare_depth(depth, dirs, ray_norm, R_wc, fx, fy, min_range, max_range, voxel, eps, cap):
     """Per-pixel surface planes that decide the fate of the voxels projecting onto each pixel.
 
     For a pixel with depth ``d`` within range, the local surface is the plane through the
@@ -161,8 +145,8 @@ def prepare_depth(depth, dirs, ray_norm, R_wc, fx, fy, min_range, max_range, hit
       metres along the ray either side (grazing views),
     * untouched otherwise.
 
-    A pixel whose depth is beyond ``hit_range`` (<= ``max_range``) gives no hits (``Hh = -1``) and
-    carves free space up to the surface plane or ``max_range``, whichever is nearer (+inf depth, or a range nearer than
+    A pixel whose depth is beyond ``max_range`` gives no hits (``Hh = -1``) and carves free space
+    up to the surface plane or the range, whichever is nearer (+inf depth, or a range nearer than
     the plane: ``n = (0, 0, 1)``, ``o`` the depth at the range, ``F = 0``). Without a
     usable neighbour the plane faces the camera and the cube's worst-case width is used.
     Invalid pixels (NaN, <= 0, nearer than ``min_range``) get ``F = NaN``: no update.
@@ -183,23 +167,7 @@ def prepare_depth(depth, dirs, ray_norm, R_wc, fx, fy, min_range, max_range, hit
     worst = half * np.sqrt(3.0)
     for r in prange(H):
         _prepare_row(
-            r,
-            depth,
-            dirs,
-            ray_norm,
-            R_wc,
-            fx,
-            fy,
-            min_range,
-            max_range,
-            hit_range,
-            half,
-            worst,
-            eps,
-            cap,
-            plane,
-            lo,
-            hi,
+            r, depth, dirs, ray_norm, R_wc, fx, fy, min_range, max_range, half, worst, eps, cap, plane, lo, hi
         )
     return plane, lo, hi
 

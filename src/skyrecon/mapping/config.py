@@ -29,12 +29,6 @@ class MapConfig:
         occupancy_threshold: a known voxel with probability >= this is occupied, else free.
         max_range_m: measurements farther than this (Euclidean, from the sensor) carve free
             space up to this range and give no hit.
-        max_hit_range_m: measurements farther than this but within ``max_range_m`` carve free
-            space up to the measured surface and give no hit (a sensor whose depth is too
-            uncertain there to place obstacles, yet good enough to see that the space in front
-            is empty); None: ``max_range_m``. Only for depth that is too uncertain to place an
-            obstacle but never measured too far: depth measured too far carves through the
-            surface (the delivery loop therefore ends its map at the trusted range instead).
         min_range_m: measurements nearer than this are ignored.
         grazing_cap_voxels: depth integration marks as hit the voxels that overlap the local
             surface plane; where the view grazes the surface that band is cut to this many
@@ -53,7 +47,6 @@ class MapConfig:
     occupancy_threshold: float = 0.5
     max_range_m: float = 60.0
     min_range_m: float = 0.05
-    max_hit_range_m: float | None = None
     grazing_cap_voxels: float = 4.0
     max_plausible_depth_m: float = 2000.0
 
@@ -77,10 +70,6 @@ class MapConfig:
             )
         if not 0 <= self.min_range_m < self.max_range_m:
             raise InputError(f"need 0 <= min_range < max_range, got {self.min_range_m}, {self.max_range_m} m")
-        if self.max_hit_range_m is not None and not self.min_range_m < self.max_hit_range_m:
-            raise InputError(
-                f"need min_range < max_hit_range, got {self.min_range_m}, {self.max_hit_range_m} m"
-            )
         if self.grazing_cap_voxels <= 0:
             raise InputError(f"grazing_cap_voxels must be positive, got {self.grazing_cap_voxels}")
         object.__setattr__(self, "block_size", int(self.block_size))
@@ -98,13 +87,6 @@ class MapConfig:
             ],
             dtype=np.float32,
         )
-
-    @property
-    def hit_range_m(self) -> float:
-        """Range up to which measurements mark hits: ``min(max_hit_range_m, max_range_m)``, metres."""
-        if self.max_hit_range_m is None:
-            return self.max_range_m
-        return min(self.max_hit_range_m, self.max_range_m)
 
     @property
     def block_edge_m(self) -> float:

@@ -265,7 +265,6 @@ class OccupancyMap:
             intrinsics.fy,
             cfg.min_range_m,
             cfg.max_range_m,
-            cfg.hit_range_m,
             v,
             0.005 * v,
             cfg.grazing_cap_voxels * v,
@@ -325,7 +324,7 @@ class OccupancyMap:
             v,
             self.block_size,
             cfg.min_range_m,
-            cfg.hit_range_m,
+            cfg.max_range_m,
             0.005 * v,
             self.grid.tkeys,
             self.grid.tvals,
@@ -383,8 +382,7 @@ class OccupancyMap:
             sensor_origin: (3,) sensor position, world frame, metres.
         Returns:
             IntegrationStats. Points beyond ``max_range_m`` carve free space up to the range and
-            give no hit, points between the hit range (``MapConfig.hit_range_m``) and it carve
-            free space up to themselves and give no hit; points nearer than ``min_range_m`` are ignored. Each point is pushed
+            give no hit; points nearer than ``min_range_m`` are ignored. Each point is pushed
             ``0.005 * voxel_size`` further along its ray before it is binned.
         """
         t0 = time.perf_counter()
@@ -400,13 +398,10 @@ class OccupancyMap:
         # face (the ground at z = 0) marks the voxel behind it, as depth integration does
         ends = p + d * (0.005 * self.voxel_size / rng)[:, None]
         ends[far] = o + d[far] * (cfg.max_range_m / rng[far])[:, None]
-        # beyond the hit range: free space up to a voxel short of the surface, which stays untouched
-        unsure = ~far & (rng > cfg.hit_range_m)
-        ends[unsure] = o + d[unsure] * (np.maximum(rng[unsure] - self.voxel_size, 0.0) / rng[unsure])[:, None]
         v = self.voxel_size
         o_v = o / v
         ends_v = np.ascontiguousarray(ends / v)
-        is_hit = (rng <= cfg.hit_range_m).astype(np.uint8)
+        is_hit = (~far).astype(np.uint8)
         max_steps = int(3 * (cfg.max_range_m / v) + 8)
         blocks = rc.collect_ray_blocks(o_v, ends_v, self.block_size, max_steps)
         ids = self.grid.ensure(blocks)

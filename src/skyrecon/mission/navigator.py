@@ -71,9 +71,6 @@ class Navigator:
         goal: (3,) world metres.
         max_range_m: the map's range (measurements farther carve free space up to it only),
             metres; None: ``cfg.max_range_m``.
-        hit_range_m: measurements farther than this carve free space up to the surface but do
-            not mark it (stereo depth too uncertain there to place an obstacle), metres;
-            None: the map's range.
     """
 
     def __init__(
@@ -83,12 +80,11 @@ class Navigator:
         goal: np.ndarray,
         max_range_m: float | None = None,
         prior: PriorMap | None = None,
-        hit_range_m: float | None = None,
     ):
         self.cfg = cfg
         self.goal = np.asarray(goal, dtype=np.float64)
         rng = cfg.max_range_m if max_range_m is None else max_range_m
-        mc = MapConfig(voxel_size_m=cfg.voxel_size_m, max_range_m=rng, max_hit_range_m=hit_range_m)
+        mc = MapConfig(voxel_size_m=cfg.voxel_size_m, max_range_m=rng)
         if prior is not None:
             self.map = prior.seed_map(mc)
             # a voxel is seen free only after this flight's own cameras saw it (see mission.prior)
