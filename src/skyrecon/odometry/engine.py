@@ -875,6 +875,13 @@ class StereoOdometry:
         n_inl = pose.num_inliers if (pose is not None and T is not None) else 0
         return _Attempt(pyr, pts, ok, use, pose, T, failure, n_inl)
 
+    def _motion_limit(self, dt: float) -> float:
+        """How far, metres, a pose may leave the constant-velocity prediction ``dt`` seconds
+        ahead: ``prediction_tolerance_m + max_acceleration_mps2 * dt^2 / 2``."""
+        s = self.settings
+        assert s.max_acceleration_mps2 is not None
+        return s.prediction_tolerance_m + 0.5 * s.max_acceleration_mps2 * dt**2
+
     def _confirm_refused(
         self,
         index: int,
@@ -894,7 +901,6 @@ class StereoOdometry:
         measurement must have at least ``good_inliers``. The frame is flagged degraded and the
         velocity is measured afresh from it."""
         s = self.settings
-        assert s.max_acceleration_mps2 is not None
         before = self._refused.get(index - 1)
         self._refused = {k: v for k, v in self._refused.items() if k == index - 1}
         self._refused.setdefault(index, (ts, T.copy()))
@@ -903,7 +909,7 @@ class StereoOdometry:
         t_before, T_before = before
         dt = max(ts - t_before, 1e-6)
         v = (T_pred[:3, 3] - self._trusted[-1][1][:3, 3]) / max(elapsed, 1e-6)  # the prior's velocity
-        limit = s.prediction_tolerance_m + 0.5 * s.max_acceleration_mps2 * dt**2
+        limit = self._motion_limit(dt)
         dev = float(np.linalg.norm(T[:3, 3] - (T_before[:3, 3] + v * dt)))
         turn = math.degrees(rotation_angle(T_before[:3, :3].T @ T[:3, :3]))
         if dev > limit or turn > s.max_rotation_rate_dps * dt:
@@ -929,8 +935,7 @@ class StereoOdometry:
         vehicle) is replaced by the pose refined from the prediction on the tracks the prediction
         explains, when they are enough; else the frame fails with the reason."""
         s = self.settings
-        assert s.max_acceleration_mps2 is not None
-        limit = s.prediction_tolerance_m + 0.5 * s.max_acceleration_mps2 * elapsed**2
+        limit = self._motion_limit(elapsed)
         dev = float(np.linalg.norm(T[:3, 3] - T_pred[:3, 3]))
         if dev <= limit:
             return T, pose, ""
