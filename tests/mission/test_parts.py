@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 
 from skyrecon.core import Intrinsics
 from skyrecon.mission import MissionConfig, make_scenario
@@ -142,3 +143,64 @@ def test_guidance_brakes_before_unobserved_space_and_looks_at_it():
     assert guide(rest, s, 1.0, cfg).speed_limit == 0.0  # within the buffer: stop
     h = hover(np.zeros(3), np.array([10.0, 0, 0]))
     assert h.speed_limit == 0.0 and h.to_go_m == 10.0
+
+
+def test_a_climb_above_the_cameras_reach_is_seen_by_backing_off_along_the_flown_track():
+    from skyrecon.mission.guidance import RETREAT_MAX_M, out_of_reach, retreat_path, vertical_reach_rad
+
+    cfg = MissionConfig()
+    up, down = vertical_reach_rad(cfg)
+    # 15 deg tilt up plus half of the 640x480 / 90 deg camera's vertical field of view
+    assert math.degrees(up) == pytest.approx(15.0 + math.degrees(math.atan(240 / 320)))
+    assert math.degrees(down) == pytest.approx(30.0 + math.degrees(math.atan(240 / 320)))
+    p = np.array([0.0, 0.0, 15.0])
+    steep = np.array([1.0, 0.0, 17.0])  # 63 deg up: no tilt of the gimbal shows it
+    assert out_of_reach(p, steep, cfg) and not out_of_reach(p, [10.0, 0.0, 17.0], cfg)
+    assert out_of_reach(p, [0.5, 0.0, 12.0], cfg)  # straight down, beyond the 67 deg of reach
+    # the track it flew: level along -x; it backs off until the point is 12 deg inside the reach
+    way_back = np.array([p, [-30.0, 0.0, 15.0]])
+    back = retreat_path(way_back, steep, cfg)
+    assert back is not None and np.allclose(back[0], p)
+    end = back[-1]
+    elev = math.atan2(steep[2] - end[2], steep[0] - end[0])
+    assert elev <= up - math.radians(12.0) + 1e-9 and elev > up - math.radians(12.0) - math.radians(2.0)
+    assert np.all(np.diff(back[:, 0]) < 0)  # along the track, no further than needed
+    # a point so high that no place on the track shows it: back off the longest allowed
+    far = retreat_path(way_back, np.array([1.0, 0.0, 60.0]), cfg)
+    assert far is not None and np.linalg.norm(far[-1] - p) == pytest.approx(RETREAT_MAX_M, abs=0.3)
+    assert retreat_path(np.array([p, p + [-0.5, 0, 0]]), steep, cfg) is None  # nowhere to go
+
+
+def test_backing_off_flies_the_track_back_looking_at_the_point_and_ends_there():
+    from skyrecon.mission.guidance import RETREAT_AFTER_S, RETREAT_SPEED_MPS, BackOff
+    from skyrecon.mission.safety import speed_limit
+
+    cfg = MissionConfig()
+    p = np.array([0.0, 0.0, 15.0])
+    rest = np.array([p, [2.0, 0.0, 21.0], [20.0, 0.0, 21.0]])  # a climb at 72 degrees just ahead
+    track = np.array([p, [-30.0, 0.0, 15.0]])
+    held = speed_limit(cfg, 4.0, math.inf, 30.0, 99.0)
+    assert held.reason == "path_seen"
+    b = BackOff()
+    # not yet held long enough, not in normal flight, or not held by the unobserved point: nothing
+    assert not b.consider(rest, 4.0, RETREAT_AFTER_S - 0.5, held, p, lambda q: track, cfg)
+    assert not b.consider(rest, 4.0, RETREAT_AFTER_S, held, p, lambda q: track, cfg, mode="hold")
+    assert not b.consider(rest, 4.0, RETREAT_AFTER_S, None, p, lambda q: track, cfg)
+    assert b.consider(rest, 4.0, RETREAT_AFTER_S, held, p, lambda q: track, cfg) and b.active
+    assert b.label("fly") == "retreat" and b.label("return") == "return"
+    s = DroneState(p.copy(), np.zeros(3), 0.0, 0.0)  # facing the climb, backing off behind it
+    for _ in range(400):
+        g = b.guide(s.position, s, cfg, math.inf)
+        assert g.speed_limit <= RETREAT_SPEED_MPS and np.allclose(g.look_at, b.look)
+        s = step(s, g.carrot, g.speed_limit, cfg, look_at=g.look_at, blind_mps=g.blind_mps)
+        assert abs(s.yaw) < math.radians(1.0)  # the camera stays on the climb
+        if not b.active:
+            break
+    assert not b.active and s.position[0] < -3.0
+    assert not out_of_reach_of(s.position, b.look, cfg)
+
+
+def out_of_reach_of(position, point, cfg):
+    from skyrecon.mission.guidance import out_of_reach
+
+    return out_of_reach(position, point, cfg, margin_deg=10.0)

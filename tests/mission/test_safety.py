@@ -18,6 +18,7 @@ from skyrecon.mission.safety import (
     speed_warning,
     stoppable_speed_mps,
     stopping_distance_m,
+    trusted_range_m,
 )
 from skyrecon.mission.vehicle import DroneState, step, turn_speed
 
@@ -51,7 +52,7 @@ def test_speed_limit_takes_the_tightest_part_and_says_which():
     free = speed_limit(cfg, verified_m=100.0, momentum_room_m=math.inf, to_go_m=500.0, turns_mps=99.0)
     # the path is never trusted beyond the rig's range: the rig's supported speed binds
     assert free.value_mps == pytest.approx(rig_supported_speed(cfg)) and free.reason == "rig"
-    assert free.path_room_m == cfg.max_range_m - cfg.verify_buffer_m and free.stop_limited
+    assert free.path_room_m == pytest.approx(trusted_range_m(cfg) - cfg.verify_buffer_m) and free.stop_limited
     slow = speed_limit(cfg, 100.0, momentum_room_m=4.0, to_go_m=500.0, turns_mps=99.0)
     assert slow.reason == "momentum" and slow.stop_mps == slow.value_mps
     assert slow.value_mps == pytest.approx(
@@ -71,9 +72,25 @@ def test_a_cruise_speed_the_rig_cannot_stop_from_is_warned_about():
     assert 6.0 < v < 15.0
     text = speed_warning(cfg)
     assert "15 m/s" in text and f"{v:.1f} m/s" in text
-    # a longer trusted range or harder braking supports more
-    assert rig_supported_speed(MissionConfig(max_range_m=40.0)) > v
+    # harder braking supports more; a shorter range than the rig's trusted one supports less
     assert rig_supported_speed(MissionConfig(max_accel_mps2=8.0)) > v
+    assert rig_supported_speed(MissionConfig(max_range_m=12.0)) < v
+
+
+def test_the_speed_cap_comes_from_the_maps_range_not_the_depth_range():
+    # the map ends where a quarter pixel of disparity moves depth 1.5 m (17 m for the default rig):
+    # space beyond it is never verified, so the rig cannot stop from a speed that needs it
+    cfg = MissionConfig()
+    trusted = trusted_range_m(cfg)
+    assert trusted == pytest.approx(16.97, abs=0.01) and trusted < cfg.max_range_m
+    v = rig_supported_speed(cfg)
+    assert stopping_distance_m(v, cfg.max_accel_mps2, cfg.reaction_s) == pytest.approx(
+        trusted - cfg.verify_buffer_m
+    )
+    far = speed_limit(cfg, cfg.max_range_m, math.inf, 500.0, 99.0)
+    assert far.path_room_m == pytest.approx(trusted - cfg.verify_buffer_m) and not far.unobserved_in_range
+    near = speed_limit(cfg, 0.9 * trusted, math.inf, 500.0, 99.0)
+    assert near.unobserved_in_range
 
 
 def test_a_longer_baseline_trusts_depth_farther_and_supports_more_speed():
@@ -82,8 +99,11 @@ def test_a_longer_baseline_trusts_depth_farther_and_supports_more_speed():
     # same depth error at the end of the range: Z^2 / B constant; same nearest depth searched
     assert wide.max_range_m**2 / wide.baseline_m == pytest.approx(base.max_range_m**2 / base.baseline_m)
     assert wide.min_depth_m <= base.min_depth_m + 1e-9 and wide.max_disparity % 16 == 0
-    assert rig_supported_speed(wide) > 15.0 > rig_supported_speed(base)
-    assert speed_warning(wide.with_overrides(cruise_speed_mps=15.0)) == ""
+    assert trusted_range_m(wide) == pytest.approx(24.0, abs=0.05) and trusted_range_m(wide) > trusted_range_m(
+        base
+    )
+    assert rig_supported_speed(wide) > 13.5 > 12.0 > rig_supported_speed(base)
+    assert speed_warning(wide.with_overrides(cruise_speed_mps=13.5)) == ""
     assert base.with_baseline(0.6, keep_range=True).max_range_m == base.max_range_m
     with pytest.raises(InputError):
         base.with_baseline(0.0)
@@ -162,14 +182,15 @@ def test_an_unobserved_point_that_costs_no_speed_does_not_hold_the_drone_still()
 
 
 def test_an_unobserved_point_beyond_the_trusted_range_never_binds():
-    # Seen at 15 m/s (seed 1): the first unobserved point 21.5 m along the path, beyond the 20 m
-    # the rig trusts, so no look can verify it; the turns set the limit just below the rig's.
+    # Seen at 15 m/s (seed 1): the first unobserved point 21.5 m along the path, beyond the
+    # range the rig maps, so no look can verify it; the turns set the limit just below the rig's.
     cfg = MissionConfig().with_overrides(cruise_speed_mps=15.0)
-    room = cfg.max_range_m - cfg.verify_buffer_m
-    limit = speed_limit(cfg, 21.5, math.inf, 60.0, 12.44)
+    room = trusted_range_m(cfg) - cfg.verify_buffer_m
+    turns = 0.95 * rig_supported_speed(cfg)
+    limit = speed_limit(cfg, 21.5, math.inf, 60.0, turns)
     assert limit.reason == "turns" and limit.path_room_m == pytest.approx(room)
     assert not unobserved_binds(limit)
-    near = speed_limit(cfg, 12.0, math.inf, 60.0, 12.44)  # within range and setting the limit
+    near = speed_limit(cfg, 10.0, math.inf, 60.0, turns)  # within range and setting the limit
     assert near.reason == "path_seen" and unobserved_binds(near)
 
 

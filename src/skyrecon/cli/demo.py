@@ -117,7 +117,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument(
         "--max-range",
         type=positive_float,
-        help="depth is trusted up to this range, metres (default 20); farther matches only carve free space",
+        help="depth is used up to this range, metres (default 20; the map marks obstacles only as far as the rig's "
+        "depth is accurate to 1.5 m, 17 m for the default rig); farther matches only carve free space",
     )
     p.add_argument(
         "--clearance", type=positive_float, help="distance kept from mapped obstacles, metres (default 2)"

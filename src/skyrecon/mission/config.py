@@ -278,8 +278,9 @@ class MissionConfig:
         ``sqrt(baseline_m / self.baseline_m)`` (unless ``keep_range``), and ``max_disparity`` by
         the baseline ratio (rounded up to a multiple of 16), so the nearest depth searched stays
         the same. With the rig supported speed (:func:`skyrecon.mission.safety.rig_supported_speed`)
-        this says what a longer baseline buys: 0.3 m trusts 20 m (12.6 m/s at 5 m/s^2), 0.6 m
-        trusts 28.3 m (15.4 m/s).
+        (which uses the map's range: within ``max_range_m``, where a quarter pixel of disparity error
+        moves depth by at most 1.5 m) this says what a longer baseline buys: 0.3 m maps to 17.0 m
+        (11.5 m/s at 5 m/s^2), 0.6 m to 24.0 m (14.0 m/s).
         """
         if not baseline_m > 0:
             raise InputError(f"the stereo baseline must be positive, got {baseline_m} m")

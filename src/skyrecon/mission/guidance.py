@@ -17,6 +17,12 @@ observed free (:meth:`~skyrecon.mission.navigator.Navigator.verified_distance`):
   when the whole horizon is observed. (Looking unclamped at a point that costs no speed could
   turn the camera more than ``max_heading_error_deg`` from the motion and hold the drone still
   for good: seen at 12 and 15 m/s with the turns setting the limit.)
+* **backing off to see** (:func:`out_of_reach`, :func:`retreat_path`): a drone held still by an
+  unobserved point it cannot look at (a climb steeper than the camera's upward reach: its tilt
+  bound plus half the vertical field of view, 52 degrees for the default rig) flies back along
+  its own flown track (swept free by its body), slowly and with its camera kept on that point,
+  until the point lies well within the reach, then comes on again seeing it. Scanning from where it stands cannot help: the gimbal is at its bound (mission seed 10 on
+  odometry hovered 30 s under a 58 degree climb and returned).
 
 World frame, metres, m/s, radians.
 """
@@ -24,13 +30,15 @@ World frame, metres, m/s, radians.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from skyrecon.mission.config import MissionConfig
 from skyrecon.mission.safety import SpeedLimit, speed_limit
-from skyrecon.mission.vehicle import DroneState, corner_speed_limit, point_along
+from skyrecon.mission.vehicle import DroneState, corner_speed_limit, point_along, sample_path
+from skyrecon.planning.replan import remaining_path
 
 
 @dataclass
@@ -44,6 +52,7 @@ class Guidance:
         look_at: (3,) where the camera should look, world metres.
         look_within_rad: clamp of the look-at bearing around the direction of motion, or None.
         to_go_m: length of the rest of the path, metres.
+        blind_mps: speed allowed whichever way the camera looks (see :func:`~skyrecon.mission.vehicle.step`).
     """
 
     carrot: np.ndarray
@@ -52,6 +61,7 @@ class Guidance:
     look_within_rad: float | None
     to_go_m: float
     limit: SpeedLimit | None = None
+    blind_mps: float = 0.0
 
 
 def guide(
@@ -118,6 +128,133 @@ def recovery_look_at(position: np.ndarray, yaw0: float, lost_s: float, pitch_dow
     return np.asarray(position, np.float64) + 20.0 * np.array(
         [math.cos(yaw) * c, math.sin(yaw) * c, -math.sin(pitch)]
     )
+
+
+#: A drone held still this long (seconds) by a point it cannot look at backs off to see it.
+RETREAT_AFTER_S = 3.0
+#: It backs off until the point lies this far (degrees) inside the camera's vertical reach.
+RETREAT_VIEW_MARGIN_DEG = 12.0
+#: Most it backs off along its flown track, metres.
+RETREAT_MAX_M = 25.0
+#: It backs off at most this fast, m/s, looking at the point, not where it goes (its own track,
+#: swept free by its body): turning round to face the track lost the odometry's pose (above the
+#: roofs, the view back held nothing near enough for stereo depth).
+RETREAT_SPEED_MPS = 1.5
+#: Backing off more often than this in one mission does not help: the no-progress failsafe acts.
+MAX_RETREATS = 3
+
+
+def vertical_reach_rad(cfg: MissionConfig) -> tuple[float, float]:
+    """How far above and below the horizon the camera can see with its gimbal at its bounds
+    (the tilt bound plus half the vertical field of view), radians: (up, down)."""
+    half = math.atan(0.5 * cfg.height / cfg.focal_px)
+    return math.radians(cfg.max_camera_pitch_up_deg) + half, math.radians(cfg.max_camera_pitch_deg) + half
+
+
+def _elevation(position: np.ndarray, point: np.ndarray) -> float:
+    d = np.asarray(point, dtype=np.float64) - np.asarray(position, dtype=np.float64)
+    return math.atan2(float(d[2]), math.hypot(float(d[0]), float(d[1])))
+
+
+def out_of_reach(
+    position: np.ndarray, point: np.ndarray, cfg: MissionConfig, margin_deg: float = 5.0
+) -> bool:
+    """Whether ``point`` (3,) world metres lies above or below what the camera at ``position``
+    (3,) can see at any tilt, less ``margin_deg`` (the edge of the image sees little)."""
+    up, down = vertical_reach_rad(cfg)
+    m = math.radians(margin_deg)
+    e = _elevation(position, point)
+    return e > up - m or e < -(down - m)
+
+
+def retreat_path(way_back: np.ndarray, point: np.ndarray, cfg: MissionConfig) -> np.ndarray | None:
+    """The start of the flown track back (``way_back`` (K, 3), from the drone; see
+    :meth:`~skyrecon.mission.failsafe.Failsafe.way_back`) up to the first place from which
+    ``point`` (3,) lies :data:`RETREAT_VIEW_MARGIN_DEG` inside the camera's vertical reach, at most
+    :data:`RETREAT_MAX_M` along it. Returns (M >= 2, 3) world metres, or None when the track is
+    too short to gain anything (under 1 m)."""
+    pts, s = sample_path(way_back, 0.25, RETREAT_MAX_M)
+    if len(pts) < 2 or s[-1] < 1.0:
+        return None
+    ok = np.array([not out_of_reach(q, point, cfg, RETREAT_VIEW_MARGIN_DEG) for q in pts])
+    ok[s < 1.0] = False
+    k = int(np.argmax(ok)) if ok.any() else len(pts) - 1
+    return pts[: k + 1 : 4] if k % 4 == 0 else np.vstack([pts[: k + 1 : 4], pts[k]])
+
+
+@dataclass
+class BackOff:
+    """Backing off along the flown track to see a point of the path the camera cannot look at.
+
+    Attributes:
+        path: (M, 3) the way back being flown (:func:`retreat_path`), world metres; None when
+            not backing off.
+        look: (3,) the point it backs off to see, world metres.
+        count: times it has backed off this mission (at most :data:`MAX_RETREATS`).
+    """
+
+    path: np.ndarray | None = None
+    look: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    count: int = 0
+
+    @property
+    def active(self) -> bool:
+        return self.path is not None
+
+    def cancel(self) -> None:
+        self.path = None
+
+    def label(self, mode: str) -> str:
+        """The cycle's mode for the log: "retreat" while backing off in the failsafe ``mode`` "fly"."""
+        return "retreat" if self.path is not None and mode == "fly" else mode
+
+    def consider(
+        self,
+        rest: np.ndarray,
+        verified_m: float,
+        stalled_s: float,
+        limit: SpeedLimit | None,
+        position: np.ndarray,
+        way_back: Callable[[np.ndarray], np.ndarray],
+        cfg: MissionConfig,
+        mode: str = "fly",
+    ) -> bool:
+        """Begin backing off when the drone has been held still ``stalled_s`` >=
+        :data:`RETREAT_AFTER_S` seconds by the first unobserved point of ``rest`` (K, 3) (at
+        ``verified_m`` along it) and that point is out of the camera's reach from ``position``;
+        ``way_back(position)`` gives the flown track back; only in the failsafe ``mode`` "fly".
+        Returns whether it began."""
+        if (
+            mode != "fly"
+            or self.path is not None
+            or self.count >= MAX_RETREATS
+            or stalled_s < RETREAT_AFTER_S
+            or limit is None
+            or limit.reason != "path_seen"
+            or len(rest) < 2
+        ):
+            return False
+        q = point_along(rest, verified_m)
+        if not out_of_reach(position, q, cfg):
+            return False
+        self.path = retreat_path(way_back(position), q, cfg)
+        if self.path is None:
+            return False
+        self.look, self.count = q, self.count + 1
+        return True
+
+    def guide(
+        self, position: np.ndarray, state: DroneState, cfg: MissionConfig, momentum_room_m: float
+    ) -> Guidance:
+        """Guidance back along :attr:`path` (flown, so observed free) at most
+        :data:`RETREAT_SPEED_MPS`, the camera on :attr:`look`; done once at its end and still."""
+        assert self.path is not None
+        g = guide(remaining_path(self.path, position), state, cfg.verify_horizon_m, cfg, momentum_room_m)
+        g.speed_limit = min(g.speed_limit, RETREAT_SPEED_MPS)
+        g.look_at, g.look_within_rad, g.blind_mps = self.look.copy(), None, RETREAT_SPEED_MPS
+        if g.to_go_m < 0.3 and state.speed < 0.2:
+            self.path = None
+        return g
 
 
 def hover(position: np.ndarray, goal: np.ndarray) -> Guidance:

@@ -56,7 +56,14 @@ from skyrecon.errors import InputError
 from skyrecon.mapping import OccupancyMap
 from skyrecon.mission.config import MissionConfig
 from skyrecon.mission.failsafe import Failsafe
-from skyrecon.mission.guidance import Guidance, guide, hover, recovery_look_at, scan_look_at
+from skyrecon.mission.guidance import (
+    BackOff,
+    Guidance,
+    guide,
+    hover,
+    recovery_look_at,
+    scan_look_at,
+)
 from skyrecon.mission.health import REVEALS, SensorHealth
 from skyrecon.mission.navigator import Navigator, timed
 from skyrecon.mission.perception import flight_perception, mission_rig
@@ -119,7 +126,8 @@ class CycleRecord:
             crossed it); "" when not replanned.
         movers_tracked: confirmed tracks of moving objects after this cycle's update.
         health: what was wrong with the cycle's data, comma-separated (:mod:`skyrecon.mission.health`).
-        mode: the failsafe mode (:mod:`skyrecon.mission.failsafe`): fly, hold, return or land.
+        mode: the failsafe mode (:mod:`skyrecon.mission.failsafe`): fly, hold, return or land; or
+            retreat (flying normally, backing off to see a climb: :func:`~skyrecon.mission.guidance.retreat_path`).
     """
 
     cycle: int
@@ -397,6 +405,23 @@ def _strided_mask(mask: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
     return np.asarray(m.any(axis=(1, 3)), dtype=bool)
 
 
+def _follow(
+    nav: Navigator,
+    rest: np.ndarray,
+    believed: DroneState,
+    momentum_m: float,
+    degraded: bool,
+    cfg: MissionConfig,
+) -> tuple[float, Guidance]:
+    """Guidance along the path ahead ``rest`` (K, 3), with how far it is observed free, metres;
+    no faster than ``degraded_speed_mps`` on a ``degraded`` pose."""
+    verified = nav.verified_distance(rest, cfg.verify_horizon_m, cfg.verify_skip_m)
+    g = guide(rest, believed, verified, cfg, momentum_m)
+    if degraded and g.speed_limit > cfg.degraded_speed_mps:
+        g.speed_limit = cfg.degraded_speed_mps
+    return verified, g
+
+
 def _failsafe_guidance(
     failsafe: Failsafe, mode: str, p: np.ndarray, believed: DroneState, goal: np.ndarray, cfg: MissionConfig
 ) -> Guidance:
@@ -580,6 +605,7 @@ def run_mission(
     cycle = 0
     p_prev = scenario.start.copy()
     stalled = 0  # cycles held still while following a path (see guidance.scan_look_at)
+    backoff = BackOff()  # backing off to see a climb the camera cannot look at
     if pose_source is None:
         pose_source = make_pose_source(
             cfg.pose_source,
@@ -667,12 +693,12 @@ def run_mission(
         recovering = lost or lost_cycles > 0  # hold still and look around until the pose holds again
         path_ok = (outcome.clear and not math.isfinite(conflict_m)) or replan_ok
         if mode != "fly":
+            backoff.cancel()
             verified, g = 0.0, _failsafe_guidance(failsafe, mode, p, believed, scenario.goal, cfg)
+        elif backoff.active and not recovering:
+            verified, g = cfg.verify_horizon_m, backoff.guide(p, believed, cfg, momentum)
         elif len(rest) >= 2 and path_ok and not recovering:
-            verified = nav.verified_distance(rest, cfg.verify_horizon_m, cfg.verify_skip_m)
-            g = guide(rest, believed, verified, cfg, momentum)
-            if reading.state == TrackingState.DEGRADED and g.speed_limit > cfg.degraded_speed_mps:
-                g.speed_limit = cfg.degraded_speed_mps
+            verified, g = _follow(nav, rest, believed, momentum, reading.state == TrackingState.DEGRADED, cfg)
         else:
             verified, g = 0.0, hover(p, scenario.goal)
             if recovering:
@@ -687,6 +713,8 @@ def run_mission(
         stalled = stalled + 1 if believed.speed < 0.05 and g.limit is not None and mode == "fly" else 0
         if stalled:
             g.look_at = scan_look_at(g.look_at, p, stalled * cfg.dt)
+        # held still by a point it cannot look at: back off along the flown track to see it
+        backoff.consider(rest, verified, stalled * cfg.dt, g.limit, p, failsafe.way_back, cfg, mode)
         brake = g.limit is not None and believed.speed > g.limit.stop_mps + 1e-9
         new_believed = step(
             believed,
@@ -696,10 +724,11 @@ def run_mission(
             look_at=g.look_at,
             look_within_rad=g.look_within_rad,
             brake=brake,
+            blind_mps=g.blind_mps,
         )
         new_state = new_believed if truth else true_step(state, believed, new_believed, est_from_world)
         ms["control"] = 1e3 * (time.perf_counter() - t0)
-        if mode == "fly":
+        if backoff.label(mode) == "fly":  # the way back: flown normally, not while backing off
             failsafe.remember(p)
         turn = abs(math.remainder(new_believed.yaw - believed.yaw, 2 * math.pi))
         moved = bool(np.linalg.norm(new_believed.position - believed.position) > 0.02 or turn > 0.002)
@@ -734,7 +763,7 @@ def run_mission(
             replan_reason,
             0 if tracker is None else sum(1 for t in tracker.tracks if t.moving),
             ",".join(health.reasons),
-            mode,
+            backoff.label(mode),
         )
         records.append(rec)
         # the simulated flight computer spends NOMINAL_LOOP_MS a cycle, stretched by a starved

@@ -15,7 +15,9 @@
   speed the rig's trusted range lets the drone stop from), ``mean_speed_mps`` (flown length over
   flight time) and ``speed_ratio`` (over the cruise speed), ``stop_limited_fraction`` (share of
   cycles whose speed limit the stopping rule set), ``braking_cycles`` (cycles braking at full
-  deceleration because the limit fell below the speed) and ``stop_rule_ok`` (every cycle was
+  deceleration because the limit fell below the speed), ``retreats`` (times the drone backed off
+  along its flown track to see a climb its camera could not look at,
+  :func:`~skyrecon.mission.guidance.retreat_path`) and ``stop_rule_ok`` (every cycle was
   within the stopping rule's limit or braking at full deceleration along a line checked free);
 * the pose (:mod:`skyrecon.mission.pose_source`): ``pose_source``; ``drift_m``: distance between
   where the drone believed it was and where it truly was at the end; ``ate_m``: RMS of that
@@ -169,6 +171,13 @@ def mission_metrics(result: MissionResult) -> dict:
         "speed_ratio": round(flown / (len(recs) * cfg.dt) / cfg.cruise_speed_mps, 4) if recs else None,
         "stop_limited_fraction": round(float(np.mean([r.stop_limited for r in recs])), 4) if recs else None,
         "braking_cycles": int(sum(1 for r in recs if r.speed_mps > r.stop_limit_mps + 1e-6)),
+        "retreats": int(
+            sum(
+                1
+                for a, b in zip([None, *recs], recs)
+                if b.mode == "retreat" and (a is None or a.mode != "retreat")
+            )
+        ),
         "stop_rule_ok": all(stop_rule_holds(recs, cfg.max_accel_mps2, cfg.dt)),
         "warnings": [w for w in (speed_warning(cfg),) if w],
         "cycles": len(recs),

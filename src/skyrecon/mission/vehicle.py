@@ -129,6 +129,7 @@ def step(
     look_at: np.ndarray | None = None,
     look_within_rad: float | None = None,
     brake: bool = False,
+    blind_mps: float = 0.0,
 ) -> DroneState:
     """Advance the drone by one cycle towards ``carrot`` (3,) world metres.
 
@@ -147,6 +148,10 @@ def step(
     With ``brake`` the drone brakes at ``max_accel_mps2`` along its current velocity instead (the
     stopping rule's response when it is faster than it can stop in the space ahead: braking in a
     straight line keeps it on the line that was checked free).
+
+    ``blind_mps`` lets the drone move at up to that speed whichever way the camera looks: only
+    for backing off along its own flown track (swept free by its body) while it keeps looking at
+    what it backs off to see (:func:`skyrecon.mission.guidance.retreat_path`).
     """
     dt = cfg.dt
     p = state.position
@@ -172,6 +177,7 @@ def step(
     else:
         facing = 1.0
     speed = min(speed_limit, cfg.cruise_speed_mps) * facing
+    speed = max(speed, min(speed_limit, blind_mps))
     speed = min(speed, dist / dt)  # never overshoot the carrot within one cycle
     v_des = d / dist * speed if dist > 1e-9 else np.zeros(3)
     dv = v_des - state.velocity
