@@ -204,3 +204,26 @@ def out_of_reach_of(position, point, cfg):
     from skyrecon.mission.guidance import out_of_reach
 
     return out_of_reach(position, point, cfg, margin_deg=10.0)
+
+
+def test_a_drone_in_a_movers_way_sidesteps_without_turning_first():
+    from skyrecon.mission.loop import ESCAPE_SPEED_MPS, _follow
+
+    cfg = MissionConfig()
+    nav = _box_navigator(cfg)
+    _look(nav, np.inf)  # open sky ahead: observed free
+    p = np.array([2.0, 4.0, 14.0])
+    # a mover's predicted sweep passes just beside the drone: the plan cannot start here
+    keep = np.array([[2.0, 2.5, 10.0, 2.0, 2.5, 18.0, 0.5]])
+    r, how = nav.replan(p, keep)
+    assert r.success and how == "escape" and nav.escaping(p)
+    assert np.linalg.norm(nav.escape_to - p) <= 6.0
+    # the camera looks back (yaw 180 degrees): the drone may move at once all the same (within
+    # the stopping rule: vehicle.step's blind_mps)
+    s = DroneState(p.copy(), np.zeros(3), math.pi, 0.0)
+    _, g = _follow(nav, nav.rest(p), s, math.inf, False, cfg)
+    assert g.blind_mps == ESCAPE_SPEED_MPS
+    # once there, or on another path, it is no longer escaping
+    assert not nav.escaping(nav.escape_to.copy())
+    r, how = nav.replan(p)  # without the mover: an ordinary plan
+    assert how == "plan" and not nav.escaping(p)

@@ -268,3 +268,36 @@ def test_vehicle_on_the_road():
         err.append(np.linalg.norm(trk.velocity[:2] - v[:2]))
     # while it comes out from behind the building its visible centre runs ahead of it
     assert np.median(err) <= 1.0 and max(err) <= 1.5
+
+
+def test_points_taken_in_by_a_gate_do_not_grow_the_detection():
+    """A drone 2.5 m in front of a wall the map has never seen, its silhouette smeared over the gap
+    as stereo does: the smear and the wall lie in the gate of the drone's track and join its
+    cluster, but the detection's box is that of the points seen in free space (the drone's face)
+    and of gate points within ``gate_inflate_m`` of them; with every gate point the box, and the
+    gate with it, grew along the viewing ray frame by frame (in the delivery loop, 3 m in 8
+    frames, mission seed 102)."""
+    from scipy.ndimage import binary_dilation
+
+    from skyrecon.perception.movers import detect_movers
+
+    pose = forward_pose(0.0)
+    occ = OccupancyMap(voxel_size_m=0.5, max_range_m=17.5)  # space beyond 17.5 m stays unknown
+    for y in (-1.0, 0.0, 1.0):
+        p = forward_pose(0.0, y)
+        occ.integrate_depth(render(p), CAM, p)
+    wall = np.array([18.5, -4.0, 0.0, 19.0, 4.0, 9.0])
+    drone = np.array([16.0, 0.0, 4.6])  # its face towards the camera at x = 15.5
+    back = render_depth(City.from_obstacles(np.vstack([STATIC, wall])), CAM, pose.inverse())
+    d = render_depth(City.from_obstacles(np.vstack([STATIC, wall, box(drone)])), CAM, pose.inverse())
+    done = d < back - 0.5
+    for k in (1, 2, 3):  # a ramp of depth from the drone's silhouette to the wall
+        ring = binary_dilation(done) & ~done
+        d[ring] = 15.5 + (back[ring] - 15.5) * k / 4
+        done |= ring
+    gate = np.concatenate([drone - 2.0, drone + 2.0])[None]  # a track's gate, generous
+    dets = detect_movers(d, CAM, pose, occ, MoverSettings(max_range_m=30.0), gates=gate)
+    best = min(dets, key=lambda x: np.linalg.norm(x.center - drone))
+    assert abs(best.center[0] - 15.5) < 0.3 and best.half_size[0] < 0.3
+    assert np.linalg.norm(best.center[1:] - drone[1:]) < 0.2
+    assert best.n_points > 60  # the smear is still the mover's (kept out of the map)

@@ -405,6 +405,10 @@ def _strided_mask(mask: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
     return np.asarray(m.any(axis=(1, 3)), dtype=bool)
 
 
+#: Speed of an escape's first leg whichever way the camera looks, m/s (see :func:`_follow`).
+ESCAPE_SPEED_MPS = 3.0
+
+
 def _follow(
     nav: Navigator,
     rest: np.ndarray,
@@ -414,11 +418,18 @@ def _follow(
     cfg: MissionConfig,
 ) -> tuple[float, Guidance]:
     """Guidance along the path ahead ``rest`` (K, 3), with how far it is observed free, metres;
-    no faster than ``degraded_speed_mps`` on a ``degraded`` pose."""
+    no faster than ``degraded_speed_mps`` on a ``degraded`` pose; on an escape's first leg at up to
+    :data:`ESCAPE_SPEED_MPS` whichever way the camera looks."""
     verified = nav.verified_distance(rest, cfg.verify_horizon_m, cfg.verify_skip_m)
     g = guide(rest, believed, verified, cfg, momentum_m)
     if degraded and g.speed_limit > cfg.degraded_speed_mps:
         g.speed_limit = cfg.degraded_speed_mps
+    if nav.escaping(believed.position):
+        # a sidestep out of a mover's way (or off an obstacle) cannot wait for the drone to turn
+        # round first: its leg is clear by construction, and the stopping rule still holds
+        # (mission seed 118: turning to face an escape point behind it, a hovering drone was
+        # flown into by another drone)
+        g.blind_mps = ESCAPE_SPEED_MPS
     return verified, g
 
 

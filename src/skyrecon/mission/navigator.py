@@ -103,6 +103,7 @@ class Navigator:
             self.df, cfg.clearance_m, allow_unknown=True, min_z=cfg.min_altitude_m, max_z=cfg.max_altitude_m
         )
         self.replanner = Replanner(self.planner, self.goal)
+        self.escape_to: np.ndarray | None = None  # the escape point of the path followed, if any
 
     # ----- sensing -----------------------------------------------------------------------
     def integrate(
@@ -196,6 +197,8 @@ class Navigator:
     def _replan(self, p: np.ndarray, escape_radius_m: float) -> tuple[PlanResult, str]:
         r = self.replanner.replan(p)
         if r.success or r.reason not in ("start_too_close", "start_in_obstacle", "start_enclosed"):
+            if r.success:
+                self.escape_to = None
             return r, "plan"
         esc = self.escape_point(p, escape_radius_m)
         if esc is None:
@@ -206,7 +209,23 @@ class Navigator:
         r2.waypoints = np.vstack([p[None], r2.waypoints])
         r2.length_m = float(np.linalg.norm(np.diff(r2.waypoints, axis=0), axis=1).sum())
         self.replanner.waypoints = r2.waypoints
+        self.escape_to = esc.copy()
         return r2, "escape"
+
+    def escaping(self, position: np.ndarray) -> bool:
+        """Whether the drone at ``position`` (3,) is on the first leg of an escape path (to the
+        :meth:`escape_point`, in a straight line that gets closer to nothing mapped nor to a
+        mover's predicted sweep) and not yet there."""
+        if self.escape_to is None:
+            return False
+        w = self.replanner.waypoints
+        if len(w) < 2 or np.linalg.norm(w[1] - self.escape_to) > 1e-6:
+            self.escape_to = None  # another path is followed now
+            return False
+        if np.linalg.norm(np.asarray(position, dtype=np.float64) - self.escape_to) < 0.3:
+            self.escape_to = None
+            return False
+        return True
 
     def mover_conflict(self, rest: np.ndarray, keep_out: np.ndarray | None, reach_m: float) -> float:
         """Where the path ahead meets a mover's predicted sweep.

@@ -358,6 +358,7 @@ def detect_movers(
         around = (pts[c1][None, :, :] + _AXIS_STEPS[:, None, :] * s.inside_m).reshape(-1, 3)
         with np.errstate(invalid="ignore"):
             cand[c1] = np.all(occ_map.log_odds_at(around).reshape(6, -1) <= -s.free_evidence, axis=0)
+    core = cand.copy()  # candidates on their own evidence (not the gates')
     if gates is not None and len(gates):
         g = np.asarray(gates, np.float64).reshape(-1, 6)
         lo, hi = pts.min(axis=0), pts.max(axis=0)
@@ -385,9 +386,17 @@ def detect_movers(
     rows, cols = np.divmod(flat[ci], w_s)
     rows, cols = rows * st, cols * st
     out = []
+    core_c = core[ci]
     for lab in keep:
         m = labels == lab
+        # the box of its points on their own evidence, and of the points taken in through a
+        # gate within gate_inflate_m of those: all gate points let the box, and with it the
+        # gate, grow frame by frame along the viewing ray (stereo smear, background)
         q = cp[m]
+        mc = core_c[m]
+        if mc.sum() >= max(3, s.min_points // 3):
+            lo, hi = q[mc].min(axis=0) - s.gate_inflate_m, q[mc].max(axis=0) + s.gate_inflate_m
+            q = q[np.all((q >= lo) & (q <= hi), axis=1)]
         lo, hi = q.min(axis=0), q.max(axis=0)
         mask = np.zeros((H, W), bool)
         mask[rows[m], cols[m]] = True
