@@ -21,8 +21,9 @@ observed free (:meth:`~skyrecon.mission.navigator.Navigator.verified_distance`):
   unobserved point it cannot look at (a climb steeper than the camera's upward reach: its tilt
   bound plus half the vertical field of view, 52 degrees for the default rig) flies back along
   its own flown track (swept free by its body), slowly and with its camera kept on that point,
-  until the point lies well within the reach, then comes on again seeing it. Scanning from where it stands cannot help: the gimbal is at its bound (mission seed 10 on
-  odometry hovered 30 s under a 58 degree climb and returned).
+  until the point lies well within the reach, then comes on again seeing it. Scanning from where
+  it stands cannot help: the gimbal is at its bound (mission seed 10 on odometry hovered 30 s
+  under a 58 degree climb and returned).
 
 World frame, metres, m/s, radians.
 """
