@@ -195,6 +195,13 @@ def test_no_progress_to_the_goal_for_long_begins_the_failsafe(tiny_config):
     assert "no progress towards the goal" in fs.events[-1]["reason"]
     hover = Failsafe(tiny_config.with_overrides(failsafe="hover", no_progress_failsafe_s=5.0))
     assert hover.progress(0.0, 50.0, p, occ) == "fly" and hover.progress(10.0, 50.0, p, occ) == "fly"
+    # backing off to see the way (paused) does not count as no progress; the time around it does
+    fs = Failsafe(tiny_config.with_overrides(failsafe="return", no_progress_failsafe_s=5.0))
+    assert fs.progress(0.0, 50.0, p, occ) == "fly"
+    assert fs.progress(3.0, 50.0, p, occ) == "fly"
+    assert fs.progress(9.0, 56.0, p, occ, paused=True) == "fly"  # 6 s backing off, farther away
+    assert fs.progress(10.9, 50.5, p, occ) == "fly"  # 4.9 s not paused since the best
+    assert fs.progress(11.1, 50.5, p, occ) == "return"
 
 
 def test_a_fault_hidden_by_missing_frames_is_masked_not_missed(tiny_config):

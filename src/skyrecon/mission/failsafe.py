@@ -43,6 +43,7 @@ class Failsafe:
     events: list[dict] = field(default_factory=list)
     _bad_since: float | None = None
     _best_to_goal: tuple[float, float] | None = None  # (closest distance to the goal, since when)
+    _last_progress_t: float | None = None
     _track: list[np.ndarray] = field(default_factory=list)
 
     def _log(self, t: float, decision: str, reason: str) -> None:
@@ -91,10 +92,19 @@ class Failsafe:
                 )
         return self.mode
 
-    def progress(self, t: float, to_goal_m: float, position: np.ndarray, occ: OccupancyMap) -> str:
+    def progress(
+        self, t: float, to_goal_m: float, position: np.ndarray, occ: OccupancyMap, paused: bool = False
+    ) -> str:
         """After this cycle (``to_goal_m``: the believed distance to the goal, metres): no metre
         gained for ``no_progress_failsafe_s`` begins the configured action (``hover``: the drone
-        keeps holding). Time in a failsafe hold does not count (its own timer acts)."""
+        keeps holding). Time in a failsafe hold does not count (its own timer acts), nor time
+        since the last call while ``paused`` (the drone backing off to see its way,
+        :class:`~skyrecon.mission.guidance.BackOff`: a bounded manoeuvre away from the goal;
+        counted, two back-offs used up the 30 s and odometry mission seed 4 turned home)."""
+        if paused and self._best_to_goal is not None and self._last_progress_t is not None:
+            best, since = self._best_to_goal
+            self._best_to_goal = (best, since + (t - self._last_progress_t))
+        self._last_progress_t = t
         if self.mode != "fly" or self._best_to_goal is None or to_goal_m < self._best_to_goal[0] - 1.0:
             self._best_to_goal = (to_goal_m, t)
             return self.mode

@@ -695,7 +695,7 @@ def run_mission(
                 plans.append(PlanEvent(cycle, r.waypoints.copy(), kind, r.reason))
             else:
                 message = r.message
-        failsafe.progress(state.time_s, float(np.linalg.norm(scenario.goal - p)), p, nav.map)
+        failsafe.progress(state.time_s, float(np.linalg.norm(scenario.goal - p)), p, nav.map, backoff.active)
         ms["replan"] = 1e3 * (time.perf_counter() - t0)
         # control: how far the path is seen free, how fast we may go, where we look
         t0 = time.perf_counter()
