@@ -45,7 +45,8 @@ from skyrecon.executor import ProcessExecutor  # noqa: E402
 from skyrecon.io.atomic import write_text_atomic  # noqa: E402
 from skyrecon.mission import MissionConfig  # noqa: E402
 from skyrecon.mission.batch import MissionJob, fly_job  # noqa: E402
-from skyrecon.mission.safety import rig_supported_speed, trusted_range_m  # noqa: E402
+from skyrecon.mission.perception import hit_range_m  # noqa: E402
+from skyrecon.mission.safety import rig_supported_speed  # noqa: E402
 
 KEYS = (
     "seed",
@@ -105,7 +106,7 @@ def main() -> int:
     print("baseline m  depth range m  map range m  rig supports m/s")
     for b in (0.3, 0.45, 0.6):
         c = base.with_baseline(b)
-        print(f"{b:>10g} {c.max_range_m:>14.1f} {trusted_range_m(c):>12.1f} {rig_supported_speed(c):>17.1f}")
+        print(f"{b:>10g} {c.max_range_m:>14.1f} {hit_range_m(c):>12.1f} {rig_supported_speed(c):>17.1f}")
     if args.baseline is not None:
         base = base.with_baseline(args.baseline)
         if args.out == ap.get_default("out"):
@@ -135,7 +136,7 @@ def main() -> int:
         f"{'stop-limited':>12} {'rule held':>9} {'p99 ms':>7}"
     )
     print(
-        f"\nbraking {base.max_accel_mps2:g} m/s^2, map to {trusted_range_m(base):.1f} m: the rig supports "
+        f"\nbraking {base.max_accel_mps2:g} m/s^2, map to {hit_range_m(base):.1f} m: the rig supports "
         f"{rig_supported_speed(base):.1f} m/s\n{hdr}\n" + "-" * len(hdr)
     )
     for r in results:
@@ -150,7 +151,7 @@ def main() -> int:
     rig = {
         "baseline_m": base.baseline_m,
         "max_range_m": round(base.max_range_m, 2),
-        "map_range_m": round(trusted_range_m(base), 2),
+        "map_range_m": round(hit_range_m(base), 2),
     }
     doc = json.dumps({"cpu_count": os.cpu_count(), "rig": rig, "seeds": seeds, "speeds": results}, indent=2)
     out.mkdir(parents=True, exist_ok=True)

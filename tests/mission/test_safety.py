@@ -12,13 +12,13 @@ from skyrecon.errors import InputError
 from skyrecon.mission import MissionConfig, make_scenario, run_mission
 from skyrecon.mission.guidance import guide, unobserved_binds
 from skyrecon.mission.metrics import mission_metrics, stop_rule_holds
+from skyrecon.mission.perception import hit_range_m
 from skyrecon.mission.safety import (
     rig_supported_speed,
     speed_limit,
     speed_warning,
     stoppable_speed_mps,
     stopping_distance_m,
-    trusted_range_m,
 )
 from skyrecon.mission.vehicle import DroneState, step, turn_speed
 
@@ -52,7 +52,7 @@ def test_speed_limit_takes_the_tightest_part_and_says_which():
     free = speed_limit(cfg, verified_m=100.0, momentum_room_m=math.inf, to_go_m=500.0, turns_mps=99.0)
     # the path is never trusted beyond the rig's range: the rig's supported speed binds
     assert free.value_mps == pytest.approx(rig_supported_speed(cfg)) and free.reason == "rig"
-    assert free.path_room_m == pytest.approx(trusted_range_m(cfg) - cfg.verify_buffer_m) and free.stop_limited
+    assert free.path_room_m == pytest.approx(hit_range_m(cfg) - cfg.verify_buffer_m) and free.stop_limited
     slow = speed_limit(cfg, 100.0, momentum_room_m=4.0, to_go_m=500.0, turns_mps=99.0)
     assert slow.reason == "momentum" and slow.stop_mps == slow.value_mps
     assert slow.value_mps == pytest.approx(
@@ -81,7 +81,7 @@ def test_the_speed_cap_comes_from_the_maps_range_not_the_depth_range():
     # the map ends where a quarter pixel of disparity moves depth 1.5 m (17 m for the default rig):
     # space beyond it is never verified, so the rig cannot stop from a speed that needs it
     cfg = MissionConfig()
-    trusted = trusted_range_m(cfg)
+    trusted = hit_range_m(cfg)
     assert trusted == pytest.approx(16.97, abs=0.01) and trusted < cfg.max_range_m
     v = rig_supported_speed(cfg)
     assert stopping_distance_m(v, cfg.max_accel_mps2, cfg.reaction_s) == pytest.approx(
@@ -99,9 +99,7 @@ def test_a_longer_baseline_trusts_depth_farther_and_supports_more_speed():
     # same depth error at the end of the range: Z^2 / B constant; same nearest depth searched
     assert wide.max_range_m**2 / wide.baseline_m == pytest.approx(base.max_range_m**2 / base.baseline_m)
     assert wide.min_depth_m <= base.min_depth_m + 1e-9 and wide.max_disparity % 16 == 0
-    assert trusted_range_m(wide) == pytest.approx(24.0, abs=0.05) and trusted_range_m(wide) > trusted_range_m(
-        base
-    )
+    assert hit_range_m(wide) == pytest.approx(24.0, abs=0.05) and hit_range_m(wide) > hit_range_m(base)
     assert rig_supported_speed(wide) > 13.5 > 12.0 > rig_supported_speed(base)
     assert speed_warning(wide.with_overrides(cruise_speed_mps=13.5)) == ""
     assert base.with_baseline(0.6, keep_range=True).max_range_m == base.max_range_m
@@ -185,7 +183,7 @@ def test_an_unobserved_point_beyond_the_trusted_range_never_binds():
     # Seen at 15 m/s (seed 1): the first unobserved point 21.5 m along the path, beyond the
     # range the rig maps, so no look can verify it; the turns set the limit just below the rig's.
     cfg = MissionConfig().with_overrides(cruise_speed_mps=15.0)
-    room = trusted_range_m(cfg) - cfg.verify_buffer_m
+    room = hit_range_m(cfg) - cfg.verify_buffer_m
     turns = 0.95 * rig_supported_speed(cfg)
     limit = speed_limit(cfg, 21.5, math.inf, 60.0, turns)
     assert limit.reason == "turns" and limit.path_room_m == pytest.approx(room)

@@ -19,6 +19,8 @@ looking up a climb). The 3 voxels were chosen on those two missions.
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 from skyrecon.core import StereoRig
 from skyrecon.mission.config import MissionConfig
 from skyrecon.perception import PerceptionSettings
@@ -38,7 +40,10 @@ def flight_perception(cfg: MissionConfig) -> PerceptionSettings:
     )
 
 
+@lru_cache(maxsize=16)
 def hit_range_m(cfg: MissionConfig) -> float:
     """Range up to which the drone's map marks obstacles, metres: the rig's trusted range for
-    :func:`flight_perception`, at most ``cfg.max_range_m`` (farther depth carves free space only)."""
+    :func:`flight_perception`, at most ``cfg.max_range_m`` (farther depth carves free space only).
+    Also how far ahead one look can verify space free (the stopping rule's cap,
+    :mod:`skyrecon.mission.safety`); cached per config, as the stopping rule asks every cycle."""
     return flight_perception(cfg).hit_range_m(mission_rig(cfg), cfg.voxel_size_m, cfg.max_range_m)

@@ -7,7 +7,7 @@ space are checked, and the tighter one wins:
 
 * **along the path**: how far the planned path ahead is observed free
   (:meth:`~skyrecon.mission.navigator.Navigator.verified_distance`), never more than the
-  stereo rig's trusted range (the map's range, :func:`trusted_range_m`: at most
+  stereo rig's trusted range (the map's range, :func:`skyrecon.mission.perception.hit_range_m`: at most
   ``MissionConfig.max_range_m``, 17 m for the default rig): nothing beyond it is mapped;
 * **along the velocity**: a drone at speed cannot turn on the spot, so the straight line its
   momentum carries it along (the braking distance in the direction of its current velocity) must
@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from functools import lru_cache
 
 from skyrecon.mission.config import MissionConfig
 from skyrecon.mission.perception import hit_range_m
@@ -48,17 +47,10 @@ def stoppable_speed_mps(room_m: float, accel_mps2: float, reaction_s: float) -> 
     return -at + math.sqrt(at * at + 2.0 * accel_mps2 * room_m)
 
 
-@lru_cache(maxsize=16)
-def trusted_range_m(cfg: MissionConfig) -> float:
-    """How far ahead one look can verify space free, metres: the map's range
-    (:func:`skyrecon.mission.perception.hit_range_m`; farther depth is not mapped)."""
-    return float(hit_range_m(cfg))
-
-
 def rig_supported_speed(cfg: MissionConfig) -> float:
     """Highest speed from which the drone stops within what its rig can ever verify free: the
-    trusted range (:func:`trusted_range_m`) less the stop buffer, m/s."""
-    return stoppable_speed_mps(trusted_range_m(cfg) - cfg.verify_buffer_m, cfg.max_accel_mps2, cfg.reaction_s)
+    trusted range (:func:`~skyrecon.mission.perception.hit_range_m`) less the stop buffer, m/s."""
+    return stoppable_speed_mps(hit_range_m(cfg) - cfg.verify_buffer_m, cfg.max_accel_mps2, cfg.reaction_s)
 
 
 def speed_warning(cfg: MissionConfig) -> str:
@@ -68,7 +60,7 @@ def speed_warning(cfg: MissionConfig) -> str:
         return ""
     return (
         f"cruise speed {cfg.cruise_speed_mps:g} m/s is above what the stereo rig supports: it trusts depth to "
-        f"{trusted_range_m(cfg):.1f} m, and braking at {cfg.max_accel_mps2:g} m/s^2 after "
+        f"{hit_range_m(cfg):.1f} m, and braking at {cfg.max_accel_mps2:g} m/s^2 after "
         f"{cfg.reaction_s:.2f} s the drone can stop within that from {v:.1f} m/s; "
         f"flying at most {v:.1f} m/s (a longer baseline or a higher braking limit raises it)"
     )
@@ -121,7 +113,7 @@ def speed_limit(
         turns_mps: the speed allowed by the turns of the path ahead, m/s.
     """
     a, t = cfg.max_accel_mps2, cfg.reaction_s
-    trusted = trusted_range_m(cfg)
+    trusted = hit_range_m(cfg)
     path_room = max(0.0, min(verified_m, trusted) - cfg.verify_buffer_m)
     mom_room = max(0.0, momentum_room_m - cfg.verify_buffer_m) if math.isfinite(momentum_room_m) else math.inf
     candidates = {
