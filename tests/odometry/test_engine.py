@@ -291,3 +291,36 @@ def test_with_a_gyro_a_track_restarted_after_a_turn_in_the_dark_keeps_its_headin
         StereoOdometry(flight.rig).track(
             flight.left[0], flight.right[0], 0.0, gyro_prev_from_cur=np.ones((3, 3))
         )
+
+
+@pytest.mark.parametrize("threshold", [1.0, None])
+def test_a_track_that_strays_beyond_the_track_threshold_is_dropped(flight, monkeypatch, threshold):
+    """A track placed 1.5 px from its map point's true projection (inside the 2 px PnP inlier gate)
+    is dropped with the default 1 px track threshold, and kept without one."""
+    import skyrecon.odometry.engine as engine
+
+    vo = StereoOdometry(flight.rig, OdometrySettings(track_threshold_px=threshold), flight.world_from_left[0])
+    for k in range(4):
+        vo.track(flight.left[k], flight.right[k], flight.timestamps[k])
+    with_point = [i for i in vo._ids.tolist() if i in vo._points]
+    target = with_point[len(with_point) // 2]
+    real = engine.track_points
+
+    def strayed(prev, cur, points_px, guess_px=None, fb_threshold_px=1.0):
+        pts, ok = real(prev, cur, points_px, guess_px, fb_threshold_px)
+        row = vo._ids.tolist().index(target)
+        cam = flight.world_from_left[4].inverse().apply(vo._points[target])
+        L = flight.rig.left
+        pts = pts.copy()
+        pts[row] = [L.fx * cam[0] / cam[2] + L.cx + 1.5, L.fy * cam[1] / cam[2] + L.cy]
+        return pts, ok
+
+    monkeypatch.setattr(engine, "track_points", strayed)
+    est = vo.track(flight.left[4], flight.right[4], flight.timestamps[4])
+    assert est.state is TrackingState.OK
+    assert (target in vo._ids.tolist()) == (threshold is None)
+
+
+def test_the_track_threshold_must_be_positive():
+    with pytest.raises(InputError):
+        OdometrySettings(track_threshold_px=0.0)
