@@ -145,7 +145,7 @@ class OdometryPose:
         estimated), so a wrong consensus (a turn read as a slide) is refitted or refused, never flown.
         Loop closure is off: its pose-graph solves would add latency spikes to the control loop, and
         a delivery rarely comes back to where it has been. 300 features on an 8x6 grid (the
-        standalone default is 700 on 10x8, which lowers the drift of long flights by a sixth): the
+        standalone default is 1000 on 12x9, which lowers the drift of long flights by a fifth): the
         loop's cycle is judged by its p99, and its missions are short and re-planned every cycle."""
         return OdometrySettings(
             max_features=300,

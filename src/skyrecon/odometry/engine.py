@@ -78,7 +78,10 @@ class OdometrySettings:
             features, spread finer, average the tracks' sub-pixel errors (the drift is mostly a
             slow heading error): on the six flights of ``benchmarks/odometry`` (no loop closure)
             the worst drift is 0.350 % (mean 0.305) with 300 on an 8x6 grid, 0.309 with 500,
-            0.298 with 700, 0.280 with 1000, 0.291 (mean 0.244) with 700 on 10x8.
+            0.298 with 700, 0.280 with 1000, 0.291 (mean 0.244) with 700 on 10x8. With
+            ``track_threshold_px`` on thirteen flights (seven routes, four circuits, two routes in
+            cities with 60 % plain facades): worst 0.311 % (a plain city; mean 0.23) with 700 on
+            10x8, worst 0.282 % (mean 0.22; plain 0.258, 0.259) with 1000 on 12x9.
         grid: (columns, rows) of the detection grid that keeps features spread.
         min_corner_distance_px: minimum distance between corners, pixels.
         klt_window_px: KLT window side, pixels.
@@ -170,8 +173,8 @@ class OdometrySettings:
             included) found loops implying the same correction (1: no confirmation).
     """
 
-    max_features: int = 700
-    grid: tuple[int, int] = (10, 8)
+    max_features: int = 1000
+    grid: tuple[int, int] = (12, 9)
     min_corner_distance_px: float = 8.0
     klt_window_px: int = 15
     klt_levels: int = 3
