@@ -1,7 +1,8 @@
 """Stereo visual odometry: skyrecon's engine vs the OpenCV baseline a user would assemble.
 
 Scenes: ``generate_city(seed, 240 m, low_texture_fraction=0.3)`` (a third of the buildings with
-plain, almost textureless facades). Flights: a drone route along the streets (``flight_path``:
+plain, almost textureless facades; ``--low-texture-fraction`` for plainer cities, reported as flight
+kind ``route-plain<fraction>``). Flights: a drone route along the streets (``flight_path``:
 turns at intersections with rounded corners, about 48 deg/s of yaw at 5 m/s), at 16 m with +-4 m
 altitude changes, 5 m/s, 10 frames/s, camera pitched down 12 degrees, plus fast-yaw segments (the
 camera swings +-45 degrees at up to 90 deg/s for 3 s, twice per 100 m). Rendered with exact poses
@@ -35,6 +36,8 @@ Usage:
   .venv/bin/python benchmarks/odometry/run.py                    # 3 seeds x (route, circuit) at 640x480
   .venv/bin/python benchmarks/odometry/run.py --flights circuit --seeds 1 --out c1.json   # one part,
   .venv/bin/python benchmarks/odometry/run.py --merge c1.json c2.json r1.json   # ... parts combined
+  .venv/bin/python benchmarks/odometry/run.py --seeds 8 9 10 --flights route --low-texture-fraction 0.6 \
+      --out plain.json                                             # plainer cities: their own table
   .venv/bin/python benchmarks/odometry/run.py --quick            # 1 seed, 100 m at 320x240
   .venv/bin/python benchmarks/odometry/run.py --seeds 1 2 --length-m 300 --methods opencv
 Writes benchmarks/odometry/results.json (or --out).

@@ -98,3 +98,32 @@ def test_stale_temporaries_of_dead_runs_are_swept(tmp_path):
         p.write_bytes(b"ok")
     assert sweep_stale_temps(tmp_path) == 3
     assert mine.exists() and all(p.exists() for p in keep) and not any(p.exists() for p in stale)
+
+
+def test_temporaries_of_a_zombie_are_swept(tmp_path):
+    """A killed run's worker can stay a zombie (dead, not yet reaped: some container inits never
+    reap orphans); it will never finish its temporary, so the next run sweeps it."""
+    import subprocess
+    import sys
+    import time
+
+    import pytest
+
+    from skyrecon.io.atomic import sweep_stale_temps
+
+    if not os.path.exists("/proc/self/stat"):
+        pytest.skip("needs /proc to tell a zombie")
+    child = subprocess.Popen([sys.executable, "-c", "pass"])
+    try:
+        for _ in range(200):  # exited but not waited for: a zombie
+            if open(f"/proc/{child.pid}/stat").read().rsplit(")", 1)[-1].split()[0] == "Z":
+                break
+            time.sleep(0.05)
+        else:
+            pytest.fail("the child did not become a zombie")
+        stale = tmp_path / f".points.ply.{child.pid}.abc123.tmp"
+        stale.write_bytes(b"half")
+        assert sweep_stale_temps(tmp_path) == 1
+        assert not stale.exists()
+    finally:
+        child.wait()

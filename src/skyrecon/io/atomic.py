@@ -93,6 +93,9 @@ def make_temp_dir(parent: str | Path, name: str) -> Path:
 
 
 def _alive(pid: int) -> bool:
+    """Whether process ``pid`` still runs. A zombie does not: a killed run's worker whose parent
+    died stays a zombie until init reaps it (some container inits never do), and it will never
+    finish its temporary."""
     if pid == os.getpid():
         return True
     try:
@@ -101,7 +104,11 @@ def _alive(pid: int) -> bool:
         return False
     except PermissionError:
         return True
-    return True
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return True  # no /proc (macOS, Windows): the signal check is all there is
+    return stat.rsplit(")", 1)[-1].split()[:1] != ["Z"]
 
 
 def sweep_stale_temps(directory: str | Path, recursive: bool = True) -> int:
