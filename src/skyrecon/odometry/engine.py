@@ -111,9 +111,9 @@ class OdometrySettings:
             stay. About a fifth of the KLT tracks err by more than 0.5 px after one frame (corners
             on occlusion boundaries and aliased silhouettes, measured against the true projections
             on a synthetic flight); left in, they bias the next poses. On ten synthetic 500-560 m
-            flights (no loop closure, 700 features on 10x8) the drift is worst 0.265 % (mean 0.225) with 1 px, 0.344
-            (mean 0.256) without; tightening the RANSAC threshold itself to 1 px instead lost accuracy
-            after sudden jerks at 320x240.
+            flights (no loop closure, 700 features on 10x8) the drift is worst 0.265 % (mean
+            0.225) with 1 px, 0.344 (mean 0.256) without; tightening the RANSAC threshold itself
+            to 1 px instead lost accuracy after sudden jerks at 320x240.
         ransac_iterations: PnP RANSAC iteration cap.
         pnp_refinement: ``"robust"`` (Cauchy refinement through the bundle adjuster,
             :func:`skyrecon.sfm.pnp.estimate_absolute_pose`) or ``"lm"`` (OpenCV's
