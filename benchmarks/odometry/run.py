@@ -76,6 +76,12 @@ SPEED_MPS, FPS = 5.0, 10.0
 LOW_TEXTURE_FRACTION = 0.3  # the default share of buildings with plain facades
 
 
+def plain_tag(low_texture_fraction: float) -> str:
+    """``""`` for the default city, else ``"plain<fraction>"``: names a plainer city's cached
+    flights and its table."""
+    return "" if low_texture_fraction == LOW_TEXTURE_FRACTION else f"plain{low_texture_fraction:g}"
+
+
 def yaw_swings(s_m: np.ndarray, t_s: np.ndarray, every_m: float = 50.0, rate_dps: float = 90.0) -> np.ndarray:
     """(N,) extra yaw, radians: a +-45 degree swing (one sine period, peak rate ``rate_dps``) that
     starts every ``every_m`` metres of path (at 20 m into each stretch)."""
@@ -159,8 +165,8 @@ def make_flight(
     n = int(round(length_m / SPEED_MPS * FPS)) + 1
     kind = "circuit" if circuit else "vo"
     root = cache / f"{kind}_seed{seed}_{int(length_m)}m_{width}x{height}"
-    if low_texture_fraction != LOW_TEXTURE_FRACTION:
-        root = root.with_name(f"{root.name}_plain{low_texture_fraction:g}")
+    if plain_tag(low_texture_fraction):
+        root = root.with_name(f"{root.name}_{plain_tag(low_texture_fraction)}")
     if is_sequence_dir(root) and (root / "poses.txt").is_file() and len(read_sequence(root)) == n:
         return root
     city = generate_city(seed, 240.0, low_texture_fraction=low_texture_fraction)
@@ -211,6 +217,7 @@ def run_method(
     flight: str = "route",
     low_texture_fraction: float = LOW_TEXTURE_FRACTION,
 ) -> dict:
+    """Track flight ``root`` with ``method`` and score it; ``flight`` labels the row (its table)."""
     seq = read_sequence(root)
     n = min(len(seq), max_frames or len(seq))
     gt = seq.world_from_left[:n]  # type: ignore[index]
@@ -404,11 +411,11 @@ def main() -> None:
             print(
                 f"{flight} seed {seed}: flight ready in {time.perf_counter() - t0:.0f} s ({root})", flush=True
             )
+            tag = plain_tag(args.low_texture_fraction)
+            label = f"{flight}-{tag}" if tag else flight  # a plainer city gets its own table
             for method in methods:
                 t0 = time.perf_counter()
-                row = run_method(method, root, seed, args.frames, flight, args.low_texture_fraction)
-                if args.low_texture_fraction != LOW_TEXTURE_FRACTION:  # its own table
-                    row["flight"] = f"{flight}-plain{args.low_texture_fraction:g}"
+                row = run_method(method, root, seed, args.frames, label, args.low_texture_fraction)
                 rows.append({**row, "low_texture_fraction": args.low_texture_fraction})
                 print(f"  {method}: {time.perf_counter() - t0:.0f} s", flush=True)
     print()
