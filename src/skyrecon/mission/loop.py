@@ -592,7 +592,11 @@ def run_mission(
     nav = Navigator(cfg, scenario.box, scenario.goal, hit_range, prior=prior)
     # movers are told from the static map where it holds obstacles (farther, a static surface's
     # points fall in space carved free and would pass for movers)
-    tracker = MoverTracker(MoverSettings(max_range_m=hit_range)) if cfg.track_movers else None
+    tracker = (
+        MoverTracker(MoverSettings(max_range_m=hit_range, far_range_m=max(hit_range, cfg.max_range_m)))
+        if cfg.track_movers
+        else None
+    )
     world = scenario.movers
     monitor = (
         WorldMonitor(scenario, cfg.voxel_size_m, hit_range) if world is not None or scenario.changes else None

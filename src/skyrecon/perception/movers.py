@@ -4,8 +4,10 @@ A delivery drone shares the city with other drones, vehicles and cranes. Integra
 static occupancy map they would leave phantom trails, and the planner would not know they move.
 :class:`MoverTracker` looks at every depth frame against the static map:
 
-1. **Detection** (:func:`detect_movers`): valid depth pixels (finite, within ``max_range_m``)
-   are back-projected to world points. A point is a *motion candidate* when the static map has
+1. **Detection** (:func:`detect_movers`): valid depth pixels (finite, within ``max_range_m``,
+   or ``far_range_m`` for the see-through test) are back-projected to world points. A point is a
+   *motion candidate* when earlier frames (0.3 s and 1 s ago, :class:`SeenDepth`) saw through its
+   space (the see-through test: something moved in since), or when the static map has
    observed the space there as free (its voxel is FREE, and so is the voxel ``behind_m`` farther
    along the viewing ray, so that a point of a static surface pushed forward by depth noise is not
    a candidate, and so are the voxels a little away from it along the axes, so that the silhouette
@@ -51,6 +53,8 @@ from skyrecon.errors import InputError
 if TYPE_CHECKING:  # skyrecon.mapping imports skyrecon.perception: import it late, in the functions
     from skyrecon.mapping.occupancy import OccupancyMap
 
+#: far clusters with at least this many points get a quantile box (MoverSettings.box_quantile)
+_MIN_ROBUST_POINTS = 20
 # the 13 "forward" neighbours of a voxel: with their opposites, its 26 neighbours
 _HALF_NEIGHBOURS = np.array(
     [(dx, dy, dz) for dx in (-1, 0, 1) for dy in (-1, 0, 1) for dz in (-1, 0, 1) if (dx, dy, dz) > (0, 0, 0)],
@@ -109,6 +113,27 @@ class MoverSettings:
         max_speed_mps, max_climb_mps: a track faster than this (3-D speed), or climbing or sinking
             faster than this, once it has ``confirm_hits`` detections is not a real object (stereo
             outliers at depth edges chained by chance) and is dropped, m/s.
+        history_s: ages of the earlier frames for the *see-through test*, seconds (empty: no
+            such test). For each age, the latest remembered frame at least that old is taken; a
+            point is a candidate when every one of them saw through its space (the depth there
+            lay farther by a margin): something has moved in since. This needs no map, so it
+            finds movers in space the map has not seen free and beyond the map's range; the long
+            age finds movers that come straight at the camera, the short one makes a static
+            surface's stereo outlier in one old frame not enough. Points in front of a surface
+            the map holds (within ``behind``) and depth-edge pixels are not candidates by it.
+        far_range_m: points between ``max_range_m`` and this range are candidates by the
+            see-through test only, metres (beyond the map's range the map knows nothing).
+        see_through_frac: the margin of the see-through test is ``behind_m`` plus
+            ``(noise_sigmas * depth_noise_frac + see_through_frac) * range``, range the farther
+            of the point's ranges in the two views (stereo depth error grows with the square of
+            the range), metres.
+        box_quantile, robust_box_range_m: the box of a detection whose points lie at a median
+            range of ``robust_box_range_m`` metres or more spans these quantiles of its points per
+            axis (``q`` to ``1 - q``; clusters of fewer than 20 points: all of them), so that the
+            stereo smear of a small far object (depth error grows with the square of the range)
+            does not stretch its box and centre; nearer ones span all their points.
+        max_push_m: cap of the correction of a detection's centre away from the camera by the
+            depth the track remembers and the view does not show, metres.
     """
 
     stride: int = 1
@@ -137,10 +162,21 @@ class MoverSettings:
     max_keep_out_margin_m: float = 2.5
     max_speed_mps: float = 20.0
     max_climb_mps: float = 6.0
+    history_s: tuple[float, ...] = (0.3, 1.0)
+    box_quantile: float = 0.05
+    robust_box_range_m: float = 10.0
+    max_push_m: float = 0.3
+    far_range_m: float = 20.0
+    see_through_frac: float = 0.1
 
     def __post_init__(self) -> None:
         for f in fields(self):
             v = getattr(self, f.name)
+            if f.name == "history_s":
+                object.__setattr__(self, "history_s", tuple(float(x) for x in np.atleast_1d(v)))
+                if not all(np.isfinite(x) and x > 0 for x in self.history_s):
+                    raise InputError(f"mover setting history_s must hold finite ages > 0 s, got {v}")
+                continue
             if not np.isfinite(v) or v < 0:
                 raise InputError(f"mover setting {f.name} must be finite and >= 0, got {v}")
         if int(self.stride) < 1 or int(self.confirm_hits) < 1 or int(self.static_frames) < 1:
@@ -149,6 +185,8 @@ class MoverSettings:
             raise InputError("need cluster_voxel_m > 0, meas_noise_m > 0 and max_range_m > min_range_m")
         if self.static_speed_mps > self.moving_speed_mps:
             raise InputError("static_speed_mps must not exceed moving_speed_mps")
+        if not 0 <= self.box_quantile < 0.5:
+            raise InputError(f"box_quantile must lie in [0, 0.5), got {self.box_quantile}")
         if not 0 <= self.size_memory < 1:
             raise InputError(f"size_memory must lie in [0, 1), got {self.size_memory}")
 
@@ -299,6 +337,54 @@ def _components(vox: np.ndarray) -> np.ndarray:
     return lab[inverse.reshape(-1)]
 
 
+@dataclass(frozen=True)
+class SeenDepth:
+    """An earlier depth frame, kept for the see-through test (:func:`detect_movers`).
+
+    Attributes:
+        time_s: its time, seconds.
+        nearest_m: (H, W) float32, per pixel the nearest depth in its 3x3 neighbourhood, metres
+            (0 where any is invalid; inf where all saw nothing, such as the sky), so that a pixel
+            counts as seen through only when its neighbours were too (edges, thin objects).
+        intrinsics: its camera.
+        world_from_cam: its pose.
+    """
+
+    time_s: float
+    nearest_m: np.ndarray
+    intrinsics: Intrinsics
+    world_from_cam: Rigid3
+
+    @classmethod
+    def of(cls, time_s: float, depth_m: np.ndarray, intrinsics: Intrinsics, world_from_cam: Rigid3) -> SeenDepth:
+        """From a depth image (H, W), metres (NaN invalid, inf no return), and its camera."""
+        d = np.asarray(depth_m, np.float32)
+        d = np.where(np.isnan(d) | (d <= 0), np.float32(0), d)
+        nearest = cv2.erode(d, np.ones((3, 3), np.uint8), borderType=cv2.BORDER_REPLICATE)
+        return cls(float(time_s), nearest, intrinsics, world_from_cam)
+
+    def seen_through(self, pts: np.ndarray, range_m: np.ndarray, s: MoverSettings) -> np.ndarray:
+        """(N,) bool: world points (N, 3) whose space this frame saw through: their pixel's
+        (3x3 nearest) depth lies farther than the point by the margin (see
+        :attr:`MoverSettings.see_through_frac`; ``range_m`` (N,) their ranges now, metres)."""
+        pose = self.world_from_cam
+        q = (np.asarray(pts, np.float64) - pose.t) @ pose.R  # in that camera's frame
+        out = np.zeros(len(q), bool)
+        front = np.flatnonzero(q[:, 2] > s.min_range_m)
+        if front.size == 0:
+            return out
+        uv = np.rint(self.intrinsics.project(q[front]))
+        h, w = self.nearest_m.shape
+        ok = np.isfinite(uv).all(axis=1) & (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)
+        front, uv = front[ok], uv[ok].astype(np.intp)
+        seen = self.nearest_m[uv[:, 1], uv[:, 0]].astype(np.float64)
+        r = np.asarray(range_m, np.float64)[front]
+        r = np.maximum(r, q[front, 2])  # the farther of the two views sets the noise
+        margin = s.behind_m + (s.noise_sigmas * s.depth_noise_frac + s.see_through_frac) * r
+        out[front] = seen > q[front, 2] + margin
+        return out
+
+
 def detect_movers(
     depth_m: np.ndarray,
     intrinsics: Intrinsics,
@@ -306,8 +392,10 @@ def detect_movers(
     occ_map: OccupancyMap,
     settings: MoverSettings | None = None,
     gates: np.ndarray | None = None,
+    references: list[SeenDepth] | None = None,
 ) -> list[MoverDetection]:
-    """Clusters of depth points that lie in space the static map has seen free.
+    """Clusters of depth points that lie in space the static map has seen free, or that an
+    earlier frame saw through.
 
     Args:
         depth_m: (H, W) depth along the optical axis, metres; NaN invalid, inf no return.
@@ -317,6 +405,9 @@ def detect_movers(
         settings: :class:`MoverSettings` (defaults if None).
         gates: (K, 6) world boxes ``[xmin, ymin, zmin, xmax, ymax, zmax]`` in which points are
             candidates even where the map is not free (unless they look like a static surface).
+        reference: an earlier frame (:class:`SeenDepth`) for the see-through test; points that
+            it saw through (see :attr:`MoverSettings.history_s`) are candidates too, up to
+            ``far_range_m``, unless they look like a static surface of the map.
     Returns:
         The detections, largest first; ``track_id`` is -1.
     """
@@ -333,7 +424,8 @@ def detect_movers(
     d = np.asarray(depth[::st, ::st], np.float32)
     with np.errstate(invalid="ignore"):
         rng = d * ray_norm
-        valid = np.isfinite(rng) & (rng >= s.min_range_m) & (rng <= s.max_range_m)
+        far = max(s.max_range_m, s.far_range_m) if references else s.max_range_m
+        valid = np.isfinite(rng) & (rng >= s.min_range_m) & (rng <= far)
     flat = np.flatnonzero(valid)
     if flat.size == 0:
         return []
@@ -342,7 +434,8 @@ def detect_movers(
     p_cam = rv * dv[:, None]
     pts = p_cam @ pose.R.T + pose.t
     unit_w = (rv / ray_norm.reshape(-1)[flat, None]) @ pose.R.T
-    behind = s.behind_m + s.noise_sigmas * s.depth_noise_frac * (dv * ray_norm.reshape(-1)[flat])
+    rv_m = dv * ray_norm.reshape(-1)[flat]  # range of each point, metres
+    behind = s.behind_m + s.noise_sigmas * s.depth_noise_frac * rv_m
     lo_odds = occ_map.log_odds_at(np.concatenate([pts + s.inside_m * unit_w, pts + unit_w * behind[:, None]]))
     states = occ_map.classify(lo_odds)
     here, back = states[: len(flat)], states[len(flat) :]
@@ -350,7 +443,8 @@ def detect_movers(
         seen_free = lo_odds <= -s.free_evidence
     edges_full = _depth_edges(depth, s.edge_jump_frac)
     edges = edges_full[::st, ::st]
-    cand = seen_free[: len(flat)] & seen_free[len(flat) :] & ~edges.reshape(-1)[flat]
+    not_edge = ~edges.reshape(-1)[flat]
+    cand = seen_free[: len(flat)] & seen_free[len(flat) :] & not_edge & (rv_m <= s.max_range_m)
     # a silhouette point of a static object (its ray grazes past the object into free space)
     # has an occupied voxel within inside_m across the ray: look along the axes too
     c1 = np.flatnonzero(cand)
@@ -358,13 +452,19 @@ def detect_movers(
         around = (pts[c1][None, :, :] + _AXIS_STEPS[:, None, :] * s.inside_m).reshape(-1, 3)
         with np.errstate(invalid="ignore"):
             cand[c1] = np.all(occ_map.log_odds_at(around).reshape(6, -1) <= -s.free_evidence, axis=0)
+    surface = (here == OCCUPIED) & (back != FREE)  # looks like a static surface of the map
+    if references:
+        # a point in front of a surface the map holds (within the depth noise) is that surface
+        seen = not_edge & (here != OCCUPIED) & (back != OCCUPIED)
+        for ref in references:  # every earlier view must have seen through it
+            seen &= ref.seen_through(pts, rv_m, s)
+        cand |= seen
     core = cand.copy()  # candidates on their own evidence (not the gates')
     if gates is not None and len(gates):
         g = np.asarray(gates, np.float64).reshape(-1, 6)
         lo, hi = pts.min(axis=0), pts.max(axis=0)
         g = g[np.all(g[:, :3] <= hi, axis=1) & np.all(g[:, 3:] >= lo, axis=1)]
         if len(g):
-            surface = (here == OCCUPIED) & (back != FREE)
             rest = np.flatnonzero(~cand & ~surface)
             q = pts[rest]
             inside = np.zeros(len(rest), bool)
@@ -397,7 +497,11 @@ def detect_movers(
         if mc.sum() >= max(3, s.min_points // 3):
             lo, hi = q[mc].min(axis=0) - s.gate_inflate_m, q[mc].max(axis=0) + s.gate_inflate_m
             q = q[np.all((q >= lo) & (q <= hi), axis=1)]
-        lo, hi = q.min(axis=0), q.max(axis=0)
+        far_cluster = np.median(np.linalg.norm(q - pose.t, axis=1)) >= s.robust_box_range_m
+        if s.box_quantile > 0 and len(q) >= _MIN_ROBUST_POINTS and far_cluster:
+            lo, hi = np.quantile(q, [s.box_quantile, 1 - s.box_quantile], axis=0)
+        else:
+            lo, hi = q.min(axis=0), q.max(axis=0)
         mask = np.zeros((H, W), bool)
         mask[rows[m], cols[m]] = True
         mask = _fill_strided(
@@ -464,6 +568,7 @@ class MoverTracker:
         self._tracks: list[MoverTrack] = []
         self._next_id = 1
         self._time: float | None = None
+        self._history: list[SeenDepth] = []  # earlier frames for the see-through test, oldest first
 
     @property
     def tracks(self) -> list[MoverTrack]:
@@ -557,9 +662,18 @@ class MoverTracker:
             t.age_s = time_s - t.first_seen_s
         pose = as_world_from_cam(world_from_cam)
         gated = [t for t in self._tracks if t.confirmed and t.moving]
+        references = self._references(time_s)
         dets = detect_movers(
-            depth_m, intrinsics, pose, occ_map, s, _box_gates(gated, s.gate_inflate_m + s.meas_noise_m)
+            depth_m,
+            intrinsics,
+            pose,
+            occ_map,
+            s,
+            _box_gates(gated, s.gate_inflate_m + s.meas_noise_m),
+            references,
         )
+        if s.history_s:
+            self._history.append(SeenDepth.of(time_s, depth_m, intrinsics, pose))
         self._associate(dets, time_s, pose.t)
         # drop tracks unseen too long (tentative ones at their first miss)
         live = []
@@ -582,6 +696,21 @@ class MoverTracker:
         ms = (time.perf_counter() - t0) * 1e3
         return MoverFrame(time_s, dets, [t.copy() for t in live], mask, ms)
 
+    def _references(self, time_s: float) -> list[SeenDepth]:
+        """Per age in ``history_s``, the latest remembered frame at least that much older than
+        ``time_s`` (none for an age no frame has reached yet, one frame once for equal picks);
+        frames older than what the longest age needs are forgotten."""
+        refs: list[SeenDepth] = []
+        times = np.array([f.time_s for f in self._history])
+        for age in sorted(self.settings.history_s):
+            k = int(np.searchsorted(times, time_s - age + 1e-9, side="right")) - 1
+            if k >= 0 and all(r is not self._history[k] for r in refs):
+                refs.append(self._history[k])
+            last_k = k
+        if self.settings.history_s and last_k > 0:
+            self._history = self._history[last_k:]
+        return refs
+
     def _associate(self, dets: list[MoverDetection], time_s: float, cam_center: np.ndarray) -> None:
         """Match detections to tracks, correct matched tracks, start tracks for the others."""
         s = self.settings
@@ -600,10 +729,13 @@ class MoverTracker:
         for i, j in pairs:
             t, det = tracks[i], dets[j]
             matched_d.add(j)
-            # the visible surface is nearer than the centre: push the centre away from the camera
-            # by the size the track remembers and this view does not show
-            side = np.sign(det.center - cam_center)
-            z = det.center + side * np.maximum(t.half_size - det.half_size, 0.0)
+            # the visible surface is nearer than the centre: push the centre away from the camera,
+            # along the ray, by the depth the track remembers and this view does not show (capped:
+            # a remembered size can hold the smear of an earlier view)
+            ray = det.center - cam_center
+            ray = ray / max(float(np.linalg.norm(ray)), 1e-9)
+            hidden = float(np.abs(ray) @ (t.half_size - det.half_size))
+            z = det.center + ray * min(max(hidden, 0.0), s.max_push_m)
             self._correct_track(t, z)
             t.half_size = np.maximum(
                 det.half_size, s.size_memory * t.half_size + (1 - s.size_memory) * det.half_size
