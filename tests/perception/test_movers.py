@@ -3,14 +3,16 @@ frames with a moving box rendered into it (one City per frame)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pytest
 
 from skyrecon.core import Intrinsics, Rigid3
 from skyrecon.mapping import OCCUPIED, OccupancyMap
+from skyrecon.errors import InputError
 from skyrecon.perception import MoverFrame, MoverSettings, MoverTracker, strided_intrinsics
+from skyrecon.perception.movers import SeenDepth
 from skyrecon.sim import City
 from skyrecon.sim.render import render_depth
 
@@ -301,3 +303,74 @@ def test_points_taken_in_by_a_gate_do_not_grow_the_detection():
     assert abs(best.center[0] - 15.5) < 0.3 and best.half_size[0] < 0.3
     assert np.linalg.norm(best.center[1:] - drone[1:]) < 0.2
     assert best.n_points > 60  # the smear is still the mover's (kept out of the map)
+
+
+# ----- the see-through test (earlier frames, no map needed) -----------------------------------
+def _fly_unmapped(center_at, n: int, settings: MoverSettings, cam_x_at=lambda t: 0.0, noise_seed=None):
+    """Frames at 10 Hz against a map that has seen nothing (only the see-through test can fire);
+    the map is not updated. Returns the frames and the true centres (None: no mover)."""
+    occ = OccupancyMap(voxel_size_m=0.5, max_range_m=40.0)
+    tr = MoverTracker(settings)
+    rng = None if noise_seed is None else np.random.default_rng(noise_seed)
+    frames, centers = [], []
+    for i in range(n):
+        t = i * DT
+        pose = forward_pose(cam_x_at(t))
+        c = center_at(t)
+        d = render(pose) if c is None else render(pose, [box(c)])
+        if rng is not None:
+            d = (d * (1.0 + 0.005 * rng.standard_normal(d.shape))).astype(np.float32)
+        frames.append(tr.update(t, d, CAM, pose, occ))
+        centers.append(c)
+    return frames, centers
+
+
+def _found(frames, centers, first: int, tol_m: float = 0.5) -> float:
+    hits = [
+        any(np.linalg.norm(d.center - c) <= tol_m for d in f.detections)
+        for f, c in zip(frames[first:], centers[first:])
+    ]
+    return float(np.mean(hits))
+
+
+def test_see_through_finds_a_mover_in_space_the_map_has_not_seen():
+    frames, centers = _fly_unmapped(drone_center, 30, MoverSettings(), cam_x_at=lambda t: 2.0 * t)
+    assert _found(frames, centers, first=3) >= 0.9  # from the first frame with a 0.3 s old view
+    assert all(not f.detections for f in frames[:3])
+    off, _ = _fly_unmapped(drone_center, 30, MoverSettings(history_s=()), cam_x_at=lambda t: 2.0 * t)
+    assert all(not f.detections for f in off)  # the map test alone has nothing to go on
+
+
+def test_see_through_finds_a_mover_beyond_the_map_range():
+    # ~17.5 m away, crossing at 5 m/s (stereo-free exact depth: the test is of the logic)
+    far = lambda t: np.array([17.0, -7.0, 4.0]) + np.array([0.0, 5.0, 0.0]) * t  # noqa: E731
+    s = MoverSettings(max_range_m=12.0, far_range_m=20.0)
+    frames, centers = _fly_unmapped(far, 25, s)
+    assert _found(frames, centers, first=3, tol_m=1.0) >= 0.9
+    frames, _ = _fly_unmapped(far, 25, replace(s, far_range_m=12.0))
+    assert all(not f.detections for f in frames)
+
+
+def test_see_through_leaves_a_static_scene_alone_under_fast_motion():
+    # 6 m/s forward past the blocks, depth with 0.5 % noise, and no map to tell static from moving
+    frames, _ = _fly_unmapped(lambda t: None, 30, MoverSettings(), cam_x_at=lambda t: 6.0 * t, noise_seed=3)
+    assert sum(len(f.detections) for f in frames) == 0
+
+
+def test_seen_depth_sky_is_seen_through_and_holes_are_not():
+    pose = forward_pose(0.0)
+    depth = np.full((CAM.height, CAM.width), np.inf, np.float32)
+    depth[:, : CAM.width // 2] = np.nan  # left half: no stereo match
+    ref = SeenDepth.of(0.0, depth, CAM, pose)
+    s = MoverSettings()
+    rays = CAM.unproject(np.array([[80.0, 120.0], [240.0, 120.0]]), 10.0)  # left, right, 10 m
+    pts = pose.apply(rays)
+    assert ref.seen_through(pts, np.linalg.norm(rays, axis=1), s).tolist() == [False, True]
+
+
+def test_history_setting_is_validated():
+    assert MoverSettings(history_s=0.5).history_s == (0.5,)
+    with pytest.raises(InputError):
+        MoverSettings(history_s=(0.3, -1.0))
+    with pytest.raises(InputError):
+        MoverSettings(box_quantile=0.5)

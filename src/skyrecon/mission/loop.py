@@ -689,13 +689,16 @@ def run_mission(
         replanned = replan_ok = False
         replan_reason = ""
         t0 = time.perf_counter()
-        if not outcome.clear or math.isfinite(conflict_m):
+        aside_done = nav.stepped_aside(p)
+        if not outcome.clear or math.isfinite(conflict_m) or aside_done:
             replanned = True
             replan_reason = "mover" if outcome.clear else ("no_path" if not len(nav.waypoints) else "blocked")
+            if aside_done and outcome.clear and not math.isfinite(conflict_m):
+                replan_reason = "after_aside"
             r, how = nav.replan(p, keep)
             replan_ok = r.success
             if r.success:
-                kind = "initial" if not plans else ("escape" if how == "escape" else "replan")
+                kind = "initial" if not plans else ("escape" if how in ("escape", "aside") else "replan")
                 plans.append(PlanEvent(cycle, r.waypoints.copy(), kind, r.reason))
             else:
                 message = r.message

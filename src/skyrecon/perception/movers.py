@@ -117,10 +117,11 @@ class MoverSettings:
             such test). For each age, the latest remembered frame at least that old is taken; a
             point is a candidate when every one of them saw through its space (the depth there
             lay farther by a margin): something has moved in since. This needs no map, so it
-            finds movers in space the map has not seen free and beyond the map's range; the long
-            age finds movers that come straight at the camera, the short one makes a static
-            surface's stereo outlier in one old frame not enough. Points in front of a surface
-            the map holds (within ``behind``) and depth-edge pixels are not candidates by it.
+            finds movers in space the map has not seen free and beyond the map's range. Asking
+            every view (not any) makes one old frame's stereo outlier on a static surface not
+            enough; a mover coming straight at the camera is found by it once it closes in by
+            more than the margin within the shortest age. Points in front of a surface the map
+            holds (within ``behind``) and depth-edge pixels are not candidates by it.
         far_range_m: points between ``max_range_m`` and this range are candidates by the
             see-through test only, metres (beyond the map's range the map knows nothing).
         see_through_frac: the margin of the see-through test is ``behind_m`` plus
