@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from skyrecon.core import Intrinsics, Rigid3
-from skyrecon.mapping import OCCUPIED, OccupancyMap
 from skyrecon.errors import InputError
+from skyrecon.mapping import OCCUPIED, OccupancyMap
 from skyrecon.perception import MoverFrame, MoverSettings, MoverTracker, strided_intrinsics
 from skyrecon.perception.movers import SeenDepth
 from skyrecon.sim import City

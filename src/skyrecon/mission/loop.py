@@ -405,6 +405,17 @@ def _strided_mask(mask: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
     return np.asarray(m.any(axis=(1, 3)), dtype=bool)
 
 
+def _replan_reason(clear: bool, conflict: bool, has_path: bool, stepped_aside: bool) -> str:
+    """Why the loop plans again this cycle ("" when it does not): the path is blocked in the
+    map (or there is none), a mover's predicted sweep crosses it, or a step out of a mover's way
+    has just ended and the way on is to be planned."""
+    if not clear:
+        return "blocked" if has_path else "no_path"
+    if conflict:
+        return "mover"
+    return "after_aside" if stepped_aside else ""
+
+
 #: Speed of an escape's first leg whichever way the camera looks, m/s (see :func:`_follow`).
 ESCAPE_SPEED_MPS = 3.0
 
@@ -687,14 +698,12 @@ def run_mission(
             conflict_m = nav.mover_conflict(nav.rest(p), keep, reach_m)
         ms["check"] = 1e3 * (time.perf_counter() - t0)
         replanned = replan_ok = False
-        replan_reason = ""
         t0 = time.perf_counter()
-        aside_done = nav.stepped_aside(p)
-        if not outcome.clear or math.isfinite(conflict_m) or aside_done:
+        replan_reason = _replan_reason(
+            outcome.clear, math.isfinite(conflict_m), len(nav.waypoints) > 0, nav.stepped_aside(p)
+        )
+        if replan_reason:
             replanned = True
-            replan_reason = "mover" if outcome.clear else ("no_path" if not len(nav.waypoints) else "blocked")
-            if aside_done and outcome.clear and not math.isfinite(conflict_m):
-                replan_reason = "after_aside"
             r, how = nav.replan(p, keep)
             replan_ok = r.success
             if r.success:

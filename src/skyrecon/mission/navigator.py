@@ -218,14 +218,15 @@ class Navigator:
         return PlanResult(True, w, step, clearance_m=failed.clearance_m, margin_m=failed.margin_m), "aside"
 
     def stepped_aside(self, position: np.ndarray) -> bool:
-        """Whether the drone at ``position`` (3,) has reached the end of a step aside (once: the
-        way on to the goal is to be planned now)."""
-        if self.aside_to is None or self.escaping(position):
+        """Whether the drone at ``position`` (3,) is at the end of a step aside: the way on to the
+        goal is to be planned (again every cycle until a plan replaces the step)."""
+        if self.aside_to is None:
             return False
         w = self.replanner.waypoints
-        done = len(w) >= 2 and np.linalg.norm(w[-1] - self.aside_to) < 1e-6
-        self.aside_to = None
-        return bool(done)
+        if len(w) < 2 or np.linalg.norm(w[-1] - self.aside_to) > 1e-6:
+            self.aside_to = None  # another path is followed now
+            return False
+        return not self.escaping(position)
 
     def _replan(self, p: np.ndarray, escape_radius_m: float) -> tuple[PlanResult, str]:
         r = self.replanner.replan(p)

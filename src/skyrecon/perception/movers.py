@@ -357,7 +357,9 @@ class SeenDepth:
     world_from_cam: Rigid3
 
     @classmethod
-    def of(cls, time_s: float, depth_m: np.ndarray, intrinsics: Intrinsics, world_from_cam: Rigid3) -> SeenDepth:
+    def of(
+        cls, time_s: float, depth_m: np.ndarray, intrinsics: Intrinsics, world_from_cam: Rigid3
+    ) -> SeenDepth:
         """From a depth image (H, W), metres (NaN invalid, inf no return), and its camera."""
         d = np.asarray(depth_m, np.float32)
         d = np.where(np.isnan(d) | (d <= 0), np.float32(0), d)
