@@ -252,3 +252,13 @@ def test_a_drone_in_a_movers_way_with_no_way_on_steps_aside_instead_of_hovering(
     assert not r.success and nav.stepped_aside(end.copy())
     r, how = nav.replan(end.copy())  # the sweeps have gone: a plan replaces the step
     assert r.success and how == "plan" and not nav.stepped_aside(end.copy())
+
+
+def test_replan_reasons():
+    from skyrecon.mission.loop import _replan_reason
+
+    assert _replan_reason(clear=True, conflict=False, has_path=True, stepped_aside=False) == ""
+    assert _replan_reason(clear=True, conflict=False, has_path=True, stepped_aside=True) == "after_aside"
+    assert _replan_reason(clear=True, conflict=True, has_path=True, stepped_aside=True) == "mover"
+    assert _replan_reason(clear=False, conflict=True, has_path=True, stepped_aside=False) == "blocked"
+    assert _replan_reason(clear=False, conflict=False, has_path=False, stepped_aside=False) == "no_path"
