@@ -12,7 +12,7 @@ from skyrecon.core import Intrinsics, Rigid3
 from skyrecon.errors import InputError
 from skyrecon.mapping import OCCUPIED, OccupancyMap
 from skyrecon.perception import MoverFrame, MoverSettings, MoverTracker, strided_intrinsics
-from skyrecon.perception.movers import SeenDepth
+from skyrecon.perception.movers import SEE_THROUGH_AGES_S, SeenDepth
 from skyrecon.sim import City
 from skyrecon.sim.render import render_depth
 
@@ -334,7 +334,8 @@ def _found(frames, centers, first: int, tol_m: float = 0.5) -> float:
 
 
 def test_see_through_finds_a_mover_in_space_the_map_has_not_seen():
-    frames, centers = _fly_unmapped(drone_center, 30, MoverSettings(), cam_x_at=lambda t: 2.0 * t)
+    on = MoverSettings(history_s=SEE_THROUGH_AGES_S)
+    frames, centers = _fly_unmapped(drone_center, 30, on, cam_x_at=lambda t: 2.0 * t)
     assert _found(frames, centers, first=3) >= 0.9  # from the first frame with a 0.3 s old view
     assert all(not f.detections for f in frames[:3])
     off, _ = _fly_unmapped(drone_center, 30, MoverSettings(history_s=()), cam_x_at=lambda t: 2.0 * t)
@@ -344,7 +345,7 @@ def test_see_through_finds_a_mover_in_space_the_map_has_not_seen():
 def test_see_through_finds_a_mover_beyond_the_map_range():
     # ~17.5 m away, crossing at 5 m/s (stereo-free exact depth: the test is of the logic)
     far = lambda t: np.array([17.0, -7.0, 4.0]) + np.array([0.0, 5.0, 0.0]) * t  # noqa: E731
-    s = MoverSettings(max_range_m=12.0, far_range_m=20.0)
+    s = MoverSettings(max_range_m=12.0, far_range_m=20.0, history_s=SEE_THROUGH_AGES_S)
     frames, centers = _fly_unmapped(far, 25, s)
     assert _found(frames, centers, first=3, tol_m=1.0) >= 0.9
     frames, _ = _fly_unmapped(far, 25, replace(s, far_range_m=12.0))
@@ -353,7 +354,8 @@ def test_see_through_finds_a_mover_beyond_the_map_range():
 
 def test_see_through_leaves_a_static_scene_alone_under_fast_motion():
     # 6 m/s forward past the blocks, depth with 0.5 % noise, and no map to tell static from moving
-    frames, _ = _fly_unmapped(lambda t: None, 30, MoverSettings(), cam_x_at=lambda t: 6.0 * t, noise_seed=3)
+    s = MoverSettings(history_s=SEE_THROUGH_AGES_S)
+    frames, _ = _fly_unmapped(lambda t: None, 30, s, cam_x_at=lambda t: 6.0 * t, noise_seed=3)
     assert sum(len(f.detections) for f in frames) == 0
 
 
