@@ -182,14 +182,16 @@ class Navigator:
 
         When the drone is too close to a mapped obstacle for the planner to start there
         (``start_too_close``, ``start_in_obstacle``, ``start_enclosed``), the plan starts at the
-        :meth:`escape_point` instead and the path leads there first.
+        :meth:`escape_point` instead and the path leads there first. When there is no way to the
+        goal clear of the movers and the drone is inside their predicted sweep, the path is a
+        step aside out of it (:meth:`_step_aside`).
 
         Args:
             keep_out: (K, 7) capsules of the tracked movers' predicted sweep
                 (:mod:`skyrecon.planning.keep_out`), kept clear like obstacles for this plan.
         Returns:
             The PlanResult (its waypoints start at ``position``) and how it was planned:
-            "plan" or "escape".
+            "plan", "escape" or "aside".
         """
         p = np.asarray(position, dtype=np.float64)
         movers = keep_out is not None and len(keep_out) > 0
