@@ -415,9 +415,9 @@ def detect_movers(
         settings: :class:`MoverSettings` (defaults if None).
         gates: (K, 6) world boxes ``[xmin, ymin, zmin, xmax, ymax, zmax]`` in which points are
             candidates even where the map is not free (unless they look like a static surface).
-        reference: an earlier frame (:class:`SeenDepth`) for the see-through test; points that
-            it saw through (see :attr:`MoverSettings.history_s`) are candidates too, up to
-            ``far_range_m``, unless they look like a static surface of the map.
+        references: earlier frames (:class:`SeenDepth`) for the see-through test; points that
+            every one of them saw through (see :attr:`MoverSettings.history_s`) are candidates
+            too, up to ``far_range_m``, unless they lie at a surface the map holds.
     Returns:
         The detections, largest first; ``track_id`` is -1.
     """
@@ -711,13 +711,14 @@ class MoverTracker:
         ``time_s`` (none for an age no frame has reached yet, one frame once for equal picks);
         frames older than what the longest age needs are forgotten."""
         refs: list[SeenDepth] = []
+        last_k = -1
         times = np.array([f.time_s for f in self._history])
         for age in sorted(self.settings.history_s):
             k = int(np.searchsorted(times, time_s - age + 1e-9, side="right")) - 1
             if k >= 0 and all(r is not self._history[k] for r in refs):
                 refs.append(self._history[k])
             last_k = k
-        if self.settings.history_s and last_k > 0:
+        if last_k > 0:
             self._history = self._history[last_k:]
         return refs
 
