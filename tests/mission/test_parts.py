@@ -227,38 +227,3 @@ def test_a_drone_in_a_movers_way_sidesteps_without_turning_first():
     assert not nav.escaping(nav.escape_to.copy())
     r, how = nav.replan(p)  # without the mover: an ordinary plan
     assert how == "plan" and not nav.escaping(p)
-
-
-def test_a_drone_in_a_movers_way_with_no_way_on_steps_aside_instead_of_hovering():
-    cfg = MissionConfig()
-    nav = _box_navigator(cfg)
-    _look(nav, np.inf)
-    p = np.array([2.0, 4.0, 14.0])
-    beside = [2.0, 2.5, 10.0, 2.0, 2.5, 18.0, 0.5]  # a sweep passing just beside the drone
-    across = [20.0, -20.0, 14.0, 20.0, 30.0, 14.0, 12.0]  # and one across the whole way on
-    # clear of every sweep but with no way on: it hovers (the failed plan comes back)
-    r, how = nav.replan(np.array([-4.0, 4.0, 14.0]), np.array([across]))
-    assert not r.success and how == "plan"
-    # inside one: a straight step to the nearest point clear of it, then plan on from there
-    r, how = nav.replan(p, np.array([beside, across]))
-    assert r.success and how == "aside" and r.waypoints.shape == (2, 3)
-    end = r.waypoints[-1]
-    assert 0 < np.linalg.norm(end - p) <= 6.0
-    assert np.linalg.norm(end[:2] - np.array(beside[:2])) >= 0.5 + cfg.clearance_m
-    assert nav.escaping(p) and not nav.stepped_aside(p)
-    # there: the way on is planned, again every cycle while none is found
-    assert nav.stepped_aside(end.copy()) and nav.stepped_aside(end.copy())
-    r, how = nav.replan(end.copy(), np.array([across]))
-    assert not r.success and nav.stepped_aside(end.copy())
-    r, how = nav.replan(end.copy())  # the sweeps have gone: a plan replaces the step
-    assert r.success and how == "plan" and not nav.stepped_aside(end.copy())
-
-
-def test_replan_reasons():
-    from skyrecon.mission.loop import _replan_reason
-
-    assert _replan_reason(clear=True, conflict=False, has_path=True, stepped_aside=False) == ""
-    assert _replan_reason(clear=True, conflict=False, has_path=True, stepped_aside=True) == "after_aside"
-    assert _replan_reason(clear=True, conflict=True, has_path=True, stepped_aside=True) == "mover"
-    assert _replan_reason(clear=False, conflict=True, has_path=True, stepped_aside=False) == "blocked"
-    assert _replan_reason(clear=False, conflict=False, has_path=False, stepped_aside=False) == "no_path"

@@ -405,17 +405,6 @@ def _strided_mask(mask: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
     return np.asarray(m.any(axis=(1, 3)), dtype=bool)
 
 
-def _replan_reason(clear: bool, conflict: bool, has_path: bool, stepped_aside: bool) -> str:
-    """Why the loop plans again this cycle ("" when it does not): the path is blocked in the
-    map (or there is none), a mover's predicted sweep crosses it, or a step out of a mover's way
-    has just ended and the way on is to be planned."""
-    if not clear:
-        return "blocked" if has_path else "no_path"
-    if conflict:
-        return "mover"
-    return "after_aside" if stepped_aside else ""
-
-
 #: Speed of an escape's first leg whichever way the camera looks, m/s (see :func:`_follow`).
 ESCAPE_SPEED_MPS = 3.0
 
@@ -603,11 +592,7 @@ def run_mission(
     nav = Navigator(cfg, scenario.box, scenario.goal, hit_range, prior=prior)
     # movers are told from the static map where it holds obstacles (farther, a static surface's
     # points fall in space carved free and would pass for movers)
-    tracker = (
-        MoverTracker(MoverSettings(max_range_m=hit_range, far_range_m=max(hit_range, cfg.max_range_m)))
-        if cfg.track_movers
-        else None
-    )
+    tracker = MoverTracker(MoverSettings(max_range_m=hit_range)) if cfg.track_movers else None
     world = scenario.movers
     monitor = (
         WorldMonitor(scenario, cfg.voxel_size_m, hit_range) if world is not None or scenario.changes else None
@@ -698,16 +683,15 @@ def run_mission(
             conflict_m = nav.mover_conflict(nav.rest(p), keep, reach_m)
         ms["check"] = 1e3 * (time.perf_counter() - t0)
         replanned = replan_ok = False
+        replan_reason = ""
         t0 = time.perf_counter()
-        replan_reason = _replan_reason(
-            outcome.clear, math.isfinite(conflict_m), len(nav.waypoints) > 0, nav.stepped_aside(p)
-        )
-        if replan_reason:
+        if not outcome.clear or math.isfinite(conflict_m):
             replanned = True
+            replan_reason = "mover" if outcome.clear else ("no_path" if not len(nav.waypoints) else "blocked")
             r, how = nav.replan(p, keep)
             replan_ok = r.success
             if r.success:
-                kind = "initial" if not plans else ("escape" if how in ("escape", "aside") else "replan")
+                kind = "initial" if not plans else ("escape" if how == "escape" else "replan")
                 plans.append(PlanEvent(cycle, r.waypoints.copy(), kind, r.reason))
             else:
                 message = r.message

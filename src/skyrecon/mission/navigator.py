@@ -104,7 +104,6 @@ class Navigator:
         )
         self.replanner = Replanner(self.planner, self.goal)
         self.escape_to: np.ndarray | None = None  # the escape point of the path followed, if any
-        self.aside_to: np.ndarray | None = None  # the end of a step out of a mover's way, if any
 
     # ----- sensing -----------------------------------------------------------------------
     def integrate(
@@ -182,53 +181,18 @@ class Navigator:
 
         When the drone is too close to a mapped obstacle for the planner to start there
         (``start_too_close``, ``start_in_obstacle``, ``start_enclosed``), the plan starts at the
-        :meth:`escape_point` instead and the path leads there first. When there is no way to the
-        goal clear of the movers and the drone is inside their predicted sweep, the path is a
-        step aside out of it (:meth:`_step_aside`).
+        :meth:`escape_point` instead and the path leads there first.
 
         Args:
             keep_out: (K, 7) capsules of the tracked movers' predicted sweep
                 (:mod:`skyrecon.planning.keep_out`), kept clear like obstacles for this plan.
         Returns:
             The PlanResult (its waypoints start at ``position``) and how it was planned:
-            "plan", "escape" or "aside".
+            "plan" or "escape".
         """
         p = np.asarray(position, dtype=np.float64)
-        movers = keep_out is not None and len(keep_out) > 0
         with self.planner.avoiding(keep_out, p, self.goal):
-            r, how = self._replan(p, 6.0 if movers else 3.0)
-            if not r.success and movers:
-                return self._step_aside(p, r, 6.0)
-            return r, how
-
-    def _step_aside(self, p: np.ndarray, failed: PlanResult, radius_m: float) -> tuple[PlanResult, str]:
-        """No way to the goal clear of the movers' predicted sweep: when the drone hovers inside
-        that sweep, a straight step to the nearest point clear of it (and of the map, see
-        :meth:`escape_point`); the way on is planned from there (:meth:`stepped_aside`). A drone
-        that only hovers is flown into: a crane's boom does not stop for it. Returns the failed
-        result when it is clear where it is or no such point exists."""
-        grid = self.planner.grid_for(np.minimum(p, self.goal), np.maximum(p, self.goal))
-        if float(grid.distance(p[None])[0]) >= self.planner.threshold:
-            return failed, "plan"
-        esc = self.escape_point(p, radius_m)
-        if esc is None:
-            return failed, "plan"
-        w = np.vstack([p, esc])
-        self.replanner.waypoints = w
-        self.escape_to, self.aside_to = esc.copy(), esc.copy()
-        step = float(np.linalg.norm(esc - p))
-        return PlanResult(True, w, step, clearance_m=failed.clearance_m, margin_m=failed.margin_m), "aside"
-
-    def stepped_aside(self, position: np.ndarray) -> bool:
-        """Whether the drone at ``position`` (3,) is at the end of a step aside: the way on to the
-        goal is to be planned (again every cycle until a plan replaces the step)."""
-        if self.aside_to is None:
-            return False
-        w = self.replanner.waypoints
-        if len(w) < 2 or np.linalg.norm(w[-1] - self.aside_to) > 1e-6:
-            self.aside_to = None  # another path is followed now
-            return False
-        return not self.escaping(position)
+            return self._replan(p, 3.0 if keep_out is None or len(keep_out) == 0 else 6.0)
 
     def _replan(self, p: np.ndarray, escape_radius_m: float) -> tuple[PlanResult, str]:
         r = self.replanner.replan(p)

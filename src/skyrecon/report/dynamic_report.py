@@ -202,7 +202,6 @@ def dynamic_section(result, metrics: dict, extent) -> list[str]:
                     "mover": "a mover's predicted sweep crossed the path",
                     "blocked": "the map showed the path inside the clearance",
                     "no_path": "no path yet",
-                    "after_aside": "a step out of a mover's way ended: the way on",
                 }.get(k, ""),
             )
             for k, v in reasons.items()
