@@ -384,14 +384,13 @@ class SeenDepth:
         (3x3 nearest) depth lies farther than the point by the margin (see
         :attr:`MoverSettings.see_through_frac`; ``range_m`` (N,) their ranges now, metres)."""
         pose = self.world_from_cam
-        q = (np.asarray(pts, np.float64) - pose.t) @ pose.R  # in that camera's frame
+        q = pose.inverse().apply(np.asarray(pts, np.float64))  # in that camera's frame
         out = np.zeros(len(q), bool)
         front = np.flatnonzero(q[:, 2] > s.min_range_m)
         if front.size == 0:
             return out
         uv = np.rint(self.intrinsics.project(q[front]))
-        h, w = self.nearest_m.shape
-        ok = np.isfinite(uv).all(axis=1) & (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)
+        ok = self.intrinsics.in_image(uv)  # the rounded pixels: 0..W-1, 0..H-1 (NaN: out)
         front, uv = front[ok], uv[ok].astype(np.intp)
         seen = self.nearest_m[uv[:, 1], uv[:, 0]].astype(np.float64)
         r = np.asarray(range_m, np.float64)[front]
@@ -513,8 +512,11 @@ def detect_movers(
         if mc.sum() >= max(3, s.min_points // 3):
             lo, hi = q[mc].min(axis=0) - s.gate_inflate_m, q[mc].max(axis=0) + s.gate_inflate_m
             q = q[np.all((q >= lo) & (q <= hi), axis=1)]
-        far_cluster = np.median(np.linalg.norm(q - pose.t, axis=1)) >= s.robust_box_range_m
-        if s.box_quantile > 0 and len(q) >= _MIN_ROBUST_POINTS and far_cluster:
+        if (
+            s.box_quantile > 0
+            and len(q) >= _MIN_ROBUST_POINTS
+            and np.median(np.linalg.norm(q - pose.t, axis=1)) >= s.robust_box_range_m
+        ):
             lo, hi = np.quantile(q, [s.box_quantile, 1 - s.box_quantile], axis=0)
         else:
             lo, hi = q.min(axis=0), q.max(axis=0)
