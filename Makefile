@@ -12,16 +12,23 @@ WARM := $(NUMBA_CACHE_DIR)/.skyrecon-warm
 
 .PHONY: demo test lint bench install clean
 
+# pip unpacks wheels under $(PIP_TMP), beside the venv, not in /tmp (which may be a small tmpfs), and
+# keeps no cache: the install needs only the venv's own space (about 1.7 GB with the test extras).
+PIP_TMP := $(VENV)/.pip-tmp
+PIP := mkdir -p $(PIP_TMP) && TMPDIR=$(CURDIR)/$(PIP_TMP) $(BIN)/python -m pip install --quiet --no-cache-dir
+
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(PIP) --upgrade pip
 
 $(VENV)/.installed: pyproject.toml | $(BIN)/python
-	$(BIN)/python -m pip install --quiet -e .
+	$(PIP) -e .
+	rm -rf $(PIP_TMP)
 	touch $@
 
 $(VENV)/.installed-test: pyproject.toml | $(BIN)/python
-	$(BIN)/python -m pip install --quiet -e ".[test]"
+	$(PIP) -e ".[test]"
+	rm -rf $(PIP_TMP)
 	touch $@ $(VENV)/.installed
 
 install: $(VENV)/.installed
@@ -48,7 +55,8 @@ lint: $(VENV)/.installed-test
 	$(BIN)/mypy
 
 $(VENV)/.installed-bench: pyproject.toml | $(BIN)/python
-	$(BIN)/python -m pip install --quiet -e ".[test,benchmarks]"
+	$(PIP) -e ".[test,benchmarks]"
+	rm -rf $(PIP_TMP)
 	touch $@ $(VENV)/.installed $(VENV)/.installed-test
 
 ## bench: install the peers (OpenCV, poselib, pycolmap, OctoMap, OMPL), then run every side-by-side benchmark
