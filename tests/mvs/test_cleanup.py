@@ -54,3 +54,36 @@ def test_empty_cloud_passes_through() -> None:
     clean = clean_fused_cloud(fused_of(np.zeros((0, 3), np.float32)), views, MVSSettings())
     assert len(clean.cloud) == 0 and clean.cloud.normals is not None and clean.cloud.normals.shape == (0, 3)
     assert clean.counts == {"points_fused": 0}
+
+
+def test_small_components_are_dropped_and_the_links_are_those_of_the_k_nearest() -> None:
+    from scipy.spatial.distance import cdist
+
+    from skyrecon.mvs import cloud_ops
+
+    rng = np.random.default_rng(5)
+    main = rng.uniform(0, 10, (3000, 3)) * [1.0, 1.0, 0.02]
+    blob = rng.uniform(0, 0.3, (20, 3)) + [30.0, 0.0, 0.0]  # a floater: 20 of 3020 points
+    pts = np.concatenate([main, blob]).astype(np.float32)
+    keep = cloud_ops.small_component_mask(pts, radius_m=1.0, min_fraction=0.01, k=8)
+    assert keep[:3000].all() and not keep[3000:].any()
+    # the same labels as a brute-force graph (every point linked to its 8 nearest within the radius)
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    d = cdist(pts, pts)
+    np.fill_diagonal(d, np.inf)
+    nn = np.argsort(d, axis=1)[:, :8]
+    rows = np.repeat(np.arange(len(pts)), 8)
+    ok = d[rows, nn.ravel()] <= 1.0
+    g = coo_matrix((np.ones(int(ok.sum())), (rows[ok], nn.ravel()[ok])), shape=(len(pts),) * 2)
+    _, labels = connected_components(g, directed=False)
+    sizes = np.bincount(labels)
+    np.testing.assert_array_equal(keep, sizes[labels] >= int(np.ceil(0.01 * len(pts))))
+    # and chunked (smaller chunks than points) gives the same
+    old = cloud_ops._CHUNK
+    try:
+        cloud_ops._CHUNK = 700
+        np.testing.assert_array_equal(cloud_ops.small_component_mask(pts, 1.0, 0.01, 8), keep)
+    finally:
+        cloud_ops._CHUNK = old

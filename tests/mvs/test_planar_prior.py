@@ -105,3 +105,44 @@ def test_plain_ring_completeness_improves_with_the_prior(plain_ring) -> None:
     # deterministic
     again = run_mvs(ring.views, ring.images, on, executor=ex, progress=False)
     np.testing.assert_array_equal(again.cloud.points, r_on.cloud.points)
+
+
+def _spread_one(uv: np.ndarray) -> float:
+    """The least-direction standard deviation of one point set, computed directly (reference)."""
+    if len(uv) < 3:
+        return 0.0
+    return float(np.sqrt(max(np.linalg.eigvalsh(np.cov(uv.T, bias=True))[0], 0.0)))
+
+
+def test_spreads_match_each_subset_computed_alone() -> None:
+    rng = np.random.default_rng(3)
+    uv = rng.uniform(0, 640, (300, 2))
+    uv[:40] = [100.0, 50.0] + rng.normal(0, 1, (40, 1)) * [3.0, 1.0]  # a nearly collinear run
+    members = rng.random((50, 300)) < 0.2
+    members[0] = False
+    members[0, :2] = True  # too few points
+    members[1] = False
+    members[1, :40] = True  # the thin run: spread about 0
+    got = pp._spreads(uv, members)
+    want = [_spread_one(uv[m]) for m in members]
+    np.testing.assert_allclose(got, want, atol=1e-6)
+    assert got[0] == 0.0 and got[1] < 1e-6 and got[2:].min() > 50
+
+
+def test_sample_channels_is_bilinear_with_nan_outside() -> None:
+    rng = np.random.default_rng(4)
+    img = rng.uniform(0, 255, (12, 9, 3)).astype(np.float32)
+    img[5, 4, 1] = np.nan
+    x = np.array([0.0, 8.0, 3.25, 4.5, -0.1, 8.01, 2.0])
+    y = np.array([0.0, 11.0, 6.75, 5.0, 1.0, 2.0, 11.5])
+    got = pp._sample_channels(img, x, y)
+    for k in range(3):  # inside: the bilinear mix of the four neighbours
+        x0, y0, ax, ay = 3, 6, 0.25, 0.75
+        want = (img[y0, x0, k] * (1 - ax) + img[y0, x0 + 1, k] * ax) * (1 - ay) + (
+            img[y0 + 1, x0, k] * (1 - ax) + img[y0 + 1, x0 + 1, k] * ax
+        ) * ay
+        assert got[2, k] == pytest.approx(want, rel=1e-5)
+    np.testing.assert_allclose(got[0], img[0, 0])  # the corners exactly
+    np.testing.assert_allclose(got[1], img[11, 8])
+    assert np.isnan(got[3, 1]) and np.isfinite(got[3, [0, 2]]).all()  # a NaN neighbour spoils its channel
+    assert np.isnan(got[4:]).all()  # outside the image

@@ -100,12 +100,20 @@ def small_component_mask(
     if n == 0:
         return np.zeros(0, bool)
     kk = min(k + 1, n)
-    dist, idx = cKDTree(P).query(P, k=kk, workers=workers)
-    dist = dist.reshape(n, kk)[:, 1:]
-    idx = idx.reshape(n, kk)[:, 1:]
-    rows = np.repeat(np.arange(n), kk - 1)
-    ok = dist.ravel() <= radius_m
-    g = coo_matrix((np.ones(int(ok.sum()), np.int8), (rows[ok], idx.ravel()[ok])), shape=(n, n))
+    tree = cKDTree(P)
+    # the links, found in chunks and kept as int32 pairs: bounded memory for millions of points
+    src, dst = [], []
+    for a in range(0, n, _CHUNK):
+        b = min(n, a + _CHUNK)
+        dist, idx = tree.query(P[a:b], k=kk, workers=workers)
+        dist = dist.reshape(b - a, kk)[:, 1:]
+        idx = idx.reshape(b - a, kk)[:, 1:]
+        rows = np.broadcast_to(np.arange(a, b)[:, None], idx.shape)
+        ok = dist <= radius_m
+        src.append(rows[ok].astype(np.int32))
+        dst.append(idx[ok].astype(np.int32))
+    i, j = np.concatenate(src), np.concatenate(dst)
+    g = coo_matrix((np.ones(len(i), np.int8), (i, j)), shape=(n, n))
     _, labels = connected_components(g, directed=False)
     sizes = np.bincount(labels)
     return sizes[labels] >= max(1, int(np.ceil(min_fraction * n)))

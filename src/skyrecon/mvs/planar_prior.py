@@ -342,14 +342,26 @@ def _triangle_planes(uv: np.ndarray, X: np.ndarray) -> np.ndarray:
     return np.concatenate([n, h[:, None]], axis=1)
 
 
-def _spread(uv: np.ndarray) -> float:
-    """Standard deviation of image points (N, 2) along their least spread direction, pixels."""
-    if len(uv) < 3:
-        return 0.0
-    c = uv - uv.mean(axis=0)
-    a, b, d = float(np.mean(c[:, 0] ** 2)), float(np.mean(c[:, 0] * c[:, 1])), float(np.mean(c[:, 1] ** 2))
-    smallest = 0.5 * (a + d) - np.hypot(0.5 * (a - d), b)  # the smaller eigenvalue of the 2x2 covariance
-    return float(np.sqrt(max(smallest, 0.0)))
+def _spreads(uv: np.ndarray, members: np.ndarray) -> np.ndarray:
+    """How far each subset of image points spreads: the standard deviation along its least spread
+    direction (the square root of the smaller eigenvalue of its 2x2 covariance), (K,) pixels, for
+    the (K, N) bool ``members`` of the points ``uv`` (N, 2); 0 for subsets of fewer than 3 points.
+    One matrix product for every subset (a segment has hundreds of candidate triangle planes)."""
+    if len(members) == 0:
+        return np.zeros(0)
+    w = members.astype(np.float64)
+    count = w.sum(axis=1)
+    c0 = uv - uv.mean(axis=0)  # centred once, so that the moments below lose no precision
+    m = (w @ c0) / np.maximum(count, 1.0)[:, None]  # (K, 2) subset means
+    sq = np.stack([c0[:, 0] ** 2, c0[:, 0] * c0[:, 1], c0[:, 1] ** 2], axis=1)
+    mom = (w @ sq) / np.maximum(count, 1.0)[:, None]  # (K, 3) raw second moments
+    a = mom[:, 0] - m[:, 0] ** 2
+    b = mom[:, 1] - m[:, 0] * m[:, 1]
+    d = mom[:, 2] - m[:, 1] ** 2
+    smallest = 0.5 * (a + d) - np.hypot(0.5 * (a - d), b)
+    out = np.sqrt(np.maximum(smallest, 0.0))
+    out[count < 3] = 0.0
+    return out
 
 
 def _candidate_planes(
@@ -385,10 +397,12 @@ def _candidate_planes(
     kept: list[int] = [i for i in range(n_global) if score[i] >= s.min_inliers]
     n_kept_global = len(kept)
     order = n_global + np.argsort(-score[n_global:], kind="stable")
-    for i in order:
-        if score[i] < s.min_inliers or len(kept) - n_kept_global >= s.max_candidates:
+    order = order[score[order] >= s.min_inliers]
+    spread = _spreads(uv, inl[order])
+    for i, spread_i in zip(order, spread):
+        if len(kept) - n_kept_global >= s.max_candidates:
             break
-        if _spread(uv[inl[i]]) < s.min_spread_px:
+        if spread_i < s.min_spread_px:
             continue
         if any((inl[i] & inl[k]).sum() > 0.5 * min(score[i], score[k]) for k in kept[n_kept_global:]):
             continue
@@ -419,15 +433,16 @@ def _boundary_ring(seg: np.ndarray, width: int) -> np.ndarray:
     return seg & (inner == 0)
 
 
-def _sample(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Bilinear samples (N,) float32 of an (H, W) float32 image at (x, y); NaN outside (or NaN pixels)."""
-    H, W = img.shape
-    out = np.full(len(x), np.nan, np.float32)
+def _sample_channels(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Bilinear samples (N, C) float32 of an (H, W, C) float32 image at (x, y), every channel at
+    once; NaN outside (or at NaN pixels)."""
+    H, W, C = img.shape
+    out = np.full((len(x), C), np.nan, np.float32)
     ok = (x >= 0) & (y >= 0) & (x <= W - 1) & (y <= H - 1)
     xs, ys = x[ok], y[ok]
     x0 = np.minimum(xs.astype(np.int64), W - 2) if W > 1 else np.zeros(len(xs), np.int64)
     y0 = np.minimum(ys.astype(np.int64), H - 2) if H > 1 else np.zeros(len(ys), np.int64)
-    ax, ay = (xs - x0).astype(np.float32), (ys - y0).astype(np.float32)
+    ax, ay = (xs - x0).astype(np.float32)[:, None], (ys - y0).astype(np.float32)[:, None]
     x1, y1 = np.minimum(x0 + 1, W - 1), np.minimum(y0 + 1, H - 1)
     top = img[y0, x0] * (1 - ax) + img[y0, x1] * ax
     bot = img[y1, x0] * (1 - ax) + img[y1, x1] * ax
@@ -464,7 +479,7 @@ def _photo_check(
         inside = (Xs[:, 2] > 0) & np.isfinite(x) & np.isfinite(y)
         diff = np.full(len(u), np.nan, np.float32)
         if inside.any():
-            val = np.stack([_sample(sb[..., c], x[inside], y[inside]) for c in range(sb.shape[2])], axis=1)
+            val = _sample_channels(sb, x[inside], y[inside])
             diff[inside] = np.abs(val - g[inside]).max(axis=1)
         ok = np.isfinite(diff)
         seen += ok
