@@ -7,8 +7,7 @@ and run in chunks so that memory stays bounded for millions of points.
 from __future__ import annotations
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
+from numba import njit
 from scipy.spatial import cKDTree
 
 __all__ = [
@@ -86,6 +85,37 @@ def voxel_downsample_indices(points: np.ndarray, voxel_m: float) -> tuple[np.nda
     return inverse.reshape(-1), counts
 
 
+@njit(cache=True, nogil=True, boundscheck=False)
+def _find(parent: np.ndarray, i: int) -> int:  # pragma: no cover - jit
+    """The root of ``i`` in a union-find forest, halving the path on the way."""
+    while parent[i] != i:
+        parent[i] = parent[parent[i]]
+        i = parent[i]
+    return i
+
+
+@njit(cache=True, nogil=True, boundscheck=False)
+def _union(parent: np.ndarray, a: np.ndarray, b: np.ndarray) -> None:  # pragma: no cover - jit
+    """Join the trees of every pair (a[e], b[e]) in the forest ``parent`` (N,) int64 (in place)."""
+    for e in range(len(a)):
+        ra = _find(parent, a[e])
+        rb = _find(parent, b[e])
+        if ra != rb:
+            if ra < rb:
+                parent[rb] = ra
+            else:
+                parent[ra] = rb
+
+
+@njit(cache=True, nogil=True, boundscheck=False)
+def _roots(parent: np.ndarray) -> np.ndarray:  # pragma: no cover - jit
+    """(N,) int64: each element's root (its component's smallest index)."""
+    out = np.empty(len(parent), np.int64)
+    for i in range(len(parent)):
+        out[i] = _find(parent, i)
+    return out
+
+
 def small_component_mask(
     points: np.ndarray, radius_m: float, min_fraction: float = 0.01, k: int = 8, workers: int = -1
 ) -> np.ndarray:
@@ -101,8 +131,9 @@ def small_component_mask(
         return np.zeros(0, bool)
     kk = min(k + 1, n)
     tree = cKDTree(P)
-    # the links, found in chunks and kept as int32 pairs: bounded memory for millions of points
-    src, dst = [], []
+    # the links are found in chunks and merged at once into a union-find forest: memory stays at a
+    # few arrays of N, never the N * k links (a 24-million-point survey cloud needs no more)
+    parent = np.arange(n, dtype=np.int64)
     for a in range(0, n, _CHUNK):
         b = min(n, a + _CHUNK)
         dist, idx = tree.query(P[a:b], k=kk, workers=workers)
@@ -110,10 +141,7 @@ def small_component_mask(
         idx = idx.reshape(b - a, kk)[:, 1:]
         rows = np.broadcast_to(np.arange(a, b)[:, None], idx.shape)
         ok = dist <= radius_m
-        src.append(rows[ok].astype(np.int32))
-        dst.append(idx[ok].astype(np.int32))
-    i, j = np.concatenate(src), np.concatenate(dst)
-    g = coo_matrix((np.ones(len(i), np.int8), (i, j)), shape=(n, n))
-    _, labels = connected_components(g, directed=False)
+        _union(parent, rows[ok].astype(np.int64), idx[ok].astype(np.int64))
+    labels = _roots(parent)
     sizes = np.bincount(labels)
     return sizes[labels] >= max(1, int(np.ceil(min_fraction * n)))

@@ -111,7 +111,7 @@ class _MVSRun:
         pairs: ``select``: the (reference, source) pairs matched.
         depths: ``depth``: per view (H, W) float32 depth, metres, NaN invalid, or None
             (``prior``: with the plain segments filled).
-        costs: ``depth``: per view the PatchMatch cost (H, W) float32, or None.
+        costs: ``depth``: per view the PatchMatch cost (H, W) float32, or None (emptied by ``fusion``).
         pair_depths: ``depth``: (reference, depth) per task, for ``concat`` fusion.
         fused: ``fusion``: the fused cloud before cleanup.
         cloud, support: ``cleanup``: the final cloud and per-point support.
@@ -332,7 +332,9 @@ def _prior(run: _MVSRun) -> None:
 
 
 def _fuse(run: _MVSRun) -> None:
-    """One cloud: depths that agree across views, or every pair's cloud concatenated."""
+    """One cloud: depths that agree across views, or every pair's cloud concatenated. The
+    PatchMatch costs are released first (nothing after the prior reads them; 1.2 MB a view)."""
+    run.costs = []
     if run.settings.fusion == "concat":
         run.fused = fuse_concat(run.views, run.pair_depths)
         return
