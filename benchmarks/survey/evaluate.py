@@ -1,7 +1,8 @@
 """Accuracy of a ``skyrecon survey`` output against a synthetic survey's truth (``skyrecon render survey``).
 
 * camera position error: each registered photo's estimated position (``survey.json`` lat/lon/alt)
-  against its true centre, both in the truth's ENU frame, metres;
+  against its true centre, both in the truth's ENU frame, metres; beside it the GPS limit, the
+  error of the true shape placed on the tags by a similarity (what a perfect model would reach);
 * DSM height error: per covered DSM cell, the DSM height against the true highest surface at the
   cell centre (a ray cast straight down through the synthetic city), metres; absolute, and
   relative (``_relative``: the cells moved by the similarity that best maps the estimated camera
@@ -44,6 +45,32 @@ def _camera_pairs(survey_dir: Path, photos_root: Path, origin: GeoOrigin) -> tup
     return est, np.stack([true[c["name"]] for c in cams])
 
 
+def gps_limit(photos_root: Path) -> float | None:
+    """The median camera error of the best GPS-only georeferencing there can be: the *true* camera
+    centres placed by the least-squares similarity onto the photos' GPS tags (the wrong tags left
+    out), metres. A survey whose shape were perfect would still be this far off: the tags' own
+    noise, averaged over the photos, sets it. None for real sets (their tags are the truth)."""
+    from skyrecon.survey.exif import read_photo_meta
+
+    truth = json.loads((photos_root / "survey_truth.json").read_text())
+    if truth.get("real"):
+        return None
+    origin = GeoOrigin.from_json(truth["origin"])
+    true = true_centres(photos_root)
+    names = [n for n in sorted(true) if n not in set(truth["wrong_tags"])]
+    metas = [read_photo_meta(photos_root / "images" / n) for n in names]
+    names = [n for n, m in zip(names, metas) if m.has_gps]
+    tags = enu_from_lla(
+        origin,
+        [m.lat_deg for m in metas if m.has_gps],
+        [m.lon_deg for m in metas if m.has_gps],
+        [m.alt_m for m in metas if m.has_gps],
+    )
+    centres = np.stack([true[n] for n in names])
+    placed = umeyama(centres, tags).transform.apply(centres)
+    return float(np.median(np.linalg.norm(placed - centres, axis=1)))
+
+
 def camera_errors(survey_dir: Path, photos_root: Path) -> dict[str, Any]:
     truth = json.loads((photos_root / "survey_truth.json").read_text())
     origin = GeoOrigin.from_json(truth["origin"])
@@ -56,6 +83,7 @@ def camera_errors(survey_dir: Path, photos_root: Path) -> dict[str, Any]:
     return {
         "registered": f"{len(err)}/{len(true)}",
         "cam_err_median_m": float(np.median(err)),
+        "cam_err_median_m_gps_limit": gps_limit(photos_root),
         "cam_err_p95_m": float(np.percentile(err, 95)),
         "cam_err_max_m": float(err.max()),
         "wrong_tags_found": f"{len(wrong & aside)}/{len(wrong)}",

@@ -11,7 +11,11 @@ Scenes:
 
 Metrics:
   cam err       estimated camera centre (``survey.json`` lat/lon/alt) vs the truth, metres (median, p95)
+  GPS limit     the median error of the *true* camera centres placed on the GPS tags by a
+                similarity: what a perfect model would reach from these tags (their noise, averaged)
   dsm ok        share of covered DSM cells within 0.3 m of the true highest surface (synthetic only)
+  rel.          the same after the similarity that best maps the estimated cameras onto the true
+                ones: the model's own shape, without the georeferencing's error
   cloud acc/com accuracy and completeness of ``cloud.laz`` at 0.3 m (synthetic only)
   wall, cpu, peak
                 wall time of the command (subprocess), CPU seconds of its process tree (all
@@ -227,7 +231,8 @@ def main() -> None:
             print(json.dumps(rows[-1]), flush=True)
     print()
     print(
-        f"{'scene':<20}{'cam med/p95 m':>16}{'dsm<=0.3m':>11}{'acc/com':>13}{'wall s':>9}{'cpu s':>9}{'peak GB':>9}"
+        f"{'scene':<20}{'cam med/p95 m':>16}{'GPS limit':>10}{'dsm<=0.3m':>11}{'rel.':>8}{'acc/com':>13}"
+        f"{'wall s':>9}{'cpu s':>9}{'peak GB':>9}"
     )
     for r in rows:
         if r.get("rc"):
@@ -235,13 +240,17 @@ def main() -> None:
             continue
         cam = f"{r['cam_err_median_m']:.3f}/{r['cam_err_p95_m']:.3f}"
         dsm = f"{100 * r['dsm_within_0.3m']:.1f} %" if "dsm_within_0.3m" in r else "n/a"
+        rel = f"{100 * r['dsm_within_0.3m_relative']:.1f} %" if "dsm_within_0.3m_relative" in r else "n/a"
+        lim = r.get("cam_err_median_m_gps_limit")
+        lim_s = "n/a" if lim is None or "gcp" in r.get("scene", "") else f"{lim:.3f}"
         cl = (
             f"{r['cloud_accuracy@0.3m']:.2f}/{r['cloud_completeness@0.3m']:.2f}"
             if "cloud_accuracy@0.3m" in r
             else "n/a"
         )
         print(
-            f"{r['scene']:<20}{cam:>16}{dsm:>11}{cl:>13}{r['wall_s']:>9.0f}{r['cpu_s']:>9.0f}{r['peak_gb']:>9.2f}"
+            f"{r['scene']:<20}{cam:>16}{lim_s:>10}{dsm:>11}{rel:>8}{cl:>13}{r['wall_s']:>9.0f}{r['cpu_s']:>9.0f}"
+            f"{r['peak_gb']:>9.2f}"
         )
     print(
         f"OpenDroneMap (published, not measured): about {ODM_PUBLISHED['memory_gb']:.0f} GB of memory for "
