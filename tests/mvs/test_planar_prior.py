@@ -129,20 +129,39 @@ def test_spreads_match_each_subset_computed_alone() -> None:
     assert got[0] == 0.0 and got[1] < 1e-6 and got[2:].min() > 50
 
 
-def test_sample_channels_is_bilinear_with_nan_outside() -> None:
+def _sample_reference(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Bilinear samples (N, C) float32 of (H, W, C) float32 ``img``, NaN outside (numpy reference)."""
+    H, W, C = img.shape
+    out = np.full((len(x), C), np.nan, np.float32)
+    ok = (x >= 0) & (y >= 0) & (x <= W - 1) & (y <= H - 1)
+    xs, ys = x[ok], y[ok]
+    x0, y0 = np.minimum(xs.astype(np.int64), W - 2), np.minimum(ys.astype(np.int64), H - 2)
+    ax, ay = (xs - x0).astype(np.float32)[:, None], (ys - y0).astype(np.float32)[:, None]
+    top = img[y0, x0] * (1 - ax) + img[y0, x0 + 1] * ax
+    bot = img[y0 + 1, x0] * (1 - ax) + img[y0 + 1, x0 + 1] * ax
+    out[ok] = top * (1 - ay) + bot * ay
+    return out
+
+
+def test_count_agreement_samples_bilinearly_and_counts_like_the_reference() -> None:
     rng = np.random.default_rng(4)
     img = rng.uniform(0, 255, (12, 9, 3)).astype(np.float32)
     img[5, 4, 1] = np.nan
-    x = np.array([0.0, 8.0, 3.25, 4.5, -0.1, 8.01, 2.0])
-    y = np.array([0.0, 11.0, 6.75, 5.0, 1.0, 2.0, 11.5])
-    got = pp._sample_channels(img, x, y)
-    for k in range(3):  # inside: the bilinear mix of the four neighbours
-        x0, y0, ax, ay = 3, 6, 0.25, 0.75
-        want = (img[y0, x0, k] * (1 - ax) + img[y0, x0 + 1, k] * ax) * (1 - ay) + (
-            img[y0 + 1, x0, k] * (1 - ax) + img[y0 + 1, x0 + 1, k] * ax
-        ) * ay
-        assert got[2, k] == pytest.approx(want, rel=1e-5)
-    np.testing.assert_allclose(got[0], img[0, 0])  # the corners exactly
-    np.testing.assert_allclose(got[1], img[11, 8])
-    assert np.isnan(got[3, 1]) and np.isfinite(got[3, [0, 2]]).all()  # a NaN neighbour spoils its channel
-    assert np.isnan(got[4:]).all()  # outside the image
+    n = 400
+    x = np.concatenate([rng.uniform(-1, 9, n - 4), [0.0, 8.0, 3.5, 4.5]])
+    y = np.concatenate([rng.uniform(-1, 12, n - 4), [0.0, 11.0, 2.0, 5.0]])
+    ref = _sample_reference(img, x, y)
+    g = (np.nan_to_num(ref, nan=0.0) + rng.normal(0, 5, ref.shape)).astype(np.float32)
+    inside = rng.random(n) < 0.9
+    inside[-4:] = True
+    tol = np.float32(6.0)
+    seen, agree = np.zeros(n, np.int32), np.zeros(n, np.int32)
+    pp._count_agreement(img, x, y, inside, g, tol, seen, agree)
+    number = np.isfinite(ref).all(axis=1) & inside
+    with np.errstate(invalid="ignore"):
+        close = (np.abs(ref - g) <= tol).all(axis=1)
+    np.testing.assert_array_equal(seen, number.astype(np.int32))
+    np.testing.assert_array_equal(agree, (number & close).astype(np.int32))
+    assert seen[-4] == 1 and seen[-3] == 1  # the corners are inside
+    assert seen[-1] == 0  # next to the NaN pixel
+    assert 0 < agree.sum() < seen.sum() < n  # the test has points of every kind

@@ -38,6 +38,7 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+from numba import njit
 from scipy.spatial import Delaunay, QhullError
 
 from skyrecon.errors import InputError
@@ -433,23 +434,6 @@ def _boundary_ring(seg: np.ndarray, width: int) -> np.ndarray:
     return seg & (inner == 0)
 
 
-def _sample_channels(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Bilinear samples (N, C) float32 of an (H, W, C) float32 image at (x, y), every channel at
-    once; NaN outside (or at NaN pixels)."""
-    H, W, C = img.shape
-    out = np.full((len(x), C), np.nan, np.float32)
-    ok = (x >= 0) & (y >= 0) & (x <= W - 1) & (y <= H - 1)
-    xs, ys = x[ok], y[ok]
-    x0 = np.minimum(xs.astype(np.int64), W - 2) if W > 1 else np.zeros(len(xs), np.int64)
-    y0 = np.minimum(ys.astype(np.int64), H - 2) if H > 1 else np.zeros(len(ys), np.int64)
-    ax, ay = (xs - x0).astype(np.float32)[:, None], (ys - y0).astype(np.float32)[:, None]
-    x1, y1 = np.minimum(x0 + 1, W - 1), np.minimum(y0 + 1, H - 1)
-    top = img[y0, x0] * (1 - ax) + img[y0, x1] * ax
-    bot = img[y1, x0] * (1 - ax) + img[y1, x1] * ax
-    out[ok] = top * (1 - ay) + bot * ay
-    return out
-
-
 def _photo_check(
     ref: WorkingView,
     sources: list[WorkingView],
@@ -477,15 +461,51 @@ def _photo_check(
             x = k.fx * Xs[:, 0] / Xs[:, 2] + k.cx
             y = k.fy * Xs[:, 1] / Xs[:, 2] + k.cy
         inside = (Xs[:, 2] > 0) & np.isfinite(x) & np.isfinite(y)
-        diff = np.full(len(u), np.nan, np.float32)
-        if inside.any():
-            val = _sample_channels(sb, x[inside], y[inside])
-            diff[inside] = np.abs(val - g[inside]).max(axis=1)
-        ok = np.isfinite(diff)
-        seen += ok
-        with np.errstate(invalid="ignore"):
-            agree += ok & (diff <= tol)
+        _count_agreement(sb, x, y, inside, g, np.float32(tol), seen, agree)
     return (seen > 0) & (agree >= np.minimum(min_sources, seen))
+
+
+@njit(cache=True, nogil=True, boundscheck=False)
+def _count_agreement(
+    img: np.ndarray,
+    x: np.ndarray,
+    y: np.ndarray,
+    inside: np.ndarray,
+    g: np.ndarray,
+    tol: np.float32,
+    seen: np.ndarray,
+    agree: np.ndarray,
+) -> None:  # pragma: no cover - jit
+    """For every point i with ``inside[i]``: the source image (H, W, C) float32 sampled bilinearly at
+    (x[i], y[i]) (float32 weights; NaN outside the image or at a NaN pixel); where every channel is
+    a number the point is ``seen`` (+1), and where every channel is within ``tol`` of ``g[i]``
+    (N, C) it also ``agree``s (+1). In place."""
+    H, W, C = img.shape
+    one = np.float32(1.0)
+    for i in range(len(x)):
+        if not inside[i]:
+            continue
+        xi, yi = x[i], y[i]
+        if xi < 0 or yi < 0 or xi > W - 1 or yi > H - 1:
+            continue
+        x0 = min(int(xi), W - 2) if W > 1 else 0
+        y0 = min(int(yi), H - 2) if H > 1 else 0
+        x1, y1 = min(x0 + 1, W - 1), min(y0 + 1, H - 1)
+        ax, ay = np.float32(xi - x0), np.float32(yi - y0)
+        worst = np.float32(0.0)
+        number = True
+        for c in range(C):
+            top = img[y0, x0, c] * (one - ax) + img[y0, x1, c] * ax
+            bot = img[y1, x0, c] * (one - ax) + img[y1, x1, c] * ax
+            diff = abs(top * (one - ay) + bot * ay - g[i, c])
+            if np.isnan(diff):
+                number = False
+                break
+            worst = max(worst, diff)
+        if number:
+            seen[i] += 1
+            if worst <= tol:
+                agree[i] += 1
 
 
 def _blurred_colour(view: WorkingView) -> np.ndarray:
