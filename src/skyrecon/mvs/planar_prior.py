@@ -476,10 +476,11 @@ def _count_agreement(
     seen: np.ndarray,
     agree: np.ndarray,
 ) -> None:  # pragma: no cover - jit
-    """For every point i with ``inside[i]``: the source image (H, W, C) float32 sampled bilinearly at
-    (x[i], y[i]) (float32 weights; NaN outside the image or at a NaN pixel); where every channel is
-    a number the point is ``seen`` (+1), and where every channel is within ``tol`` of ``g[i]``
-    (N, C) it also ``agree``s (+1). In place."""
+    """Per point i with ``inside[i]``: the source image (H, W, C) float32 sampled bilinearly at
+    (x[i], y[i]) pixels, in float32. A point within the image whose samples are all numbers (no
+    NaN pixel among its four neighbours) is ``seen`` (+1); if every channel is also within ``tol``
+    of ``g[i]`` ((N, C) float32, the reference's colour) it ``agree``s (+1). Counts (N,) int32,
+    updated in place."""
     H, W, C = img.shape
     one = np.float32(1.0)
     for i in range(len(x)):
