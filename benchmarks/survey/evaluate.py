@@ -36,10 +36,11 @@ def true_centres(photos_root: Path) -> dict[str, np.ndarray]:
     return out
 
 
-def _camera_pairs(survey_dir: Path, photos_root: Path, origin: GeoOrigin) -> tuple[np.ndarray, np.ndarray]:
-    """(estimated, true) centres (N, 3) of the registered photos, metres in the truth's ENU frame."""
-    doc = json.loads((survey_dir / "survey.json").read_text())
-    true = true_centres(photos_root)
+def _camera_pairs(
+    doc: dict[str, Any], true: dict[str, np.ndarray], origin: GeoOrigin
+) -> tuple[np.ndarray, np.ndarray]:
+    """(estimated, true) centres (N, 3) of the registered photos, metres in the truth's ENU frame,
+    from a ``survey.json`` document and the true centres by name."""
     cams = [c for c in doc["cameras"] if c["name"] in true]
     est = enu_from_lla(origin, [c["lat"] for c in cams], [c["lon"] for c in cams], [c["alt"] for c in cams])
     return est, np.stack([true[c["name"]] for c in cams])
@@ -57,16 +58,13 @@ def gps_limit(photos_root: Path) -> float | None:
         return None
     origin = GeoOrigin.from_json(truth["origin"])
     true = true_centres(photos_root)
-    names = [n for n in sorted(true) if n not in set(truth["wrong_tags"])]
-    metas = [read_photo_meta(photos_root / "images" / n) for n in names]
-    names = [n for n, m in zip(names, metas) if m.has_gps]
+    wrong = set(truth["wrong_tags"])
+    tagged = [(n, read_photo_meta(photos_root / "images" / n)) for n in sorted(true) if n not in wrong]
+    tagged = [(n, m) for n, m in tagged if m.has_gps]
     tags = enu_from_lla(
-        origin,
-        [m.lat_deg for m in metas if m.has_gps],
-        [m.lon_deg for m in metas if m.has_gps],
-        [m.alt_m for m in metas if m.has_gps],
+        origin, [m.lat_deg for _, m in tagged], [m.lon_deg for _, m in tagged], [m.alt_m for _, m in tagged]
     )
-    centres = np.stack([true[n] for n in names])
+    centres = np.stack([true[n] for n, _ in tagged])
     placed = umeyama(centres, tags).transform.apply(centres)
     return float(np.median(np.linalg.norm(placed - centres, axis=1)))
 
@@ -76,7 +74,7 @@ def camera_errors(survey_dir: Path, photos_root: Path) -> dict[str, Any]:
     origin = GeoOrigin.from_json(truth["origin"])
     doc = json.loads((survey_dir / "survey.json").read_text())
     true = true_centres(photos_root)
-    est, true_c = _camera_pairs(survey_dir, photos_root, origin)
+    est, true_c = _camera_pairs(doc, true, origin)
     err = np.linalg.norm(est - true_c, axis=1)
     wrong = set(truth["wrong_tags"])
     aside = {s["name"] for s in doc["set_aside"]}
@@ -129,7 +127,8 @@ def dsm_errors(survey_dir: Path, photos_root: Path) -> dict[str, Any]:
     # the DSM's own shape: its cells (as 3D points) moved by the similarity that best maps the
     # estimated camera centres onto the true ones, so the georeferencing's error (GPS noise) is
     # taken out and what is left is the reconstruction's
-    est, true = _camera_pairs(survey_dir, photos_root, origin)
+    doc = json.loads((survey_dir / "survey.json").read_text())
+    est, true = _camera_pairs(doc, true_centres(photos_root), origin)
     rel = umeyama(est, true).transform.apply(enu)
     err_rel = np.abs(rel[:, 2] - _true_top(city, rel[:, 0], rel[:, 1]))
     return {

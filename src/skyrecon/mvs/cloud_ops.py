@@ -141,7 +141,7 @@ def small_component_mask(
         idx = idx.reshape(b - a, kk)[:, 1:]
         rows = np.broadcast_to(np.arange(a, b)[:, None], idx.shape)
         ok = dist <= radius_m
-        _union(parent, rows[ok].astype(np.int64), idx[ok].astype(np.int64))
+        _union(parent, rows[ok], idx[ok].astype(np.int64, copy=False))
     labels = _roots(parent)
     sizes = np.bincount(labels)
     return sizes[labels] >= max(1, int(np.ceil(min_fraction * n)))
