@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from skyrecon.core import Rigid3, rotvec_to_matrix
+from skyrecon.core.rigid import rotation_angle_deg
 from skyrecon.errors import InputError
 from skyrecon.eval.sfm_metrics import evaluate_sfm_poses, scene_extent
 from skyrecon.sfm.align import Sim3
@@ -21,7 +22,7 @@ from skyrecon.sfm.pairs import (
 from skyrecon.sfm.settings import PairingSettings
 from skyrecon.sfm.tracks import UnionFind, build_tracks
 from skyrecon.sfm.triangulation import max_triangulation_angles_deg, triangulate_tracks
-from skyrecon.sfm.viewgraph import rotation_inconsistent_pairs
+from skyrecon.sfm.viewgraph import chained_rotations, rotation_inconsistent_pairs
 
 
 def test_union_find_joins_sets():
@@ -173,3 +174,42 @@ def test_view_graph_rejects_pairs_with_inconsistent_rotations():
     assert bad == [len(pairs) - 1]
     assert err[-1] == pytest.approx(90.0, abs=1.0)
     assert np.nanmax(err[:-1]) < 1.0
+
+
+def test_a_long_flight_keeps_its_true_loops_despite_a_few_wrong_neighbour_pairs():
+    """600 frames: neighbour pairs (up to 3 apart) accurate to 0.02 deg except every 25th
+    adjacent pair, which is 1.5 deg off (and has the most matches, as in a small-baseline
+    ambiguity); the flight comes back to its start. Chained along the strongest pairs these
+    add up to over 30 deg and every true loop would be rejected; averaged over all neighbour
+    pairs they are outvoted: the true loops stay and a look-alike loop 20 deg off goes."""
+    rng = np.random.default_rng(3)
+    n = 600
+    yaw = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    R = [rotvec_to_matrix([0.0, 0.0, a]) @ rotvec_to_matrix(rng.normal(0, 0.05, 3)) for a in yaw]
+    pairs, trusted = [], []
+
+    def add(i, j, noise_rad, inliers, ok):
+        Rij = R[j] @ R[i].T @ rotvec_to_matrix(rng.normal(0, noise_rad, 3))
+        pairs.append(PairGeometry(i, j, "ok", inliers, np.zeros((inliers, 2), np.int32), Rij, np.ones(3)))
+        trusted.append(ok)
+
+    for i in range(n):
+        for d in (1, 2, 3):
+            if i + d < n:
+                wrong = d == 1 and i % 25 == 7
+                noise = np.radians(1.5 / np.sqrt(3) if wrong else 0.02)
+                add(i, i + d, noise, 500 - 20 * d + 50 * wrong, True)
+    loops = list(range(len(pairs), len(pairs) + 10))
+    for k in range(10):
+        add(k, n - 10 + k, np.radians(0.05), 200, False)
+    look_alike = R[300] @ R[40].T @ rotvec_to_matrix([0.0, 0.0, np.radians(20)])
+    pairs.append(PairGeometry(40, 300, "ok", 60, np.zeros((60, 2), np.int32), look_alike, np.ones(3)))
+    trusted.append(False)
+    chained, _ = chained_rotations([p for p, ok in zip(pairs, trusted) if ok], n)
+    chained_loop_err = [
+        rotation_angle_deg(pairs[k].R.T @ chained[pairs[k].j] @ chained[pairs[k].i].T) for k in loops
+    ]
+    assert min(chained_loop_err) > 5.0  # the case at stake: the chain has drifted
+    bad, err = rotation_inconsistent_pairs(pairs, n, 5.0, np.array(trusted))
+    assert bad == [len(pairs) - 1]
+    assert np.nanmax(err[loops]) < 1.0

@@ -48,6 +48,11 @@ class MapperInput:
         pairs: verified pairs (for the initial pair and for diagnostics).
         usable: (n,) bool: images that may be registered (others were left out earlier).
         scale: feature (working) resolution / input resolution.
+        sequence_reach: for the frames of one flight (sequential pairing), in flight order: the
+            farthest frame offset paired along the sequence; the mapper then grows the model
+            along the flight and registers a frame through loop pairs alone (no registered frame
+            within this reach) only when no frame along the flight can be registered. 0 for
+            unordered photos.
     """
 
     names: list[str]
@@ -60,6 +65,7 @@ class MapperInput:
     pairs: list[PairGeometry]
     usable: np.ndarray
     scale: float = 1.0
+    sequence_reach: int = 0
 
 
 @dataclass
@@ -190,6 +196,7 @@ class IncrementalMapper:
         }
         self.last_global_images = 0
         self.last_global_points = 0
+        self.loss_scale_px = float(bundle.loss_scale_px)  # see _follow_noise
         self.last_loop_rank = -(1 << 30)  # registration rank of the last loop handled
 
     # ------------------------------------------------------------------ camera model
@@ -395,7 +402,7 @@ class IncrementalMapper:
         self._gauge(images[var_mask], const_images, prob, local_index)
         opts = BundleSolverOptions(
             loss=self.b.loss,
-            loss_scale=self.b.loss_scale_px,
+            loss_scale=self.loss_scale_px,
             max_iterations=max_iterations,
             function_tolerance=function_tolerance,
             refine_focal_length=force_focal or (refine_intrinsics and self.b.refine_focal_length),
@@ -472,11 +479,35 @@ class IncrementalMapper:
         self.stats["local_ba"] += 1
         self.stats["local_ba_s"] += time.perf_counter() - t0
 
+    def _noise_px(self) -> float:
+        """Robust per-axis noise of the active observations (working pixels, each residual
+        divided by its observation's sigma), from the median residual and corrected for the
+        degrees of freedom the poses and points take; 0 with too few observations."""
+        obs = np.nonzero(self.active)[0]
+        dof = 2 * len(obs) - 3 * int(self.has_pt.sum()) - 6 * int(self.reg.sum())
+        if len(obs) < 100 or dof <= 0:
+            return 0.0
+        r = self._obs_errors(obs) / self.sigma_flat[self.obs_flat[obs]]
+        r = r[np.isfinite(r)]
+        if len(r) == 0:
+            return 0.0
+        # the median norm of a 2D Gaussian residual is 1.1774 sigma
+        return float(np.median(r) / 1.1774 * np.sqrt(2 * len(obs) / dof))
+
+    def _follow_noise(self) -> None:
+        """The robust loss's scale: ``BundleSettings.loss_scale_px``, or the model's measured
+        keypoint noise when that is larger. A scale far below the noise treats most good
+        observations as outliers, and a long chain of weakly constrained views can then
+        collapse (its baselines shrink towards zero) instead of fitting them."""
+        self.loss_scale_px = max(float(self.b.loss_scale_px), self._noise_px())
+        self.stats["loss_scale_px"] = self.loss_scale_px
+
     def _global_ba(
         self, rounds: int = 1, max_iterations: int | None = None, final: bool = False
     ) -> BundleReport | None:
         t0 = time.perf_counter()
         rep = None
+        self._follow_noise()
         for r in range(rounds):
             tracks = np.nonzero(self.has_pt)[0]
             if len(tracks) == 0:
@@ -639,7 +670,7 @@ class IncrementalMapper:
                 self.s.pnp_threshold_px * self.px,
                 seed=self.seed * 7919 + image * 31 + int(self.trials[image]),
                 min_inliers=self.s.pnp_min_inliers,
-                refine_loss_scale_px=self.b.loss_scale_px * self.px,
+                refine_loss_scale_px=self.loss_scale_px * self.px,
                 sigmas_px=self.sigma_flat[flat],
             )
         except EstimationError as exc:
@@ -664,11 +695,25 @@ class IncrementalMapper:
         self.stats["pnp_s"] += time.perf_counter() - t0
         return True
 
+    def _along_flight(self) -> np.ndarray:
+        """(n,) bool: frames with a registered frame within ``sequence_reach`` of them in the
+        flight (all True for unordered photos)."""
+        reach = int(self.d.sequence_reach)
+        if reach <= 0:
+            return np.ones(self.n, bool)
+        c = np.concatenate([[0], np.cumsum(self.reg)])
+        idx = np.arange(self.n)
+        lo, hi = np.maximum(idx - reach, 0), np.minimum(idx + reach + 1, self.n)
+        return c[hi] - c[lo] > 0
+
     def _next_candidates(self) -> list[int]:
+        """Unregistered images to try next: most visible points first; for a flight, frames near
+        registered frames before those only loop pairs reach (a loop pair between look-alike
+        streets would otherwise place a frame, and the flight after it, in the wrong street)."""
         cnt = self._visible_counts()
         n_pts = int(self.has_pt.sum())
         cand = []
-        for i in np.argsort(-cnt, kind="stable"):
+        for i in np.lexsort((-cnt, ~self._along_flight())):
             i = int(i)
             if self.reg[i] or not self.d.usable[i] or cnt[i] < self.s.pnp_min_inliers:
                 continue
@@ -749,7 +794,9 @@ class IncrementalMapper:
         cameras = list(self.cameras)
         old = np.nonzero(self.active & (self.obs_img != image))[0]
         rms_before = self._robust_rms(old)
+        t0 = time.perf_counter()
         self._global_ba(rounds=1, max_iterations=self.b.global_max_iterations)
+        seconds = time.perf_counter() - t0
         self.stats["loop_global_ba"] += 1
         rms_after = self._robust_rms(old)
         accepted = rms_after <= self.s.loop_max_error_ratio * rms_before + 1e-9
@@ -760,6 +807,7 @@ class IncrementalMapper:
                 "rms_before_px": rms_before,
                 "rms_after_px": rms_after,
                 "accepted": bool(accepted),
+                "seconds": seconds,
             }
         )
         if accepted:

@@ -485,6 +485,7 @@ def _map(state: _SfMRun) -> None:
         state.pairs,
         usable_mask,
         state.scale,
+        _sequence_reach(state),
     )
     mapper = IncrementalMapper(data, state.settings.mapper, state.settings.bundle, state.seed)
     try:
@@ -507,6 +508,16 @@ def _map(state: _SfMRun) -> None:
     state.warnings.extend(out.warnings)
     for i, why in out.failures.items():
         state.reasons.setdefault(i, why)
+
+
+def _sequence_reach(state: _SfMRun) -> int:
+    """How far apart two frames of a flight are still paired along the sequence (0 when the
+    images are not matched as a sequence)."""
+    sel = state.selection
+    if sel is None or sel.mode != "sequential":
+        return 0
+    p = state.settings.pairing
+    return int(max(p.window, p.max_offset if p.exponential else 0))
 
 
 def _diagnose_state(state: _SfMRun, candidates: list[PairGeometry]) -> list[str]:

@@ -212,7 +212,8 @@ class BundleSettings:
     Attributes:
         loss: robust loss (``"cauchy"``, ``"huber"`` or ``"trivial"``).
         loss_scale_px: scale of the loss, working pixels (divided by the observation sigma when
-            ``scale_weighting`` is on).
+            ``scale_weighting`` is on); the mapper raises it to the model's measured keypoint
+            noise when that is larger (noisier images), never lowers it.
         local_max_iterations, global_max_iterations: LM iterations of local and global runs.
         local_function_tolerance, global_function_tolerance: relative cost decrease below which
             local / intermediate-global runs stop; the final global runs use

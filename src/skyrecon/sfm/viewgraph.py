@@ -6,6 +6,12 @@ verification with many inliers but the wrong relative pose. Such a pair closes a
 rotations do not compose to the identity. The absolute rotations are propagated along a
 maximum spanning tree of the view graph (edge weight: inlier count), so they come from the
 most reliable pairs, and every pair is compared with them.
+
+A flight's neighbouring frames are trusted instead (repeated structure far away in the sequence
+cannot fool them). Chained along a spanning tree of a thousand frames, a few wrong neighbour
+pairs (a small baseline's rotation-translation ambiguity) add up to tens of degrees, and every
+true loop would look inconsistent; so there the absolute rotations are averaged over all the
+trusted pairs (robust chordal averaging), which outvotes the wrong ones.
 """
 
 from __future__ import annotations
@@ -13,13 +19,14 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
-from scipy.sparse import coo_matrix
+from scipy.sparse import coo_matrix, identity
 from scipy.sparse.csgraph import breadth_first_order, connected_components, minimum_spanning_tree
+from scipy.sparse.linalg import splu
 
 from skyrecon.core.rigid import rotation_angle_deg
 from skyrecon.sfm.matching import PairGeometry
 
-__all__ = ["chained_rotations", "rotation_inconsistent_pairs"]
+__all__ = ["averaged_rotations", "chained_rotations", "rotation_inconsistent_pairs"]
 
 
 def chained_rotations(pairs: Sequence[PairGeometry], n_images: int) -> tuple[np.ndarray, np.ndarray]:
@@ -57,6 +64,63 @@ def chained_rotations(pairs: Sequence[PairGeometry], n_images: int) -> tuple[np.
     return R, label
 
 
+def _angles_deg(R_rel: np.ndarray, R_i: np.ndarray, R_j: np.ndarray) -> np.ndarray:
+    """(E,) angle of ``R_rel^T R_j R_i^T`` per pair, degrees (all (E, 3, 3))."""
+    E = np.einsum("kji,kjl->kil", R_rel, R_j @ np.transpose(R_i, (0, 2, 1)))
+    c = (np.trace(E, axis1=1, axis2=2) - 1.0) / 2.0
+    return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
+
+
+def averaged_rotations(
+    pairs: Sequence[PairGeometry],
+    n_images: int,
+    iterations: int = 6,
+    scale_deg: float = 1.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Absolute rotations ``cam_from_world`` that agree best with the relative rotations of all
+    the pairs: chordal averaging (``R_j ~ R_ij R_i`` in least squares over the 3x3 entries, then
+    the nearest rotation), reweighted ``iterations`` times with Cauchy weights of scale
+    ``scale_deg`` on each pair's disagreement so that a minority of wrong pairs is outvoted.
+
+    The rotations are anchored (with a negligible weight) to :func:`chained_rotations`, which
+    also gives each connected component its own world.
+
+    Returns:
+        ``(R (n, 3, 3), component (n,))`` as :func:`chained_rotations`.
+    """
+    R0, label = chained_rotations(pairs, n_images)
+    usable = [p for p in pairs if p.R is not None]
+    if not usable:
+        return R0, label
+    i = np.array([p.i for p in usable])
+    j = np.array([p.j for p in usable])
+    R_rel = np.stack([p.R for p in usable])
+    n_e = len(usable)
+    # unknowns: the 3 rows of each R, one column of R at a time: x_j - R_ij x_i = 0 (3 rows per pair)
+    rows3 = np.arange(3 * n_e).reshape(n_e, 3)
+    rows = np.concatenate([rows3.ravel(), np.repeat(rows3, 3, axis=1).ravel()])
+    cols = np.concatenate(
+        [(3 * j[:, None] + np.arange(3)).ravel(), np.tile(3 * i[:, None] + np.arange(3), (1, 3)).ravel()]
+    )
+    vals = np.concatenate([np.ones(3 * n_e), -R_rel.ravel()])
+    eps = 1e-6
+    prior = eps * R0.reshape(3 * n_images, 3)
+    weights = np.ones(n_e)
+    R = R0
+    for _ in range(iterations):
+        sw = np.repeat(np.sqrt(weights), 3)
+        A = coo_matrix(
+            (vals * np.concatenate([sw, np.repeat(sw, 3)]), (rows, cols)), shape=(3 * n_e, 3 * n_images)
+        ).tocsc()
+        X = splu((A.T @ A + eps * identity(3 * n_images)).tocsc()).solve(prior).reshape(n_images, 3, 3)
+        U, _, Vt = np.linalg.svd(X)
+        flip = np.ones((n_images, 3))
+        flip[:, 2] = np.sign(np.linalg.det(U @ Vt))
+        R = U @ (flip[:, :, None] * Vt)
+        weights = 1.0 / (1.0 + (_angles_deg(R_rel, R[i], R[j]) / scale_deg) ** 2)
+    return R, label
+
+
 def rotation_inconsistent_pairs(
     pairs: Sequence[PairGeometry],
     n_images: int,
@@ -68,12 +132,15 @@ def rotation_inconsistent_pairs(
     without a rotation).
 
     Args:
-        trusted: optional (len(pairs),) bool: build the spanning tree from these pairs only
-            (e.g. the pairs of neighbouring frames of a flight, which repeated structure far
-            away in the sequence cannot fool); all pairs are checked.
+        trusted: optional (len(pairs),) bool: the pairs the rotations come from (e.g. the
+            pairs of neighbouring frames of a flight, which repeated structure far away in the
+            sequence cannot fool), averaged over all of them (:func:`averaged_rotations`);
+            without it, chained along the strongest pairs. All pairs are checked.
     """
-    tree_pairs = pairs if trusted is None else [p for p, ok in zip(pairs, trusted) if ok]
-    R, label = chained_rotations(tree_pairs, n_images)
+    if trusted is None:
+        R, label = chained_rotations(pairs, n_images)
+    else:
+        R, label = averaged_rotations([p for p, ok in zip(pairs, trusted) if ok], n_images)
     err = np.full(len(pairs), np.nan)
     bad = []
     for k, p in enumerate(pairs):
