@@ -89,12 +89,12 @@ def averaged_rotations(
         ``(R (n, 3, 3), component (n,))`` as :func:`chained_rotations`.
     """
     R0, label = chained_rotations(pairs, n_images)
-    usable = [p for p in pairs if p.R is not None]
+    usable = [(p.i, p.j, p.R) for p in pairs if p.R is not None]
     if not usable:
         return R0, label
-    i = np.array([p.i for p in usable])
-    j = np.array([p.j for p in usable])
-    R_rel = np.stack([p.R for p in usable])
+    i = np.array([u[0] for u in usable])
+    j = np.array([u[1] for u in usable])
+    R_rel = np.stack([u[2] for u in usable])
     n_e = len(usable)
     # unknowns: the 3 rows of each R, one column of R at a time: x_j - R_ij x_i = 0 (3 rows per pair)
     rows3 = np.arange(3 * n_e).reshape(n_e, 3)
