@@ -180,7 +180,7 @@ def test_a_long_flight_keeps_its_true_loops_despite_a_few_wrong_neighbour_pairs(
     """600 frames: neighbour pairs (up to 3 apart) accurate to 0.02 deg except every 25th
     adjacent pair, which is 1.5 deg off (and has the most matches, as in a small-baseline
     ambiguity); the flight comes back to its start. Chained along the strongest pairs these
-    add up to over 30 deg and every true loop would be rejected; averaged over all neighbour
+    add up to about 8 deg and every true loop would be rejected; averaged over all neighbour
     pairs they are outvoted: the true loops stay and a look-alike loop 20 deg off goes."""
     rng = np.random.default_rng(3)
     n = 600
