@@ -9,9 +9,10 @@ once into ``--cache``. For each length N the first N frames go to the command a 
 in its own process (``os.wait4`` gives its CPU time and peak memory). Reported per N: wall time, CPU
 time, both per frame, peak resident memory (target <= 4 GB at 1000 frames), registered frames, and
 the camera-centre error against the true poses after a similarity alignment (median and max, % of
-the flight's extent). Targets (issue "Beyond one machine"): cost per frame flat within 20 % from 250
-to 1000 frames, peak memory at most 4 GB at 1000 frames. On a shared machine the wall time is noisy:
-CPU time per frame is what predicts a cluster.
+the flight's extent), and the stages' and the mapper's times from the run's ``sfm.json``. Targets
+(issue "Beyond one machine"): cost per frame flat within 20 % from 250 to 1000 frames, peak memory
+at most 4 GB at 1000 frames. On a shared machine the wall time is noisy: CPU time per frame is what
+predicts a cluster.
 
 Usage:
   .venv/bin/python benchmarks/scale/sfm_flight.py                   # 250, 500, 1000 frames
@@ -94,6 +95,8 @@ def run_one(flight: Path, n: int, out: Path, workers: int | None) -> dict:
     gt = {f"frame_{k:04d}.png": Rigid3.from_matrix(M[k]) for k in range(n)}
     est = {im.name: im.cam_from_world for im in rec.images.values()}
     s = evaluate_sfm_poses(est, gt).summary()
+    run = json.loads((model / "sfm.json").read_text())
+    mapper = run["diagnostics"]["mapper"]
     return {
         "frames": n,
         "registered": len(est),
@@ -102,6 +105,14 @@ def run_one(flight: Path, n: int, out: Path, workers: int | None) -> dict:
         "peak_mb_main_process": usage.ru_maxrss / 1024.0,
         "center_median_pct": s["center_median_pct"],
         "center_max_pct": s["center_max_pct"],
+        "stages_s": {k: round(v, 1) for k, v in run["timings_s"].items()},
+        "mapper_s": {
+            "global_ba": round(mapper["global_ba_s"], 1),
+            "loop_closures": round(sum(loop.get("seconds", 0.0) for loop in mapper["loops"]), 1),
+            "local_ba": round(mapper["local_ba_s"], 1),
+            "triangulation": round(mapper["triangulation_s"], 1),
+        },
+        "loops_closed": int(mapper["loops_detected"]),
     }
 
 
