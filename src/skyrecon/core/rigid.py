@@ -122,6 +122,15 @@ def rotation_angle_deg(R: np.ndarray) -> float:
     return float(np.degrees(rotation_angle(R)))
 
 
+def rotation_angles_deg(R: np.ndarray) -> np.ndarray:
+    """(N,) angles in degrees, in [0, 180], of (N, 3, 3) rotation matrices: :func:`rotation_angle`
+    for many at once (same formula)."""
+    R = np.asarray(R, dtype=np.float64)
+    cos = np.clip((np.trace(R, axis1=1, axis2=2) - 1) / 2, -1.0, 1.0)
+    skew = np.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]], axis=1)
+    return np.degrees(np.arctan2(0.5 * np.linalg.norm(skew, axis=1), cos))
+
+
 @dataclass(frozen=True)
 class Rigid3:
     """A rigid transform ``b_from_a``: ``p_b = R @ p_a + t``.

@@ -23,7 +23,7 @@ from scipy.sparse import coo_matrix, identity
 from scipy.sparse.csgraph import breadth_first_order, connected_components, minimum_spanning_tree
 from scipy.sparse.linalg import splu
 
-from skyrecon.core.rigid import rotation_angle_deg
+from skyrecon.core.rigid import rotation_angles_deg
 from skyrecon.sfm.matching import PairGeometry
 
 __all__ = ["averaged_rotations", "chained_rotations", "rotation_inconsistent_pairs"]
@@ -64,11 +64,10 @@ def chained_rotations(pairs: Sequence[PairGeometry], n_images: int) -> tuple[np.
     return R, label
 
 
-def _angles_deg(R_rel: np.ndarray, R_i: np.ndarray, R_j: np.ndarray) -> np.ndarray:
-    """(E,) angle of ``R_rel^T R_j R_i^T`` per pair, degrees (all (E, 3, 3))."""
-    E = np.einsum("kji,kjl->kil", R_rel, R_j @ np.transpose(R_i, (0, 2, 1)))
-    c = (np.trace(E, axis1=1, axis2=2) - 1.0) / 2.0
-    return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
+def _disagreement_deg(R_rel: np.ndarray, R_i: np.ndarray, R_j: np.ndarray) -> np.ndarray:
+    """(E,) angle between each pair's relative rotation and the absolute ones, degrees: the
+    angle of ``R_rel^T R_j R_i^T`` (all (E, 3, 3))."""
+    return rotation_angles_deg(np.transpose(R_rel, (0, 2, 1)) @ R_j @ np.transpose(R_i, (0, 2, 1)))
 
 
 def averaged_rotations(
@@ -117,7 +116,7 @@ def averaged_rotations(
         flip = np.ones((n_images, 3))
         flip[:, 2] = np.sign(np.linalg.det(U @ Vt))
         R = U @ (flip[:, :, None] * Vt)
-        weights = 1.0 / (1.0 + (_angles_deg(R_rel, R[i], R[j]) / scale_deg) ** 2)
+        weights = 1.0 / (1.0 + (_disagreement_deg(R_rel, R[i], R[j]) / scale_deg) ** 2)
     return R, label
 
 
@@ -142,11 +141,11 @@ def rotation_inconsistent_pairs(
     else:
         R, label = averaged_rotations([p for p, ok in zip(pairs, trusted) if ok], n_images)
     err = np.full(len(pairs), np.nan)
-    bad = []
-    for k, p in enumerate(pairs):
-        if p.R is None or label[p.i] != label[p.j]:
-            continue
-        err[k] = rotation_angle_deg(p.R.T @ R[p.j] @ R[p.i].T)
-        if err[k] > max_error_deg:
-            bad.append(k)
+    checked = [
+        (k, p.i, p.j, p.R) for k, p in enumerate(pairs) if p.R is not None and label[p.i] == label[p.j]
+    ]
+    if checked:
+        k, i, j = (np.array([c[m] for c in checked]) for m in range(3))
+        err[k] = _disagreement_deg(np.stack([c[3] for c in checked]), R[i], R[j])
+    bad = [int(c[0]) for c in checked if err[c[0]] > max_error_deg]
     return bad, err
