@@ -11,7 +11,7 @@ from skyrecon.errors import InputError
 from skyrecon.eval.sfm_metrics import evaluate_sfm_poses
 from skyrecon.sfm import _ba_kernels as K
 from skyrecon.sfm.align import umeyama
-from skyrecon.sfm.bundle import BundleProblem, BundleSolverOptions, bundle_adjust
+from skyrecon.sfm.bundle import BundleProblem, BundleSolverOptions, _structure, bundle_adjust
 from skyrecon.sfm.pnp import estimate_absolute_pose
 
 
@@ -197,14 +197,74 @@ def test_refines_focal_length_and_radial_distortion():
     assert abs(prob.cameras[0, 4] - cams[0, 4]) < 0.02  # k1 (k2 is weakly determined at this field of view)
 
 
-def test_large_problem_uses_conjugate_gradients():
-    R, t, X, cams, oi, op, uv = _scene(noise_px=0.5)
+@pytest.mark.parametrize("refine", [False, True])
+def test_sparse_factorisation_gives_the_dense_answer(refine):
+    """Above ``max_dense_columns`` the reduced system is factorised sparse: same adjustment to
+    rounding, with held pose coordinates and (optionally) intrinsics columns."""
+    R, t, X, cams, oi, op, uv = _scene(noise_px=0.5, n_img=8, dist=(0.05, 0.0))
     Rp, tp, Xp = _perturb(R, t, X)
-    prob = BundleProblem(Rp, tp, Xp, cams, np.zeros(len(R), np.int64), oi, op, uv)
-    _fix_gauge(prob, R, t)
-    rep = bundle_adjust(prob, BundleSolverOptions(max_dense_columns=10))
-    assert rep.solver == "pcg"
-    assert rep.final_rms_px < 0.75
+    answers = []
+    for max_dense in (10_000, 10):
+        prob = BundleProblem(
+            Rp.copy(), tp.copy(), Xp.copy(), cams.copy(), np.zeros(len(R), np.int64), oi, op, uv
+        )
+        _fix_gauge(prob, R, t)
+        rep = bundle_adjust(
+            prob,
+            BundleSolverOptions(
+                max_dense_columns=max_dense,
+                refine_focal_length=refine,
+                refine_distortion=refine,
+                max_iterations=30,
+            ),
+        )
+        assert rep.solver == ("dense" if max_dense > 10 else "sparse")
+        assert rep.final_rms_px < 0.75
+        answers.append(
+            (prob.R.copy(), prob.t.copy(), prob.points.copy(), prob.cameras.copy(), rep.iterations)
+        )
+    (R0, t0, X0, c0, it0), (R1, t1, X1, c1, it1) = answers
+    assert it0 == it1
+    np.testing.assert_allclose(R1, R0, atol=1e-9)
+    np.testing.assert_allclose(t1, t0, atol=1e-8)
+    np.testing.assert_allclose(X1, X0, atol=1e-8)
+    np.testing.assert_allclose(c1, c0, rtol=1e-9, atol=1e-9)
+
+
+def test_a_flight_stores_only_the_camera_pairs_that_share_points():
+    """Cameras along a line, each point seen by 5 neighbours: the reduced system keeps the band
+    (about 5 blocks a camera) instead of all pairs, and the sparse solve recovers the truth."""
+    rng = np.random.default_rng(3)
+    n_img = 120
+    centres = np.stack([np.arange(n_img) * 2.0, np.zeros(n_img), np.full(n_img, 30.0)], axis=1)
+    R = np.repeat(np.diag([1.0, -1.0, -1.0])[None], n_img, axis=0)  # looking straight down
+    t = -np.einsum("nij,nj->ni", R, centres)
+    X = np.stack(
+        [rng.uniform(-4, 2 * n_img + 4, 3000), rng.uniform(-12, 12, 3000), rng.uniform(-2, 8, 3000)], 1
+    )
+    oi, op = [], []
+    for j, x in enumerate(X):
+        k0 = int(np.clip(np.round(x[0] / 2.0) - 2, 0, n_img - 5))
+        oi += list(range(k0, k0 + 5))
+        op += [j] * 5
+    oi, op = np.array(oi), np.array(op)
+    cams = np.array([[800.0, 800.0, 512.0, 512.0, 0.0, 0.0]])
+    P = np.einsum("nij,nj->ni", R[oi], X[op]) + t[oi]
+    uv = 800.0 * P[:, :2] / P[:, 2:] + 512.0 + rng.normal(0, 0.3, (len(oi), 2))
+    Rp, tp, Xp = _perturb(R, t, X, rot=0.002, trans=0.05, pts=0.1)
+    Rp[[0, -1]], tp[[0, -1]] = R[[0, -1]], t[[0, -1]]
+    found = []
+    for max_dense in (10_000, 60):
+        prob = BundleProblem(Rp.copy(), tp.copy(), Xp.copy(), cams, np.zeros(n_img, np.int64), oi, op, uv)
+        prob.constant_images[[0, -1]] = True
+        rep = bundle_adjust(prob, BundleSolverOptions(max_dense_columns=max_dense, max_iterations=30))
+        assert rep.final_rms_px < 0.45
+        found.append(_centres(prob.R, prob.t))
+    assert rep.solver == "sparse"
+    s = _structure(prob, BundleSolverOptions())
+    assert s.system.n_slots < 6 * n_img  # a band, not the n^2 / 2 = 7000 of a dense system
+    np.testing.assert_allclose(found[1], found[0], atol=1e-6)
+    np.testing.assert_allclose(found[1], centres, atol=0.3)
 
 
 def test_points_behind_the_camera_do_not_break_it():

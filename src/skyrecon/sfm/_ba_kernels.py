@@ -16,6 +16,12 @@ Residuals are divided by each observation's sigma (pixels) so that robust loss s
 sigma units. The reduced camera system has six columns per variable pose (``w0 w1 w2 t0 t1 t2``) followed
 by three per variable camera (``f k1 k2``); a coordinate held fixed has a zero Jacobian column
 and a unit diagonal, so its step is zero.
+
+The reduced system is stored block-sparse: block ``A`` is pose ``A`` (6 columns) for ``A < n_pose``
+and intrinsics block ``A - n_pose`` (3 columns) above; ``slot[A, B]`` (int32, -1 where empty) is
+the row of a ``(n_slots, 6, 6)`` value array that holds block ``(A, B)`` (its top-left
+``size(A) x size(B)`` corner). Pose-pose and pose-intrinsics blocks are kept only for ``A <= B``
+(the lower ones are their transposes); intrinsics-intrinsics blocks are kept in both orders.
 """
 
 from __future__ import annotations
@@ -173,6 +179,8 @@ def build_normal_equations(
     pt_var: np.ndarray,
     pose_free: np.ndarray,
     intr_free: np.ndarray,
+    slot: np.ndarray,
+    n_pose: int,
     U: np.ndarray,
     gc: np.ndarray,
     V: np.ndarray,
@@ -184,7 +192,8 @@ def build_normal_equations(
 
     Column layout of the reduced system: pose block k at ``6 k .. 6 k + 5``, intrinsics block g
     at ``intr_base + 3 g .. + 2`` (held-fixed coordinates have zero Jacobian columns).
-    Outputs (zeroed by the caller): ``U = Jc^T w Jc``, ``gc = Jc^T w r``, point blocks
+    Outputs (zeroed by the caller): ``U = Jc^T w Jc`` in the blocks ``slot`` numbers (see the
+    module docstring), ``gc = Jc^T w r``, point blocks
     ``V[q] = Jx^T w Jx``, ``gx[q] = Jx^T w r``, and per observation ``Wp[o] = Jp^T w Jx`` (6 x 3),
     ``Wi[o] = Ji^T w Jx`` (3 x 3). Columns of held coordinates are multiplied by
     ``pose_free[k]`` (n_pose, 6) and ``intr_free`` (3,) (1.0 free, 0.0 held).
@@ -210,32 +219,32 @@ def build_normal_equations(
                 jp[0, a] = Jp[o, 0, a] * pose_free[k, a]
                 jp[1, a] = Jp[o, 1, a] * pose_free[k, a]
             b = 6 * k
+            skk = slot[k, k]
+            skg = slot[k, n_pose + g] if g >= 0 else -1
             for a in range(6):
                 ja0 = wo * jp[0, a]
                 ja1 = wo * jp[1, a]
                 gc[b + a] += ja0 * r0 + ja1 * r1
                 for c in range(a, 6):
                     v = ja0 * jp[0, c] + ja1 * jp[1, c]
-                    U[b + a, b + c] += v
+                    U[skk, a, c] += v
                     if c != a:
-                        U[b + c, b + a] += v
+                        U[skk, c, a] += v
                 if g >= 0:
-                    bi = intr_base + 3 * g
                     for c in range(3):
-                        v = ja0 * ji[0, c] + ja1 * ji[1, c]
-                        U[b + a, bi + c] += v
-                        U[bi + c, b + a] += v
+                        U[skg, a, c] += ja0 * ji[0, c] + ja1 * ji[1, c]
                 if q >= 0:
                     for c in range(3):
                         Wp[o, a, c] = ja0 * Jx[o, 0, c] + ja1 * Jx[o, 1, c]
         if g >= 0:
             bi = intr_base + 3 * g
+            sgg = slot[n_pose + g, n_pose + g]
             for a in range(3):
                 ja0 = wo * ji[0, a]
                 ja1 = wo * ji[1, a]
                 gc[bi + a] += ja0 * r0 + ja1 * r1
                 for c in range(3):
-                    U[bi + a, bi + c] += ja0 * ji[0, c] + ja1 * ji[1, c]
+                    U[sgg, a, c] += ja0 * ji[0, c] + ja1 * ji[1, c]
                 if q >= 0:
                     for c in range(3):
                         Wi[o, a, c] = ja0 * Jx[o, 0, c] + ja1 * Jx[o, 1, c]
@@ -284,6 +293,8 @@ def schur_complement(
     obs_pose: np.ndarray,
     obs_intr: np.ndarray,
     intr_base: int,
+    slot: np.ndarray,
+    n_pose: int,
     S: np.ndarray,
     rhs: np.ndarray,
     Vinv: np.ndarray,
@@ -291,8 +302,9 @@ def schur_complement(
     """In place: ``S -= sum_p W_p Vinv_p W_p^T`` and ``rhs -= sum_p W_p Vinv_p gx_p`` with the
     damped point blocks ``V_p (1 + lam)`` on the diagonal (inverses stored in ``Vinv``).
 
-    ``S`` holds the damped ``U`` and ``rhs`` holds ``gc`` on entry. ``pt_ptr``/``pt_obs`` list
-    the observations of each variable point (CSR). Returns False when a point block is singular.
+    ``S`` (n_slots, 6, 6) holds the damped ``U`` in the blocks ``slot`` numbers and ``rhs`` holds
+    ``gc`` on entry. ``pt_ptr``/``pt_obs`` list the observations of each variable point (CSR).
+    Returns False when a point block is singular.
     """
     nq = V.shape[0]
     Vd = np.empty((3, 3))
@@ -353,41 +365,74 @@ def schur_complement(
                 ob = pt_obs[start + ib]
                 kb = obs_pose[ob]
                 gb = obs_intr[ob]
-                if ka >= 0 and kb >= ka:  # upper blocks; the lower ones are mirrored
-                    ba = 6 * ka
-                    bb = 6 * kb
+                if ka >= 0 and kb >= ka:  # upper blocks; the lower ones are their transposes
+                    sab = slot[ka, kb]
                     for a in range(6):
                         t0 = Tp[ia, a, 0]
                         t1 = Tp[ia, a, 1]
                         t2 = Tp[ia, a, 2]
                         for c in range(6):
-                            v = t0 * Wp[ob, c, 0] + t1 * Wp[ob, c, 1] + t2 * Wp[ob, c, 2]
-                            S[ba + a, bb + c] -= v
-                            if kb != ka:
-                                S[bb + c, ba + a] -= v
+                            S[sab, a, c] -= t0 * Wp[ob, c, 0] + t1 * Wp[ob, c, 1] + t2 * Wp[ob, c, 2]
                 if ka >= 0 and gb >= 0:
-                    ba = 6 * ka
-                    bib = intr_base + 3 * gb
+                    sab = slot[ka, n_pose + gb]
                     for a in range(6):
                         for c in range(3):
-                            v = (
+                            S[sab, a, c] -= (
                                 Tp[ia, a, 0] * Wi[ob, c, 0]
                                 + Tp[ia, a, 1] * Wi[ob, c, 1]
                                 + Tp[ia, a, 2] * Wi[ob, c, 2]
                             )
-                            S[ba + a, bib + c] -= v
-                            S[bib + c, ba + a] -= v
                 if ga >= 0 and gb >= 0:
-                    bia = intr_base + 3 * ga
-                    bib = intr_base + 3 * gb
+                    sab = slot[n_pose + ga, n_pose + gb]
                     for a in range(3):
                         for c in range(3):
-                            S[bia + a, bib + c] -= (
+                            S[sab, a, c] -= (
                                 Ti[ia, a, 0] * Wi[ob, c, 0]
                                 + Ti[ia, a, 1] * Wi[ob, c, 1]
                                 + Ti[ia, a, 2] * Wi[ob, c, 2]
                             )
     return ok
+
+
+@nb.njit(cache=True)
+def block_pattern(
+    pt_ptr: np.ndarray,
+    pt_obs: np.ndarray,
+    obs_pose: np.ndarray,
+    obs_intr: np.ndarray,
+    n_pose: int,
+    slot: np.ndarray,
+) -> int:
+    """Number the non-empty blocks of the reduced system in ``slot`` (n_blocks, n_blocks) int32,
+    -1 on entry (see the module docstring): every diagonal block, the pose-intrinsics block of
+    every observation and the blocks coupled through each variable point. Blocks are numbered
+    in row-major order; returns their count."""
+    n_blocks = slot.shape[0]
+    for a in range(n_blocks):
+        slot[a, a] = 0
+    for o in range(obs_pose.shape[0]):
+        if obs_pose[o] >= 0 and obs_intr[o] >= 0:
+            slot[obs_pose[o], n_pose + obs_intr[o]] = 0
+    for q in range(pt_ptr.shape[0] - 1):
+        for ia in range(pt_ptr[q], pt_ptr[q + 1]):
+            ka = obs_pose[pt_obs[ia]]
+            ga = obs_intr[pt_obs[ia]]
+            for ib in range(pt_ptr[q], pt_ptr[q + 1]):
+                kb = obs_pose[pt_obs[ib]]
+                gb = obs_intr[pt_obs[ib]]
+                if ka >= 0 and kb >= ka:
+                    slot[ka, kb] = 0
+                if ka >= 0 and gb >= 0:
+                    slot[ka, n_pose + gb] = 0
+                if ga >= 0 and gb >= 0:
+                    slot[n_pose + ga, n_pose + gb] = 0
+    n = 0
+    for a in range(n_blocks):
+        for b in range(n_blocks):
+            if slot[a, b] == 0:
+                slot[a, b] = n
+                n += 1
+    return n
 
 
 @nb.njit(cache=True)

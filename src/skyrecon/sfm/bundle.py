@@ -11,9 +11,10 @@ Frames and units: ``R``, ``t`` are ``cam_from_world`` (``p_cam = R p_world + t``
 world coordinates in the reconstruction's units; observations are pixels (top-left pixel centre
 (0, 0)); cameras are rows ``[fx, fy, cx, cy, k1, k2]`` (pixels; radial coefficients on the
 normalised plane). The reduced camera system (Schur complement of the 3 x 3 point blocks) is
-assembled as a dense matrix and solved by Cholesky factorisation up to
-``BundleSolverOptions.max_dense_columns`` columns (1000 cameras by default) and by Jacobi-preconditioned
-conjugate gradients above that.
+assembled block-sparse (only the camera pairs that share a point) and solved by a dense Cholesky
+factorisation up to ``BundleSolverOptions.max_dense_columns`` columns (100 cameras by default)
+and by a sparse LU factorisation (SuperLU, fill-reducing ordering) above that, so a long flight's
+banded system costs time linear in its cameras instead of cubic.
 """
 
 from __future__ import annotations
@@ -25,6 +26,8 @@ from typing import Literal
 
 import numpy as np
 import scipy.linalg
+import scipy.sparse
+import scipy.sparse.linalg
 
 from skyrecon.errors import InputError
 from skyrecon.sfm import _ba_kernels as K
@@ -54,9 +57,9 @@ class BundleSolverOptions:
         refine_focal_length: also estimate the focal length of every non-constant camera
             (``fx`` and ``fy`` together, aspect kept).
         refine_distortion: also estimate ``k1``, ``k2`` of every non-constant camera.
-        max_dense_columns: reduced camera systems larger than this are solved by conjugate
-            gradients instead of a dense Cholesky factorisation (the system is still assembled
-            densely: memory grows with the square of the number of cameras).
+        max_dense_columns: reduced camera systems larger than this are solved by a sparse LU
+            factorisation instead of a dense Cholesky one (same answer to rounding; faster when
+            most camera pairs share no point, as along a flight).
     """
 
     loss: LossName = "cauchy"
@@ -68,7 +71,7 @@ class BundleSolverOptions:
     initial_lambda: float = 1e-4
     refine_focal_length: bool = False
     refine_distortion: bool = False
-    max_dense_columns: int = 6000
+    max_dense_columns: int = 600
 
     def __post_init__(self) -> None:
         if self.loss not in _LOSS_CODES:
@@ -177,7 +180,7 @@ class BundleReport:
         termination: why it stopped (``"function tolerance"``, ``"parameter tolerance"``,
             ``"gradient tolerance"``, ``"max iterations"``, ``"no progress"``, ``"nothing to adjust"``).
         num_observations, num_variable_images, num_variable_points, num_reduced_columns: sizes.
-        solver: ``"dense"`` or ``"pcg"``.
+        solver: ``"dense"`` or ``"sparse"`` (how the reduced camera system was factorised).
         errors_px: (n_obs,) final reprojection error of every observation, pixels (inf behind
             the camera).
         seconds: wall time.
@@ -214,6 +217,7 @@ class _Structure:
     pt_ptr: np.ndarray
     pt_obs: np.ndarray
     fixed_cols: np.ndarray  # reduced columns held at zero step
+    system: _BlockSystem
 
     @property
     def has_intrinsics(self) -> bool:
@@ -256,6 +260,10 @@ def _structure(p: BundleProblem, o: BundleSolverOptions) -> _Structure:
     order = sel[np.argsort(q[sel], kind="stable")]
     counts = np.bincount(q[sel], minlength=len(var_points))
     pt_ptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    obs_pose = pose_block[p.obs_image]
+    obs_intr = intr_block[p.camera_of_image[p.obs_image]]
+    pt_obs = order.astype(np.int64)
+    system = _BlockSystem(pt_ptr, pt_obs, obs_pose, obs_intr, len(pose_images), len(intr_cameras), fixed_cols)
     return _Structure(
         pose_images,
         pose_free,
@@ -263,14 +271,123 @@ def _structure(p: BundleProblem, o: BundleSolverOptions) -> _Structure:
         intr_free,
         intr_base,
         n_red,
-        pose_block[p.obs_image],
-        intr_block[p.camera_of_image[p.obs_image]],
+        obs_pose,
+        obs_intr,
         pt_var,
         var_points,
         pt_ptr,
-        order.astype(np.int64),
+        pt_obs,
         fixed_cols,
+        system,
     )
+
+
+class _BlockSystem:
+    """The block-sparse layout of the reduced camera system (see ``_ba_kernels``): which blocks
+    exist (``slot``), where each stored value goes in the full symmetric matrix, and the
+    factorisation of one damped system.
+
+    Values live in a ``(n_slots, 6, 6)`` array; ``rows``/``cols``/``src`` list every scalar
+    entry of the full matrix (both triangles), in column-major (CSC) order, with its index into
+    the flattened value array.
+    """
+
+    def __init__(
+        self,
+        pt_ptr: np.ndarray,
+        pt_obs: np.ndarray,
+        obs_pose: np.ndarray,
+        obs_intr: np.ndarray,
+        n_pose: int,
+        n_intr: int,
+        fixed_cols: np.ndarray,
+    ) -> None:
+        self.n_pose = n_pose
+        n_blocks = n_pose + n_intr
+        self.slot = np.full((n_blocks, n_blocks), -1, np.int32)
+        self.n_slots = int(K.block_pattern(pt_ptr, pt_obs, obs_pose, obs_intr, n_pose, self.slot))
+        blk_a, blk_b = np.nonzero(self.slot >= 0)  # row-major: the slot numbering
+        size = np.where(np.arange(n_blocks) < n_pose, 6, 3)
+        start = np.where(
+            np.arange(n_blocks) < n_pose,
+            6 * np.arange(n_blocks),
+            6 * n_pose + 3 * (np.arange(n_blocks) - n_pose),
+        )
+        self.n = int(6 * n_pose + 3 * n_intr)
+        col_block = np.repeat(np.arange(n_blocks), size)
+        col_local = np.arange(self.n) - np.repeat(start, size)
+        diag_slot = self.slot[np.arange(n_blocks), np.arange(n_blocks)].astype(np.int64)
+        self.diag_src = diag_slot[col_block] * 36 + col_local * 7  # (n,) flat index of each diagonal entry
+        rows, cols, src = [], [], []
+        for sa in (6, 3):
+            for sb in (6, 3):
+                sel = np.nonzero((size[blk_a] == sa) & (size[blk_b] == sb))[0]
+                if len(sel) == 0:
+                    continue
+                ii, jj = np.meshgrid(np.arange(sa), np.arange(sb), indexing="ij")
+                r = start[blk_a[sel]][:, None] + ii.ravel()[None, :]
+                c = start[blk_b[sel]][:, None] + jj.ravel()[None, :]
+                k = sel[:, None] * 36 + (ii.ravel() * 6 + jj.ravel())[None, :]
+                rows.append(r.ravel())
+                cols.append(c.ravel())
+                src.append(k.ravel())
+                mirror = (blk_a[sel] != blk_b[sel]) & ~((blk_a[sel] >= n_pose) & (blk_b[sel] >= n_pose))
+                rows.append(c[mirror].ravel())
+                cols.append(r[mirror].ravel())
+                src.append(k[mirror].ravel())
+        row = np.concatenate(rows) if rows else np.zeros(0, np.int64)
+        col = np.concatenate(cols) if cols else np.zeros(0, np.int64)
+        order = np.lexsort((row, col))
+        self.rows, self.cols, self.src = (
+            row[order],
+            col[order],
+            np.concatenate(src or [np.zeros(0, np.int64)])[order],
+        )
+        self.indptr = np.concatenate([[0], np.cumsum(np.bincount(self.cols, minlength=self.n))]).astype(
+            np.int64
+        )
+        fixed = np.zeros(self.n, bool)
+        fixed[fixed_cols] = True
+        held = fixed[self.rows] | fixed[self.cols]
+        self.keep = ~held  # entries left as assembled; held ones are 0 off the diagonal, 1 on it
+        self.unit = held & (self.rows == self.cols)
+
+    def zeros(self) -> np.ndarray:
+        return np.zeros((self.n_slots, 6, 6))
+
+    def diagonal(self, values: np.ndarray) -> np.ndarray:
+        """(n,) diagonal of the matrix stored in ``values``."""
+        return values.reshape(-1)[self.diag_src]
+
+    def add_to_diagonal(self, values: np.ndarray, d: np.ndarray) -> None:
+        """``values``' matrix += diag(d), in place."""
+        values.reshape(-1)[self.diag_src] += d
+
+    def _entries(self, values: np.ndarray) -> np.ndarray:
+        data = values.reshape(-1)[self.src]
+        return np.where(self.keep, data, self.unit.astype(np.float64))
+
+    def solve(self, values: np.ndarray, rhs: np.ndarray, dense: bool) -> np.ndarray:
+        """``x`` with ``S x = rhs`` for the matrix stored in ``values`` (held columns: ``x = rhs``
+        there, which callers zero). Raises ``np.linalg.LinAlgError`` when it is singular or not
+        positive definite."""
+        data = self._entries(values)
+        if dense:
+            S = np.zeros((self.n, self.n))
+            S[self.rows, self.cols] = data
+            cf = scipy.linalg.cho_factor(S, lower=False, check_finite=False)
+            return scipy.linalg.cho_solve(cf, rhs, check_finite=False)
+        S = scipy.sparse.csc_matrix((data, self.rows, self.indptr), shape=(self.n, self.n))
+        try:
+            lu = scipy.sparse.linalg.splu(
+                S, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True}
+            )
+        except RuntimeError as exc:  # "Factor is exactly singular"
+            raise np.linalg.LinAlgError(str(exc)) from exc
+        x = lu.solve(rhs)
+        if not float(x @ rhs) > 0.0 and float(rhs @ rhs) > 0.0:
+            raise np.linalg.LinAlgError("reduced camera system is not positive definite")
+        return x
 
 
 class _Buffers:
@@ -339,31 +456,6 @@ def _apply_step(p: BundleProblem, s: _Structure, dc: np.ndarray, dx: np.ndarray)
     return R, t, X, cams
 
 
-def _pcg(S_mv, rhs: np.ndarray, precond: np.ndarray, tol: float = 1e-6, max_iter: int = 300) -> np.ndarray:
-    """Conjugate gradients on ``S x = rhs`` with a block-Jacobi preconditioner (dense blocks)."""
-    x = np.zeros_like(rhs)
-    r = rhs.copy()
-    z = precond @ r if precond.ndim == 2 else precond * r
-    d = z.copy()
-    rz = r @ z
-    r0 = math.sqrt(r @ r) + 1e-300
-    for _ in range(max_iter):
-        q = S_mv(d)
-        dq = d @ q
-        if not dq > 0:
-            break
-        a = rz / dq
-        x += a * d
-        r -= a * q
-        if math.sqrt(r @ r) < tol * r0:
-            break
-        z = precond @ r if precond.ndim == 2 else precond * r
-        rz_new = r @ z
-        d = z + (rz_new / rz) * d
-        rz = rz_new
-    return x
-
-
 def bundle_adjust(
     problem: BundleProblem, options: BundleSolverOptions = BundleSolverOptions()
 ) -> BundleReport:
@@ -402,7 +494,7 @@ def bundle_adjust(
         len(s.pose_images),
         nq,
         s.n_red,
-        "dense" if s.n_red <= o.max_dense_columns else "pcg",
+        "dense" if s.n_red <= o.max_dense_columns else "sparse",
         e0,
     )
     if n_obs == 0 or (s.n_red == 0 and nq == 0):
@@ -417,7 +509,8 @@ def bundle_adjust(
     pose_free = s.pose_free.astype(np.float64) if len(s.pose_images) else np.ones((1, 6))
     intr_free = s.intr_free.astype(np.float64)
     while iterations < o.max_iterations:
-        U = np.zeros((s.n_red, s.n_red))
+        system = s.system
+        U = system.zeros()
         gc = np.zeros(s.n_red)
         V = np.zeros((nq, 3, 3))
         gx = np.zeros((nq, 3))
@@ -436,6 +529,8 @@ def bundle_adjust(
             s.pt_var,
             pose_free,
             intr_free,
+            system.slot,
+            system.n_pose,
             U,
             gc,
             V,
@@ -447,34 +542,39 @@ def bundle_adjust(
         if gmax < o.gradient_tolerance:
             termination = "gradient tolerance"
             break
-        diagU = np.diag(U).copy()
+        diagU = system.diagonal(U)
         diagU[s.fixed_cols] = 1.0
         diagU = np.clip(diagU, 1e-12, 1e32)
         step_done = False
         while iterations < o.max_iterations:
             iterations += 1
             S = U.copy()
-            S[np.diag_indices_from(S)] += lam * diagU + 1e-12
+            system.add_to_diagonal(S, lam * diagU + 1e-12)
             rhs = gc.copy()
             Vinv = np.zeros((nq, 3, 3))
             K.schur_complement(
-                V, gx, Wp, Wi, lam, s.pt_ptr, s.pt_obs, s.obs_pose, s.obs_intr, s.intr_base, S, rhs, Vinv
+                V,
+                gx,
+                Wp,
+                Wi,
+                lam,
+                s.pt_ptr,
+                s.pt_obs,
+                s.obs_pose,
+                s.obs_intr,
+                s.intr_base,
+                system.slot,
+                system.n_pose,
+                S,
+                rhs,
+                Vinv,
             )
-            if len(s.fixed_cols):
-                S[s.fixed_cols, :] = 0.0
-                S[:, s.fixed_cols] = 0.0
-                S[s.fixed_cols, s.fixed_cols] = 1.0
-                rhs[s.fixed_cols] = 0.0
+            rhs[s.fixed_cols] = 0.0
             dc = np.zeros(s.n_red)
             solved = True
             if s.n_red:
                 try:
-                    if s.n_red <= o.max_dense_columns:
-                        cf = scipy.linalg.cho_factor(S, lower=False, check_finite=False)
-                        dc = -scipy.linalg.cho_solve(cf, rhs, check_finite=False)
-                    else:
-                        dinv = 1.0 / np.maximum(np.diag(S), 1e-300)
-                        dc = -_pcg(S.__matmul__, rhs, dinv)
+                    dc = -system.solve(S, rhs, s.n_red <= o.max_dense_columns)
                     solved = bool(np.all(np.isfinite(dc)))
                 except (np.linalg.LinAlgError, ValueError):
                     solved = False
