@@ -6,8 +6,9 @@ once into ``--cache``. For each length N the first N frames go to the command a 
 
     skyrecon sfm FRAMES/ --camera K.txt --pairing sequential --out OUT/ --quiet
 
-in its own process (``os.wait4`` gives its CPU time and peak memory). Reported per N: wall time, CPU
-time, both per frame, peak resident memory (target <= 4 GB at 1000 frames), registered frames, and
+in its own process. Its whole process tree is measured (``skyrecon.eval.process_tree``: the
+command and its feature/matching pool workers): reported per N are wall time, CPU time, both per
+frame, peak resident memory of the tree (target <= 4 GB at 1000 frames), registered frames, and
 the camera-centre error against the true poses after a similarity alignment (median and max, % of
 the flight's extent), and the stages' and the mapper's times from the run's ``sfm.json``. Targets
 (issue "Beyond one machine"): cost per frame flat within 20 % from 250 to 1000 frames, peak memory
@@ -25,7 +26,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import subprocess
 import sys
 import tempfile
 import time
@@ -37,6 +37,7 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "src"))
 
 from skyrecon.core import Intrinsics, Rigid3  # noqa: E402
+from skyrecon.eval.process_tree import run_measured  # noqa: E402
 from skyrecon.eval.sfm_metrics import evaluate_sfm_poses  # noqa: E402
 from skyrecon.io.colmap import read_colmap_text  # noqa: E402
 from skyrecon.io.images import write_image  # noqa: E402
@@ -83,13 +84,9 @@ def run_one(flight: Path, n: int, out: Path, workers: int | None) -> dict:
     if workers:
         cmd += ["--workers", str(workers)]
     env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
-    t0 = time.perf_counter()
-    proc = subprocess.Popen(cmd, env=env)
-    _, status, usage = os.wait4(proc.pid, 0)
-    wall = time.perf_counter() - t0
-    # the workers' CPU time is in RUSAGE_CHILDREN of the sfm process, not visible here: also count ours
-    if os.waitstatus_to_exitcode(status) != 0:
-        raise SystemExit(f"skyrecon sfm failed on {n} frames (exit {os.waitstatus_to_exitcode(status)})")
+    m = run_measured(cmd, env=env, capture=False)
+    if m.returncode != 0:
+        raise SystemExit(f"skyrecon sfm failed on {n} frames (exit {m.returncode})")
     rec = read_colmap_text(model / "sparse")
     M = np.load(flight / "cam_from_world.npy")
     gt = {f"frame_{k:04d}.png": Rigid3.from_matrix(M[k]) for k in range(n)}
@@ -100,9 +97,11 @@ def run_one(flight: Path, n: int, out: Path, workers: int | None) -> dict:
     return {
         "frames": n,
         "registered": len(est),
-        "wall_s": wall,
-        "wall_s_per_frame": wall / n,
-        "peak_mb_main_process": usage.ru_maxrss / 1024.0,
+        "wall_s": m.wall_s,
+        "wall_s_per_frame": m.wall_s / n,
+        "cpu_s": m.cpu_s,
+        "cpu_s_per_frame": m.cpu_s / n,
+        "peak_mb": m.peak_gb * 1000.0,
         "center_median_pct": s["center_median_pct"],
         "center_max_pct": s["center_max_pct"],
         "stages_s": {k: round(v, 1) for k, v in run["timings_s"].items()},
@@ -129,18 +128,12 @@ def main() -> None:
     work = Path(tempfile.mkdtemp(prefix="skyrecon_sfm_scale_"))
     rows = []
     for n in sorted(args.frames):
-        before = os.times()
         row = run_one(flight, n, work, args.workers)
-        after = os.times()
-        row["cpu_s"] = (after.children_user - before.children_user) + (
-            after.children_system - before.children_system
-        )
-        row["cpu_s_per_frame"] = row["cpu_s"] / n
         rows.append(row)
         print(
             f"{n:5d} frames: {row['registered']} registered, wall {row['wall_s']:.0f} s "
             f"({row['wall_s_per_frame']:.2f} s/frame), CPU {row['cpu_s']:.0f} s ({row['cpu_s_per_frame']:.2f} s/frame), "
-            f"peak {row['peak_mb_main_process']:.0f} MB, centre error median {row['center_median_pct']:.3f} % "
+            f"peak {row['peak_mb']:.0f} MB, centre error median {row['center_median_pct']:.3f} % "
             f"max {row['center_max_pct']:.3f} % of the extent",
             flush=True,
         )

@@ -40,8 +40,6 @@ import shutil
 import subprocess
 import sys
 import tempfile
-import threading
-import time
 from pathlib import Path
 from typing import Any
 
@@ -52,61 +50,9 @@ sys.path.insert(0, str(HERE))
 
 from evaluate import camera_errors, cloud_scores, dsm_errors  # noqa: E402
 
+from skyrecon.eval.process_tree import run_measured  # noqa: E402
+
 ODM_PUBLISHED = {"images": 250, "memory_gb": 16.0, "source": "OpenDroneMap docs, hardware recommendations"}
-
-
-def _tree(pid: int) -> tuple[int, float]:
-    """(sum of RSS bytes, sum of CPU seconds incl. reaped children) of ``pid`` and its descendants (Linux /proc)."""
-    children: dict[int, list[int]] = {}
-    rss: dict[int, int] = {}
-    cpu: dict[int, float] = {}
-    tck = os.sysconf("SC_CLK_TCK")
-    for d in os.listdir("/proc"):
-        if not d.isdigit():
-            continue
-        try:
-            with open(f"/proc/{d}/stat") as f:
-                parts = f.read().rsplit(")", 1)[1].split()
-            children.setdefault(int(parts[1]), []).append(int(d))
-            rss[int(d)] = int(parts[21]) * os.sysconf("SC_PAGE_SIZE")
-            cpu[int(d)] = sum(int(x) for x in parts[11:15]) / tck
-        except (OSError, IndexError, ValueError):
-            continue
-    total, seconds, todo = 0, 0.0, [pid]
-    while todo:
-        p = todo.pop()
-        total += rss.get(p, 0)
-        seconds += cpu.get(p, 0.0)
-        todo.extend(children.get(p, []))
-    return total, seconds
-
-
-def run_measured(cmd: list[str]) -> tuple[int, float, float, float, str]:
-    """(exit status, wall seconds, peak tree RSS GB, CPU seconds of the tree, stderr tail) of a command.
-
-    CPU seconds do not depend on what else runs on the machine: CPU / cores is the wall time the
-    command would take on that many otherwise idle cores (if it keeps them busy)."""
-    import resource
-
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    t0 = time.perf_counter()
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    peak = [0, 0.0]
-
-    def sample() -> None:
-        while proc.poll() is None:
-            rss, cpu = _tree(proc.pid)
-            peak[0] = max(peak[0], rss)
-            peak[1] = max(peak[1], cpu)
-            time.sleep(0.5)
-
-    th = threading.Thread(target=sample, daemon=True)
-    th.start()
-    _, err = proc.communicate()
-    th.join()
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
-    return proc.returncode, time.perf_counter() - t0, peak[0] / 1e9, max(cpu, peak[1]), err[-2000:]
 
 
 def skyrecon(*args: str) -> list[str]:
@@ -170,7 +116,8 @@ def one_run(
     cmd = skyrecon(
         "survey", str(root / "images"), "--out", str(out), "--workers", str(workers), "--quiet", *extra
     )
-    rc, wall, peak, cpu, err = run_measured(cmd)
+    m = run_measured(cmd)
+    rc, wall, peak, cpu, err = m.returncode, m.wall_s, m.peak_gb, m.cpu_s, m.stderr_tail
     row: dict[str, Any] = {
         "scene": label,
         "rc": rc,

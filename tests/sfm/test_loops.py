@@ -91,15 +91,57 @@ def flight():
 
 def test_loop_is_detected_and_closed(flight):
     data, gt = flight
-    out = _run(data)
+    out = _run(data, loop_consistent_error_ratio=0.0)  # adjust every loop
     assert out.registered.all()
     d = out.diagnostics
     assert d["loops_detected"] >= 1 and d["loop_global_ba"] == d["loops_detected"]
-    assert all(ev["accepted"] for ev in d["loops"])
+    assert all(ev["accepted"] and ev["adjusted"] for ev in d["loops"])
     assert d["loop_fallbacks"] == 0
     without = _run(data, loop_min_gap=0)
     assert without.diagnostics["loops_detected"] == 0
     assert _max_center_pct(out, data, gt) <= 1.1 * _max_center_pct(without, data, gt) + 0.05
+
+
+def test_a_loop_that_already_fits_is_not_adjusted(flight):
+    """This flight drifts too little for its loop to show: the loop's points fit all their views
+    about as well as the model's, so no global adjustment runs for it, and the model is as good
+    as with one."""
+    data, gt = flight
+    out = _run(data)
+    d = out.diagnostics
+    assert d["loops_detected"] >= 1 and d["loop_global_ba"] == 0
+    assert all(not ev["adjusted"] and ev["loop_rms_px"] <= 1.5 * ev["rms_before_px"] for ev in d["loops"])
+    adjusted = _run(data, loop_consistent_error_ratio=0.0)
+    assert _max_center_pct(out, data, gt) <= 1.1 * _max_center_pct(adjusted, data, gt) + 0.05
+
+
+def test_a_loop_that_shows_drift_is_adjusted(flight, monkeypatch):
+    """The same flight with a drift put in before the loop is handled (each registration's
+    camera, and the points it saw, shifted 1 cm further than the last one's, 0.5 m at the
+    loop): the loop's points no longer fit their first views, so the global adjustment runs and
+    brings the model back to the undrifted one's accuracy."""
+    data, gt = flight
+    original = IncrementalMapper._close_loop
+
+    def drifted(self, image, loop_tracks):
+        shift = np.clip(self.rank - 5, 0, None)[:, None] * np.array([0.01, 0.0, 0.0])
+        self.t[self.reg] -= np.einsum("kij,kj->ki", self.R[self.reg], shift[self.reg])
+        obs = np.nonzero(self.active)[0]
+        cnt = np.bincount(self.obs_track[obs], minlength=self.n_tracks)
+        for a in range(3):
+            moved = np.bincount(self.obs_track[obs], shift[self.obs_img[obs], a], minlength=self.n_tracks)
+            self.X[:, a] += np.where(self.has_pt, moved / np.maximum(cnt, 1), 0.0)
+        return original(self, image, loop_tracks)
+
+    clean = _run(data)
+    monkeypatch.setattr(IncrementalMapper, "_close_loop", drifted)
+    out = _run(data)
+    d = out.diagnostics
+    assert d["loops_detected"] >= 1 and d["loop_global_ba"] >= 1
+    first = d["loops"][0]
+    assert first["adjusted"] and first["accepted"]
+    assert first["loop_rms_px"] > 1.5 * first["rms_before_px"]
+    assert _max_center_pct(out, data, gt) < 2 * max(_max_center_pct(clean, data, gt), 0.05)
 
 
 def test_a_loop_step_that_fits_worse_is_undone(flight, monkeypatch):
@@ -116,7 +158,7 @@ def test_a_loop_step_that_fits_worse_is_undone(flight, monkeypatch):
         return rep
 
     monkeypatch.setattr(IncrementalMapper, "_global_ba", broken)
-    out = _run(data)
+    out = _run(data, loop_consistent_error_ratio=0.0)
     d = out.diagnostics
     assert d["loops_detected"] >= 1
     assert d["loop_fallbacks"] == d["loops_detected"]

@@ -794,6 +794,24 @@ class IncrementalMapper:
         cameras = list(self.cameras)
         old = np.nonzero(self.active & (self.obs_img != image))[0]
         rms_before = self._robust_rms(old)
+        loop_obs = _ranges(self.ptr, loop_tracks)
+        rms_loop = self._robust_rms(loop_obs[self.active[loop_obs]])
+        ratio = self.s.loop_consistent_error_ratio
+        if ratio > 0 and rms_loop <= ratio * rms_before:
+            # the loop's points already fit every view of them: no drift to spread
+            self.stats["loops"].append(
+                {
+                    "image": self.d.names[image],
+                    "points": int(len(loop_tracks)),
+                    "loop_rms_px": rms_loop,
+                    "rms_before_px": rms_before,
+                    "rms_after_px": rms_before,
+                    "adjusted": False,
+                    "accepted": True,
+                    "seconds": 0.0,
+                }
+            )
+            return
         t0 = time.perf_counter()
         self._global_ba(rounds=1, max_iterations=self.b.global_max_iterations)
         seconds = time.perf_counter() - t0
@@ -804,8 +822,10 @@ class IncrementalMapper:
             {
                 "image": self.d.names[image],
                 "points": int(len(loop_tracks)),
+                "loop_rms_px": rms_loop,
                 "rms_before_px": rms_before,
                 "rms_after_px": rms_after,
+                "adjusted": True,
                 "accepted": bool(accepted),
                 "seconds": seconds,
             }

@@ -165,6 +165,10 @@ class MapperSettings:
         loop_max_error_ratio: the global adjustment run on a loop is undone (and the loop's new
             observations dropped) when it raises the RMS reprojection error of the observations
             the model had before the loop by more than this factor.
+        loop_consistent_error_ratio: a loop whose points already fit all their views (the RMS
+            reprojection error of their observations at most this factor times the model's)
+            carries no drift to spread: its global adjustment is skipped (recorded with
+            ``"adjusted": false``). 0 adjusts every loop.
     """
 
     init_min_inliers: int = 100
@@ -187,6 +191,7 @@ class MapperSettings:
     loop_min_gap: int = 50
     loop_min_points: int = 30
     loop_max_error_ratio: float = 1.25
+    loop_consistent_error_ratio: float = 1.5
 
     def __post_init__(self) -> None:
         if self.init_min_inliers < 8 or self.pnp_min_inliers < 4 or self.init_min_points < 8:
@@ -200,6 +205,10 @@ class MapperSettings:
         if self.loop_min_gap < 0 or self.loop_min_points < 1 or not self.loop_max_error_ratio >= 1.0:
             raise InputError(
                 "mapper: loop_min_gap >= 0, loop_min_points >= 1 and loop_max_error_ratio >= 1 are needed"
+            )
+        if not self.loop_consistent_error_ratio >= 0.0:
+            raise InputError(
+                f"mapper: loop_consistent_error_ratio must be >= 0, got {self.loop_consistent_error_ratio}"
             )
 
 
