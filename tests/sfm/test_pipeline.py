@@ -17,6 +17,7 @@ from skyrecon.eval.sfm_metrics import evaluate_sfm_poses
 from skyrecon.executor import SerialExecutor, get_executor
 from skyrecon.io import read_colmap_text, read_image, read_ply, read_strecha_cameras, write_image
 from skyrecon.sfm import SfMSettings, run_sfm, write_sfm_outputs
+from skyrecon.sfm.settings import MapperSettings
 from skyrecon.sim import generate_object_scene, orbit_views, render_views
 from tests.conftest import require
 
@@ -195,8 +196,13 @@ def test_fountain_images_at_reduced_size(real_data, tmp_path):
     assert s["center_max_pct"] < 0.3
 
 
-def test_a_wrong_focal_length_is_reported(orbit):
+@pytest.mark.parametrize("check_images", [200, 4])
+def test_a_wrong_focal_length_is_reported(orbit, check_images):
+    """Also when the check runs on a thinned model (every second image here, as on a long
+    flight: at most ``focal_check_images`` images)."""
     _, paths, _ = orbit
     wrong = Intrinsics(INTR.fx * 1.5, INTR.fy * 1.5, INTR.cx, INTR.cy, 320, 240)
-    res = run_sfm(paths[:8], wrong, SfMSettings(), executor=SerialExecutor(), seed=0)
+    settings = SfMSettings(mapper=MapperSettings(focal_check_images=check_images))
+    res = run_sfm(paths[:8], wrong, settings, executor=SerialExecutor(), seed=0)
     assert any("focal length in K seems off" in w for w in res.warnings), res.warnings
+    assert res.diagnostics["mapper"]["focal_check_images"] == min(8, check_images)

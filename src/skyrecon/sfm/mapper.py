@@ -374,12 +374,16 @@ class IncrementalMapper:
         function_tolerance: float = 1e-6,
         write_back: bool = True,
         force_focal: bool = False,
+        only_var_images: bool = False,
     ) -> tuple[BundleReport, BundleProblem]:
         """Bundle-adjust the poses of ``var_images`` and the points of ``tracks`` (observations in
-        other registered images enter as constants). With ``write_back`` off the mapper's state
-        is left as it was (a trial, e.g. the focal-length check)."""
+        other registered images enter as constants, or are left out with ``only_var_images``).
+        With ``write_back`` off the mapper's state is left as it was (a trial, e.g. the
+        focal-length check)."""
         obs = _ranges(self.ptr, tracks)
         obs = obs[self.active[obs]]
+        if only_var_images:
+            obs = obs[np.isin(self.obs_img[obs], var_images)]
         images = np.unique(np.concatenate([self.obs_img[obs], var_images]))
         local_index = {int(im): k for k, im in enumerate(images)}
         img_local = np.searchsorted(images, self.obs_img[obs])
@@ -881,12 +885,21 @@ class IncrementalMapper:
         tol = self.s.focal_check_tolerance
         if tol <= 0 or self.b.refine_focal_length or self.reg.sum() < 3:
             return
-        tracks = np.nonzero(self.has_pt)[0]
+        images = np.nonzero(self.reg)[0]
+        step = -(-len(images) // max(3, self.s.focal_check_images))
+        if step > 1:  # a thinned model (every step-th image, points it sees at least 3 times)
+            images = images[::step]
+            obs = np.nonzero(self.active & np.isin(self.obs_img, images))[0]
+            cnt = np.bincount(self.obs_track[obs], minlength=self.n_tracks)
+            tracks = np.nonzero(self.has_pt & (cnt >= 3))[0]
+        else:
+            tracks = np.nonzero(self.has_pt)[0]
         if len(tracks) < 20:
             return
         rep, prob = self._adjust(
-            np.nonzero(self.reg)[0], tracks, 20, False, 1e-5, write_back=False, force_focal=True
+            images, tracks, 20, False, 1e-5, write_back=False, force_focal=True, only_var_images=True
         )
+        self.stats["focal_check_images"] = int(len(images))
         for c, cam in enumerate(self.cameras):
             f_fit = float(prob.cameras[c, 0])
             ratio = f_fit / cam.fx

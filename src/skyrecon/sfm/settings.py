@@ -158,6 +158,9 @@ class MapperSettings:
         focal_check_tolerance: when the focal length is held fixed, a trial adjustment with it
             free runs at the end; a best-fit focal length off by more than this fraction gives a
             warning (K seems wrong). 0 disables the check.
+        focal_check_images: the check adjusts at most about this many images (every k-th
+            registered one, with the points they see at least 3 times), so its cost stays flat
+            on long flights.
         loop_min_gap: a registered image closes a loop when it sees at least ``loop_min_points``
             points also seen by images registered at least this many registrations earlier
             (and none of the images in between); 0 disables loop handling.
@@ -188,6 +191,7 @@ class MapperSettings:
     global_ba_ratio: float = 1.1
     final_refinements: int = 3
     focal_check_tolerance: float = 0.03
+    focal_check_images: int = 200
     loop_min_gap: int = 50
     loop_min_points: int = 30
     loop_max_error_ratio: float = 1.25
