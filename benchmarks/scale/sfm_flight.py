@@ -13,7 +13,8 @@ the camera-centre error against the true poses after a similarity alignment (med
 the flight's extent), and the stages' and the mapper's times from the run's ``sfm.json``. Targets
 (issue "Beyond one machine"): cost per frame flat within 20 % from 250 to 1000 frames, peak memory
 at most 4 GB at 1000 frames. On a shared machine the wall time is noisy: CPU time per frame is what
-predicts a cluster.
+predicts a cluster. An untimed ``--warmup`` run of 30 frames comes first, so that no figure carries
+the kernels' compilation (a checkout without the installed cache compiles them once).
 
 Usage:
   .venv/bin/python benchmarks/scale/sfm_flight.py                   # 250, 500, 1000 frames
@@ -121,11 +122,19 @@ def main() -> None:
     ap.add_argument("--width", type=int, default=1024)
     ap.add_argument("--seed", type=int, default=4)
     ap.add_argument("--workers", type=int)
+    ap.add_argument(
+        "--warmup",
+        type=int,
+        default=30,
+        help="frames of an untimed first run (loads or compiles the kernels); 0: none",
+    )
     ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "skyrecon_sfm_scale")
     ap.add_argument("--out", type=Path, default=Path(__file__).with_name("sfm_flight_results.json"))
     args = ap.parse_args()
     flight, _ = render_flight(max(args.frames), args.cache, args.seed, args.width)
     work = Path(tempfile.mkdtemp(prefix="skyrecon_sfm_scale_"))
+    if args.warmup:
+        run_one(flight, args.warmup, work, args.workers)
     rows = []
     for n in sorted(args.frames):
         row = run_one(flight, n, work, args.workers)
