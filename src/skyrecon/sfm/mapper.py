@@ -800,39 +800,27 @@ class IncrementalMapper:
         rms_before = self._robust_rms(old)
         loop_obs = _ranges(self.ptr, loop_tracks)
         rms_loop = self._robust_rms(loop_obs[self.active[loop_obs]])
+        record = {
+            "image": self.d.names[image],
+            "points": int(len(loop_tracks)),
+            "loop_rms_px": rms_loop,
+            "rms_before_px": rms_before,
+            "rms_after_px": rms_before,
+            "adjusted": False,
+            "accepted": True,
+            "seconds": 0.0,
+        }
+        self.stats["loops"].append(record)
         ratio = self.s.loop_consistent_error_ratio
         if ratio > 0 and rms_loop <= ratio * rms_before:
-            # the loop's points already fit every view of them: no drift to spread
-            self.stats["loops"].append(
-                {
-                    "image": self.d.names[image],
-                    "points": int(len(loop_tracks)),
-                    "loop_rms_px": rms_loop,
-                    "rms_before_px": rms_before,
-                    "rms_after_px": rms_before,
-                    "adjusted": False,
-                    "accepted": True,
-                    "seconds": 0.0,
-                }
-            )
-            return
+            return  # the loop's points already fit every view of them: no drift to spread
         t0 = time.perf_counter()
         self._global_ba(rounds=1, max_iterations=self.b.global_max_iterations)
-        seconds = time.perf_counter() - t0
         self.stats["loop_global_ba"] += 1
         rms_after = self._robust_rms(old)
         accepted = rms_after <= self.s.loop_max_error_ratio * rms_before + 1e-9
-        self.stats["loops"].append(
-            {
-                "image": self.d.names[image],
-                "points": int(len(loop_tracks)),
-                "loop_rms_px": rms_loop,
-                "rms_before_px": rms_before,
-                "rms_after_px": rms_after,
-                "adjusted": True,
-                "accepted": bool(accepted),
-                "seconds": seconds,
-            }
+        record.update(
+            rms_after_px=rms_after, adjusted=True, accepted=bool(accepted), seconds=time.perf_counter() - t0
         )
         if accepted:
             return
