@@ -13,8 +13,10 @@ world coordinates in the reconstruction's units; observations are pixels (top-le
 normalised plane). The reduced camera system (Schur complement of the 3 x 3 point blocks) is
 assembled block-sparse (only the camera pairs that share a point) and solved by a dense Cholesky
 factorisation up to ``BundleSolverOptions.max_dense_columns`` columns (100 cameras by default)
-and by a sparse LU factorisation (SuperLU, fill-reducing ordering) above that, so a long flight's
-banded system costs time linear in its cameras instead of cubic.
+and by a sparse LU factorisation (SuperLU, fill-reducing ordering) above that: a flight's system
+is a band plus its loops, and 10 iterations at 1000 cameras take 2.6 s instead of 16.8 s dense
+(``tests/sfm/test_bundle.py`` checks both give the same answer). The block index is a dense
+(n_cameras, n_cameras) int32 table: 4 MB at 1000 cameras, 64 MB at 4000.
 """
 
 from __future__ import annotations
