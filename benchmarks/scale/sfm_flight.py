@@ -113,6 +113,7 @@ def run_one(flight: Path, n: int, out: Path, workers: int | None) -> dict:
             "triangulation": round(mapper["triangulation_s"], 1),
         },
         "loops_closed": int(mapper["loops_detected"]),
+        "global_ba_runs": mapper.get("global_ba_runs", []),
     }
 
 

@@ -96,6 +96,9 @@ def test_loop_is_detected_and_closed(flight):
     d = out.diagnostics
     assert d["loops_detected"] >= 1 and d["loop_global_ba"] == d["loops_detected"]
     assert all(ev["accepted"] and ev["adjusted"] for ev in d["loops"])
+    runs = d["global_ba_runs"]
+    assert len(runs) == d["global_ba"] and runs[-1]["final"] and runs[-1]["images"] == len(data.names)
+    assert all(r["iterations"] >= 1 and 0 < r["solver_s"] <= r["seconds"] for r in runs)
     assert d["loop_fallbacks"] == 0
     without = _run(data, loop_min_gap=0)
     assert without.diagnostics["loops_detected"] == 0

@@ -83,7 +83,10 @@ class MapperOutput:
         errors_px: (n_obs,) reprojection error of the active observations (NaN elsewhere).
         failures: image index -> why it was not registered.
         init_pair: the initial pair (image indices).
-        diagnostics: counters and timings.
+        diagnostics: counters and timings; ``loops`` (one record per loop: its image, points,
+            RMS errors, whether it was adjusted and kept) and ``global_ba_runs`` (one record per
+            global adjustment: registered images, rounds, final or not, LM iterations, seconds in
+            the solver and in all).
         warnings: human-readable warnings.
         registration_order: image indices in the order they were registered.
     """
@@ -193,6 +196,7 @@ class IncrementalMapper:
             "loop_global_ba": 0,
             "loop_fallbacks": 0,
             "loops": [],
+            "global_ba_runs": [],
         }
         self.last_global_images = 0
         self.last_global_points = 0
@@ -512,6 +516,7 @@ class IncrementalMapper:
         t0 = time.perf_counter()
         rep = None
         self._follow_noise()
+        iterations, solve_s = 0, 0.0
         for r in range(rounds):
             tracks = np.nonzero(self.has_pt)[0]
             if len(tracks) == 0:
@@ -522,6 +527,8 @@ class IncrementalMapper:
             rep, _ = self._adjust(
                 var_images, tracks, max_iterations or self.b.global_max_iterations, True, ftol
             )
+            iterations += rep.iterations
+            solve_s += rep.seconds
             self._filter(tracks, check_angle=True)
             all_tracks = np.arange(self.n_tracks)
             self._complete(all_tracks)
@@ -531,6 +538,16 @@ class IncrementalMapper:
                 break
         self.stats["global_ba"] += 1
         self.stats["global_ba_s"] += time.perf_counter() - t0
+        self.stats["global_ba_runs"].append(
+            {
+                "images": int(self.reg.sum()),
+                "rounds": rounds,
+                "final": final,
+                "iterations": iterations,
+                "solver_s": round(solve_s, 3),
+                "seconds": round(time.perf_counter() - t0, 3),
+            }
+        )
         self.last_global_images = int(self.reg.sum())
         self.last_global_points = int(self.has_pt.sum())
         return rep
