@@ -290,8 +290,8 @@ class _BlockSystem:
     factorisation of one damped system.
 
     Values live in a ``(n_slots, 6, 6)`` array; ``rows``/``cols``/``src`` list every scalar
-    entry of the full matrix (both triangles), in column-major (CSC) order, with its index into
-    the flattened value array.
+    entry of the full matrix (both triangles) with its index into the flattened value array (the
+    sparse solve's CSC order is made once, in ``_ordering``, only when it is needed).
     """
 
     def __init__(
@@ -337,17 +337,9 @@ class _BlockSystem:
                 rows.append(c[mirror].ravel())
                 cols.append(r[mirror].ravel())
                 src.append(k[mirror].ravel())
-        row = np.concatenate(rows) if rows else np.zeros(0, np.int64)
-        col = np.concatenate(cols) if cols else np.zeros(0, np.int64)
-        order = np.lexsort((row, col))
-        self.rows, self.cols, self.src = (
-            row[order],
-            col[order],
-            np.concatenate(src or [np.zeros(0, np.int64)])[order],
-        )
-        self.indptr = np.concatenate([[0], np.cumsum(np.bincount(self.cols, minlength=self.n))]).astype(
-            np.int64
-        )
+        self.rows = np.concatenate(rows) if rows else np.zeros(0, np.int64)
+        self.cols = np.concatenate(cols) if cols else np.zeros(0, np.int64)
+        self.src = np.concatenate(src) if src else np.zeros(0, np.int64)
         self._blocks = (blk_a, blk_b, start, size)
         self._perm: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
         fixed = np.zeros(self.n, bool)

@@ -798,20 +798,13 @@ class IncrementalMapper:
         return float(np.sqrt(np.mean(e * e)))
 
     def _close_loop(self, image: int, loop_tracks: np.ndarray) -> None:
-        """A loop closed at ``image``: adjust the whole model at once (so the correction spreads
+        """A loop closed at ``image``: unless its points already fit all their views
+        (``loop_consistent_error_ratio``), adjust the whole model at once (so the correction spreads
         over the loop) and keep the result only if the observations the model had before the
         loop do not fit much worse; otherwise restore the model, drop the loop's observations in
         ``image`` and say so (``stats["loops"]``, a warning)."""
         self.stats["loops_detected"] += 1
         self.last_loop_rank = int(self.rank[image])
-        snapshot = (
-            self.R.copy(),
-            self.t.copy(),
-            self.X.copy(),
-            self.has_pt.copy(),
-            self.active.copy(),
-            self.tri_failed_at.copy(),
-        )
         cameras = list(self.cameras)
         old = np.nonzero(self.active & (self.obs_img != image))[0]
         rms_before = self._robust_rms(old)
@@ -831,6 +824,14 @@ class IncrementalMapper:
         ratio = self.s.loop_consistent_error_ratio
         if ratio > 0 and rms_loop <= ratio * rms_before:
             return  # the loop's points already fit every view of them: no drift to spread
+        snapshot = (
+            self.R.copy(),
+            self.t.copy(),
+            self.X.copy(),
+            self.has_pt.copy(),
+            self.active.copy(),
+            self.tri_failed_at.copy(),
+        )
         t0 = time.perf_counter()
         self._global_ba(rounds=1, max_iterations=self.b.global_max_iterations)
         self.stats["loop_global_ba"] += 1
