@@ -135,10 +135,43 @@ def test_multiview_triangulation_rejects_outlier_observations():
     assert not res.inliers[1::20].any()
     assert res.inliers.sum() == 200 - 10
     ang = max_triangulation_angles_deg(ptr, res.points, obs_img, -np.einsum("kji,kj->ki", R, t), res.inliers)
-    assert np.allclose(ang, res.angles_deg)
+    assert np.all(ang >= 1.0) and np.all(res.angles_deg >= 1.0)  # exact, and bounds on the same side
     # too small an angle: rejected
     res2 = triangulate_tracks(ptr, xn, obs_img, R, t, np.full(4, 800.0), min_angle_deg=60.0)
     assert not res2.ok.any()
+
+
+def test_max_angles_are_exact_and_their_bounds_decide_like_the_exact_ones():
+    """Long tracks (a camera moving along a line, points near and far): with a threshold the
+    O(L) cone bounds may stand in for the O(L^2) search, always on the same side of it."""
+    rng = np.random.default_rng(3)
+    n_cams = 120
+    centers = np.stack([np.linspace(0, 30, n_cams), rng.normal(0, 0.2, n_cams), np.zeros(n_cams)], axis=1)
+    n_pts = 400
+    X = np.stack(
+        [
+            rng.uniform(0, 30, n_pts),
+            rng.uniform(-10, 10, n_pts),
+            np.exp(rng.uniform(np.log(2), np.log(5000), n_pts)),
+        ],
+        axis=1,
+    )
+    lens = rng.integers(2, n_cams, n_pts)
+    ptr = np.concatenate([[0], np.cumsum(lens)]).astype(np.int64)
+    obs_img = np.concatenate([np.sort(rng.choice(n_cams, k, replace=False)) for k in lens])
+    active = rng.random(len(obs_img)) > 0.1
+    exact = max_triangulation_angles_deg(ptr, X, obs_img, centers, active)
+    naive = np.zeros(n_pts)
+    for k in range(n_pts):
+        sel = np.arange(ptr[k], ptr[k + 1])[active[ptr[k] : ptr[k + 1]]]
+        d = X[k] - centers[obs_img[sel]]
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        naive[k] = np.degrees(np.arccos(np.clip((d @ d.T).min(), -1, 1))) if len(sel) >= 2 else 0.0
+    np.testing.assert_allclose(exact, naive, atol=1e-6)
+    assert 0.2 < np.mean(exact >= 1.5) < 0.9  # both sides of the threshold are exercised
+    for threshold in (0.3, 1.5, 5.0, 20.0):
+        bounded = max_triangulation_angles_deg(ptr, X, obs_img, centers, active, threshold)
+        np.testing.assert_array_equal(bounded >= threshold, exact >= threshold)
 
 
 def test_sfm_metrics_are_invariant_to_a_similarity():

@@ -442,18 +442,20 @@ class IncrementalMapper:
         drop = tracks[cnt < 2]
         if check_angle:
             keep = tracks[cnt >= 2]
-            ang = self._angles(keep)
+            ang = self._angles(keep, self.s.filter_min_angle_deg)
             drop = np.concatenate([drop, keep[ang < self.s.filter_min_angle_deg]])
         self._remove_points(drop)
         self.stats["filtered_observations"] += n_removed
         return n_removed
 
-    def _angles(self, tracks: np.ndarray) -> np.ndarray:
+    def _angles(self, tracks: np.ndarray, enough_deg: float = np.inf) -> np.ndarray:
+        """Largest triangulation angle of each track's point (a bound on the same side of a
+        finite ``enough_deg``, see ``max_triangulation_angles_deg``)."""
         obs = _ranges(self.ptr, tracks)
         lens = self.ptr[tracks + 1] - self.ptr[tracks]
         ptr = np.concatenate([[0], np.cumsum(lens)]).astype(np.int64)
         return max_triangulation_angles_deg(
-            ptr, self.X[tracks], self.obs_img[obs], self._centers(), self.active[obs]
+            ptr, self.X[tracks], self.obs_img[obs], self._centers(), self.active[obs], enough_deg
         )
 
     def _local_ba(self, image: int) -> None:

@@ -31,7 +31,8 @@ class TriangulationResult:
         inliers: (n_obs,) bool per input observation: consistent with the accepted point.
         errors_px: (n_obs,) reprojection error of every observation, pixels (inf behind a camera
             or without a point).
-        angles_deg: (n_tracks,) largest triangulation angle among the inlier observations.
+        angles_deg: (n_tracks,) largest triangulation angle among the inlier observations (for a
+            track the O(L) cone bounds decide, a bound on the same side of ``min_angle_deg``).
     """
 
     points: np.ndarray
@@ -135,20 +136,60 @@ def _errors(
 
 @nb.njit(cache=True)
 def _max_angle(
-    X: np.ndarray, start: int, stop: int, inl: np.ndarray, img: np.ndarray, C: np.ndarray
+    X: np.ndarray, start: int, stop: int, inl: np.ndarray, img: np.ndarray, C: np.ndarray, enough_deg: float
 ) -> float:
-    best = 1.0  # the smallest cosine seen
-    for a in range(start, stop):
-        if not inl[a]:
+    """Largest angle between the rays from the camera centres of the inlier observations to
+    ``X``, degrees, as far as a comparison with ``enough_deg`` needs it: the exact maximum
+    (``enough_deg`` infinite, or when the bounds below cannot decide), else a bound on the same
+    side of ``enough_deg`` as the maximum. The bounds cost O(L) instead of the O(L^2) pair
+    search, which matters for long tracks (a flight's far facades are seen by 100+ frames):
+    every ray lies within angle ``a`` of the rays' mean direction, so no pair is more than
+    ``2a`` apart; and the ray furthest from the mean is as far from some other ray as the
+    largest angle it makes with them."""
+    n = 0
+    for o in range(start, stop):
+        if inl[o]:
+            n += 1
+    if n < 2:
+        return 0.0
+    U = np.empty((n, 3))
+    m = np.zeros(3)
+    j = 0
+    for o in range(start, stop):
+        if not inl[o]:
             continue
-        da = X - C[img[a]]
-        na = np.sqrt(da @ da)
-        for b in range(a + 1, stop):
-            if not inl[b]:
-                continue
-            db = X - C[img[b]]
-            nb_ = np.sqrt(db @ db)
-            c = (da @ db) / (na * nb_ + 1e-300)
+        d = X - C[img[o]]
+        nd = np.sqrt(d @ d) + 1e-300
+        for c in range(3):
+            U[j, c] = d[c] / nd
+            m[c] += U[j, c]
+        j += 1
+    if enough_deg < 180.0:
+        nm = np.sqrt(m @ m)
+        if nm > 1e-9 * n:
+            m /= nm
+            c_far = 1.0
+            j_far = 0
+            for j in range(n):
+                c = U[j, 0] * m[0] + U[j, 1] * m[1] + U[j, 2] * m[2]
+                if c < c_far:
+                    c_far = c
+                    j_far = j
+            upper = 2.0 * np.degrees(np.arccos(min(1.0, max(-1.0, c_far))))
+            if upper < enough_deg:
+                return upper
+            c_low = 1.0
+            for j in range(n):
+                c = U[j, 0] * U[j_far, 0] + U[j, 1] * U[j_far, 1] + U[j, 2] * U[j_far, 2]
+                if c < c_low:
+                    c_low = c
+            lower = np.degrees(np.arccos(min(1.0, max(-1.0, c_low))))
+            if lower >= enough_deg:
+                return lower
+    best = 1.0  # the smallest cosine seen
+    for a in range(n):
+        for b in range(a + 1, n):
+            c = U[a, 0] * U[b, 0] + U[a, 1] * U[b, 1] + U[a, 2] * U[b, 2]
             if c < best:
                 best = c
     return np.degrees(np.arccos(min(1.0, max(-1.0, best))))
@@ -239,7 +280,7 @@ def _triangulate_all(  # noqa: C901  (Numba kernel: one flat loop nest)
             for o in range(start, stop):
                 inl[o] = False
             continue
-        a_deg = _max_angle(X, start, stop, inl, img, C)
+        a_deg = _max_angle(X, start, stop, inl, img, C, min_angle_deg)
         ang[k] = a_deg
         if a_deg < min_angle_deg:
             for o in range(start, stop):
@@ -312,13 +353,18 @@ def triangulate_tracks(
 
 
 @nb.njit(cache=True)
-def _angles(ptr, X, img, C, active, out):
+def _angles(ptr, X, img, C, active, enough_deg, out):
     for k in range(ptr.shape[0] - 1):
-        out[k] = _max_angle(X[k], ptr[k], ptr[k + 1], active, img, C)
+        out[k] = _max_angle(X[k], ptr[k], ptr[k + 1], active, img, C, enough_deg)
 
 
 def max_triangulation_angles_deg(
-    ptr: np.ndarray, points: np.ndarray, obs_image: np.ndarray, centers: np.ndarray, active: np.ndarray
+    ptr: np.ndarray,
+    points: np.ndarray,
+    obs_image: np.ndarray,
+    centers: np.ndarray,
+    active: np.ndarray,
+    enough_deg: float = np.inf,
 ) -> np.ndarray:
     """(n_tracks,) largest angle in degrees between the rays from the camera centres of the active
     observations of each track to its point.
@@ -327,6 +373,9 @@ def max_triangulation_angles_deg(
         ptr: (n_tracks + 1,) CSR offsets; points: (n_tracks, 3) world points;
         obs_image: (n_obs,) image index per observation; centers: (n_images, 3) camera centres;
         active: (n_obs,) bool.
+        enough_deg: the threshold the angles will be compared with: an angle may then be a bound
+            on the same side of it as the exact one (much faster on long tracks); infinite
+            (default): exact angles.
     """
     out = np.zeros(len(ptr) - 1)
     if len(out):
@@ -336,6 +385,7 @@ def max_triangulation_angles_deg(
             np.ascontiguousarray(obs_image, np.int64),
             np.ascontiguousarray(centers, np.float64),
             np.ascontiguousarray(active, np.bool_),
+            float(enough_deg),
             out,
         )
     return out
