@@ -311,6 +311,7 @@ def schur_complement(
     Vi = np.empty((3, 3))
     Tp = np.empty((64, 6, 3))
     Ti = np.empty((64, 3, 3))
+    var = np.empty(64, np.int64)  # positions in the track of the observations in variable blocks
     ok = True
     for q in range(nq):
         for a in range(3):
@@ -331,8 +332,13 @@ def schur_complement(
         if L > Tp.shape[0]:
             Tp = np.empty((L, 6, 3))
             Ti = np.empty((L, 3, 3))
+            var = np.empty(L, np.int64)
+        n_var = 0
         for ia in range(L):
             o = pt_obs[start + ia]
+            if obs_pose[o] >= 0 or obs_intr[o] >= 0:
+                var[n_var] = ia
+                n_var += 1
             if obs_pose[o] >= 0:
                 for a in range(6):
                     for b in range(3):
@@ -345,12 +351,13 @@ def schur_complement(
                         Ti[ia, a, b] = (
                             Wi[o, a, 0] * Vi[0, b] + Wi[o, a, 1] * Vi[1, b] + Wi[o, a, 2] * Vi[2, b]
                         )
-        for ia in range(L):
+        # only observations in variable blocks couple blocks (a local adjustment's long tracks
+        # are mostly observations in constant images)
+        for va in range(n_var):
+            ia = var[va]
             oa = pt_obs[start + ia]
             ka = obs_pose[oa]
             ga = obs_intr[oa]
-            if ka < 0 and ga < 0:
-                continue
             if ka >= 0:
                 ba = 6 * ka
                 for a in range(6):
@@ -361,8 +368,8 @@ def schur_complement(
                     rhs[bia + a] -= (
                         Ti[ia, a, 0] * gx[q, 0] + Ti[ia, a, 1] * gx[q, 1] + Ti[ia, a, 2] * gx[q, 2]
                     )
-            for ib in range(L):
-                ob = pt_obs[start + ib]
+            for vb in range(n_var):
+                ob = pt_obs[start + var[vb]]
                 kb = obs_pose[ob]
                 gb = obs_intr[ob]
                 if ka >= 0 and kb >= ka:  # upper blocks; the lower ones are their transposes
@@ -413,13 +420,21 @@ def block_pattern(
     for o in range(obs_pose.shape[0]):
         if obs_pose[o] >= 0 and obs_intr[o] >= 0:
             slot[obs_pose[o], n_pose + obs_intr[o]] = 0
+    var = np.empty(64, np.int64)  # the observations of a point in variable blocks
     for q in range(pt_ptr.shape[0] - 1):
-        for ia in range(pt_ptr[q], pt_ptr[q + 1]):
-            ka = obs_pose[pt_obs[ia]]
-            ga = obs_intr[pt_obs[ia]]
-            for ib in range(pt_ptr[q], pt_ptr[q + 1]):
-                kb = obs_pose[pt_obs[ib]]
-                gb = obs_intr[pt_obs[ib]]
+        if pt_ptr[q + 1] - pt_ptr[q] > var.shape[0]:
+            var = np.empty(pt_ptr[q + 1] - pt_ptr[q], np.int64)
+        n_var = 0
+        for i in range(pt_ptr[q], pt_ptr[q + 1]):
+            if obs_pose[pt_obs[i]] >= 0 or obs_intr[pt_obs[i]] >= 0:
+                var[n_var] = pt_obs[i]
+                n_var += 1
+        for va in range(n_var):
+            ka = obs_pose[var[va]]
+            ga = obs_intr[var[va]]
+            for vb in range(n_var):
+                kb = obs_pose[var[vb]]
+                gb = obs_intr[var[vb]]
                 if ka >= 0 and kb >= ka:
                     slot[ka, kb] = 0
                 if ka >= 0 and gb >= 0:
