@@ -288,8 +288,11 @@ class IncrementalMapper:
         keep = self.reg[self.obs_img[obs]] & ~self.blocked[obs]
         obs, seg = obs[keep], seg[keep]
         counts = np.bincount(seg, minlength=len(tracks))
-        # skip tracks that failed before with the same registered observations
-        cand = (counts >= 2) & (counts != self.tri_failed_at[tracks])
+        # skip tracks that failed before with the same registered observations, or (long
+        # tracks) with less than 1/8 fewer: a far facade seen by 100+ frames of a flight would
+        # otherwise be re-triangulated, and fail again, at every registration
+        failed = self.tri_failed_at[tracks]
+        cand = (counts >= 2) & ((counts < failed) | (counts >= failed + np.maximum(1, failed // 8)))
         if not np.any(cand):
             return 0
         sel = cand[seg]
