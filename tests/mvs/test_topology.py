@@ -80,6 +80,44 @@ def test_auto_selection_picks_ring_neighbours() -> None:
     assert all(sorted(min((s - r) % n, (r - s) % n) for s in nb2[r]) == [1, 1] for r in range(n))
 
 
+def _reference_scores(wv, P, r, lo, hi, min_shared):  # type: ignore[no-untyped-def]
+    """The per-source loop the selection computes, written out plainly (one view at a time)."""
+
+    def visible(view, X):  # type: ignore[no-untyped-def]
+        uv, z = view.posed().project(X)
+        return view.intrinsics.in_image(uv) & (z > 0)
+
+    centers = np.stack([v.center_world for v in wv])
+    X = P[visible(wv[r], P)]
+    dr = (X - centers[r]) / np.linalg.norm(X - centers[r], axis=1, keepdims=True)
+    out = {}
+    for s in range(len(wv)):
+        m = visible(wv[s], X)
+        if s == r or m.sum() < min_shared:
+            continue
+        ds = (X[m] - centers[s]) / np.linalg.norm(X[m] - centers[s], axis=1, keepdims=True)
+        w = angle_weight(np.degrees(np.arccos(np.clip(np.sum(dr[m] * ds, axis=1), -1, 1))), lo, hi)
+        if np.count_nonzero(w) >= min_shared:
+            out[s] = float(w.sum())
+    return out
+
+
+def test_auto_selection_scores_every_source_like_the_plain_loop() -> None:
+    ring = make_ring()
+    wv = [make_working_view(v, im, None, None) for v, im in zip(ring.views, ring.images)]
+    rng = np.random.default_rng(3)
+    P = rng.uniform(-3.0, 3.0, (4000, 3))  # points around the ring's centre, seen by some views
+    nb, scores = select_neighbors(wv, len(wv), P, min_angle_deg=5.0, max_angle_deg=65.0, min_shared=10)
+    checked = 0
+    for r in range(len(wv)):
+        ref = _reference_scores(wv, P, r, 5.0, 65.0, 10)
+        assert sorted(nb[r]) == sorted(ref), r
+        for s, sc in zip(nb[r], scores[r]):
+            assert sc == pytest.approx(ref[s], rel=1e-9)
+            checked += 1
+    assert checked > len(wv)
+
+
 def test_settings_from_command_line_names() -> None:
     s = MVSSettings.from_names()
     assert (s.topology, s.depth_method, s.fusion) == ("auto", "patchmatch", "consistency")

@@ -18,7 +18,10 @@ sparse points are available, points sampled in the reference frustum at its dept
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+from numba import njit
 
 from skyrecon.errors import InputError
 from skyrecon.mvs.frames import WorkingView
@@ -26,6 +29,9 @@ from skyrecon.mvs.frames import WorkingView
 __all__ = ["TOPOLOGIES", "topology_pairs", "neighbors_from_pairs", "select_neighbors", "angle_weight"]
 
 TOPOLOGIES: tuple[str, ...] = ("auto", "360", "overlapping", "adjacent", "skipping_1", "skipping_2")
+
+_BEST_ANGLES_DEG = (10.0, 30.0)
+"""Triangulation angles (degrees) that score 1 in :func:`angle_weight`."""
 
 _STEP = {"overlapping": 1, "adjacent": 2, "skipping_1": 3, "skipping_2": 4}
 
@@ -65,7 +71,7 @@ def neighbors_from_pairs(
 
 
 def angle_weight(
-    theta_deg: np.ndarray, lo: float = 5.0, hi: float = 45.0, best: tuple[float, float] = (10.0, 30.0)
+    theta_deg: np.ndarray, lo: float = 5.0, hi: float = 45.0, best: tuple[float, float] = _BEST_ANGLES_DEG
 ) -> np.ndarray:
     """Score of a triangulation angle: 1 in ``best``, falling off linearly to 0 at ``lo`` and ``hi``."""
     t = np.asarray(theta_deg, dtype=np.float64)
@@ -86,6 +92,91 @@ def _frustum_samples(view: WorkingView, depth_range: tuple[float, float], n: int
     depths = 1.0 / np.linspace(1.0 / near, 1.0 / far, 5)[1:-1]
     pts = [intr.unproject(pix, d) for d in depths]
     return view.cam_from_world.inverse().apply(np.concatenate(pts))
+
+
+@njit(cache=True, nogil=True)
+def _pair_scores_kernel(
+    P: np.ndarray,
+    centers: np.ndarray,
+    r: int,
+    pts_of_r: np.ndarray,
+    pt_ptr: np.ndarray,
+    pt_views: np.ndarray,
+    lo: float,
+    hi: float,
+    best_lo: float,
+    best_hi: float,
+    total: np.ndarray,
+    counted: np.ndarray,
+    shared: np.ndarray,
+) -> None:
+    """For every view s != r, over the points ``pts_of_r`` (indices into P (N, 3)) that r sees
+    and s sees too (``pt_views[pt_ptr[p]:pt_ptr[p + 1]]``: the views seeing point p): ``shared[s]``
+    += 1, ``total[s]`` += the :func:`angle_weight` of the triangulation angle, ``counted[s]`` +=
+    1 when that weight is non-zero. ``total``, ``counted``, ``shared`` (n,) are zero on entry."""
+    for p in pts_of_r:
+        drx = P[p, 0] - centers[r, 0]
+        dry = P[p, 1] - centers[r, 1]
+        drz = P[p, 2] - centers[r, 2]
+        nr = math.sqrt(drx * drx + dry * dry + drz * drz)
+        drx /= nr
+        dry /= nr
+        drz /= nr
+        for k in range(pt_ptr[p], pt_ptr[p + 1]):
+            s = pt_views[k]
+            if s == r:
+                continue
+            shared[s] += 1
+            dsx = P[p, 0] - centers[s, 0]
+            dsy = P[p, 1] - centers[s, 1]
+            dsz = P[p, 2] - centers[s, 2]
+            ns = math.sqrt(dsx * dsx + dsy * dsy + dsz * dsz)
+            c = (drx * dsx + dry * dsy + drz * dsz) / ns
+            c = min(1.0, max(-1.0, c))
+            t = math.acos(c) * (180.0 / math.pi)
+            w = 1.0
+            if t < best_lo:
+                w = min(1.0, max(0.0, (t - lo) / (best_lo - lo)))
+            if t > best_hi:
+                w = min(1.0, max(0.0, (hi - t) / (hi - best_hi)))
+            total[s] += w
+            if w > 0.0:
+                counted[s] += 1
+
+
+def _scored_sources(
+    X: np.ndarray,
+    centers: np.ndarray,
+    r: int,
+    vis: np.ndarray,
+    min_angle_deg: float,
+    max_angle_deg: float,
+    min_shared: int,
+) -> list[tuple[float, int]]:
+    """(score, source) of every view other than ``r`` that shares enough points with it.
+
+    ``X`` (M, 3) world points seen by ``r``, ``centers`` (n, 3) camera centres, ``vis`` (n, M)
+    bool which view sees which point. A source's score is the sum of :func:`angle_weight` of the
+    triangulation angles of the points both see; it needs ``min_shared`` points seen by both and
+    as many with a non-zero weight. All (view, point) pairs are scored at once (one pass over
+    the visibility, not one per view).
+    """
+    n = len(centers)
+    ok = vis.sum(axis=1) >= min_shared
+    ok[r] = False
+    if not ok.any():
+        return []
+    dr = X - centers[r]
+    dr /= np.linalg.norm(dr, axis=1, keepdims=True)
+    src, pt = np.nonzero(vis & ok[:, None])
+    ds = X[pt] - centers[src]
+    ds /= np.linalg.norm(ds, axis=1, keepdims=True)
+    theta = np.degrees(np.arccos(np.clip(np.sum(dr[pt] * ds, axis=1), -1, 1)))
+    w = angle_weight(theta, min_angle_deg, max_angle_deg)
+    total = np.bincount(src, weights=w, minlength=n)
+    counted = np.bincount(src, weights=(w > 0).astype(np.float64), minlength=n)
+    keep = np.nonzero(ok & (counted >= min_shared))[0]
+    return [(float(total[s]), int(s)) for s in keep]
 
 
 def select_neighbors(
@@ -127,30 +218,40 @@ def select_neighbors(
             return view.intrinsics.in_image(uv) & (z > 0)
 
     vis_sparse = np.stack([visible(v, P) for v in views]) if len(P) else np.zeros((n, 0), bool)
+    # which points each view sees (view-major) and which views see each point (point-major)
+    view_of, point_of = np.nonzero(vis_sparse)
+    view_ptr = np.searchsorted(view_of, np.arange(n + 1))
+    by_point = np.argsort(point_of, kind="stable")
+    pt_views = view_of[by_point].astype(np.int64)
+    pt_ptr = np.searchsorted(point_of[by_point], np.arange(len(P) + 1))
+    total, counted, shared = np.zeros(n), np.zeros(n, np.int64), np.zeros(n, np.int64)
     for r in range(n):
-        X = P[vis_sparse[r]] if len(P) else P
-        vis = vis_sparse[:, vis_sparse[r]] if len(P) else vis_sparse
         frustum_range = None if depth_ranges is None else depth_ranges[r]
-        if len(X) < min_shared and frustum_range is not None:
+        pts_of_r = point_of[view_ptr[r] : view_ptr[r + 1]].astype(np.int64)
+        if len(pts_of_r) < min_shared and frustum_range is not None:
             X = _frustum_samples(views[r], frustum_range)
             vis = np.stack([visible(v, X) for v in views])
-        cand: list[tuple[float, int]] = []
-        if len(X):
-            dr = X - centers[r]
-            dr /= np.linalg.norm(dr, axis=1, keepdims=True)
-            for s in range(n):
-                if s == r:
-                    continue
-                m = vis[s]
-                if m.sum() < min_shared:
-                    continue
-                ds = X[m] - centers[s]
-                ds /= np.linalg.norm(ds, axis=1, keepdims=True)
-                theta = np.degrees(np.arccos(np.clip(np.sum(dr[m] * ds, axis=1), -1, 1)))
-                w = angle_weight(theta, min_angle_deg, max_angle_deg)
-                if np.count_nonzero(w) < min_shared:
-                    continue
-                cand.append((float(w.sum()), s))
+            cand = _scored_sources(X, centers, r, vis, min_angle_deg, max_angle_deg, min_shared)
+        elif len(pts_of_r):
+            total[:], counted[:], shared[:] = 0.0, 0, 0
+            _pair_scores_kernel(
+                P,
+                centers,
+                r,
+                pts_of_r,
+                pt_ptr,
+                pt_views,
+                min_angle_deg,
+                max_angle_deg,
+                *_BEST_ANGLES_DEG,
+                total,
+                counted,
+                shared,
+            )
+            ok = np.nonzero((shared >= min_shared) & (counted >= min_shared))[0]
+            cand = [(float(total[s]), int(s)) for s in ok if s != r]
+        else:
+            cand = []
         cand.sort(key=lambda t: (-t[0], t[1]))
         neighbors.append([s for _, s in cand[:num_sources]])
         scores.append([sc for sc, _ in cand[:num_sources]])
