@@ -87,3 +87,20 @@ def test_small_components_are_dropped_and_the_links_are_those_of_the_k_nearest()
         np.testing.assert_array_equal(cloud_ops.small_component_mask(pts, 1.0, 0.01, 8), keep)
     finally:
         cloud_ops._CHUNK = old
+
+
+def test_orient_normals_faces_the_viewpoints_in_chunks() -> None:
+    from skyrecon.mvs import cloud_ops
+
+    rng = np.random.default_rng(5)
+    n = 2 * cloud_ops._CHUNK + 17  # several chunks and a remainder
+    points = rng.normal(size=(n, 3))
+    normals = rng.normal(size=(n, 3)).astype(np.float32)
+    centers = rng.normal(size=(7, 3)) * 10.0
+    which = rng.integers(0, 7, n)
+    by_index = cloud_ops.orient_normals(points, normals, centers, which)
+    per_point = cloud_ops.orient_normals(points, normals, centers[which])
+    np.testing.assert_array_equal(by_index, per_point)
+    assert by_index.dtype == np.float32
+    assert np.all(np.sum((centers[which] - points) * by_index, axis=1) >= 0)
+    np.testing.assert_array_equal(np.abs(by_index), np.abs(normals))  # flipped, never changed

@@ -8,7 +8,7 @@ import pytest
 from skyrecon.core import DepthMap
 from skyrecon.eval.mvs_metrics import evaluate_cloud, reference_from_depth_maps
 from skyrecon.executor import get_executor
-from skyrecon.mvs import MVSSettings, run_mvs
+from skyrecon.mvs import MVSSettings, depth_tasks, run_mvs
 from skyrecon.mvs import planar_prior as pp
 from skyrecon.mvs.inputs import load_working_views
 from skyrecon.mvs.planar_prior import (
@@ -85,13 +85,13 @@ def _ground_recall(ring, cloud, tau: float) -> tuple[float, float]:
     return evaluate_cloud(cloud.points, ground, [tau], crop=ring.eval_box).recall[0], all_
 
 
-def test_plain_ring_completeness_improves_with_the_prior(plain_ring) -> None:
+def test_plain_ring_completeness_improves_with_the_prior(plain_ring, tmp_path, monkeypatch) -> None:
     ring = plain_ring
     ex = get_executor("serial")
     off = MVSSettings(max_image_size=None, planar_prior=PlanarPriorSettings(enabled=False))
     on = MVSSettings(max_image_size=None)
     r_off = run_mvs(ring.views, ring.images, off, executor=ex, progress=False)
-    r_on = run_mvs(ring.views, ring.images, on, executor=ex, progress=False)
+    r_on = run_mvs(ring.views, ring.images, on, executor=ex, progress=False, workspace=tmp_path)
     tau = 0.08  # 1 % of the ring radius
     g_off, all_off = _ground_recall(ring, r_off.cloud, tau)
     g_on, all_on = _ground_recall(ring, r_on.cloud, tau)
@@ -102,8 +102,16 @@ def test_plain_ring_completeness_improves_with_the_prior(plain_ring) -> None:
     dist = np.abs(ring.city.distance(r_on.cloud.points.astype(np.float64), include_ground=True))
     assert np.mean(dist <= tau) > 0.95
     assert "planar_prior" in r_on.diagnostics and "planar_prior" not in r_off.diagnostics
-    # deterministic
-    again = run_mvs(ring.views, ring.images, on, executor=ex, progress=False)
+    # each view's prior is kept in the workspace; a rerun reuses them all (computes none) and
+    # gives the same cloud
+    kept = list((tmp_path / "prior_tasks").glob("*.pkl"))
+    assert len(kept) == len(r_on.diagnostics["planar_prior"]["views"]) > 0
+
+    def recomputed(*args, **kwargs):  # type: ignore[no-untyped-def]
+        raise AssertionError("the planar prior ran again instead of coming from the workspace")
+
+    monkeypatch.setattr(depth_tasks, "planar_prior_depth", recomputed)
+    again = run_mvs(ring.views, ring.images, on, executor=ex, progress=False, workspace=tmp_path)
     np.testing.assert_array_equal(again.cloud.points, r_on.cloud.points)
 
 

@@ -39,6 +39,27 @@ def test_mark_flown_free_sets_the_swept_voxels_free_and_reports_the_change():
         occ.mark_flown_free(along, -1.0)
 
 
+def test_a_survey_long_track_is_swept_in_chunks_with_the_same_voxels():
+    """Kilometres of track (many chunks of samples): the voxels set are exactly those within
+    reach of the track's samples, as if all were proposed at once, and all of them read free."""
+    from skyrecon.mapping.occupancy import _polyline_samples
+
+    occ = OccupancyMap(voxel_size_m=0.5)
+    track = np.array([[0.0, 0.0, 20.0], [600.0, 0.0, 20.0], [600.0, 40.0, 22.0], [0.0, 40.0, 20.0]])
+    n = occ.mark_flown_free(track, 0.3)
+    v, reach = 0.5, 0.3 + 0.25
+    samples = _polyline_samples(track, 0.25 * v)
+    k = int(np.ceil(reach / v)) + 1
+    r = np.arange(-k, k + 1)
+    offs = np.stack(np.meshgrid(r, r, r, indexing="ij"), -1).reshape(-1, 3)
+    assert len(samples) > 2 * 1_000_000 // len(offs)  # several chunks
+    cand = (np.floor(samples / v).astype(np.int64)[:, None, :] + offs[None]).reshape(-1, 3)
+    near = np.linalg.norm((cand + 0.5) * v - np.repeat(samples, len(offs), axis=0), axis=1)
+    want = np.unique(cand[near <= reach + 0.125 * v], axis=0)
+    assert n == len(want)
+    assert np.all(occ.state_at((want + 0.5) * v) == FREE)
+
+
 def test_an_unknown_start_snaps_to_the_nearest_usable_point_and_says_so():
     occ, track = _corridor_map()
     planner = Planner(occ, 2.0)

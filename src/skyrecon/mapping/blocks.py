@@ -227,17 +227,44 @@ class BlockGrid:
         """Make room for ``n_blocks`` blocks in total without further reallocation."""
         if n_blocks > self.coords.shape[0]:
             new = max(n_blocks, int(self.coords.shape[0] * 1.5) + 16)
-            coords = np.zeros((new, 3), np.int32)
-            coords[: self.count] = self.coords[: self.count]
-            data = np.empty((new, self.data.shape[1]), np.float32)
-            data[: self.count] = self.data[: self.count]
-            data[self.count :] = self.fill
-            self.coords, self.data = coords, data
+            # resized in place when nothing else refers to the arrays (numpy's refcheck): a C
+            # realloc remaps a large array's pages instead of copying them, so the old and the
+            # new voxel pool (gigabytes in a city-scale map) are never resident together
+            try:
+                self.data.resize((new, self.data.shape[1]), refcheck=True)
+            except ValueError:  # a view of the pool is alive somewhere: copy
+                self.data = np.concatenate(
+                    [self.data[: self.count], np.empty((new - self.count, self.data.shape[1]), np.float32)]
+                )
+            self.data[self.count :] = self.fill
+            try:
+                self.coords.resize((new, 3), refcheck=True)
+            except ValueError:
+                self.coords = np.concatenate(
+                    [self.coords[: self.count], np.empty((new - self.count, 3), np.int32)]
+                )
+            self.coords[self.count :] = 0
         if n_blocks > int(self.tkeys.shape[0] * _MAX_LOAD):
             cap = self.tkeys.shape[0]
             while n_blocks > int(cap * _MAX_LOAD):
                 cap *= 2
             self.tkeys, self.tvals = _rehash(self.coords, self.count, cap)
+
+    def shrink_to_fit(self) -> None:
+        """Give back the pool's spare rows (up to a third of it after a growth): a finished map
+        keeps only its blocks. In place (realloc) when nothing else refers to the arrays, like
+        :meth:`reserve`; a later :meth:`ensure` grows it again."""
+        n = max(self.count, 16)
+        if n >= self.coords.shape[0]:
+            return
+        try:
+            self.data.resize((n, self.data.shape[1]), refcheck=True)
+        except ValueError:
+            self.data = self.data[:n].copy()
+        try:
+            self.coords.resize((n, 3), refcheck=True)
+        except ValueError:
+            self.coords = self.coords[:n].copy()
 
     # ----- access ----------------------------------------------------------------------
     def find(self, block_coords: np.ndarray) -> np.ndarray:

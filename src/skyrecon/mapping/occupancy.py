@@ -454,12 +454,18 @@ class OccupancyMap:
         k = int(np.ceil(reach / v)) + 1
         r = np.arange(-k, k + 1)
         offs = np.stack(np.meshgrid(r, r, r, indexing="ij"), -1).reshape(-1, 3)
-        base = np.floor(samples / v).astype(np.int64)
         # each sample proposes the voxels around it whose centre lies within reach of it (a voxel
-        # centre within reach of the polyline lies within reach + v/8 of its nearest sample)
-        cand = (base[:, None, :] + offs[None]).reshape(-1, 3)
-        near = np.linalg.norm((cand + 0.5) * v - np.repeat(samples, len(offs), axis=0), axis=1)
-        cand = np.unique(cand[near <= reach + 0.125 * v], axis=0)
+        # centre within reach of the polyline lies within reach + v/8 of its nearest sample); in
+        # chunks of samples, so that a survey's kilometres of track never hold every sample's
+        # (2k+1)^3 candidates at once (gigabytes)
+        per_chunk = max(1, 1_000_000 // len(offs))
+        parts = []
+        for a in range(0, len(samples), per_chunk):
+            chunk = samples[a : a + per_chunk]
+            cand = (np.floor(chunk / v).astype(np.int64)[:, None, :] + offs[None]).reshape(-1, 3)
+            near = np.linalg.norm((cand + 0.5) * v - np.repeat(chunk, len(offs), axis=0), axis=1)
+            parts.append(np.unique(cand[near <= reach + 0.125 * v], axis=0))
+        cand = np.unique(np.concatenate(parts), axis=0)
         keep = np.ones(len(cand), bool)
         vox = cand[keep]
         if len(vox) == 0:

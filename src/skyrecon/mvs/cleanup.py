@@ -91,7 +91,7 @@ def clean_fused_cloud(fused: FusedCloud, views: Sequence[WorkingView], settings:
         cloud, vid, support, normals = cloud.select(keep), vid[keep], support[keep], normals[keep]
         counts["points_after_component_filter"] = len(cloud)
     centers = np.stack([v.center_world for v in views])
-    cloud = PointCloud(cloud.points, cloud.colors, orient_normals(cloud.points, normals, centers[vid]))
+    cloud = PointCloud(cloud.points, cloud.colors, orient_normals(cloud.points, normals, centers, vid))
     if settings.voxel_size_m:
         cloud, support = _voxel_average(cloud, support, settings.voxel_size_m)
         counts["points_after_voxel"] = len(cloud)

@@ -55,12 +55,25 @@ def knn_mean_distance_and_normals(
     return mean_d, normals
 
 
-def orient_normals(points: np.ndarray, normals: np.ndarray, viewpoints: np.ndarray) -> np.ndarray:
-    """Flip normals (N, 3) to face their viewpoints (N, 3) (e.g. the camera centres), world frame."""
-    to_cam = np.asarray(viewpoints, np.float64) - np.asarray(points, np.float64)
-    flip = np.sum(to_cam * normals, axis=1) < 0
+def orient_normals(
+    points: np.ndarray,
+    normals: np.ndarray,
+    viewpoints: np.ndarray,
+    viewpoint_index: np.ndarray | None = None,
+) -> np.ndarray:
+    """Flip normals (N, 3) to face their viewpoints, world frame.
+
+    ``viewpoints`` is (N, 3) (one per point), or (V, 3) with ``viewpoint_index`` (N,) giving each
+    point's row (e.g. the camera centres and the view that emitted each point). Works in
+    chunks: no (N, 3) float64 temporaries. Returns float32 (N, 3).
+    """
     out = np.array(normals, np.float32, copy=True)
-    out[flip] *= -1
+    for a in range(0, len(out), _CHUNK):
+        b = min(len(out), a + _CHUNK)
+        vp = viewpoints[a:b] if viewpoint_index is None else viewpoints[viewpoint_index[a:b]]
+        to_cam = np.asarray(vp, np.float64) - np.asarray(points[a:b], np.float64)
+        flip = np.sum(to_cam * normals[a:b], axis=1) < 0
+        out[a:b][flip] *= -1
     return out
 
 

@@ -270,6 +270,7 @@ def apply_planar_prior(
     *,
     progress: bool = True,
     points: np.ndarray | None = None,
+    cache_dir: str | None = None,
 ) -> tuple[list[np.ndarray | None], dict[int, dict[str, Any]]]:
     """The planar prior of every view with a PatchMatch depth, fanned out on the executor.
 
@@ -281,6 +282,8 @@ def apply_planar_prior(
         executor: where the tasks run.
         progress: show a progress bar.
         points: sparse world points (N, 3) metres.
+        cache_dir: keep each view's result here and reuse those already there (a resumed run,
+            as for :func:`estimate_depths`); None: no cache.
     Returns:
         (per view the depth with plain segments filled (unchanged where the prior fell back),
         per view index the prior's report (``fallback`` says why it was not applied)).
@@ -296,7 +299,12 @@ def apply_planar_prior(
             views[r], [views[s] for s in nb], d, c, rng, settings.planar_prior, cos_max, seen, planes
         )
         tasks.append((r, task))
-    results = executor.map(_prior_task, [t for _, t in tasks], desc="MVS planar prior" if progress else None)
+    # keyed field by field: a pickle of the whole task also encodes which arrays are shared
+    # between its fields, and that differs between depths just computed and depths read back
+    # from the workspace (a resumed run would then miss every kept prior)
+    keys = [task_key(tuple(task_key(f) for f in t), "planar_prior") for _, t in tasks]
+    desc = "MVS planar prior" if progress else None
+    results, _ = map_cached(executor, _prior_task, [t for _, t in tasks], keys, cache_dir, desc=desc)
     out = list(depths)
     reports: dict[int, dict[str, Any]] = {}
     for (r, _), (d, rep) in zip(tasks, results):

@@ -25,7 +25,7 @@ import os
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -34,6 +34,7 @@ from skyrecon import progress as _progress
 from skyrecon.core import DepthMap, PointCloud, PosedView
 from skyrecon.errors import InputError
 from skyrecon.executor import Executor, get_executor
+from skyrecon.memory import release_free_memory
 from skyrecon.mvs.cleanup import clean_fused_cloud
 from skyrecon.mvs.depth_tasks import TaskTimings, apply_planar_prior, estimate_depths
 from skyrecon.mvs.frames import WorkingView
@@ -284,7 +285,10 @@ def _depth(run: _MVSRun) -> None:
         points=run.sparse_points,
         cache_dir=None if run.workspace is None else os.path.join(run.workspace, "depth_tasks"),
     )
-    run.depths, run.pair_depths = est.depths, est.pair_depths
+    run.depths = est.depths
+    # each task's own depth is read only by ``concat`` fusion; kept otherwise, the planar prior's
+    # replaced depths would stay resident beside the new ones (1.2 MB a view at 640 px)
+    run.pair_depths = est.pair_depths if run.settings.fusion == "concat" else []
     run.diagnostics["depth_task_ms"] = est.task_timings
     run.costs = est.costs
     empty = [i for i, d in enumerate(run.depths) if d is not None and not np.isfinite(d).any()]
@@ -318,6 +322,7 @@ def _prior(run: _MVSRun) -> None:
         run.executor,
         progress=run.progress,
         points=run.sparse_points,
+        cache_dir=None if run.workspace is None else os.path.join(run.workspace, "prior_tasks"),
     )
     prior = {run.views[r].stem: rep for r, rep in reports.items()}
     run.diagnostics["planar_prior"] = {
@@ -337,8 +342,21 @@ def _fuse(run: _MVSRun) -> None:
     run.costs = []
     if run.settings.fusion == "concat":
         run.fused = fuse_concat(run.views, run.pair_depths)
-        return
-    run.fused = fuse_consistent(run.views, run.depths, _fusion_neighbors(run), run.settings.fusion_settings)
+    else:
+        run.fused = fuse_consistent(
+            run.views, run.depths, _fusion_neighbors(run), run.settings.fusion_settings
+        )
+    if not run.settings.mesh:
+        _release_pixels(run)
+
+
+def _release_pixels(run: _MVSRun) -> None:
+    """Drop the working images (2.4 MB a view at 640 px) once nothing reads them: after fusion
+    only the cameras are used (normals' orientation, the result), unless a mesh is coloured from
+    them. Their sizes are recorded first (``working_size``)."""
+    run.diagnostics["working_size"] = {v.stem: (v.shape[1], v.shape[0]) for v in run.views}
+    rgb, grey, valid = np.zeros((0, 0, 3), np.uint8), np.zeros((0, 0), np.float32), np.zeros((0, 0), bool)
+    run.views = [replace(v, rgb=rgb, grey=grey, valid=valid) for v in run.views]
 
 
 def _cleanup(run: _MVSRun) -> None:
@@ -389,7 +407,7 @@ def _result(run: _MVSRun, t_start: float, cpu_start: float) -> MVSResult:
     diag["valid_fraction"] = {
         v.stem: float(np.isfinite(d).mean()) for v, d in zip(views, depths) if d is not None
     }
-    diag["working_size"] = {v.stem: (v.shape[1], v.shape[0]) for v in views}
+    diag.setdefault("working_size", {v.stem: (v.shape[1], v.shape[0]) for v in views})
     run.timings["total"] = time.perf_counter() - t_start
     # CPU seconds: this process (all its threads) plus the tasks that ran in worker processes
     task_timings: list[TaskTimings] = diag.get("depth_task_ms", [])
@@ -447,8 +465,9 @@ def run_mvs(
         executor: where per-view work runs (default :func:`skyrecon.executor.get_executor`).
         progress: show progress bars (subject to the global progress setting).
         workspace: a folder where each view's depth is kept as soon as it is computed
-            (``depth_tasks/<hash>.pkl``); a rerun with the same views, images and settings (a
-            killed run resumed, or another fusion) reuses them. None: nothing kept.
+            (``depth_tasks/<hash>.pkl``, and its planar prior in ``prior_tasks/``); a rerun with
+            the same views, images and settings (a killed run resumed, or another fusion)
+            reuses them. None: nothing kept.
     Returns:
         MVSResult (world frame). Problems that leave some views out are listed in
         ``warnings`` with the view names.
@@ -467,5 +486,6 @@ def run_mvs(
             if step.wanted(run):
                 t = time.perf_counter()
                 step.run(run)
+                release_free_memory()  # what the step freed leaves the resident size
                 run.timings[step.name] = time.perf_counter() - t
     return _result(run, t_start, cpu_start)

@@ -23,6 +23,7 @@ from skyrecon.io.atomic import make_temp_dir, sweep_stale_temps, write_text_atom
 from skyrecon.io.colmap import write_colmap_text
 from skyrecon.io.las import write_point_cloud
 from skyrecon.mapping import export_occupied_ply, save_map, write_flown_path, write_map_preview
+from skyrecon.memory import release_free_memory
 from skyrecon.report.mission_report import png_data_uri
 from skyrecon.survey.geo import lla_from_enu, projected_from_enu
 from skyrecon.survey.pipeline import SurveyResult
@@ -145,6 +146,9 @@ def write_survey_outputs(
     files: list[str] = []
     write_colmap_text(out / "model", result.model)
     files.append("model/")
+    # the map first: its export's temporaries are gone before the cloud's arrays are made
+    _write_map(result, out / "map")
+    release_free_memory()
     cloud = result.mvs.cloud
     rasters = None
     if len(cloud):
@@ -158,12 +162,15 @@ def write_survey_outputs(
             points=proj,
         )
         files.append(written.name)
+        del proj
+        release_free_memory()  # the writer's point records
         rasters = surface_rasters(pts, cloud.colors, result.origin, cell_m, code)
+        del pts
+        release_free_memory()
         write_geotiff(out / "dsm.tif", rasters, "dsm")
         write_geotiff(out / "ortho.tif", rasters, "ortho")
         write_text_atomic(out / "footprint.geojson", json.dumps(footprint_geojson(rasters), indent=1) + "\n")
         files += ["dsm.tif", "ortho.tif", "footprint.geojson"]
-    _write_map(result, out / "map")
     files.append("map/")
     result.timings_s["outputs"] = time.perf_counter() - t0
     write_text_atomic(out / "report.html", survey_report_html(result, rasters))

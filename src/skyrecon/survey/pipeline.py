@@ -12,12 +12,13 @@ Stages (each timed in ``SurveyResult.timings_s``):
 3. ``georef``: the model into the ENU frame (:mod:`skyrecon.survey.georef`), GPS or control points;
    the origin's height is then moved to the ground (the 5th percentile of the sparse points).
 4. ``mvs``: dense depth per photo and the fused cloud (:func:`skyrecon.mvs.run_mvs`), each view's
-   depth kept in ``workspace/mvs`` as soon as it is computed.
+   depth and planar prior kept in ``workspace/mvs`` as soon as they are computed.
 5. ``map``: an occupancy map from the depth maps (:class:`skyrecon.mapping.OccupancyMap`), the
    flight track marked free.
 
-A rerun with the same inputs and options resumes: cached features, matches, model and depth maps
-are reused. Frames: ENU metres around ``SurveyResult.origin`` (float64); everything written in a
+A rerun with the same inputs and options resumes: cached features, matches, model, depth maps and
+planar priors are reused. Freed memory is handed back to the system after each stage
+(:func:`skyrecon.memory.release_free_memory`), so the resident size follows what the run holds. Frames: ENU metres around ``SurveyResult.origin`` (float64); everything written in a
 projected system (UTM) is converted from it at the end.
 """
 
@@ -40,6 +41,7 @@ from skyrecon.io.atomic import write_bytes_atomic
 from skyrecon.io.calib import read_K_txt
 from skyrecon.io.task_cache import task_key
 from skyrecon.mapping import MapConfig, OccupancyMap
+from skyrecon.memory import release_free_memory
 from skyrecon.mvs import MVSResult, MVSSettings, run_mvs
 from skyrecon.mvs.planar_prior import PlanarPriorSettings
 from skyrecon.progress import progress
@@ -342,6 +344,7 @@ def _build_map(mvs: MVSResult, track: np.ndarray, options: SurveyOptions, max_ra
         occ.integrate_depth(depth, cam, dm.cam_from_world.inverse().with_frames("world", "cam"))
     if len(track):
         occ.mark_flown_free(track, 1.0)
+    occ.grid.shrink_to_fit()  # the finished map keeps only its blocks (the pool grows by half)
     return occ
 
 
@@ -402,6 +405,7 @@ def run_survey(
             inputs, cam, camera_source, pairs, options, executor, ws, diag
         )
         warnings.extend(sfm_warnings)
+        release_free_memory()  # the matcher's and mapper's freed arrays
         timings["sfm"] = time.perf_counter() - t
 
         t = time.perf_counter()
@@ -431,6 +435,7 @@ def run_survey(
             planar_prior=PlanarPriorSettings(enabled=options.planar_prior),
         )
         mvs = run_mvs(views, None, mvs_settings, executor=executor, workspace=ws / "mvs")
+        release_free_memory()  # the working images and depths' intermediates MVS freed
         warnings.extend(mvs.warnings)
         timings["mvs"] = time.perf_counter() - t
         diag["mvs_timings_s"] = {k: round(v, 2) for k, v in mvs.timings_s.items()}
@@ -444,6 +449,9 @@ def run_survey(
     heights = track[:, 2] if len(track) else np.zeros(1)
     max_range = float(max(60.0, 1.5 * (np.max(heights) - _ground_shift(model) + 10.0)))
     occ = _build_map(mvs, track, options, max_range)
+    # the depth maps are in the map now and nothing after reads them (1.2 MB a photo)
+    mvs.depth_maps.clear()
+    release_free_memory()
     timings["map"] = time.perf_counter() - t
     return SurveyResult(
         origin,
