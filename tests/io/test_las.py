@@ -34,6 +34,24 @@ def test_las_round_trip(tmp_path, fmt, coloured):
         assert las.header.point_format.id == 0
 
 
+@pytest.mark.parametrize("fmt", ["las", "laz"])
+def test_a_cloud_written_in_chunks_reads_back_whole(tmp_path, fmt, monkeypatch):
+    from skyrecon.io import las as las_module
+
+    rng = np.random.default_rng(1)
+    pts = (rng.normal(size=(2503, 3)) * [50, 50, 10] + [500, 300, 20]).astype(np.float32)
+    colors = rng.integers(0, 256, (2503, 3), dtype=np.uint8)
+    whole = write_point_cloud(tmp_path / "whole", PointCloud(pts, colors), fmt, crs="EPSG:32632")
+    monkeypatch.setattr(las_module, "_WRITE_CHUNK", 1000)  # three chunks, the last one short
+    chunked = write_point_cloud(tmp_path / "chunked", PointCloud(pts, colors), fmt, crs="EPSG:32632")
+    a, b = laspy.read(whole), laspy.read(chunked)
+    assert b.header.point_count == 2503
+    np.testing.assert_array_equal(b.header.mins, a.header.mins)
+    np.testing.assert_array_equal(b.header.maxs, a.header.maxs)
+    np.testing.assert_array_equal(np.asarray(b.points.array), np.asarray(a.points.array))
+    assert b.header.parse_crs() == a.header.parse_crs()
+
+
 def test_ply_is_the_default(tmp_path):
     path = write_point_cloud(tmp_path / "p.ply", PointCloud(np.zeros((2, 3))))
     assert path.suffix == ".ply" and path.is_file()

@@ -159,7 +159,7 @@ def run(args: argparse.Namespace) -> int:
         info(f"{len(photos)} photos in {args.photos_dir}; workspace {workspace}")
     with open_executor(args) as executor:
         result = run_survey(inputs, workspace, options, executor)
-    files = write_survey_outputs(result, out, args.format, args.cell, args.epsg)
+    files = write_survey_outputs(result, out, args.format, args.cell, args.epsg, release_map=True)
     geo = result.georef
     if geo.set_aside:
         info(

@@ -26,6 +26,7 @@ __all__ = ["CLOUD_FORMATS", "GEO_HINT", "write_point_cloud", "write_las", "read_
 CLOUD_FORMATS = ("ply", "las", "laz")
 GEO_HINT = "writing LAS/LAZ needs the 'geo' extra: pip install 'skyrecon[geo]'"
 LAS_SCALE_M = 0.001
+_WRITE_CHUNK = 1_000_000  # points per chunk written
 
 
 def write_las(
@@ -51,7 +52,8 @@ def write_las(
         raise InputError(f"{len(pts)} coordinates for a cloud of {len(cloud.points)} points", path)
     if not np.all(np.isfinite(pts)):
         raise InputError("the cloud has NaN or infinite coordinates", path)
-    has_rgb = cloud.colors is not None
+    colors = cloud.colors
+    has_rgb = colors is not None
     if crs is None:
         header = laspy.LasHeader(point_format=2 if has_rgb else 0, version="1.2")
     else:
@@ -63,18 +65,25 @@ def write_las(
         header.add_crs(pyproj.CRS.from_user_input(crs))
     header.scales = np.full(3, LAS_SCALE_M)
     header.offsets = pts.min(axis=0) if len(pts) else np.zeros(3)
-    las = laspy.LasData(header)
-    las.x, las.y, las.z = pts[:, 0], pts[:, 1], pts[:, 2]
-    if has_rgb:
-        rgb = np.asarray(cloud.colors, dtype=np.uint16) * 257
-        las.red, las.green, las.blue = rgb[:, 0], rgb[:, 1], rgb[:, 2]
     backend = None
     if compress:
         if not laspy.LazBackend.Lazrs.is_available():
             raise InputError("writing LAZ needs the 'lazrs' backend: pip install 'skyrecon[geo]'", path)
         backend = laspy.LazBackend.Lazrs
+    # written in chunks of points: a survey's tens of millions of points never exist a second time
+    # as one whole point record (and its scaled copies) beside the cloud
     with atomic_write(path, "wb") as f:
-        las.write(f, do_compress=compress, laz_backend=backend)
+        with laspy.open(
+            f, mode="w", header=header, do_compress=compress, laz_backend=backend, closefd=False
+        ) as writer:
+            for a in range(0, len(pts), _WRITE_CHUNK):
+                b = min(len(pts), a + _WRITE_CHUNK)
+                rec = laspy.ScaleAwarePointRecord.zeros(b - a, header=header)
+                rec.x, rec.y, rec.z = pts[a:b, 0], pts[a:b, 1], pts[a:b, 2]
+                if colors is not None:
+                    rgb = np.asarray(colors[a:b], dtype=np.uint16) * 257
+                    rec.red, rec.green, rec.blue = rgb[:, 0], rgb[:, 1], rgb[:, 2]
+                writer.write_points(rec)
 
 
 def read_las(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:

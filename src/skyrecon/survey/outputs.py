@@ -22,7 +22,7 @@ import numpy as np
 from skyrecon.io.atomic import make_temp_dir, sweep_stale_temps, write_text_atomic
 from skyrecon.io.colmap import write_colmap_text
 from skyrecon.io.las import write_point_cloud
-from skyrecon.mapping import export_occupied_ply, save_map, write_flown_path, write_map_preview
+from skyrecon.mapping import OccupancyMap, export_occupied_ply, save_map, write_flown_path, write_map_preview
 from skyrecon.memory import release_free_memory
 from skyrecon.report.mission_report import png_data_uri
 from skyrecon.survey.geo import lla_from_enu, projected_from_enu
@@ -139,8 +139,13 @@ def write_survey_outputs(
     cloud_format: str = "laz",
     cell_m: float | None = None,
     epsg: int | None = None,
+    release_map: bool = False,
 ) -> list[str]:
-    """Write every output of a survey into ``out``; returns the names written (``survey.json`` last)."""
+    """Write every output of a survey into ``out``; returns the names written (``survey.json`` last).
+
+    With ``release_map`` (the command line), ``result.map`` is replaced by an empty map of the same
+    voxel size once ``map/`` is written: a survey's map is gigabytes, and the cloud and rasters
+    written next need room."""
     t0 = time.perf_counter()
     out = Path(out)
     files: list[str] = []
@@ -148,12 +153,13 @@ def write_survey_outputs(
     files.append("model/")
     # the map first: its export's temporaries are gone before the cloud's arrays are made
     _write_map(result, out / "map")
+    if release_map:
+        result.map = OccupancyMap(voxel_size_m=result.map.voxel_size)
     release_free_memory()
     cloud = result.mvs.cloud
     rasters = None
     if len(cloud):
-        pts = cloud.points.astype(np.float64)
-        proj, code = projected_from_enu(result.origin, pts, epsg)
+        proj, code = projected_from_enu(result.origin, cloud.points.astype(np.float64), epsg)
         written = write_point_cloud(
             out / "cloud.laz",
             cloud,
@@ -164,8 +170,7 @@ def write_survey_outputs(
         files.append(written.name)
         del proj
         release_free_memory()  # the writer's point records
-        rasters = surface_rasters(pts, cloud.colors, result.origin, cell_m, code)
-        del pts
+        rasters = surface_rasters(cloud.points, cloud.colors, result.origin, cell_m, code)
         release_free_memory()
         write_geotiff(out / "dsm.tif", rasters, "dsm")
         write_geotiff(out / "ortho.tif", rasters, "ortho")

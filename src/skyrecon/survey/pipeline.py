@@ -331,7 +331,9 @@ def _subsampled(depth_m: np.ndarray, cam: Intrinsics, step: int) -> tuple[np.nda
 def _build_map(mvs: MVSResult, track: np.ndarray, options: SurveyOptions, max_range_m: float) -> OccupancyMap:
     """The occupancy map of the depth maps (subsampled to about one ray per voxel on the ground)."""
     occ = OccupancyMap(MapConfig(voxel_size_m=options.voxel_m, max_range_m=max_range_m))
-    for dm in progress(list(mvs.depth_maps.values()), desc="map"):
+    for k, dm in enumerate(progress(list(mvs.depth_maps.values()), desc="map")):
+        if k % 25 == 24:  # the ray casting's freed temporaries would otherwise stay resident
+            release_free_memory()
         if dm.cam_from_world is None:
             continue
         finite = dm.depth_m[np.isfinite(dm.depth_m)]

@@ -112,14 +112,18 @@ def surface_rasters(
     """
     pts = np.asarray(points_enu, dtype=np.float64).reshape(-1, 3)
     finite = np.all(np.isfinite(pts), axis=1)
-    pts = pts[finite]
+    all_finite = bool(finite.all())
+    if not all_finite:  # (no copy of a survey's tens of millions of points when all are finite)
+        pts = pts[finite]
     if len(pts) == 0:
         raise InputError("the cloud has no points to make a DSM or an orthophoto from")
     rgb = (
         np.full((len(pts), 3), 160, np.uint8)
         if colors is None
-        else np.asarray(colors, dtype=np.uint8).reshape(-1, 3)[finite]
+        else np.asarray(colors, dtype=np.uint8).reshape(-1, 3)
     )
+    if colors is not None and not all_finite:
+        rgb = rgb[finite]
     if not 0.0 <= quantile <= 1.0:
         raise InputError(f"the DSM quantile must lie in [0, 1], got {quantile}")
     cell = float(cell_m) if cell_m is not None else default_cell_m(pts)
@@ -136,9 +140,10 @@ def surface_rasters(
         raise InputError(
             f"a {width} x {height} raster at {cell:g} m is too large; choose a larger cell size (--cell)"
         )
-    col = np.clip(((proj[:, 0] - west) / cell).astype(np.int64), 0, width - 1)
-    row = np.clip(((north - proj[:, 1]) / cell).astype(np.int64), 0, height - 1)
-    flat = row * width + col
+    del pts  # only the projected coordinates from here
+    flat = np.clip(((north - proj[:, 1]) / cell).astype(np.int64), 0, height - 1)  # row
+    flat *= width
+    flat += np.clip(((proj[:, 0] - west) / cell).astype(np.int64), 0, width - 1)  # + column
     order = np.lexsort((proj[:, 2], flat))  # by cell, then height
     flat_sorted = flat[order]
     starts = np.flatnonzero(np.r_[True, flat_sorted[1:] != flat_sorted[:-1]])
