@@ -28,7 +28,8 @@ for 250 images (and 32 GB for 500); those published figures are printed beside o
 Usage:
   .venv/bin/python benchmarks/survey/run.py --photos 100            # synthetic-100, GPS
   .venv/bin/python benchmarks/survey/run.py --photos 100 400 --gcp --real --workers 2
-Writes benchmarks/survey/results.json. Never fails for being slow.
+  .venv/bin/python benchmarks/survey/run.py --photos 400 --resume   # the same runs again, resumed
+Writes benchmarks/survey/results.json (or --out; rows are merged by scene). Never fails for being slow.
 """
 
 from __future__ import annotations
@@ -109,17 +110,24 @@ def real_set(name: str, data_root: Path, work: Path) -> Path | None:
 
 
 def one_run(
-    label: str, root: Path, extra: list[str], workers: int, out_root: Path, synthetic_scene: bool
+    label: str,
+    root: Path,
+    extra: list[str],
+    workers: int,
+    out_root: Path,
+    synthetic_scene: bool,
+    resume: bool = False,
 ) -> dict[str, Any]:
     out = out_root / label
-    shutil.rmtree(out, ignore_errors=True)
+    if not resume:
+        shutil.rmtree(out, ignore_errors=True)
     cmd = skyrecon(
         "survey", str(root / "images"), "--out", str(out), "--workers", str(workers), "--quiet", *extra
     )
     m = run_measured(cmd)
     rc, wall, peak, cpu, err = m.returncode, m.wall_s, m.peak_gb, m.cpu_s, m.stderr_tail
     row: dict[str, Any] = {
-        "scene": label,
+        "scene": label + (" (resumed from the previous run's workspace)" if resume else ""),
         "rc": rc,
         "wall_s": round(wall, 1),
         "cpu_s": round(cpu, 1),
@@ -147,13 +155,22 @@ def main() -> None:
     ap.add_argument("--real", action="store_true", help="also run the real sets (fountain, temple)")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--data", type=Path, default=Path(tempfile.gettempdir()) / "skyrecon-survey-bench")
+    ap.add_argument(
+        "--resume",
+        action="store_true",
+        help="keep each run's folder: the survey resumes from its workspace (cached features, matches, "
+        "model, depth maps, planar priors): measures the later stages' memory and time",
+    )
+    ap.add_argument(
+        "--out", type=Path, default=HERE / "results.json", help="results file (rows merged by scene)"
+    )
     args = ap.parse_args()
     args.data.mkdir(parents=True, exist_ok=True)
     out_root = args.data / "runs"
     rows = []
     for n in args.photos:
         root = synthetic(n, args.data, args.width, args.height)
-        rows.append(one_run(f"synthetic-{n}", root, [], args.workers, out_root, True))
+        rows.append(one_run(f"synthetic-{n}", root, [], args.workers, out_root, True, args.resume))
         print(json.dumps(rows[-1]), flush=True)
         if args.gcp:
             rows.append(
@@ -164,6 +181,7 @@ def main() -> None:
                     args.workers,
                     out_root,
                     True,
+                    args.resume,
                 )
             )
             print(json.dumps(rows[-1]), flush=True)
@@ -174,7 +192,11 @@ def main() -> None:
             if root is None:
                 print(f"{name}: not found under {data_root}; skipped")
                 continue
-            rows.append(one_run(name, root, ["--camera", str(root / "K.txt")], args.workers, out_root, False))
+            rows.append(
+                one_run(
+                    name, root, ["--camera", str(root / "K.txt")], args.workers, out_root, False, args.resume
+                )
+            )
             print(json.dumps(rows[-1]), flush=True)
     print()
     print(
@@ -203,9 +225,12 @@ def main() -> None:
         f"OpenDroneMap (published, not measured): about {ODM_PUBLISHED['memory_gb']:.0f} GB of memory for "
         f"{ODM_PUBLISHED['images']} images ({ODM_PUBLISHED['source']})"
     )
-    (HERE / "results.json").write_text(
-        json.dumps({"rows": rows, "odm_published": ODM_PUBLISHED}, indent=2) + "\n"
-    )
+    # rows of the scenes run now replace theirs; other rows and keys of the file are kept
+    doc = json.loads(args.out.read_text()) if args.out.is_file() else {}
+    now = {r["scene"] for r in rows}
+    doc["rows"] = [r for r in doc.get("rows", []) if r.get("scene") not in now] + rows
+    doc["odm_published"] = ODM_PUBLISHED
+    args.out.write_text(json.dumps(doc, indent=2) + "\n")
 
 
 if __name__ == "__main__":
