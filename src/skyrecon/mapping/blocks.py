@@ -198,6 +198,28 @@ def lookup_voxels(tkeys, tvals, data, B, voxels, fill):
     return out
 
 
+def _resize_rows(owner: object, name: str, rows: int, keep: int, fill: float | np.floating) -> None:
+    """Give the array ``owner.<name>`` ``rows`` rows: its first ``keep`` rows kept, the rest ``fill``.
+
+    Resized in place when nothing else refers to the array (numpy's refcheck; the attribute is
+    detached meanwhile so that it is the only reference): a C realloc remaps a large array's pages
+    instead of copying them, so the old and the new voxel pool (gigabytes in a city-scale map)
+    are never resident together. A live view of it elsewhere makes it a copy instead.
+    """
+    a = getattr(owner, name)
+    setattr(owner, name, None)
+    try:
+        try:
+            a.resize((rows,) + a.shape[1:], refcheck=True)
+        except ValueError:
+            b = np.empty((rows,) + a.shape[1:], a.dtype)
+            b[:keep] = a[:keep]
+            a = b
+        a[keep:] = fill
+    finally:
+        setattr(owner, name, a)
+
+
 class BlockGrid:
     """A sparse grid of float32 voxel blocks.
 
@@ -227,23 +249,8 @@ class BlockGrid:
         """Make room for ``n_blocks`` blocks in total without further reallocation."""
         if n_blocks > self.coords.shape[0]:
             new = max(n_blocks, int(self.coords.shape[0] * 1.5) + 16)
-            # resized in place when nothing else refers to the arrays (numpy's refcheck): a C
-            # realloc remaps a large array's pages instead of copying them, so the old and the
-            # new voxel pool (gigabytes in a city-scale map) are never resident together
-            try:
-                self.data.resize((new, self.data.shape[1]), refcheck=True)
-            except ValueError:  # a view of the pool is alive somewhere: copy
-                self.data = np.concatenate(
-                    [self.data[: self.count], np.empty((new - self.count, self.data.shape[1]), np.float32)]
-                )
-            self.data[self.count :] = self.fill
-            try:
-                self.coords.resize((new, 3), refcheck=True)
-            except ValueError:
-                self.coords = np.concatenate(
-                    [self.coords[: self.count], np.empty((new - self.count, 3), np.int32)]
-                )
-            self.coords[self.count :] = 0
+            _resize_rows(self, "data", new, self.count, self.fill)
+            _resize_rows(self, "coords", new, self.count, 0)
         if n_blocks > int(self.tkeys.shape[0] * _MAX_LOAD):
             cap = self.tkeys.shape[0]
             while n_blocks > int(cap * _MAX_LOAD):
@@ -255,16 +262,9 @@ class BlockGrid:
         keeps only its blocks. In place (realloc) when nothing else refers to the arrays, like
         :meth:`reserve`; a later :meth:`ensure` grows it again."""
         n = max(self.count, 16)
-        if n >= self.coords.shape[0]:
-            return
-        try:
-            self.data.resize((n, self.data.shape[1]), refcheck=True)
-        except ValueError:
-            self.data = self.data[:n].copy()
-        try:
-            self.coords.resize((n, 3), refcheck=True)
-        except ValueError:
-            self.coords = self.coords[:n].copy()
+        if n < self.coords.shape[0]:
+            _resize_rows(self, "data", n, n, self.fill)
+            _resize_rows(self, "coords", n, n, 0)
 
     # ----- access ----------------------------------------------------------------------
     def find(self, block_coords: np.ndarray) -> np.ndarray:

@@ -230,6 +230,7 @@ def _choose_pairs(
 def _load(run: _MVSRun) -> None:
     """Images at the working resolution; blank images are left out (all blank: an error)."""
     run.views = load_working_views(run.inputs, run.images, run.settings.max_image_size)
+    run.diagnostics["working_size"] = {v.stem: (v.shape[1], v.shape[0]) for v in run.views}
     run.blank = _blank_views(run.views)
     if len(run.blank) == len(run.views):
         raise InputError(
@@ -353,8 +354,7 @@ def _fuse(run: _MVSRun) -> None:
 def _release_pixels(run: _MVSRun) -> None:
     """Drop the working images (2.4 MB a view at 640 px) once nothing reads them: after fusion
     only the cameras are used (normals' orientation, the result), unless a mesh is coloured from
-    them. Their sizes are recorded first (``working_size``)."""
-    run.diagnostics["working_size"] = {v.stem: (v.shape[1], v.shape[0]) for v in run.views}
+    them (their sizes are in the diagnostics since loading)."""
     rgb, grey, valid = np.zeros((0, 0, 3), np.uint8), np.zeros((0, 0), np.float32), np.zeros((0, 0), bool)
     run.views = [replace(v, rgb=rgb, grey=grey, valid=valid) for v in run.views]
 
@@ -407,7 +407,6 @@ def _result(run: _MVSRun, t_start: float, cpu_start: float) -> MVSResult:
     diag["valid_fraction"] = {
         v.stem: float(np.isfinite(d).mean()) for v, d in zip(views, depths) if d is not None
     }
-    diag.setdefault("working_size", {v.stem: (v.shape[1], v.shape[0]) for v in views})
     run.timings["total"] = time.perf_counter() - t_start
     # CPU seconds: this process (all its threads) plus the tasks that ran in worker processes
     task_timings: list[TaskTimings] = diag.get("depth_task_ms", [])

@@ -144,39 +144,49 @@ def _pair_scores_kernel(
                 counted[s] += 1
 
 
+def _views_per_point(vis: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """From (n, M) bool visibility: (view_ptr (n + 1,), point_of (K,): the points each view sees,
+    view-major; pt_ptr (M + 1,), pt_views (K,) int64: the views that see each point)."""
+    n, m = vis.shape
+    view_of, point_of = np.nonzero(vis)
+    view_ptr = np.searchsorted(view_of, np.arange(n + 1))
+    by_point = np.argsort(point_of, kind="stable")
+    pt_ptr = np.searchsorted(point_of[by_point], np.arange(m + 1))
+    return view_ptr, point_of.astype(np.int64), pt_ptr, view_of[by_point].astype(np.int64)
+
+
 def _scored_sources(
     X: np.ndarray,
     centers: np.ndarray,
     r: int,
-    vis: np.ndarray,
+    pts_of_r: np.ndarray,
+    pt_ptr: np.ndarray,
+    pt_views: np.ndarray,
     min_angle_deg: float,
     max_angle_deg: float,
     min_shared: int,
 ) -> list[tuple[float, int]]:
-    """(score, source) of every view other than ``r`` that shares enough points with it.
-
-    ``X`` (M, 3) world points seen by ``r``, ``centers`` (n, 3) camera centres, ``vis`` (n, M)
-    bool which view sees which point. A source's score is the sum of :func:`angle_weight` of the
-    triangulation angles of the points both see; it needs ``min_shared`` points seen by both and
-    as many with a non-zero weight. All (view, point) pairs are scored at once (one pass over
-    the visibility, not one per view).
-    """
+    """(score, source) of every view other than ``r`` sharing at least ``min_shared`` of the
+    points ``pts_of_r`` (indices into X (N, 3)) with it, as many with a non-zero weight (see
+    :func:`_pair_scores_kernel`)."""
     n = len(centers)
-    ok = vis.sum(axis=1) >= min_shared
-    ok[r] = False
-    if not ok.any():
-        return []
-    dr = X - centers[r]
-    dr /= np.linalg.norm(dr, axis=1, keepdims=True)
-    src, pt = np.nonzero(vis & ok[:, None])
-    ds = X[pt] - centers[src]
-    ds /= np.linalg.norm(ds, axis=1, keepdims=True)
-    theta = np.degrees(np.arccos(np.clip(np.sum(dr[pt] * ds, axis=1), -1, 1)))
-    w = angle_weight(theta, min_angle_deg, max_angle_deg)
-    total = np.bincount(src, weights=w, minlength=n)
-    counted = np.bincount(src, weights=(w > 0).astype(np.float64), minlength=n)
-    keep = np.nonzero(ok & (counted >= min_shared))[0]
-    return [(float(total[s]), int(s)) for s in keep]
+    total, counted, shared = np.zeros(n), np.zeros(n, np.int64), np.zeros(n, np.int64)
+    _pair_scores_kernel(
+        X,
+        centers,
+        r,
+        pts_of_r,
+        pt_ptr,
+        pt_views,
+        min_angle_deg,
+        max_angle_deg,
+        *_BEST_ANGLES_DEG,
+        total,
+        counted,
+        shared,
+    )
+    ok = np.nonzero((shared >= min_shared) & (counted >= min_shared))[0]
+    return [(float(total[s]), int(s)) for s in ok if s != r]
 
 
 def select_neighbors(
@@ -218,40 +228,18 @@ def select_neighbors(
             return view.intrinsics.in_image(uv) & (z > 0)
 
     vis_sparse = np.stack([visible(v, P) for v in views]) if len(P) else np.zeros((n, 0), bool)
-    # which points each view sees (view-major) and which views see each point (point-major)
-    view_of, point_of = np.nonzero(vis_sparse)
-    view_ptr = np.searchsorted(view_of, np.arange(n + 1))
-    by_point = np.argsort(point_of, kind="stable")
-    pt_views = view_of[by_point].astype(np.int64)
-    pt_ptr = np.searchsorted(point_of[by_point], np.arange(len(P) + 1))
-    total, counted, shared = np.zeros(n), np.zeros(n, np.int64), np.zeros(n, np.int64)
+    view_ptr, point_of, pt_ptr, pt_views = _views_per_point(vis_sparse)
+    angles = (min_angle_deg, max_angle_deg, min_shared)
     for r in range(n):
         frustum_range = None if depth_ranges is None else depth_ranges[r]
-        pts_of_r = point_of[view_ptr[r] : view_ptr[r + 1]].astype(np.int64)
+        pts_of_r = point_of[view_ptr[r] : view_ptr[r + 1]]
         if len(pts_of_r) < min_shared and frustum_range is not None:
             X = _frustum_samples(views[r], frustum_range)
-            vis = np.stack([visible(v, X) for v in views])
-            cand = _scored_sources(X, centers, r, vis, min_angle_deg, max_angle_deg, min_shared)
-        elif len(pts_of_r):
-            total[:], counted[:], shared[:] = 0.0, 0, 0
-            _pair_scores_kernel(
-                P,
-                centers,
-                r,
-                pts_of_r,
-                pt_ptr,
-                pt_views,
-                min_angle_deg,
-                max_angle_deg,
-                *_BEST_ANGLES_DEG,
-                total,
-                counted,
-                shared,
-            )
-            ok = np.nonzero((shared >= min_shared) & (counted >= min_shared))[0]
-            cand = [(float(total[s]), int(s)) for s in ok if s != r]
+            _, _, x_ptr, x_views = _views_per_point(np.stack([visible(v, X) for v in views]))
+            all_x = np.arange(len(X), dtype=np.int64)
+            cand = _scored_sources(X, centers, r, all_x, x_ptr, x_views, *angles)
         else:
-            cand = []
+            cand = _scored_sources(P, centers, r, pts_of_r, pt_ptr, pt_views, *angles)
         cand.sort(key=lambda t: (-t[0], t[1]))
         neighbors.append([s for _, s in cand[:num_sources]])
         scores.append([sc for sc, _ in cand[:num_sources]])

@@ -18,8 +18,9 @@ Stages (each timed in ``SurveyResult.timings_s``):
 
 A rerun with the same inputs and options resumes: cached features, matches, model, depth maps and
 planar priors are reused. Freed memory is handed back to the system after each stage
-(:func:`skyrecon.memory.release_free_memory`), so the resident size follows what the run holds. Frames: ENU metres around ``SurveyResult.origin`` (float64); everything written in a
-projected system (UTM) is converted from it at the end.
+(:func:`skyrecon.memory.release_free_memory`), so the resident size follows what the run holds.
+Frames: ENU metres around ``SurveyResult.origin`` (float64); everything written in a projected
+system (UTM) is converted from it at the end.
 """
 
 from __future__ import annotations
