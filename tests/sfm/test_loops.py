@@ -154,8 +154,8 @@ def test_a_loop_step_that_fits_worse_is_undone(flight, monkeypatch):
     good = _run(data, loop_min_gap=0)
     original = IncrementalMapper._global_ba
 
-    def broken(self, rounds=1, max_iterations=None, final=False):
-        rep = original(self, rounds, max_iterations, final)
+    def broken(self, rounds=1, max_iterations=None, final=False, function_tolerance=None):
+        rep = original(self, rounds, max_iterations, final, function_tolerance)
         if not final and max_iterations == self.b.global_max_iterations:
             self.t[self.reg] += 0.5  # a bad loop: the model no longer fits its observations
         return rep
@@ -222,3 +222,35 @@ def test_a_long_chain_with_noisy_keypoints_keeps_its_scale(flight):
     assert 0.3 < out.diagnostics["loss_scale_px"] < 0.7  # about the keypoints' 0.5 px noise
     first = {k: v for k, v in gt.items() if int(k[6:9]) < 50}
     assert _max_center_pct(out, data, first) < 3.0
+
+
+def test_global_adjustments_converge_tightly_only_in_the_last_final_round(flight, monkeypatch):
+    """Periodic global runs stop at ``periodic_function_tolerance``, the final refinement's
+    rounds before the last at ``global_function_tolerance`` (filtering and re-triangulation
+    follow them) and its last round at ``final_function_tolerance``."""
+    data, gt = flight
+    calls: list[tuple[int, float]] = []
+    adjust = IncrementalMapper._adjust
+
+    def spy(self, var_images, tracks, max_iterations, refine_intrinsics, function_tolerance=1e-6, **kw):
+        if refine_intrinsics:  # the global runs (local ones hold the intrinsics)
+            calls.append((int(self.reg.sum()), function_tolerance))
+        return adjust(self, var_images, tracks, max_iterations, refine_intrinsics, function_tolerance, **kw)
+
+    monkeypatch.setattr(IncrementalMapper, "_adjust", spy)
+    out = _run(data)
+    b = BundleSettings()
+    runs = out.diagnostics["global_ba_runs"]
+    assert [len(r["round_iterations"]) for r in runs] == [len(r["observations"]) for r in runs]
+    assert sum(len(r["round_iterations"]) for r in runs) == len(calls)
+    tolerances = iter(tol for _, tol in calls)
+    per_run = [[next(tolerances) for _ in r["round_iterations"]] for r in runs]
+    assert set(per_run[0]) == {b.global_function_tolerance}  # the initial pair's
+    finals = [k for k, r in enumerate(runs) if r["final"]]
+    assert finals and all(r["rounds"] == 1 for r in runs[1 : finals[0]])
+    assert all(t == [b.periodic_function_tolerance] for t in per_run[1 : finals[0]])
+    for k in finals:
+        assert per_run[k][-1] == b.final_function_tolerance
+        assert set(per_run[k][:-1]) <= {b.global_function_tolerance}
+    assert len(per_run[finals[0]]) >= 2  # the final refinement adjusts, filters, adjusts again
+    assert out.registered.all() and _max_center_pct(out, data, gt) < 2.0

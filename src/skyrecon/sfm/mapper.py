@@ -85,8 +85,8 @@ class MapperOutput:
         init_pair: the initial pair (image indices).
         diagnostics: counters and timings; ``loops`` (one record per loop: its image, points,
             RMS errors, whether it was adjusted and kept) and ``global_ba_runs`` (one record per
-            global adjustment: registered images, rounds, final or not, LM iterations, seconds in
-            the solver and in all).
+            global adjustment: registered images, rounds, final or not, LM iterations in all and
+            in each round, observations adjusted in each round, seconds in the solver and in all).
         warnings: human-readable warnings.
         registration_order: image indices in the order they were registered.
     """
@@ -516,23 +516,41 @@ class IncrementalMapper:
         self.stats["loss_scale_px"] = self.loss_scale_px
 
     def _global_ba(
-        self, rounds: int = 1, max_iterations: int | None = None, final: bool = False
+        self,
+        rounds: int = 1,
+        max_iterations: int | None = None,
+        final: bool = False,
+        function_tolerance: float | None = None,
     ) -> BundleReport | None:
+        """Global adjustment of every registered image and point, ``rounds`` times with
+        filtering, track completion and re-triangulation in between. Rounds stop at
+        ``function_tolerance`` (default ``BundleSettings.global_function_tolerance``); the last
+        round of the ``final`` refinement at ``final_function_tolerance``."""
         t0 = time.perf_counter()
         rep = None
         self._follow_noise()
-        iterations, solve_s = 0, 0.0
+        round_iterations: list[int] = []
+        solve_s, n_obs_adjusted = 0.0, []
+        settled = False  # a final round changed too little: the next one is the last
         for r in range(rounds):
             tracks = np.nonzero(self.has_pt)[0]
             if len(tracks) == 0:
                 break
             var_images = np.nonzero(self.reg)[0]
             n_obs_before = int(self.active.sum())
-            ftol = self.b.final_function_tolerance if final else self.b.global_function_tolerance
-            rep, _ = self._adjust(
-                var_images, tracks, max_iterations or self.b.global_max_iterations, True, ftol
+            last = final and (r == rounds - 1 or settled)
+            # rounds before the last are followed by filtering and re-triangulation: only the
+            # last one converges to the final tolerance
+            ftol = function_tolerance or self.b.global_function_tolerance
+            rep, prob = self._adjust(
+                var_images,
+                tracks,
+                max_iterations or self.b.global_max_iterations,
+                True,
+                self.b.final_function_tolerance if last else ftol,
             )
-            iterations += rep.iterations
+            n_obs_adjusted.append(len(prob.obs_image))
+            round_iterations.append(rep.iterations)
             solve_s += rep.seconds
             self._filter(tracks, check_angle=True)
             all_tracks = np.arange(self.n_tracks)
@@ -540,7 +558,9 @@ class IncrementalMapper:
             self._triangulate(all_tracks)
             change = abs(int(self.active.sum()) - n_obs_before) / max(1, n_obs_before)
             if r > 0 and change < 5e-4:
-                break
+                if last or not final:
+                    break
+                settled = True
         self.stats["global_ba"] += 1
         self.stats["global_ba_s"] += time.perf_counter() - t0
         self.stats["global_ba_runs"].append(
@@ -548,7 +568,9 @@ class IncrementalMapper:
                 "images": int(self.reg.sum()),
                 "rounds": rounds,
                 "final": final,
-                "iterations": iterations,
+                "iterations": sum(round_iterations),
+                "round_iterations": round_iterations,
+                "observations": n_obs_adjusted,
                 "solver_s": round(solve_s, 3),
                 "seconds": round(time.perf_counter() - t0, 3),
             }
@@ -769,7 +791,11 @@ class IncrementalMapper:
             n_reg >= self.s.global_ba_ratio * self.last_global_images
             or n_pts >= self.s.global_ba_ratio** 2 * max(1, self.last_global_points)
         ):
-            self._global_ba(rounds=1, max_iterations=min(self.b.global_max_iterations, 30))
+            self._global_ba(
+                rounds=1,
+                max_iterations=min(self.b.global_max_iterations, 30),
+                function_tolerance=self.b.periodic_function_tolerance,
+            )
 
     # ------------------------------------------------------------------ loops
     def _loop_tracks(self, image: int) -> np.ndarray:

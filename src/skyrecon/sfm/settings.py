@@ -229,8 +229,10 @@ class BundleSettings:
             noise when that is larger (noisier images), never lowers it.
         local_max_iterations, global_max_iterations: LM iterations of local and global runs.
         local_function_tolerance, global_function_tolerance: relative cost decrease below which
-            local / intermediate-global runs stop; the final global runs use
-            ``final_function_tolerance``.
+            local / intermediate-global runs (loop closures, every final round but the last) stop.
+        periodic_function_tolerance: the same for the global runs each 10 % of growth (they keep
+            the model consistent for the next registrations; the final runs converge it).
+        final_function_tolerance: the same for the last round of the final global run.
         refine_focal_length: estimate the focal length (shared camera) in global adjustments.
         refine_distortion: estimate radial ``k1``, ``k2`` in global adjustments (only for
             intrinsics without tangential or ``k3`` terms).
@@ -245,6 +247,7 @@ class BundleSettings:
     global_max_iterations: int = 50
     local_function_tolerance: float = 1e-3
     global_function_tolerance: float = 1e-4
+    periodic_function_tolerance: float = 1e-3
     final_function_tolerance: float = 1e-6
     refine_focal_length: bool = False
     refine_distortion: bool = False
