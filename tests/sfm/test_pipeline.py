@@ -206,3 +206,23 @@ def test_a_wrong_focal_length_is_reported(orbit, check_images):
     res = run_sfm(paths[:8], wrong, settings, executor=SerialExecutor(), seed=0)
     assert any("focal length in K seems off" in w for w in res.warnings), res.warnings
     assert res.diagnostics["mapper"]["focal_check_images"] == min(8, check_images)
+
+
+def test_image_names_of_symbolic_links_are_the_links_names(tmp_path):
+    """A folder of links (``photo_*.png`` to ``frame_*.png`` elsewhere) is named by its links, so
+    the names join back onto the folder the user gave (transforms.json, the survey's photos)."""
+    from skyrecon.sfm.pipeline import image_names
+
+    (tmp_path / "store").mkdir()
+    (tmp_path / "links" / "sub").mkdir(parents=True)
+    links = []
+    for k, rel in enumerate(["photo_b.png", "photo_a.png", "sub/photo_c.png"]):
+        target = tmp_path / "store" / f"frame_{k:04d}.png"
+        target.write_bytes(b"x")
+        link = tmp_path / "links" / rel
+        link.symlink_to(target)
+        links.append(link)
+    names = image_names(links)
+    assert names == ["photo_b.png", "photo_a.png", "sub/photo_c.png"]
+    assert all((tmp_path / "links" / n).is_file() for n in names)
+    assert image_names([Path("rel") / ".." / "x" / "a.png", Path("x/b.png")]) == ["a.png", "b.png"]

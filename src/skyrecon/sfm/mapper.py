@@ -532,6 +532,8 @@ class IncrementalMapper:
         round_iterations: list[int] = []
         solve_s, n_obs_adjusted = 0.0, []
         settled = False  # a final round changed too little: the next one is the last
+        if function_tolerance is None:
+            function_tolerance = self.b.global_function_tolerance
         for r in range(rounds):
             tracks = np.nonzero(self.has_pt)[0]
             if len(tracks) == 0:
@@ -541,13 +543,12 @@ class IncrementalMapper:
             last = final and (r == rounds - 1 or settled)
             # rounds before the last are followed by filtering and re-triangulation: only the
             # last one converges to the final tolerance
-            ftol = function_tolerance or self.b.global_function_tolerance
             rep, prob = self._adjust(
                 var_images,
                 tracks,
                 max_iterations or self.b.global_max_iterations,
                 True,
-                self.b.final_function_tolerance if last else ftol,
+                self.b.final_function_tolerance if last else function_tolerance,
             )
             n_obs_adjusted.append(len(prob.obs_image))
             round_iterations.append(rep.iterations)

@@ -47,10 +47,12 @@ __all__ = ["run_sfm", "image_names"]
 
 def image_names(paths: Sequence[Path]) -> list[str]:
     """Names of images: paths relative to their deepest common directory (the file name when
-    they share one directory)."""
-    parents = [p.resolve().parent for p in paths]
+    they share one directory). Symbolic links keep their own names (a folder of links named
+    ``photo_*.png`` gives those names, not their targets'), so names join back onto the folder."""
+    absolute = [Path(os.path.abspath(p)) for p in paths]
+    parents = [p.parent for p in absolute]
     common = Path(os.path.commonpath([str(p) for p in parents])) if parents else Path(".")
-    return [p.resolve().relative_to(common).as_posix() for p in paths]
+    return [p.relative_to(common).as_posix() for p in absolute]
 
 
 def _check_intrinsics(intrinsics: Intrinsics | Sequence[Intrinsics], n: int) -> list[Intrinsics]:
