@@ -465,9 +465,7 @@ class OccupancyMap:
             cand = (np.floor(chunk / v).astype(np.int64)[:, None, :] + offs[None]).reshape(-1, 3)
             near = np.linalg.norm((cand + 0.5) * v - np.repeat(chunk, len(offs), axis=0), axis=1)
             parts.append(np.unique(cand[near <= reach + 0.125 * v], axis=0))
-        cand = np.unique(np.concatenate(parts), axis=0)
-        keep = np.ones(len(cand), bool)
-        vox = cand[keep]
+        vox = np.unique(np.concatenate(parts), axis=0)
         if len(vox) == 0:
             return 0
         ids, flat = self._slots(vox)

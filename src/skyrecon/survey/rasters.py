@@ -111,19 +111,15 @@ def surface_rasters(
         fill_gaps: give one-cell holes inside covered ground their neighbours' values.
     """
     pts = np.asarray(points_enu, dtype=np.float64).reshape(-1, 3)
+    rgb = None if colors is None else np.asarray(colors, dtype=np.uint8).reshape(-1, 3)
     finite = np.all(np.isfinite(pts), axis=1)
-    all_finite = bool(finite.all())
-    if not all_finite:  # (no copy of a survey's tens of millions of points when all are finite)
+    if not finite.all():  # (no copy of a survey's tens of millions of points when all are finite)
         pts = pts[finite]
+        rgb = None if rgb is None else rgb[finite]
     if len(pts) == 0:
         raise InputError("the cloud has no points to make a DSM or an orthophoto from")
-    rgb = (
-        np.full((len(pts), 3), 160, np.uint8)
-        if colors is None
-        else np.asarray(colors, dtype=np.uint8).reshape(-1, 3)
-    )
-    if colors is not None and not all_finite:
-        rgb = rgb[finite]
+    if rgb is None:
+        rgb = np.full((len(pts), 3), 160, np.uint8)
     if not 0.0 <= quantile <= 1.0:
         raise InputError(f"the DSM quantile must lie in [0, 1], got {quantile}")
     cell = float(cell_m) if cell_m is not None else default_cell_m(pts)
