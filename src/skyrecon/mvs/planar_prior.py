@@ -389,26 +389,80 @@ def _candidate_planes(
         return np.zeros((0, 4)), np.zeros(0, bool)
     r = seg_ray / np.linalg.norm(seg_ray)
     facing = -(P[:, :3] @ r) >= cos_max
-    pd = _plane_depth(P[:, :3], P[:, 3], rays)  # (P, N)
-    with np.errstate(invalid="ignore"):
-        inl = np.abs(pd - d[None, :]) <= s.inlier_rel * d[None, :]
-    score = inl.sum(1)
+    inl, score = _plane_inliers(P[:, :3] @ rays.T, P[:, 3].copy(), d, float(s.inlier_rel))
     score[~facing] = -1
     # every supported dominant plane; then the best supported distinct triangle planes
-    kept: list[int] = [i for i in range(n_global) if score[i] >= s.min_inliers]
-    n_kept_global = len(kept)
+    kept_global = [i for i in range(n_global) if score[i] >= s.min_inliers]
     order = n_global + np.argsort(-score[n_global:], kind="stable")
     order = order[score[order] >= s.min_inliers]
     spread = _spreads(uv, inl[order])
-    for i, spread_i in zip(order, spread):
-        if len(kept) - n_kept_global >= s.max_candidates:
-            break
-        if spread_i < s.min_spread_px:
-            continue
-        if any((inl[i] & inl[k]).sum() > 0.5 * min(score[i], score[k]) for k in kept[n_kept_global:]):
-            continue
-        kept.append(int(i))
+    kept_tri = _distinct_planes(inl, score, order, spread, float(s.min_spread_px), int(s.max_candidates))
+    kept = kept_global + [int(i) for i in kept_tri]
     return P[kept], np.array([k < n_global for k in kept], bool)
+
+
+@njit(cache=True, nogil=True, boundscheck=False)
+def _plane_inliers(
+    den: np.ndarray, h: np.ndarray, d: np.ndarray, inlier_rel: float
+) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - jit
+    """Which of N support points lie on each of P planes, and how many.
+
+    ``den`` (P, N) is ``n . ray`` of each plane's normal and each point's ray, ``h`` (P,) the
+    planes' offsets, ``d`` (N,) the points' depths (metres). A point is on a plane when the ray
+    meets the plane from the front (``den < -1e-9``) at a positive depth within ``inlier_rel *
+    d`` of its own (:func:`_plane_depth`, same arithmetic). Returns ((P, N) bool, (P,) int64).
+    """
+    P, N = den.shape
+    inl = np.zeros((P, N), np.bool_)
+    score = np.zeros(P, np.int64)
+    for p in range(P):
+        c = 0
+        for j in range(N):
+            dn = den[p, j]
+            if dn < -1e-9:
+                z = h[p] / dn
+                if z > 0 and abs(z - d[j]) <= inlier_rel * d[j]:
+                    inl[p, j] = True
+                    c += 1
+        score[p] = c
+    return inl, score
+
+
+@njit(cache=True, nogil=True, boundscheck=False)
+def _distinct_planes(
+    inl: np.ndarray,
+    score: np.ndarray,
+    order: np.ndarray,
+    spread: np.ndarray,
+    min_spread: float,
+    max_kept: int,
+) -> np.ndarray:  # pragma: no cover - jit
+    """The planes ``order`` (best first) kept greedily: spread at least ``min_spread`` pixels
+    (``spread`` per entry of ``order``), and sharing at most half of the smaller inlier set
+    (rows of ``inl``, sizes ``score``) with every plane kept before; at most ``max_kept``."""
+    N = inl.shape[1]
+    kept = np.empty(max(max_kept, 0), np.int64)
+    m = 0
+    for t in range(len(order)):
+        if m >= max_kept:
+            break
+        if spread[t] < min_spread:
+            continue
+        i = order[t]
+        distinct = True
+        for q in range(m):
+            k = kept[q]
+            shared = 0
+            for j in range(N):
+                if inl[i, j] and inl[k, j]:
+                    shared += 1
+            if shared > 0.5 * min(score[i], score[k]):
+                distinct = False
+                break
+        if distinct:
+            kept[m] = i
+            m += 1
+    return kept[:m]
 
 
 def _ambiguous(
