@@ -44,15 +44,114 @@ def knn_mean_distance_and_normals(
     for a in range(0, n, _CHUNK):
         b = min(n, a + _CHUNK)
         dist, idx = tree.query(P[a:b], k=kk, workers=workers)
-        dist = dist.reshape(b - a, kk)
-        idx = idx.reshape(b - a, kk)
-        mean_d[a:b] = dist[:, 1:].mean(axis=1) if kk > 1 else 0.0
-        nb = P[idx]  # (m, kk, 3)
-        c = nb - nb.mean(axis=1, keepdims=True)
-        cov = np.einsum("mki,mkj->mij", c, c)
-        _, vec = np.linalg.eigh(cov)
-        normals[a:b] = vec[:, :, 0]
+        _mean_distance_and_normals(
+            P,
+            dist.reshape(b - a, kk),
+            idx.reshape(b - a, kk).astype(np.int64, copy=False),
+            mean_d[a:b],
+            normals[a:b],
+        )
     return mean_d, normals
+
+
+@njit(cache=True, nogil=True, boundscheck=False)
+def _smallest_eigenvector(c: np.ndarray) -> tuple[float, float, float]:  # pragma: no cover - jit
+    """Unit eigenvector of the smallest eigenvalue of the symmetric 3x3 ``c`` (float64).
+
+    Eigenvalues in closed form (the trigonometric solution of the characteristic cubic), the
+    eigenvector as the longest cross product of two rows of ``c - lambda I``. Where the two
+    smallest eigenvalues coincide (points on a line), any unit vector across the largest
+    eigenvector; where all three do (a single point), +z.
+    """
+    scale = 0.0
+    for i in range(3):
+        for j in range(3):
+            scale = max(scale, abs(c[i, j]))
+    if scale == 0.0:
+        return 0.0, 0.0, 1.0
+    a00, a01, a02 = c[0, 0] / scale, c[0, 1] / scale, c[0, 2] / scale
+    a11, a12, a22 = c[1, 1] / scale, c[1, 2] / scale, c[2, 2] / scale
+    q = (a00 + a11 + a22) / 3.0
+    p1 = a01 * a01 + a02 * a02 + a12 * a12
+    p2 = (a00 - q) ** 2 + (a11 - q) ** 2 + (a22 - q) ** 2 + 2.0 * p1
+    p = np.sqrt(p2 / 6.0)
+    if p < 1e-12:
+        return 0.0, 0.0, 1.0
+    b00, b11, b22 = (a00 - q) / p, (a11 - q) / p, (a22 - q) / p
+    b01, b02, b12 = a01 / p, a02 / p, a12 / p
+    r = (b00 * (b11 * b22 - b12 * b12) - b01 * (b01 * b22 - b12 * b02) + b02 * (b01 * b12 - b11 * b02)) / 2.0
+    r = min(1.0, max(-1.0, r))
+    phi = np.arccos(r) / 3.0
+    lam_max = q + 2.0 * p * np.cos(phi)
+    lam_min = q + 2.0 * p * np.cos(phi + 2.0 * np.pi / 3.0)
+    best = (0.0, 0.0, 0.0)
+    best_n2 = -1.0
+    for lam in (lam_min, lam_max):
+        r0 = (a00 - lam, a01, a02)
+        r1 = (a01, a11 - lam, a12)
+        r2 = (a02, a12, a22 - lam)
+        best = (0.0, 0.0, 0.0)
+        best_n2 = -1.0
+        for u, v in ((r0, r1), (r0, r2), (r1, r2)):
+            x = u[1] * v[2] - u[2] * v[1]
+            y = u[2] * v[0] - u[0] * v[2]
+            z = u[0] * v[1] - u[1] * v[0]
+            n2 = x * x + y * y + z * z
+            if n2 > best_n2:
+                best, best_n2 = (x, y, z), n2
+        if best_n2 > 1e-20:
+            if lam == lam_min:
+                nrm = np.sqrt(best_n2)
+                return best[0] / nrm, best[1] / nrm, best[2] / nrm
+            break
+    if best_n2 <= 1e-20:
+        return 0.0, 0.0, 1.0
+    # the two smallest coincide: across the largest eigenvector ``best``
+    nrm = np.sqrt(best_n2)
+    ex, ey, ez = best[0] / nrm, best[1] / nrm, best[2] / nrm
+    if abs(ex) < 0.9:
+        x, y, z = 0.0, ez, -ey  # e x (1, 0, 0)
+    else:
+        x, y, z = -ez, 0.0, ex  # e x (0, 1, 0)
+    nrm = np.sqrt(x * x + y * y + z * z)
+    return x / nrm, y / nrm, z / nrm
+
+
+@njit(cache=True, nogil=True, boundscheck=False)
+def _mean_distance_and_normals(
+    P: np.ndarray, dist: np.ndarray, idx: np.ndarray, mean_d: np.ndarray, normals: np.ndarray
+) -> None:  # pragma: no cover - jit
+    """Per query row: the mean of ``dist[:, 1:]`` into ``mean_d`` and the PCA normal of the
+    points ``P[idx[row]]`` into ``normals`` (both written in place)."""
+    m, kk = idx.shape
+    c = np.empty((3, 3))
+    for i in range(m):
+        s = 0.0
+        for j in range(1, kk):
+            s += dist[i, j]
+        mean_d[i] = s / (kk - 1) if kk > 1 else 0.0
+        mx = my = mz = 0.0
+        for j in range(kk):
+            q = idx[i, j]
+            mx += P[q, 0]
+            my += P[q, 1]
+            mz += P[q, 2]
+        mx /= kk
+        my /= kk
+        mz /= kk
+        c[:] = 0.0
+        for j in range(kk):
+            q = idx[i, j]
+            dx, dy, dz = P[q, 0] - mx, P[q, 1] - my, P[q, 2] - mz
+            c[0, 0] += dx * dx
+            c[0, 1] += dx * dy
+            c[0, 2] += dx * dz
+            c[1, 1] += dy * dy
+            c[1, 2] += dy * dz
+            c[2, 2] += dz * dz
+        c[1, 0], c[2, 0], c[2, 1] = c[0, 1], c[0, 2], c[1, 2]
+        x, y, z = _smallest_eigenvector(c)
+        normals[i, 0], normals[i, 1], normals[i, 2] = x, y, z
 
 
 def orient_normals(
@@ -147,9 +246,12 @@ def small_component_mask(
     # the links are found in chunks and merged at once into a union-find forest: memory stays at a
     # few arrays of N, never the N * k links (a 24-million-point survey cloud needs no more)
     parent = np.arange(n, dtype=np.int64)
+    bound = float(np.nextafter(radius_m, np.inf))
     for a in range(0, n, _CHUNK):
         b = min(n, a + _CHUNK)
-        dist, idx = tree.query(P[a:b], k=kk, workers=workers)
+        # neighbours past the radius are no links: the bound prunes the search (they come back
+        # as inf, index n)
+        dist, idx = tree.query(P[a:b], k=kk, workers=workers, distance_upper_bound=bound)
         dist = dist.reshape(b - a, kk)[:, 1:]
         idx = idx.reshape(b - a, kk)[:, 1:]
         rows = np.broadcast_to(np.arange(a, b)[:, None], idx.shape)
