@@ -69,7 +69,9 @@ def write_las(
     if compress:
         if not laspy.LazBackend.Lazrs.is_available():
             raise InputError("writing LAZ needs the 'lazrs' backend: pip install 'skyrecon[geo]'", path)
-        backend = laspy.LazBackend.Lazrs
+        # the parallel compressor (all cores) writes the same bytes as the serial one
+        parallel = laspy.LazBackend.LazrsParallel
+        backend = parallel if parallel.is_available() else laspy.LazBackend.Lazrs
     # written in chunks of points: a survey's tens of millions of points never exist a second time
     # as one whole point record (and its scaled copies) beside the cloud
     with atomic_write(path, "wb") as f:
