@@ -164,3 +164,40 @@ def test_mesh_from_the_ring_depth_maps(ring, default_result) -> None:
     near = np.all((verts >= lo) & (verts <= hi), axis=1)
     d = np.abs(ring.city.distance(verts[near].astype(np.float64), include_ground=True))
     assert np.median(d) < 0.1  # metres, at 192x144 with voxels of ~1/250 of the cloud
+
+
+def test_known_points_replace_the_sparse_matching(ring, default_result, monkeypatch) -> None:
+    """Points on the surfaces (an SfM model's, here the true depth's) give the depth ranges and
+    sources: no feature matching, and the cloud is as good as with matched points."""
+    import skyrecon.mvs.pipeline as pipeline
+
+    def no_matching(*args, **kwargs):
+        raise AssertionError("the sparse step matched features although points were given")
+
+    monkeypatch.setattr(pipeline, "sparse_scene", no_matching)
+    monkeypatch.setattr(pipeline, "MAX_KNOWN_POINTS", 5000)
+    surface = np.concatenate(
+        [
+            DepthMap(d, v.intrinsics, v.cam_from_world).to_points_world().points
+            for v, d in zip(ring.views, ring.depths)
+        ]
+    )
+    surface = np.vstack([surface, [[np.nan, 0.0, 0.0]]])  # a broken point is left out
+    res = run_mvs(
+        ring.views,
+        ring.images,
+        MVSSettings(max_image_size=None),
+        executor=SerialExecutor(),
+        progress=False,
+        known_points=surface,
+    )
+    assert res.diagnostics["sparse_points_source"] == "given"
+    assert 2500 < res.diagnostics["sparse_points"] <= 5000
+    assert default_result.diagnostics["sparse_points_source"] == "matched"
+    box = ring.eval_box
+    ref = reference(ring, box)
+    tau = 0.01 * scene_size(ref)
+    dist = lambda p: np.abs(ring.city.distance(p, include_ground=True))  # noqa: E731
+    m = evaluate_cloud(res.cloud.points, ref, [tau], crop=box, reference_distance=dist)
+    m0 = evaluate_cloud(default_result.cloud.points, ref, [tau], crop=box, reference_distance=dist)
+    assert m.fscore[0] >= 0.8 and m.fscore[0] >= m0.fscore[0] - 0.03, (m, m0)

@@ -4,7 +4,8 @@ Steps (each timed in ``MVSResult.timings_s``):
 
 1. ``load``: images resized to the working resolution (one full-size image in memory at a time);
 2. ``sparse``: SIFT matches checked against the known epipolar geometry and triangulated, giving
-   every view's depth range and the points the automatic view selection scores;
+   every view's depth range and the points the automatic view selection scores (or, when the
+   caller gives them, known points such as the SfM model's: no matching);
 3. ``select``: sources per reference view (``auto``) or the pairs of a named topology;
 4. ``depth``: PatchMatch (or pairwise rectified stereo) per view, fanned out on the executor
    (each task carries only its reference and source views);
@@ -103,10 +104,11 @@ class _MVSRun:
 
     Attributes:
         inputs: the cameras given; images: their images (see :func:`run_mvs`).
-        settings, executor, progress, workspace: as given to :func:`run_mvs`.
+        settings, executor, progress, workspace, known_points: as given to :func:`run_mvs`.
         views: ``load``: the working views (images at the working resolution, scaled intrinsics).
         blank: ``load``: views whose image has no texture (neither references nor sources).
-        sparse_points: ``sparse``: (N, 3) triangulated feature points, world metres.
+        sparse_points: ``sparse``: (N, 3) triangulated feature points (or the known points),
+            world metres.
         ranges: ``sparse``: per view the (near, far) depth range, metres, or None if unknown.
         neighbors: ``select``: per view the source views of its depth.
         pairs: ``select``: the (reference, source) pairs matched.
@@ -126,6 +128,7 @@ class _MVSRun:
     executor: Executor
     progress: bool
     workspace: str | None = None
+    known_points: np.ndarray | None = None
     views: list[WorkingView] = field(default_factory=list)
     blank: list[int] = field(default_factory=list)
     sparse_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
@@ -240,12 +243,25 @@ def _load(run: _MVSRun) -> None:
         run.warnings.append(f"blank images (no texture, no depth): {_names(run.views, run.blank)}")
 
 
+#: at most this many known points (an SfM model's) are used; more add time, not information
+MAX_KNOWN_POINTS = 200_000
+
+
 def _sparse(run: _MVSRun) -> None:
-    """Matched and triangulated features; each view's depth range from them."""
-    sparse = sparse_scene(run.views, max_features=run.settings.sparse_max_features)
-    run.sparse_points = sparse.points
-    run.diagnostics["sparse_points"] = len(sparse.points)
-    run.ranges = _depth_ranges(run.views, run.settings, sparse.points, run.warnings)
+    """Matched and triangulated features (or the known points given); each view's depth range from them."""
+    known = np.zeros((0, 3))
+    if run.known_points is not None:
+        known = np.asarray(run.known_points, np.float64).reshape(-1, 3)
+        known = known[np.isfinite(known).all(axis=1)]
+    if len(known):
+        step = -(-len(known) // MAX_KNOWN_POINTS)  # an even subsample: deterministic
+        run.sparse_points = known[::step]
+        run.diagnostics["sparse_points_source"] = "given"
+    else:
+        run.sparse_points = sparse_scene(run.views, max_features=run.settings.sparse_max_features).points
+        run.diagnostics["sparse_points_source"] = "matched"
+    run.diagnostics["sparse_points"] = len(run.sparse_points)
+    run.ranges = _depth_ranges(run.views, run.settings, run.sparse_points, run.warnings)
     if all(r is None for r in run.ranges):
         raise InputError(
             f"no matched features between any two of the {len(run.views)} views ({_all_names(run.views)}): "
@@ -449,6 +465,7 @@ def run_mvs(
     executor: Executor | None = None,
     progress: bool = True,
     workspace: str | os.PathLike | None = None,
+    known_points: np.ndarray | None = None,
 ) -> MVSResult:
     """Dense multi-view stereo: per-view depth maps and one fused coloured cloud.
 
@@ -467,6 +484,10 @@ def run_mvs(
             (``depth_tasks/<hash>.pkl``, and its planar prior in ``prior_tasks/``); a rerun with
             the same views, images and settings (a killed run resumed, or another fusion)
             reuses them. None: nothing kept.
+        known_points: (N, 3) world points (metres) on the scene's surfaces, such as the points
+            of the SfM model the cameras come from: the ``sparse`` step then takes them (an
+            even subsample of at most :data:`MAX_KNOWN_POINTS`) for the depth ranges and the
+            choice of sources instead of matching features again. None or empty: matched.
     Returns:
         MVSResult (world frame). Problems that leave some views out are listed in
         ``warnings`` with the view names.
@@ -480,7 +501,7 @@ def run_mvs(
     _check_view_names(inputs)
     with _progress_bars(progress):
         ws = None if workspace is None else os.fspath(workspace)
-        run = _MVSRun(inputs, images, settings, executor or get_executor(), progress, ws)
+        run = _MVSRun(inputs, images, settings, executor or get_executor(), progress, ws, known_points)
         for step in _STEPS:
             if step.wanted(run):
                 t = time.perf_counter()

@@ -11,8 +11,8 @@ Stages (each timed in ``SurveyResult.timings_s``):
    matches cached in ``workspace/sfm``, the finished model in ``workspace/sfm_model.pkl``.
 3. ``georef``: the model into the ENU frame (:mod:`skyrecon.survey.georef`), GPS or control points;
    the origin's height is then moved to the ground (the 5th percentile of the sparse points).
-4. ``mvs``: dense depth per photo and the fused cloud (:func:`skyrecon.mvs.run_mvs`), each view's
-   depth and planar prior kept in ``workspace/mvs`` as soon as they are computed.
+4. ``mvs``: dense depth per photo and the fused cloud (:func:`skyrecon.mvs.run_mvs`, its depth
+   ranges and sources from the SfM model's points), each view's depth and planar prior kept in ``workspace/mvs`` as soon as they are computed.
 5. ``map``: an occupancy map from the depth maps (:class:`skyrecon.mapping.OccupancyMap`), the
    flight track marked free.
 
@@ -437,7 +437,15 @@ def run_survey(
             seed=options.seed,
             planar_prior=PlanarPriorSettings(enabled=options.planar_prior),
         )
-        mvs = run_mvs(views, None, mvs_settings, executor=executor, workspace=ws / "mvs")
+        # the model's own points give the depth ranges and sources: no second feature matching
+        mvs = run_mvs(
+            views,
+            None,
+            mvs_settings,
+            executor=executor,
+            workspace=ws / "mvs",
+            known_points=model.points_array()[0],
+        )
         release_free_memory()  # the working images and depths' intermediates MVS freed
         warnings.extend(mvs.warnings)
         timings["mvs"] = time.perf_counter() - t
