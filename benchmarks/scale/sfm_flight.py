@@ -13,19 +13,29 @@ the camera-centre error against the true poses after a similarity alignment (med
 the flight's extent), and the stages' and the mapper's times from the run's ``sfm.json``. Targets
 (issue "Beyond one machine"): cost per frame flat within 20 % from 250 to 1000 frames, peak memory
 at most 4 GB at 1000 frames. On a shared machine the wall time is noisy: CPU time per frame is what
-predicts a cluster. ``skyrecon warmup --only sfm`` and an untimed ``--warmup`` run of 30 frames come
-first, so that no figure carries the kernels' compilation (a checkout without the installed cache
-compiles them once).
+predicts a cluster.
+
+With ``--unordered`` the frames are an unordered photo set instead (default 2000 frames): linked
+under hashed names, so their order says nothing, and matched with ``--pairing retrieval``, whose
+pairs per photo are bounded; the rows then also report the pairs matched. Target: all photos
+registered in bounded memory (features and matches on disk in the workspace).
+
+The route of a flight depends on its length: the frames of a run are the first N of the route of
+the longest N asked for (cached per route length). ``skyrecon warmup --only sfm`` and an untimed
+``--warmup`` run of 30 frames come first, so that no figure carries the kernels' compilation (a
+checkout without the installed cache compiles them once).
 
 Usage:
   .venv/bin/python benchmarks/scale/sfm_flight.py                   # 250, 500, 1000 frames
   .venv/bin/python benchmarks/scale/sfm_flight.py --frames 100 200  # quicker
-Writes benchmarks/scale/sfm_flight_results.json (or --out).
+  .venv/bin/python benchmarks/scale/sfm_flight.py --unordered       # 2000 unordered photos
+Writes benchmarks/scale/sfm_flight_results.json (sfm_unordered_results.json; or --out).
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import os
 import sys
@@ -45,44 +55,75 @@ from skyrecon.io.colmap import read_colmap_text  # noqa: E402
 from skyrecon.io.images import write_image  # noqa: E402
 
 
+def _render_frames(args: tuple) -> None:
+    """Render frames ``ks`` of the flight into ``frames_dir`` (one pool task)."""
+    seed, intr, poses, ks, frames_dir = args
+    from skyrecon.sim import generate_city, render
+
+    city = generate_city(seed, 400.0)
+    for k in ks:
+        f = frames_dir / f"frame_{k:04d}.png"
+        if not f.is_file():
+            write_image(f, render(city, intr, poses[k].inverse()).image)
+
+
 def render_flight(n: int, cache: Path, seed: int, width: int) -> tuple[Path, Intrinsics]:
-    """Render (or reuse) the first ``n`` frames of the flight; returns the frame folder and camera."""
-    from skyrecon.sim import flight_poses, generate_city, render
+    """Render (or reuse) the flight of ``n`` frames; returns its folder (``frames/``, ``K.txt``,
+    ``cam_from_world.npy``) and camera.
+
+    The route of a flight depends on its length, so the cache is keyed by it
+    (``flight_seed{seed}_{width}px_{n}f``): a shorter run uses the first frames of the longest
+    route it asks for, never frames of another route. Frames render on all cores.
+    """
+    from concurrent.futures import ProcessPoolExecutor
+
+    from skyrecon.sim import flight_poses, generate_city
 
     height = width * 3 // 4
     intr = Intrinsics.from_fov(width, height, 80.0)
-    d = cache / f"flight_seed{seed}_{width}px"
-    d.mkdir(parents=True, exist_ok=True)
+    d = cache / f"flight_seed{seed}_{width}px_{n}f"
+    frames_dir = d / "frames"
+    frames_dir.mkdir(parents=True, exist_ok=True)
     poses_file = d / "cam_from_world.npy"
-    have = np.load(poses_file) if poses_file.is_file() else np.zeros((0, 4, 4))
-    if len(have) < n or not all((d / "frames" / f"frame_{k:04d}.png").is_file() for k in range(n)):
-        city = generate_city(seed, 400.0)
-        poses = flight_poses(city, n, seed, speed_mps=5.0, fps=10.0)
-        (d / "frames").mkdir(exist_ok=True)
+    if not poses_file.is_file() or not all((frames_dir / f"frame_{k:04d}.png").is_file() for k in range(n)):
+        poses = flight_poses(generate_city(seed, 400.0), n, seed, speed_mps=5.0, fps=10.0)
         t0 = time.perf_counter()
-        for k, world_from_cam in enumerate(poses):
-            f = d / "frames" / f"frame_{k:04d}.png"
-            if not f.is_file():
-                write_image(f, render(city, intr, world_from_cam.inverse()).image)
-            if k % 100 == 0:
-                print(f"  rendered {k}/{n} frames ({time.perf_counter() - t0:.0f} s)", flush=True)
+        workers = os.cpu_count() or 1
+        chunks = [(seed, intr, poses, range(k, min(k + 50, n)), frames_dir) for k in range(0, n, 50)]
+        with ProcessPoolExecutor(workers) as pool:
+            for i, _ in enumerate(pool.map(_render_frames, chunks), 1):
+                print(
+                    f"  rendered {min(i * 50, n)}/{n} frames ({time.perf_counter() - t0:.0f} s)", flush=True
+                )
         np.save(poses_file, np.array([p.inverse().matrix for p in poses]))
     K = intr.K
     (d / "K.txt").write_text("\n".join(" ".join(f"{v:.6f}" for v in row) for row in K) + "\n")
     return d, intr
 
 
-def run_one(flight: Path, n: int, out: Path, workers: int | None) -> dict:
-    """``skyrecon sfm`` on the first ``n`` frames, in its own process."""
-    sub = out / f"frames_{n}"
+def photo_name(seed: int, k: int) -> str:
+    """The unordered set's name of frame ``k``: a hash, so that name order says nothing of flight order."""
+    return f"photo_{hashlib.sha1(f'{seed}:{k}'.encode()).hexdigest()[:10]}.png"
+
+
+def run_one(flight: Path, n: int, out: Path, workers: int | None, unordered_seed: int | None = None) -> dict:
+    """``skyrecon sfm`` on the first ``n`` frames, in its own process.
+
+    With ``unordered_seed`` the frames are linked under hashed names (:func:`photo_name`) and
+    matched by ``--pairing retrieval``, as a photo set with no order is; else by
+    ``--pairing sequential``.
+    """
+    unordered = unordered_seed is not None
+    sub = out / (f"photos_{n}" if unordered else f"frames_{n}")
     sub.mkdir(parents=True, exist_ok=True)
+    name_of = {k: photo_name(unordered_seed, k) if unordered else f"frame_{k:04d}.png" for k in range(n)}
     for k in range(n):
-        link = sub / f"frame_{k:04d}.png"
+        link = sub / name_of[k]
         if not link.exists():
-            link.symlink_to(flight / "frames" / link.name)
-    model = out / f"model_{n}"
+            link.symlink_to(flight / "frames" / f"frame_{k:04d}.png")
+    model = out / f"model_{n}{'_unordered' if unordered else ''}"
     cmd = [sys.executable, "-m", "skyrecon", "sfm", str(sub), "--camera", str(flight / "K.txt")]
-    cmd += ["--pairing", "sequential", "--out", str(model), "--quiet"]
+    cmd += ["--pairing", "retrieval" if unordered else "sequential", "--out", str(model), "--quiet"]
     if workers:
         cmd += ["--workers", str(workers)]
     env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
@@ -91,13 +132,16 @@ def run_one(flight: Path, n: int, out: Path, workers: int | None) -> dict:
         raise SystemExit(f"skyrecon sfm failed on {n} frames (exit {m.returncode})")
     rec = read_colmap_text(model / "sparse")
     M = np.load(flight / "cam_from_world.npy")
-    gt = {f"frame_{k:04d}.png": Rigid3.from_matrix(M[k]) for k in range(n)}
+    gt = {name_of[k]: Rigid3.from_matrix(M[k]) for k in range(n)}
     est = {im.name: im.cam_from_world for im in rec.images.values()}
     s = evaluate_sfm_poses(est, gt).summary()
     run = json.loads((model / "sfm.json").read_text())
     mapper = run["diagnostics"]["mapper"]
     return {
         "frames": n,
+        "pairing": run["diagnostics"]["pairing"]["mode"],
+        "pairs": int(run["diagnostics"]["pairing"]["num_pairs"]),
+        "pairs_verified": int(run["diagnostics"]["pairs_verified"]),
         "registered": len(est),
         "wall_s": m.wall_s,
         "wall_s_per_frame": m.wall_s / n,
@@ -120,7 +164,12 @@ def run_one(flight: Path, n: int, out: Path, workers: int | None) -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--frames", type=int, nargs="+", default=[250, 500, 1000])
+    ap.add_argument("--frames", type=int, nargs="+", help="default 250 500 1000; 2000 with --unordered")
+    ap.add_argument(
+        "--unordered",
+        action="store_true",
+        help="the frames as an unordered photo set: hashed names, --pairing retrieval",
+    )
     ap.add_argument("--width", type=int, default=1024)
     ap.add_argument("--seed", type=int, default=4)
     ap.add_argument("--workers", type=int)
@@ -131,8 +180,14 @@ def main() -> None:
         help="frames of an untimed first run (loads or compiles the kernels); 0: none",
     )
     ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "skyrecon_sfm_scale")
-    ap.add_argument("--out", type=Path, default=Path(__file__).with_name("sfm_flight_results.json"))
+    ap.add_argument("--out", type=Path, help="default sfm_flight_results.json (sfm_unordered_results.json)")
     args = ap.parse_args()
+    if args.frames is None:
+        args.frames = [2000] if args.unordered else [250, 500, 1000]
+    if args.out is None:
+        name = "sfm_unordered_results.json" if args.unordered else "sfm_flight_results.json"
+        args.out = Path(__file__).with_name(name)
+    unordered_seed = args.seed if args.unordered else None
     flight, _ = render_flight(max(args.frames), args.cache, args.seed, args.width)
     work = Path(tempfile.mkdtemp(prefix="skyrecon_sfm_scale_"))
     if args.warmup:
@@ -142,13 +197,14 @@ def main() -> None:
         run_measured(
             [sys.executable, "-m", "skyrecon", "warmup", "--only", "sfm", "--force"], env=env, capture=False
         )
-        run_one(flight, args.warmup, work, args.workers)
+        run_one(flight, args.warmup, work, args.workers, unordered_seed)
     rows = []
     for n in sorted(args.frames):
-        row = run_one(flight, n, work, args.workers)
+        row = run_one(flight, n, work, args.workers, unordered_seed)
         rows.append(row)
         print(
-            f"{n:5d} frames: {row['registered']} registered, wall {row['wall_s']:.0f} s "
+            f"{n:5d} frames: {row['pairs']} {row['pairing']} pairs ({row['pairs'] / n:.1f} per frame), "
+            f"{row['registered']} registered, wall {row['wall_s']:.0f} s "
             f"({row['wall_s_per_frame']:.2f} s/frame), CPU {row['cpu_s']:.0f} s ({row['cpu_s_per_frame']:.2f} s/frame), "
             f"peak {row['peak_mb']:.0f} MB, centre error median {row['center_median_pct']:.3f} % "
             f"max {row['center_max_pct']:.3f} % of the extent",
