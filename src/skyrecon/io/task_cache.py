@@ -4,7 +4,8 @@
 worker that computed it, as ``<cache_dir>/<key>.pkl`` (written atomically: a kill leaves the
 whole file or none). A rerun finds the results already there and runs only the missing tasks.
 The key of a task is the hash of the task itself (its pickled bytes, with the fields that do not
-change the result replaced by the caller), so any change in its input gives a new key.
+change the result replaced by the caller) and of the package version, so any change in its input,
+or another version of skyrecon, gives a new key.
 
 Results must be picklable; the files are the run's own, read back only by later runs. An
 executor with ``results_via_files = True`` (the Dask one) gets only the file's path back from
@@ -21,6 +22,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, TypeVar
 
+from skyrecon import __version__
 from skyrecon.errors import SkyreconError
 from skyrecon.executor import Executor
 from skyrecon.io.atomic import write_bytes_atomic
@@ -34,8 +36,9 @@ FORMAT = "skyrecon.task-result.v1"
 
 
 def task_key(task: Any, salt: str = "") -> str:
-    """A hash (32 hex digits) of a picklable task and ``salt`` (e.g. the function's name)."""
-    h = hashlib.sha256(salt.encode())
+    """A hash (32 hex digits) of a picklable task, ``salt`` (e.g. the function's name) and the
+    package version: a workspace left by another version is recomputed, never reused."""
+    h = hashlib.sha256(f"{__version__}\0{salt}".encode())
     h.update(pickle.dumps(task, protocol=pickle.HIGHEST_PROTOCOL))
     return h.hexdigest()[:32]
 
