@@ -186,3 +186,29 @@ def test_lens_distortion_is_honoured():
     # the corners of the distorted image see further out than a pinhole camera would
     corner = cam.unproject(np.array([[0.0, 0.0]]), 9.0)[0]
     assert m.state_at(POSE.apply(corner)[None])[0] == FREE
+
+
+def test_occupied_voxels_and_counts_are_the_same_in_block_ranges(monkeypatch):
+    """Both test the voxels range by range (no whole-map temporary); the answer is that of one
+    test over every block, in block order."""
+    m = OccupancyMap(MapConfig(voxel_size_m=0.5))
+    for d in (6.0, 8.0, 10.0):
+        m.integrate_depth(wall_depth(d), CAM, POSE)
+    blocks = m.grid.blocks
+    with np.errstate(invalid="ignore"):
+        k, q = np.nonzero(blocks >= m._lodds[4])
+        want_counts = (int((blocks >= m._lodds[4]).sum()), int((blocks < m._lodds[4]).sum()))
+    B = m.block_size
+    want = m.grid.block_coords[k].astype(np.int64) * B + np.stack([q // (B * B), (q // B) % B, q % B], 1)
+    assert len(want) > 0 and m.counts()["blocks"] > 3
+    whole = m.occupied_voxels()
+    monkeypatch.setattr(
+        OccupancyMap,
+        "_block_ranges",
+        lambda self: ((a, min(a + 2, len(blocks))) for a in range(0, len(blocks), 2)),
+    )
+    for got in (whole, m.occupied_voxels()):
+        np.testing.assert_array_equal(got, want)
+    c = m.counts()
+    assert (c["occupied"], c["free"]) == want_counts
+    assert c["unknown"] == blocks.size - sum(want_counts)

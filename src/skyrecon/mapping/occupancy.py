@@ -18,7 +18,7 @@ incrementally (:meth:`OccupancyMap.pop_changed_blocks`).
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -577,14 +577,30 @@ class OccupancyMap:
         """(X, Y, Z) float32 log-odds of the voxel box ``[lo, lo + shape)`` (NaN unknown)."""
         return self.grid.gather(lo_voxel, shape, np.nan)
 
+    def _block_ranges(self) -> Iterator[tuple[int, int]]:
+        """Ranges [a, b) of the allocated blocks, about 16 MB of voxels each: a test of every voxel
+        runs per range, so that no temporary is the size of the whole map (gigabytes for a city)."""
+        per = max(1, (16 << 20) // max(1, self.block_size**3))
+        n = len(self.grid.blocks)
+        for a in range(0, n, per):
+            yield a, min(n, a + per)
+
     def occupied_voxels(self) -> np.ndarray:
-        """(M, 3) int64 indices of the occupied voxels."""
+        """(M, 3) int64 indices of the occupied voxels (block order, then voxel order)."""
         B = self.block_size
         blocks = self.grid.blocks
-        with np.errstate(invalid="ignore"):
-            k, q = np.nonzero(blocks >= self._lodds[4])
-        local = np.stack([q // (B * B), (q // B) % B, q % B], axis=1)
-        return self.grid.block_coords[k].astype(np.int64) * B + local
+        out = np.empty((self.counts()["occupied"], 3), np.int64)  # filled in place: no second copy
+        m = 0
+        for a, b in self._block_ranges():
+            with np.errstate(invalid="ignore"):
+                k, q = np.nonzero(blocks[a:b] >= self._lodds[4])
+            part = out[m : m + len(k)]
+            part[:] = self.grid.block_coords[a + k].astype(np.int64) * B
+            part[:, 0] += q // (B * B)
+            part[:, 1] += (q // B) % B
+            part[:, 2] += q % B
+            m += len(k)
+        return out
 
     def occupied_centers(self) -> np.ndarray:
         """(M, 3) float64 world centres, metres, of the occupied voxels."""
@@ -593,9 +609,11 @@ class OccupancyMap:
     def counts(self) -> dict[str, int]:
         """Numbers of blocks and of occupied / free / unknown voxels inside the allocated blocks."""
         blocks = self.grid.blocks
-        with np.errstate(invalid="ignore"):
-            occ = int(np.count_nonzero(blocks >= self._lodds[4]))
-            free = int(np.count_nonzero(blocks < self._lodds[4]))
+        occ = free = 0
+        for a, b in self._block_ranges():
+            with np.errstate(invalid="ignore"):
+                occ += int(np.count_nonzero(blocks[a:b] >= self._lodds[4]))
+                free += int(np.count_nonzero(blocks[a:b] < self._lodds[4]))
         return {
             "blocks": self.grid.count,
             "occupied": occ,
