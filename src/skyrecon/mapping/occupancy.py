@@ -589,11 +589,14 @@ class OccupancyMap:
         """(M, 3) int64 indices of the occupied voxels (block order, then voxel order)."""
         B = self.block_size
         blocks = self.grid.blocks
-        out = np.empty((self.counts()["occupied"], 3), np.int64)  # filled in place: no second copy
+        occupied = self._lodds[4]
+        with np.errstate(invalid="ignore"):  # counted first, then filled in place: no second copy
+            n = sum(int(np.count_nonzero(blocks[a:b] >= occupied)) for a, b in self._block_ranges())
+        out = np.empty((n, 3), np.int64)
         m = 0
         for a, b in self._block_ranges():
             with np.errstate(invalid="ignore"):
-                k, q = np.nonzero(blocks[a:b] >= self._lodds[4])
+                k, q = np.nonzero(blocks[a:b] >= occupied)
             part = out[m : m + len(k)]
             part[:] = self.grid.block_coords[a + k].astype(np.int64) * B
             part[:, 0] += q // (B * B)
