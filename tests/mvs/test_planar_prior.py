@@ -96,8 +96,8 @@ def test_plain_ring_completeness_improves_with_the_prior(plain_ring, tmp_path, m
     g_off, all_off = _ground_recall(ring, r_off.cloud, tau)
     g_on, all_on = _ground_recall(ring, r_on.cloud, tau)
     print(f"ground recall {g_off:.3f} -> {g_on:.3f}, all {all_off:.3f} -> {all_on:.3f}")
-    assert g_on >= g_off - 0.01, (g_off, g_on)
-    assert all_on > all_off + 0.01, (all_off, all_on)
+    assert g_on >= g_off + 0.1, (g_off, g_on)  # the plain ground, behind what stands on it
+    assert all_on > all_off + 0.05, (all_off, all_on)
     # the planes are real: accuracy stays high
     dist = np.abs(ring.city.distance(r_on.cloud.points.astype(np.float64), include_ground=True))
     assert np.mean(dist <= tau) > 0.95
@@ -173,3 +173,77 @@ def test_count_agreement_samples_bilinearly_and_counts_like_the_reference() -> N
     assert seen[-4] == 1 and seen[-3] == 1  # the corners are inside
     assert seen[-1] == 0  # next to the NaN pixel
     assert 0 < agree.sum() < seen.sum() < n  # the test has points of every kind
+
+
+def test_sources_see_through_a_plane_floating_in_front_of_the_surface() -> None:
+    ring = make_ring(n=3, width=96, height=72, seed=1)
+    views = load_working_views(ring.views, ring.images, None)
+    ref, src = views[0], views[1]
+    true = ring.depths[0]
+    v, u = np.nonzero(np.isfinite(true))
+    d = true[v, u].astype(np.float64)
+    src_depth = ring.depths[1].astype(np.float32)
+
+    def share(scale: float) -> float:
+        return float(pp._seen_through(ref, [src], [src_depth], u, v, d * scale, 0.02).mean())
+
+    assert share(1.0) < 0.02  # the surface itself: nothing is seen beyond it
+    # behind the surface: hidden from the source (only beside silhouettes does it see farther)
+    assert share(1.3) < 0.1
+    assert share(0.7) > max(0.3, 3 * share(1.3))  # floating in front: the source sees behind it
+    assert not pp._seen_through(ref, [src], [None], u, v, d * 0.7, 0.02).any()  # no depth, no evidence
+
+
+def _camera_rays(n: int, y_lo: float, y_hi: float, seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return np.c_[rng.uniform(-0.4, 0.4, n), rng.uniform(y_lo, y_hi, n), np.ones(n)]
+
+
+def test_the_ground_reaches_behind_what_stands_on_it_without_contact_points() -> None:
+    """A horizontal dominant plane with no band point on it is still a candidate when the whole
+    band lies in front of it (the plain ground behind a box whose feet are hidden); a vertical
+    plane behind everything is not (it would fill the sky), nor the ground when the view
+    measured something beyond it."""
+    s = PlanarPriorSettings()
+    rays = _camera_rays(300, 0.1, 0.3, 0)  # a box face 5 m away, above where those rays meet the ground
+    d = np.full(len(rays), 5.0)
+    uv = rays[:, :2] * 500 + [320, 240]
+    ground = [0.0, -1.0, 0.0, -2.0]  # camera frame (y down): the ground 2 m below the camera
+    far_wall = [0.0, 0.0, -1.0, -30.0]
+    planes = np.array([ground, far_wall])
+    centre = np.array([0.0, 0.5, 1.0])
+    cos_max = float(np.cos(np.radians(80)))
+    horizontal = np.array([True, False])
+
+    def kept(depths: np.ndarray) -> list[list[float]]:
+        cands, is_global = pp._candidate_planes(
+            uv, depths, rays, planes, centre, cos_max, s, rays, depths, horizontal
+        )
+        return cands[is_global].round(6).tolist()
+
+    assert kept(d) == [ground]
+    beyond = d.copy()
+    beyond[:30] = 40.0  # a tenth of the band measured beyond the ground: it is not behind all
+    assert kept(beyond) == []
+    # without the horizontal flag nothing qualifies without contact points
+    cands, is_global = pp._candidate_planes(uv, d, rays, planes, centre, cos_max, s, rays, d, None)
+    assert not is_global.any()
+
+
+def test_dominant_planes_count_contact_points_on_the_whole_band() -> None:
+    """A long border's few contact points are found on the whole band, not on the thinned
+    subsample that the triangle planes use."""
+    s = PlanarPriorSettings()
+    rays = _camera_rays(4000, 0.2, 0.4, 1)
+    d = np.full(len(rays), 4.0)  # a box face in front of the ground...
+    on_ground = np.arange(0, 4000, 200)  # ...and 20 scattered contact points on the ground
+    d[on_ground] = 2.0 / rays[on_ground, 1]
+    ground = np.array([[0.0, -1.0, 0.0, -2.0]])
+    uv = rays[:, :2] * 500 + [320, 240]
+    keep = np.linspace(0, len(d) - 1, s.max_support).astype(np.int64)
+    assert np.isin(keep, on_ground).sum() < s.min_inliers  # the subsample misses most of them
+    args = (uv[keep], d[keep], rays[keep], ground, np.array([0.0, 0.5, 1.0]), 0.17, s)
+    _, is_global = pp._candidate_planes(*args)
+    assert not is_global.any()
+    _, is_global = pp._candidate_planes(*args, rays, d)
+    assert is_global.sum() == 1

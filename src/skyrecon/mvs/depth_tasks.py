@@ -227,8 +227,8 @@ def estimate_depths(
 class PriorTask(NamedTuple):
     """One view's planar prior (:func:`skyrecon.mvs.planar_prior.fill_plain_segments`): the view
     and its sources with colour, its PatchMatch depth (H, W) metres and cost, depth range (near,
-    far) metres, settings, the sparse world points (N, 3) it sees and the dominant world planes
-    (P, 4)."""
+    far) metres, settings, the sparse world points (N, 3) it sees, the dominant world planes
+    (P, 4) and the sources' PatchMatch depths (H, W) metres (for the see-through test)."""
 
     ref: WorkingView
     sources: list[WorkingView]
@@ -239,6 +239,7 @@ class PriorTask(NamedTuple):
     cos_max_incidence: float
     points: np.ndarray | None
     planes: np.ndarray
+    source_depths: list[np.ndarray | None] | None = None
 
 
 def _prior_task(task: PriorTask) -> tuple[np.ndarray, dict[str, Any]]:
@@ -253,6 +254,7 @@ def _prior_task(task: PriorTask) -> tuple[np.ndarray, dict[str, Any]]:
         task.settings,
         task.points,
         task.planes,
+        task.source_depths,
     )
     report: dict[str, Any] = {**rep, "cpu_ms": round((time.process_time() - c0) * 1e3, 1)}
     return depth, report
@@ -296,13 +298,23 @@ def apply_planar_prior(
             continue
         seen = _points_in_view(points, views[r])
         task = PriorTask(
-            views[r], [views[s] for s in nb], d, c, rng, settings.planar_prior, cos_max, seen, planes
+            views[r],
+            [views[s] for s in nb],
+            d,
+            c,
+            rng,
+            settings.planar_prior,
+            cos_max,
+            seen,
+            planes,
+            [depths[s] for s in nb],
         )
         tasks.append((r, task))
-    # keyed field by field: a pickle of the whole task also encodes which arrays are shared
-    # between its fields, and that differs between depths just computed and depths read back
-    # from the workspace (a resumed run would then miss every kept prior)
-    keys = [task_key(tuple(task_key(f) for f in t), "planar_prior") for _, t in tasks]
+    # keyed field by field (and list item by list item): a pickle of the whole task also encodes
+    # which arrays (and dtypes) are shared between its parts, and that differs between depths
+    # just computed and depths read back from the workspace (a resumed run would then miss every
+    # kept prior)
+    keys = [task_key(tuple(_part_key(f) for f in t), "planar_prior") for _, t in tasks]
     desc = "MVS planar prior" if progress else None
     results, _ = map_cached(executor, _prior_task, [t for _, t in tasks], keys, cache_dir, desc=desc)
     out = list(depths)
@@ -311,6 +323,13 @@ def apply_planar_prior(
         out[r] = d
         reports[r] = rep
     return out, reports
+
+
+def _part_key(part: Any) -> Any:
+    """:func:`task_key` of a task's field, item by item for a list."""
+    if isinstance(part, list):
+        return tuple(_part_key(p) for p in part)
+    return task_key(part)
 
 
 def _points_in_view(points: np.ndarray | None, view: WorkingView) -> np.ndarray | None:

@@ -15,13 +15,25 @@ beyond the support (the ground out to the image border):
    that project into the view unoccluded.
 3. ``planes``: per segment, candidates are the planes of the Delaunay triangles of the support in
    a band around the segment, and the scene's dominant planes (sequential RANSAC on the sparse
-   points, :func:`dominant_planes`). A candidate's score is the number of band support points on
-   it (within ``inlier_rel`` relative depth); the best candidate with at least ``min_inliers``
-   (triangle planes: also spread over ``min_spread_px`` in both image directions) wins.
-   Of the distinct candidates, the one under which the segment's border ring (``ring_px`` wide)
-   looks the same in the sources wins: a wrong plane carries the border pixels onto other
-   surfaces there (the border is where a plain segment's geometry shows).
-4. ``check``: every pixel's plane point is projected into the sources; its colour must agree
+   points and the consistent PatchMatch points, :func:`dominant_planes`, and the heights where
+   points gather, :func:`horizontal_planes`). A candidate needs at least ``min_inliers`` band
+   support points on it (within ``inlier_rel`` relative depth; triangle planes: also spread over
+   ``min_spread_px`` in both image directions; dominant planes are scored on every band point).
+   A horizontal dominant plane (world z up) also qualifies with no contact point when the whole
+   band lies on or in front of it: the plain ground reaching behind everything that stands on it,
+   whose feet this view does not see.
+4. ``visibility``: a candidate must not hide what was measured. Two counts: the share of the band
+   support that lies *beyond* the plane (this view would not see it through the segment), and
+   the share of the segment's interior whose plane point a source sees *through* (the source's
+   PatchMatch depth lies beyond it: free-space violation). A wrong plane floating in front of the
+   true surface (a terrace height for the ground) is caught by them; one behind it is not, which
+   the contact points and the border take care of.
+5. ``border``: the share of the segment's border ring (``ring_px`` wide) that looks the same in
+   the sources under the plane: a wrong plane carries the border pixels onto other surfaces.
+   Dominant planes win over triangle planes; within, the score is the border share less
+   ``see_through_weight`` times the two visibility shares; a winner nearly matched by another
+   plane that differs on the border is ambiguous and left empty.
+6. ``check``: every pixel's plane point is projected into the sources; its colour must agree
    with the reference (``color_tol``) in at least ``min_sources`` of the sources that see it. A
    segment where fewer than ``min_pass_fraction`` of the pixels pass is dropped whole.
 
@@ -92,6 +104,16 @@ class PlanarPriorSettings:
         min_plane_points: points a dominant plane needs.
         ransac_iterations: random planes tried per dominant plane.
         max_plane_input: at most this many points (evenly subsampled) go into the dominant planes.
+        max_see_through: a candidate whose segment interior a source sees through in more than
+            this share of the sampled pixels is set aside.
+        see_through_margin: a measured depth counts as beyond a plane point when it is farther by
+            more than this fraction.
+        see_through_weight: weight of the visibility shares against the border share.
+        max_front_fraction: a horizontal dominant plane without contact points qualifies when at
+            most this share of the band support lies beyond it.
+        max_front_hidden: a candidate that would hide more than this share of the band support is
+            set aside.
+        see_through_samples: interior pixels sampled (evenly) for the see-through test.
     """
 
     enabled: bool = True
@@ -116,6 +138,12 @@ class PlanarPriorSettings:
     min_plane_points: int = 20
     ransac_iterations: int = 512
     max_plane_input: int = 40000
+    max_see_through: float = 0.02
+    see_through_margin: float = 0.02
+    see_through_weight: float = 10.0
+    max_front_fraction: float = 0.01
+    max_front_hidden: float = 0.2
+    see_through_samples: int = 1000
 
     def __post_init__(self) -> None:
         if not (0 < self.support_cost <= 2) or self.edge_grad <= 0 or self.band_px < 1:
@@ -373,6 +401,9 @@ def _candidate_planes(
     seg_ray: np.ndarray,
     cos_max: float,
     s: PlanarPriorSettings,
+    all_rays: np.ndarray | None = None,
+    all_d: np.ndarray | None = None,
+    horizontal: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Distinct supported planes (K, 4) for one segment from its band support, best supported
     first, and (K,) bool which of them are dominant (``global_planes``) planes.
@@ -381,24 +412,51 @@ def _candidate_planes(
     spread over ``min_spread_px``), facing the camera within the incidence limit at the segment's
     centre ray. Every qualifying dominant plane is kept; of triangle planes whose inlier sets
     overlap by more than half, only the better supported one, at most ``max_candidates``.
+    Triangle planes come from (and are scored on) the band support ``uv`` (N, 2) pixels, ``d``
+    (N,) metres, ``rays`` (N, 3), at most ``max_support`` of them; dominant planes are few and
+    are scored on every band support point (``all_rays`` (M, 3), ``all_d`` (M,); default the
+    same points), so that a long border's few contact points (a big plain ground segment's
+    feet of walls) are not thinned away. A ``horizontal`` (P,) dominant plane (world z up: the
+    ground, a terrace) also qualifies without contact points when every band support point lies
+    on or in front of it (at most ``max_front_fraction`` beyond): the ground reaching behind all
+    that stands on it, whose feet this view does not see.
     """
     X = rays * d[:, None]
     n_global = len(global_planes)
-    P = np.concatenate([global_planes, _triangle_planes(uv, X)], axis=0)
-    if len(P) == 0:
+    tri = _triangle_planes(uv, X)
+    if n_global + len(tri) == 0:
         return np.zeros((0, 4)), np.zeros(0, bool)
     r = seg_ray / np.linalg.norm(seg_ray)
-    facing = -(P[:, :3] @ r) >= cos_max
-    inl, score = _plane_inliers(P[:, :3] @ rays.T, P[:, 3].copy(), d, float(s.inlier_rel))
-    score[~facing] = -1
-    # every supported dominant plane; then the best supported distinct triangle planes
-    kept_global = [i for i in range(n_global) if score[i] >= s.min_inliers]
-    order = n_global + np.argsort(-score[n_global:], kind="stable")
-    order = order[score[order] >= s.min_inliers]
-    spread = _spreads(uv, inl[order])
-    kept_tri = _distinct_planes(inl, score, order, spread, float(s.min_spread_px), int(s.max_candidates))
-    kept = kept_global + [int(i) for i in kept_tri]
-    return P[kept], np.array([k < n_global for k in kept], bool)
+    kept_global: list[int] = []
+    if n_global:
+        g_rays, g_d = (rays, d) if all_rays is None or all_d is None else (all_rays, all_d)
+        _, g_score = _plane_inliers(
+            global_planes[:, :3] @ g_rays.T, global_planes[:, 3].copy(), g_d, float(s.inlier_rel)
+        )
+        g_facing = -(global_planes[:, :3] @ r) >= cos_max
+        gd = _plane_depth(global_planes[:, :3], global_planes[:, 3], g_rays)
+        with np.errstate(invalid="ignore"):
+            g_front = np.count_nonzero(g_d[None, :] > gd * (1.0 + s.see_through_margin), axis=1)
+            g_behind = np.all(np.isfinite(gd), axis=1) & (g_front <= s.max_front_fraction * len(g_d))
+        g_behind &= np.zeros(n_global, bool) if horizontal is None else horizontal
+        kept_global = [
+            i for i in range(n_global) if g_facing[i] and (g_score[i] >= s.min_inliers or g_behind[i])
+        ]
+    kept_tri: list[int] = []
+    if len(tri):
+        inl, score = _plane_inliers(tri[:, :3] @ rays.T, tri[:, 3].copy(), d, float(s.inlier_rel))
+        score[~(-(tri[:, :3] @ r) >= cos_max)] = -1
+        order = np.argsort(-score, kind="stable")
+        order = order[score[order] >= s.min_inliers]
+        spread = _spreads(uv, inl[order])
+        kept_tri = [
+            int(i)
+            for i in _distinct_planes(
+                inl, score, order, spread, float(s.min_spread_px), int(s.max_candidates)
+            )
+        ]
+    P = np.concatenate([global_planes[kept_global], tri[kept_tri]], axis=0).reshape(-1, 4)
+    return P, np.arange(len(P)) < len(kept_global)
 
 
 @njit(cache=True, nogil=True, boundscheck=False)
@@ -519,6 +577,42 @@ def _photo_check(
     return (seen > 0) & (agree >= np.minimum(min_sources, seen))
 
 
+def _seen_through(
+    ref: WorkingView,
+    sources: list[WorkingView],
+    source_depths: list[np.ndarray | None],
+    u: np.ndarray,
+    v: np.ndarray,
+    d: np.ndarray,
+    margin_rel: float,
+) -> np.ndarray:
+    """(N,) bool: a source's own depth lies beyond the plane point of pixel (u, v) at depth d (N,)
+    metres, by more than ``margin_rel`` of the point's depth in that source: the source sees
+    *through* the hypothesised surface there (free-space violation). Sources' depths are (H, W)
+    metres, NaN without a measurement; a source that sees something nearer (an occluder) or
+    nothing says nothing."""
+    X = ref.cam_from_world.inverse().apply(
+        _rays(ref, u.astype(np.float64), v.astype(np.float64)) * d[:, None]
+    )
+    out = np.zeros(len(u), bool)
+    for src, sd in zip(sources, source_depths):
+        if sd is None:
+            continue
+        Xs = src.cam_from_world.apply(X)
+        k = src.intrinsics
+        z = Xs[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            x = np.rint(k.fx * Xs[:, 0] / z + k.cx)
+            y = np.rint(k.fy * Xs[:, 1] / z + k.cy)
+        h, w = sd.shape
+        ok = (z > 0) & (x >= 0) & (y >= 0) & (x < w) & (y < h)
+        i = np.flatnonzero(ok)
+        ds = sd[y[i].astype(np.int64), x[i].astype(np.int64)]
+        with np.errstate(invalid="ignore"):
+            out[i[ds > z[i] * (1.0 + margin_rel)]] = True
+    return out
+
+
 @njit(cache=True, nogil=True, boundscheck=False)
 def _count_agreement(
     img: np.ndarray,
@@ -563,6 +657,17 @@ def _count_agreement(
                 agree[i] += 1
 
 
+def _blurred_colours(ref: WorkingView, sources: list[WorkingView]) -> tuple[np.ndarray, list[np.ndarray]]:
+    """The images the photometric check compares (:func:`_blurred_colour` of the reference and
+    of each source): grey for all when any of them carries no colour."""
+    ref_blur = _blurred_colour(ref)
+    src_blur = [_blurred_colour(sv) for sv in sources]
+    if ref_blur.shape[2] != 3 or any(sb.shape[2] != 3 for sb in src_blur):  # some without colour: grey
+        ref_blur = ref_blur.mean(axis=2, keepdims=True) if ref_blur.shape[2] == 3 else ref_blur
+        src_blur = [sb.mean(axis=2, keepdims=True) if sb.shape[2] == 3 else sb for sb in src_blur]
+    return ref_blur, src_blur
+
+
 def _blurred_colour(view: WorkingView) -> np.ndarray:
     """(H, W, C) float32: the colour image (grey when the view carries none) blurred with sigma 1,
     NaN where the image has no data."""
@@ -571,6 +676,99 @@ def _blurred_colour(view: WorkingView) -> np.ndarray:
     b = b.reshape(*view.shape, -1)
     b[~view.valid] = np.nan
     return b
+
+
+def _plain_segments(
+    ref: WorkingView, accepted: np.ndarray, gain: float, settings: PlanarPriorSettings
+) -> tuple[np.ndarray, np.ndarray, list[int], np.ndarray]:
+    """The plain segments of a view: pixels without an ``accepted`` depth, away from intensity
+    edges (``edge_grad``), 4-connected, at least ``min_segment_fraction`` of the image.
+
+    Returns:
+        ((H, W) int32 labels, (L, 5) int32 label stats of ``cv2.connectedComponentsWithStats``,
+        the labels of the segments big enough, the (H, W) float32 grey image blurred with sigma 1).
+    """
+    s = settings
+    H, W = ref.shape
+    blur = cv2.GaussianBlur(ref.grey.astype(np.float32), (0, 0), 1.0)
+    gx = cv2.Sobel(blur, cv2.CV_32F, 1, 0, ksize=3) / 8.0
+    gy = cv2.Sobel(blur, cv2.CV_32F, 0, 1, ksize=3) / 8.0
+    edges = np.hypot(gx, gy) > s.edge_grad / gain
+    free = ref.valid & ~accepted & ~edges
+    n_lab, labels, stats, _ = cv2.connectedComponentsWithStats(free.astype(np.uint8), connectivity=4)
+    min_area = max(16, int(s.min_segment_fraction * H * W))
+    segs = [i for i in range(1, n_lab) if stats[i, cv2.CC_STAT_AREA] >= min_area]
+    return labels, stats, segs, blur
+
+
+def _judge_candidates(
+    ref: WorkingView,
+    sources: list[WorkingView],
+    source_depths: list[np.ndarray | None] | None,
+    cands: np.ndarray,
+    segment: tuple[np.ndarray, int, int],
+    ring: tuple[np.ndarray, np.ndarray, np.ndarray],
+    band: tuple[np.ndarray, np.ndarray],
+    depth_range: tuple[float, float],
+    colours: tuple[np.ndarray, list[np.ndarray], float],
+    s: PlanarPriorSettings,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The evidence on each candidate plane (K, 4) (camera frame) of one segment.
+
+    Args:
+        segment: the segment's (h, w) bool mask in its bounding box and the box's corner x0, y0.
+        ring: the border ring's pixels u, v (N,) and rays (N, 3).
+        band: the band support's rays (M, 3) and depths (M,) metres.
+        colours: blurred reference and source images and the grey-level tolerance
+            (:func:`_photo_check`).
+    Returns:
+        ((K,) share of the ring that looks the same in the sources, 0 for a candidate set aside;
+        (K,) share of the interior samples a source sees through; (K,) share of the band support
+        beyond the plane).
+    """
+    seg, bx0, by0 = segment
+    ru, rv, rrays = ring
+    all_rays, all_d = band
+    ref_blur, src_blur, tol = colours
+    near, far = depth_range
+    sv_, su_ = np.nonzero(seg)
+    fracs = np.zeros(len(cands))
+    through = np.zeros(len(cands))
+    # the share of the band support each plane would hide (this view measured it beyond the
+    # plane: the segment cannot lie there unless it ends at its border)
+    bd = _plane_depth(cands[:, :3], cands[:, 3], all_rays)
+    with np.errstate(invalid="ignore"):
+        front = np.count_nonzero(all_d > bd * (1.0 + s.see_through_margin), axis=1) / len(all_d)
+    if source_depths is not None:
+        # the see-through test samples the segment's interior: at its border a source's depth
+        # edge (a few pixels off) reads as a view through the plane
+        inner = cv2.erode(seg.astype(np.uint8), np.ones((2 * s.ring_px + 1,) * 2, np.uint8), borderValue=1)
+        iv, iu = np.nonzero(inner)
+        if len(iv) < s.min_inliers:
+            iv, iu = sv_, su_
+        keep = np.linspace(0, len(iv) - 1, min(len(iv), s.see_through_samples)).astype(np.int64)
+        tu, tv = iu[keep] + bx0, iv[keep] + by0
+        trays = _rays(ref, tu.astype(np.float64), tv.astype(np.float64))
+    for ci, plane in enumerate(cands):
+        rd = _plane_depth(plane[None, :3], plane[3:], rrays)[0]
+        with np.errstate(invalid="ignore"):
+            ok = (rd >= near) & (rd <= far)
+            # behind the camera or too near: the plane does not fit; beyond the far end of
+            # the range (a ground reaching the horizon) is only not compared
+            misses = np.count_nonzero(~(rd >= near))
+        if misses > 0.5 * len(rd) or ok.sum() < s.min_inliers or front[ci] > s.max_front_hidden:
+            continue
+        if source_depths is not None:
+            td = _plane_depth(plane[None, :3], plane[3:], trays)[0]
+            with np.errstate(invalid="ignore"):
+                tok = (td >= near) & (td <= far)
+            through[ci] = _seen_through(
+                ref, sources, source_depths, tu[tok], tv[tok], td[tok], s.see_through_margin
+            ).sum() / max(int(tok.sum()), 1)
+        fracs[ci] = _photo_check(
+            ref, sources, ru[ok], rv[ok], rd[ok], ref_blur, src_blur, tol, s.min_sources
+        ).mean()
+    return fracs, through, front
 
 
 def fill_plain_segments(
@@ -585,6 +783,7 @@ def fill_plain_segments(
     settings: PlanarPriorSettings = PlanarPriorSettings(),
     sparse_points: np.ndarray | None = None,
     planes_world: np.ndarray | None = None,
+    source_depths: list[np.ndarray | None] | None = None,
 ) -> tuple[np.ndarray, PriorReport]:
     """Give the plain segments of one view the depth of their best-supported plane.
 
@@ -601,6 +800,9 @@ def fill_plain_segments(
         settings: see :class:`PlanarPriorSettings`.
         sparse_points: (N, 3) world points, metres (sparse feature points) or None.
         planes_world: (P, 4) world planes from :func:`dominant_planes` or None.
+        source_depths: per source its (H, W) depth, metres, NaN without one (PatchMatch's), or
+            None: candidates a source sees through (its depth lies beyond the plane inside the
+            segment) are set aside (``max_see_through``) and ranked lower.
     Returns:
         ((H, W) bool pixels filled by a plane, PriorReport). Nothing is changed when the report
         has a ``fallback``.
@@ -610,14 +812,7 @@ def fill_plain_segments(
     near, far = depth_range
     report = PriorReport()
     filled = np.zeros((H, W), bool)
-    blur = cv2.GaussianBlur(ref.grey.astype(np.float32), (0, 0), 1.0)
-    gx = cv2.Sobel(blur, cv2.CV_32F, 1, 0, ksize=3) / 8.0
-    gy = cv2.Sobel(blur, cv2.CV_32F, 0, 1, ksize=3) / 8.0
-    edges = np.hypot(gx, gy) > s.edge_grad / gain
-    free = ref.valid & ~accepted & ~edges
-    n_lab, labels, stats, _ = cv2.connectedComponentsWithStats(free.astype(np.uint8), connectivity=4)
-    min_area = max(16, int(s.min_segment_fraction * H * W))
-    segs = [i for i in range(1, n_lab) if stats[i, cv2.CC_STAT_AREA] >= min_area]
+    labels, stats, segs, blur = _plain_segments(ref, accepted, gain, s)
     report.segments = len(segs)
     if not segs:
         report.fallback = "no plain segments"
@@ -640,13 +835,11 @@ def fill_plain_segments(
         nc[flip] *= -1
         hc[flip] *= -1
         gplanes = np.concatenate([nc, hc[:, None]], axis=1)
+        horizontal = np.abs(planes_world[:, 2]) > 0.99
     else:
         gplanes = np.zeros((0, 4))
-    ref_blur = _blurred_colour(ref)
-    src_blur = [_blurred_colour(sv) for sv in sources]
-    if ref_blur.shape[2] != 3 or any(sb.shape[2] != 3 for sb in src_blur):  # some without colour: grey
-        ref_blur = ref_blur.mean(axis=2, keepdims=True) if ref_blur.shape[2] == 3 else ref_blur
-        src_blur = [sb.mean(axis=2, keepdims=True) if sb.shape[2] == 3 else sb for sb in src_blur]
+        horizontal = np.zeros(0, bool)
+    ref_blur, src_blur = _blurred_colours(ref, sources)
     tol = s.color_tol / gain
     band_k = np.ones((2 * s.band_px + 1, 2 * s.band_px + 1), np.uint8)
     rejected = 0
@@ -665,16 +858,26 @@ def fill_plain_segments(
         vv, uu = np.nonzero(band & np.isfinite(sup))
         if len(vv) < s.min_inliers:
             continue
+        all_d = sup[vv, uu]
+        all_rays = _rays(ref, (uu + bx0).astype(np.float64), (vv + by0).astype(np.float64))
+        keep = np.arange(len(vv))
         if len(vv) > s.max_support:
             keep = np.linspace(0, len(vv) - 1, s.max_support).astype(np.int64)
-            vv, uu = vv[keep], uu[keep]
-        d = sup[vv, uu]
-        uf, vf = (uu + bx0).astype(np.float64), (vv + by0).astype(np.float64)
+        d = all_d[keep]
+        uf, vf = (uu[keep] + bx0).astype(np.float64), (vv[keep] + by0).astype(np.float64)
         sv_, su_ = np.nonzero(seg)
         centre = _rays(ref, np.array([su_.mean() + bx0]), np.array([sv_.mean() + by0]))[0]
-        srays = _rays(ref, uf, vf)
         cands, is_global = _candidate_planes(
-            np.stack([uf, vf], axis=1), d, srays, gplanes, centre, cos_max_incidence, s
+            np.stack([uf, vf], axis=1),
+            d,
+            all_rays[keep],
+            gplanes,
+            centre,
+            cos_max_incidence,
+            s,
+            all_rays,
+            all_d,
+            horizontal,
         )
         if len(cands) == 0:
             continue
@@ -686,25 +889,33 @@ def fill_plain_segments(
             rv, ru = rv[keep], ru[keep]
         ru, rv = ru + bx0, rv + by0
         rrays = _rays(ref, ru.astype(np.float64), rv.astype(np.float64))
-        fracs = np.zeros(len(cands))
-        for ci, plane in enumerate(cands):
-            rd = _plane_depth(plane[None, :3], plane[3:], rrays)[0]
-            with np.errstate(invalid="ignore"):
-                ok = (rd >= near) & (rd <= far)
-            if ok.sum() < 0.5 * len(rd):
-                continue
-            fracs[ci] = _photo_check(
-                ref, sources, ru[ok], rv[ok], rd[ok], ref_blur, src_blur, tol, s.min_sources
-            ).mean()
-        # a dominant plane (multi-view support) that looks right wins over a single view's
-        # triangles; a winner that another, different plane nearly matches is ambiguous: left empty
-        good = fracs >= s.min_pass_fraction
+        fracs, through, front = _judge_candidates(
+            ref,
+            sources,
+            source_depths,
+            cands,
+            (seg, bx0, by0),
+            (ru, rv, rrays),
+            (all_rays, all_d),
+            depth_range,
+            (ref_blur, src_blur, tol),
+            s,
+        )
+        # a dominant plane (multi-view support) that looks right and that the sources do not see
+        # through wins over a single view's triangles; candidates are ranked by how right they
+        # look at the border less how much of what this view and the sources measured they would
+        # hide (``see_through_weight``); a winner that another plane of the same kind, different
+        # on the border, nearly matches is ambiguous: left empty
+        good = (fracs >= s.min_pass_fraction) & (through <= s.max_see_through)
         pool = np.nonzero(good & is_global)[0] if (good & is_global).any() else np.nonzero(good)[0]
         if len(pool) == 0:
             rejected += 1
             continue
-        win = int(pool[np.argmax(fracs[pool])])
-        if _ambiguous(cands, fracs, win, rrays, s):
+        score = fracs - s.see_through_weight * (through + front)
+        win = int(pool[np.argmax(score[pool])])
+        rivals = np.full(len(cands), -np.inf)
+        rivals[pool] = score[pool]
+        if _ambiguous(cands, rivals, win, rrays, s):
             ambiguous += 1
             continue
         plane = cands[win]
@@ -747,6 +958,7 @@ def planar_prior_depth(
     settings: PlanarPriorSettings = PlanarPriorSettings(),
     sparse_points: np.ndarray | None = None,
     planes_world: np.ndarray | None = None,
+    source_depths: list[np.ndarray | None] | None = None,
 ) -> tuple[np.ndarray, dict[str, int | str]]:
     """One view's depth with its plain segments filled from planes (never worse than without).
 
@@ -754,8 +966,8 @@ def planar_prior_depth(
         ref, sources: the views (with colour for the photometric checks).
         depth: (H, W) float32 PatchMatch depth, metres, NaN where none (not modified).
         cost: (H, W) float32 PatchMatch cost.
-        depth_range, cos_max_incidence, settings, sparse_points, planes_world: see
-            :func:`fill_plain_segments`.
+        depth_range, cos_max_incidence, settings, sparse_points, planes_world, source_depths:
+            see :func:`fill_plain_segments`.
     Returns:
         ((H, W) float32 depth: a copy of ``depth`` with the filled pixels, or ``depth`` itself
         when the prior was not applied; the report (:meth:`PriorReport.as_dict`) whose
@@ -775,6 +987,7 @@ def planar_prior_depth(
             settings,
             sparse_points,
             planes_world,
+            source_depths,
         )
     except (ValueError, np.linalg.LinAlgError, cv2.error) as exc:  # never worse than without it
         msg = str(exc).strip().splitlines()
