@@ -114,6 +114,11 @@ class PlanarPriorSettings:
         max_front_hidden: a candidate that would hide more than this share of the band support is
             set aside.
         see_through_samples: interior pixels sampled (evenly) for the see-through test.
+        hidden_band: use the band-hidden test (off: only the sources' see-through test). It
+            tells the plain ground from a terrace height on oblique views (a floating plane hides
+            the feet of what stands on the ground); on nadir survey photos every plain roof hides
+            the street beyond its edges, and the test lowered the DSM's share within 0.3 m (100
+            photos: 96.1 % without it, 94.7 % with it), so ``skyrecon survey`` turns it off.
     """
 
     enabled: bool = True
@@ -143,6 +148,7 @@ class PlanarPriorSettings:
     see_through_weight: float = 10.0
     max_front_fraction: float = 0.01
     max_front_hidden: float = 0.2
+    hidden_band: bool = True
     see_through_samples: int = 1000
 
     def __post_init__(self) -> None:
@@ -739,6 +745,8 @@ def _judge_candidates(
     bd = _plane_depth(cands[:, :3], cands[:, 3], all_rays)
     with np.errstate(invalid="ignore"):
         front = np.count_nonzero(all_d > bd * (1.0 + s.see_through_margin), axis=1) / len(all_d)
+    if not s.hidden_band:
+        front[:] = 0.0
     if source_depths is not None:
         # the see-through test samples the segment's interior: at its border a source's depth
         # edge (a few pixels off) reads as a view through the plane

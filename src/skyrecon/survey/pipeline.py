@@ -435,7 +435,9 @@ def run_survey(
         mvs_settings = MVSSettings(
             max_image_size=options.mvs_image_size,
             seed=options.seed,
-            planar_prior=PlanarPriorSettings(enabled=options.planar_prior),
+            # nadir photos: every plain roof hides the street beyond its edges, so the prior's
+            # band-hidden test would set roofs aside (see PlanarPriorSettings.hidden_band)
+            planar_prior=PlanarPriorSettings(enabled=options.planar_prior, hidden_band=False),
         )
         # the model's own points give the depth ranges and sources: no second feature matching
         mvs = run_mvs(
