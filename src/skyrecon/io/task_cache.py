@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import functools
 import hashlib
+import io
 import pickle
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -37,9 +38,19 @@ FORMAT = "skyrecon.task-result.v1"
 
 def task_key(task: Any, salt: str = "") -> str:
     """A hash (32 hex digits) of a picklable task, ``salt`` (e.g. the function's name) and the
-    package version: a workspace left by another version is recomputed, never reused."""
+    package version: a workspace left by another version is recomputed, never reused.
+
+    The task is pickled without the pickle memo (``Pickler.fast``): a plain pickle also encodes
+    which of its parts are the same object (two fields holding one array, arrays sharing a
+    dtype), and that differs between arrays just computed and arrays read back from a
+    workspace, so a resumed run would miss its kept results. Tasks must not refer to themselves.
+    """
     h = hashlib.sha256(f"{__version__}\0{salt}".encode())
-    h.update(pickle.dumps(task, protocol=pickle.HIGHEST_PROTOCOL))
+    buf = io.BytesIO()
+    pickler = pickle.Pickler(buf, protocol=pickle.HIGHEST_PROTOCOL)
+    pickler.fast = True  # no memo: the bytes depend on the values only
+    pickler.dump(task)
+    h.update(buf.getbuffer())
     return h.hexdigest()[:32]
 
 

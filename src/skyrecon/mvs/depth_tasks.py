@@ -310,11 +310,7 @@ def apply_planar_prior(
             [depths[s] for s in nb],
         )
         tasks.append((r, task))
-    # keyed field by field (and list item by list item): a pickle of the whole task also encodes
-    # which arrays (and dtypes) are shared between its parts, and that differs between depths
-    # just computed and depths read back from the workspace (a resumed run would then miss every
-    # kept prior)
-    keys = [task_key(tuple(_part_key(f) for f in t), "planar_prior") for _, t in tasks]
+    keys = [task_key(t, "planar_prior") for _, t in tasks]
     desc = "MVS planar prior" if progress else None
     results, _ = map_cached(executor, _prior_task, [t for _, t in tasks], keys, cache_dir, desc=desc)
     out = list(depths)
@@ -323,13 +319,6 @@ def apply_planar_prior(
         out[r] = d
         reports[r] = rep
     return out, reports
-
-
-def _part_key(part: Any) -> Any:
-    """:func:`task_key` of a task's field, item by item for a list."""
-    if isinstance(part, list):
-        return tuple(_part_key(p) for p in part)
-    return task_key(part)
 
 
 def _points_in_view(points: np.ndarray | None, view: WorkingView) -> np.ndarray | None:

@@ -552,6 +552,13 @@ def _boundary_ring(seg: np.ndarray, width: int) -> np.ndarray:
     return seg & (inner == 0)
 
 
+def _pixel_points_world(ref: WorkingView, u: np.ndarray, v: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """(N, 3) world points, metres, of pixels (u, v) of ``ref`` at depths d (N,) metres."""
+    return ref.cam_from_world.inverse().apply(
+        _rays(ref, u.astype(np.float64), v.astype(np.float64)) * d[:, None]
+    )
+
+
 def _photo_check(
     ref: WorkingView,
     sources: list[WorkingView],
@@ -566,9 +573,7 @@ def _photo_check(
     """(N,) bool: the plane points of pixels (u, v) at depths d (N,) metres look the same in enough
     sources: every colour channel (blurred images, (H, W, C) float32, NaN without data) within
     ``tol`` in at least ``min_sources`` of the sources that see the point (or all, if fewer)."""
-    X = ref.cam_from_world.inverse().apply(
-        _rays(ref, u.astype(np.float64), v.astype(np.float64)) * d[:, None]
-    )
+    X = _pixel_points_world(ref, u, v, d)
     g = ref_blur[v, u]
     seen = np.zeros(len(u), np.int32)
     agree = np.zeros(len(u), np.int32)
@@ -597,24 +602,17 @@ def _seen_through(
     *through* the hypothesised surface there (free-space violation). Sources' depths are (H, W)
     metres, NaN without a measurement; a source that sees something nearer (an occluder) or
     nothing says nothing."""
-    X = ref.cam_from_world.inverse().apply(
-        _rays(ref, u.astype(np.float64), v.astype(np.float64)) * d[:, None]
-    )
+    X = _pixel_points_world(ref, u, v, d)
     out = np.zeros(len(u), bool)
     for src, sd in zip(sources, source_depths):
         if sd is None:
             continue
-        Xs = src.cam_from_world.apply(X)
-        k = src.intrinsics
-        z = Xs[:, 2]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            x = np.rint(k.fx * Xs[:, 0] / z + k.cx)
-            y = np.rint(k.fy * Xs[:, 1] / z + k.cy)
+        uv, z = src.posed().project(X)  # NaN pixels behind the camera
         h, w = sd.shape
-        ok = (z > 0) & (x >= 0) & (y >= 0) & (x < w) & (y < h)
-        i = np.flatnonzero(ok)
-        ds = sd[y[i].astype(np.int64), x[i].astype(np.int64)]
         with np.errstate(invalid="ignore"):
+            x, y = np.rint(uv[:, 0]), np.rint(uv[:, 1])
+            i = np.flatnonzero((x >= 0) & (y >= 0) & (x < w) & (y < h))
+            ds = sd[y[i].astype(np.int64), x[i].astype(np.int64)]
             out[i[ds > z[i] * (1.0 + margin_rel)]] = True
     return out
 
@@ -737,23 +735,22 @@ def _judge_candidates(
     all_rays, all_d = band
     ref_blur, src_blur, tol = colours
     near, far = depth_range
-    sv_, su_ = np.nonzero(seg)
     fracs = np.zeros(len(cands))
     through = np.zeros(len(cands))
-    # the share of the band support each plane would hide (this view measured it beyond the
-    # plane: the segment cannot lie there unless it ends at its border)
-    bd = _plane_depth(cands[:, :3], cands[:, 3], all_rays)
-    with np.errstate(invalid="ignore"):
-        front = np.count_nonzero(all_d > bd * (1.0 + s.see_through_margin), axis=1) / len(all_d)
-    if not s.hidden_band:
-        front[:] = 0.0
+    front = np.zeros(len(cands))
+    if s.hidden_band:
+        # the share of the band support each plane would hide (this view measured it beyond the
+        # plane: the segment cannot lie there unless it ends at its border)
+        bd = _plane_depth(cands[:, :3], cands[:, 3], all_rays)
+        with np.errstate(invalid="ignore"):
+            front = np.count_nonzero(all_d > bd * (1.0 + s.see_through_margin), axis=1) / len(all_d)
     if source_depths is not None:
         # the see-through test samples the segment's interior: at its border a source's depth
         # edge (a few pixels off) reads as a view through the plane
         inner = cv2.erode(seg.astype(np.uint8), np.ones((2 * s.ring_px + 1,) * 2, np.uint8), borderValue=1)
         iv, iu = np.nonzero(inner)
         if len(iv) < s.min_inliers:
-            iv, iu = sv_, su_
+            iv, iu = np.nonzero(seg)
         keep = np.linspace(0, len(iv) - 1, min(len(iv), s.see_through_samples)).astype(np.int64)
         tu, tv = iu[keep] + bx0, iv[keep] + by0
         trays = _rays(ref, tu.astype(np.float64), tv.astype(np.float64))
