@@ -90,8 +90,8 @@ def totals(rows: list[dict]) -> dict:
     """Figures over the missions (worst case where the target is per mission)."""
     sight = [s for r in rows for s in r["sightings"]]
 
-    def recall(within: float):
-        near = [h for d, h in sight if d <= within]
+    def recall(within: float, beyond: float = 0.0):
+        near = [h for d, h in sight if beyond < d <= within]
         return round(sum(near) / len(near), 4) if near else None
 
     swept = sum(int(r["phantom"].get("observed_swept_voxels") or 0) for r in rows)
@@ -120,6 +120,8 @@ def totals(rows: list[dict]) -> dict:
         "mover_frames_within_20m": sum(1 for d, _ in sight if d <= 20.0),
         "recall_within_20m": recall(20.0),
         "recall_within_10m": recall(10.0),
+        "recall_10_to_15m": recall(15.0, 10.0),
+        "recall_15_to_20m": recall(20.0, 15.0),
         "position_error_p95_worst_m": max(err) if err else None,
         "position_error_median_m": float(
             np.median([r["error_median_m"] for r in rows if r["error_median_m"]])

@@ -16,7 +16,8 @@ from skyrecon.perception import (
     strided_intrinsics,
     texture_masks,
 )
-from skyrecon.sim import default_rig, flight_poses, generate_city, render_stereo
+from skyrecon.perception.stereo_depth import unambiguous_matches
+from skyrecon.sim import City, default_rig, flight_poses, generate_city, render_stereo
 from skyrecon.stereo import create_matcher, disparity_to_depth, plane_supported_fill, to_grey, trusted_range_m
 
 
@@ -116,7 +117,13 @@ def test_matcher_settings_and_reuse(pair):
 
 def test_bad_input(pair):
     rig, f = pair
-    for bad in ({"depth_stride": 0}, {"max_depth_error_m": -1.0}, {"max_disparity_step_px": 0.0}):
+    for bad in (
+        {"depth_stride": 0},
+        {"max_depth_error_m": -1.0},
+        {"max_disparity_step_px": 0.0},
+        {"fine_max_disparity": 20},
+        {"fine_block_px": 4},
+    ):
         with pytest.raises(InputError):
             PerceptionSettings.mapping(**bad)
     tilted = Rigid3.from_rotvec(np.array([0.0, 0.05, 0.0]), rig.right_from_left.t)
@@ -132,3 +139,46 @@ def test_strided_intrinsics(pair):
     cam = strided_intrinsics(rig.left, 3)
     assert (cam.width, cam.height) == (107, 80) and cam.cx == pytest.approx(rig.left.cx / 3)
     assert strided_intrinsics(rig.left, 1) is rig.left
+
+
+def test_fine_depth_sees_a_small_far_drone():
+    """A drone of 1 x 1 x 0.4 m 15 m ahead (the mission's 640x480 rig, 0.3 m baseline): the
+    half-resolution matcher reads it metres too far; the full-resolution block matcher on the
+    same grid keeps it within a metre; off by default."""
+    city = generate_city(7, 200.0)
+    rig = default_rig(640, 480, 90.0, 0.3)
+    world_from_cam = flight_poses(city, 1, seed=7, fps=2.0)[0]
+    c = world_from_cam.apply(np.array([[0.0, -0.5, 15.0]]))[0]
+    drone = np.concatenate([c - [0.5, 0.5, 0.2], c + [0.5, 0.5, 0.2]])
+    with_drone = City.from_obstacles(np.vstack([city.boxes, drone]))
+    before = render_stereo(city, rig, world_from_cam.inverse())
+    f = render_stereo(with_drone, rig, world_from_cam.inverse())
+    true = f.depth_left_m
+    px = ((true > 14.0) & (true < 16.0) & ~(np.abs(true - before.depth_left_m) < 1e-3))[::2, ::2]
+    assert px.sum() > 30
+    frame = StereoDepth(rig, PerceptionSettings.flight(fine_max_disparity=16)).compute(f.left, f.right)
+    assert frame.fine.depth_m.shape == frame.depth_m.shape
+    fine = frame.fine.depth_m[px]
+    assert np.isfinite(fine).mean() > 0.6  # where it sees the drone nearer than the coarse depth
+    assert abs(np.nanmedian(fine) - np.median(true[::2, ::2][px])) < 1.0
+    assert abs(np.nanmedian(frame.depth_m[px]) - np.median(true[::2, ::2][px])) > 1.5  # what it is for
+    r, c = np.nonzero(px & np.isfinite(frame.fine.depth_m))
+    assert frame.fine.unambiguous(r, c).mean() > 0.6
+    assert StereoDepth(rig, PerceptionSettings.flight()).compute(f.left, f.right).fine is None
+
+
+def test_unambiguous_matches_sets_aliases_of_a_periodic_texture_aside():
+    rng = np.random.default_rng(0)
+    cols = np.arange(200)
+    stripes = (128 + 100 * np.sin(2 * np.pi * cols / 7.0)).astype(np.uint8)  # period 7 px
+    periodic = np.tile(stripes, (40, 1)) + rng.integers(0, 3, (40, 200)).astype(np.uint8)
+    noise = rng.integers(0, 255, (40, 200)).astype(np.uint8)
+    r = np.full(50, 20)
+    c = np.arange(100, 150)
+    for left, true_d in ((noise, 9), (periodic, 2)):
+        right = np.roll(left, -true_d, axis=1)  # right(x) = left(x + d): disparity d
+        assert unambiguous_matches(left, right, r, c, np.full(50, float(true_d)), 16, 9).all()
+    right = np.roll(periodic, -2, axis=1)
+    alias = unambiguous_matches(periodic, right, r, c, np.full(50, 9.0), 16, 9)  # 2 + 7
+    assert not alias.any()
+    assert unambiguous_matches(noise, noise, r[:0], c[:0], np.zeros(0), 16, 9).shape == (0,)

@@ -464,7 +464,7 @@ def _map_update(
     depth_for_map, movers_ms = depth.depth_m, 0.0
     if tracker is not None:
         world_from_cam = cam_from_world.inverse().with_frames("world", "cam")
-        mf = tracker.update(time_s, depth.depth_m, depth.intrinsics, world_from_cam, nav.map)
+        mf = tracker.update(time_s, depth.depth_m, depth.intrinsics, world_from_cam, nav.map, fine=depth.fine)
         movers_ms = mf.ms
         if mf.dynamic_mask.any():
             depth_for_map = depth.depth_m.copy()
@@ -592,7 +592,11 @@ def run_mission(
     nav = Navigator(cfg, scenario.box, scenario.goal, hit_range, prior=prior)
     # movers are told from the static map where it holds obstacles (farther, a static surface's
     # points fall in space carved free and would pass for movers)
-    tracker = MoverTracker(MoverSettings(max_range_m=hit_range)) if cfg.track_movers else None
+    tracker = (
+        MoverTracker(MoverSettings(max_range_m=hit_range, fine_range_m=cfg.max_range_m))
+        if cfg.track_movers
+        else None
+    )
     world = scenario.movers
     monitor = (
         WorldMonitor(scenario, cfg.voxel_size_m, hit_range) if world is not None or scenario.changes else None

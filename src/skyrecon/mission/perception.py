@@ -32,11 +32,20 @@ def mission_rig(cfg: MissionConfig) -> StereoRig:
     return default_rig(cfg.width, cfg.height, cfg.hfov_deg, cfg.baseline_m)
 
 
+#: disparities of the full-resolution block matcher that finds small movers for the tracker
+#: (``PerceptionSettings.fine_max_disparity``): down to 6.4 m with the default rig
+FINE_MAX_DISPARITY = 16
+
+
 def flight_perception(cfg: MissionConfig) -> PerceptionSettings:
     """The stereo-depth rules of the delivery loop: :meth:`PerceptionSettings.flight` with the
-    mission's matcher, disparity bound and depth stride."""
+    mission's matcher, disparity bound and depth stride; when movers are tracked, also the
+    full-resolution fine depth (a drone 15-20 m away is lost at half resolution)."""
     return PerceptionSettings.flight(
-        method=cfg.matcher, max_disparity=int(cfg.max_disparity), depth_stride=int(cfg.depth_stride)
+        method=cfg.matcher,
+        max_disparity=int(cfg.max_disparity),
+        depth_stride=int(cfg.depth_stride),
+        fine_max_disparity=FINE_MAX_DISPARITY if cfg.track_movers else 0,
     )
 
 

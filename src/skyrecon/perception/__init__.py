@@ -3,7 +3,8 @@
 Today stereo depth (:class:`StereoDepth` with the rules in :class:`PerceptionSettings`, presets
 ``mapping()`` for ``skyrecon map`` and ``flight()`` for the delivery loop); visual odometry
 is meant to live here too; movers (:class:`MoverTracker`): what moves in the depth images,
-kept out of the static map and tracked for the planner.
+kept out of the static map and tracked for the planner (with a full-resolution block matcher's
+:class:`FineDepth` for small far ones).
 """
 
 from skyrecon.perception.movers import (
@@ -17,6 +18,7 @@ from skyrecon.perception.movers import (
 from skyrecon.perception.settings import PerceptionSettings, stereo_hit_range_m
 from skyrecon.perception.stereo_depth import (
     DepthFrame,
+    FineDepth,
     StereoDepth,
     disparity_discontinuities,
     strided_intrinsics,
@@ -25,6 +27,7 @@ from skyrecon.perception.stereo_depth import (
 
 __all__ = [
     "DepthFrame",
+    "FineDepth",
     "MoverDetection",
     "MoverFrame",
     "MoverSettings",
