@@ -40,9 +40,9 @@ def render(pose: Rigid3, movers: list[np.ndarray] = ()) -> np.ndarray:
     return render_depth(city, CAM, pose.inverse())
 
 
-def static_map(xs=(0.0, 1.0, 2.0, 3.0), noise=None) -> OccupancyMap:
+def static_map(xs=(0.0, 1.0, 2.0, 3.0), noise=None, max_range_m: float = 40.0) -> OccupancyMap:
     """The static scene mapped from a few poses (so the space around it is observed free)."""
-    occ = OccupancyMap(voxel_size_m=0.5, max_range_m=40.0)
+    occ = OccupancyMap(voxel_size_m=0.5, max_range_m=max_range_m)
     for x in xs:
         for y in (-1.0, 0.0, 1.0):
             pose = forward_pose(x, y)
@@ -389,11 +389,12 @@ class ExactFine:
         return np.ones(len(rows), bool)
 
 
-def _fly_fine(center_at, n: int, fine_of, settings: MoverSettings | None = None):
-    """Frames at 10 Hz over the mapped static scene where the coarse depth has lost the mover
-    (it reads the background there) and ``fine_of(depth with the mover, static depth)`` gives the
-    fine depth (None: no fine depth). Returns the frames and the true centres."""
-    occ = static_map()
+def _fly_fine(center_at, n: int, fine_of, settings: MoverSettings | None = None, map_range_m: float = 40.0):
+    """Frames at 10 Hz over the mapped static scene (mapped up to ``map_range_m``) where the
+    coarse depth has lost the mover (it reads the background there) and ``fine_of(depth with the
+    mover, static depth)`` gives the fine depth (None: no fine depth). Returns the frames and the
+    true centres."""
+    occ = static_map(max_range_m=map_range_m)
     tr = MoverTracker(settings or MoverSettings(max_range_m=17.0, fine_range_m=20.0))
     frames, centers = [], []
     for i in range(n):
@@ -452,3 +453,15 @@ def test_merge_fine_depth():
     np.testing.assert_allclose(merged[0, :4], [16.0, 16.0, 16.2, 16.0])
     with pytest.raises(InputError):
         merge_fine_depth(depth, fine[:, :3], cam, s)
+
+
+def test_fine_depth_finds_a_drone_beyond_the_space_the_map_has_seen():
+    # mapped up to 15 m from x <= 3: a drone 19-20 m ahead is in space the map has not seen;
+    # the coarse depth saw the building behind it this very frame
+    beyond = lambda t: np.array([19.0, -6.5, 5.0]) + V_DRONE * t  # noqa: E731
+    s = MoverSettings(max_range_m=17.0, fine_range_m=22.0)
+    assert s.fine_unknown
+    frames, centers = _fly_fine(beyond, 8, lambda d_true, d_static: d_true, s, map_range_m=15.0)
+    assert _found(frames, centers, first=0, tol_m=0.5) == 1.0
+    frames, _ = _fly_fine(beyond, 8, lambda d_true, d_static: d_true, replace(s, fine_unknown=False), 15.0)
+    assert all(not f.detections for f in frames)
