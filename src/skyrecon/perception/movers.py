@@ -502,17 +502,15 @@ def detect_movers(
     edges = edges_full[::st, ::st]
     not_edge = ~edges.reshape(-1)[flat]
     here_free = seen_free[: len(flat)]
-    if taken is None:
-        fine_f = np.zeros(len(flat), bool)
-        back_free = seen_free[len(flat) :]
-        limit = s.max_range_m
-    else:
+    back_free = seen_free[len(flat) :]
+    fine_f = np.zeros(len(flat), bool)
+    if taken is not None and seen_behind is not None:
         fine_f = taken[::st, ::st].reshape(-1)[flat]
         behind_f = seen_behind[::st, ::st].reshape(-1)[flat]
-        back_free = seen_free[len(flat) :] | behind_f
-        limit = np.where(fine_f, s.fine_range_m, s.max_range_m)
+        back_free = back_free | behind_f
         if s.fine_unknown:
             here_free = here_free | (behind_f & (here != OCCUPIED))
+    limit = np.where(fine_f, s.fine_range_m, s.max_range_m)
     cand = here_free & back_free & not_edge & (rv_m <= limit)
     # a silhouette point of a static object (its ray grazes past the object into free space)
     # has an occupied voxel within inside_m across the ray: look along the axes too
@@ -528,7 +526,7 @@ def detect_movers(
         state = occ_map.classify(occ_map.log_odds_at(around)).reshape(len(steps), -1)
         cand[c2] = np.all(state != OCCUPIED, axis=0)
         c2 = c2[cand[c2]]
-        if c2.size:  # last, on the few left: not an alias of a periodic texture
+        if c2.size and fine is not None:  # last, on the few left: not an alias of a periodic texture
             rows, cols = np.divmod(flat[c2], d.shape[1])
             cand[c2] = fine.unambiguous(rows * st, cols * st)
     surface = (here == OCCUPIED) & (back != FREE)  # looks like a static surface of the map

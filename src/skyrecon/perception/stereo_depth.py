@@ -32,6 +32,7 @@ from skyrecon.errors import InputError
 from skyrecon.perception.settings import PerceptionSettings
 from skyrecon.stereo import Matcher, create_matcher, plane_supported_fill, to_grey
 from skyrecon.stereo.base import prepare_pair
+from skyrecon.stereo.opencv_matchers import OpenCVBMMatcher, OpenCVBMSettings
 
 
 def strided_intrinsics(cam: Intrinsics, stride: int) -> Intrinsics:
@@ -226,17 +227,19 @@ class StereoDepth:
         self.stride = int(self.settings.depth_stride)
         self.intrinsics = strided_intrinsics(rig.left, self.stride)
         self._matcher = matcher
-        self._fine = None
+        self._fine: OpenCVBMMatcher | None = None
         if self.settings.fine_max_disparity:
-            bm = cv2.StereoBM_create(
-                numDisparities=int(self.settings.fine_max_disparity),
-                blockSize=int(self.settings.fine_block_px),
+            self._fine = OpenCVBMMatcher(
+                int(self.settings.fine_max_disparity),
+                settings=OpenCVBMSettings(
+                    block_size=int(self.settings.fine_block_px),
+                    pre_filter_type="xsobel",
+                    texture_threshold=5,
+                    uniqueness_ratio=10,
+                    speckle_window_size=20,  # drops specks of fewer pixels: a far drone has 150 or more
+                    speckle_range=2,
+                ),
             )
-            bm.setUniquenessRatio(10)
-            bm.setTextureThreshold(5)
-            bm.setSpeckleWindowSize(20)  # drops specks of fewer pixels: a far drone is 150 or more
-            bm.setSpeckleRange(2)
-            self._fine = bm
 
     @property
     def matcher(self) -> Matcher:
@@ -298,10 +301,10 @@ class StereoDepth:
         """The full-resolution block matcher's depth on the depth grid where it is nearer than
         the coarse matcher's disparity ``coarse_px`` (H, W) (or where that has none) and at least
         a quarter of its disparity range (:class:`FineDepth`)."""
+        assert self._fine is not None
         pair = prepare_pair(np.asarray(left), np.asarray(right))
         k = self.stride
-        raw = self._fine.compute(pair.left_grey, pair.right_grey)[::k, ::k]
-        disp = raw.astype(np.float32) / 16.0  # 4 fractional bits; -1 where no match
+        disp = self._fine.compute(pair.left_grey, pair.right_grey).disparity[::k, ::k]  # NaN: no match
         n = int(self.settings.fine_max_disparity)
         with np.errstate(invalid="ignore"):
             keep = (disp >= n / 4) & ~(disp < coarse_px[::k, ::k] + FINE_MIN_GAIN_PX)
