@@ -459,8 +459,7 @@ def test_fine_depth_finds_a_drone_beyond_the_space_the_map_has_seen():
     # mapped up to 15 m from x <= 3: a drone 19-20 m ahead is in space the map has not seen;
     # the coarse depth saw the building behind it this very frame
     beyond = lambda t: np.array([19.0, -6.5, 5.0]) + V_DRONE * t  # noqa: E731
-    s = MoverSettings(max_range_m=17.0, fine_range_m=22.0)
-    assert s.fine_unknown
+    s = MoverSettings(max_range_m=17.0, fine_range_m=22.0, fine_unknown=True)
     frames, centers = _fly_fine(beyond, 8, lambda d_true, d_static: d_true, s, map_range_m=15.0)
     assert _found(frames, centers, first=0, tol_m=0.5) == 1.0
     frames, _ = _fly_fine(beyond, 8, lambda d_true, d_static: d_true, replace(s, fine_unknown=False), 15.0)
