@@ -26,6 +26,7 @@ Usage:
   .venv/bin/python benchmarks/dynamic/run.py                       # 50 seeds, 2 at a time
   .venv/bin/python benchmarks/dynamic/run.py --seeds 10 --baseline # and the no-tracking runs
   .venv/bin/python benchmarks/dynamic/run.py --pose-source odometry
+  .venv/bin/python benchmarks/dynamic/run.py --fine-depth          # results_fine_depth.json
 
 Resumable: a mission whose folder has ``mission.json`` is read back (``--fresh`` flies all
 again). Missions side by side share the cores: with ``--parallel 2`` on 2 cores the loop
@@ -172,11 +173,23 @@ def main() -> int:
     ap.add_argument("--fresh", action="store_true")
     ap.add_argument("--baseline", action="store_true", help="also fly every mission with tracking off")
     ap.add_argument("--pose-source", default="truth", choices=("truth", "odometry", "gps+odometry"))
+    ap.add_argument(
+        "--fine-depth",
+        action="store_true",
+        help="track movers with the full-resolution fine depth too (MissionConfig.mover_fine_depth)",
+    )
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "dynamic" / "out"))
     args = ap.parse_args()
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
-    cfg = MissionConfig(movers=True, city_changes=True, prior_map="earlier", pose_source=args.pose_source)
+    cfg = MissionConfig(
+        movers=True,
+        city_changes=True,
+        prior_map="earlier",
+        pose_source=args.pose_source,
+        mover_fine_depth=args.fine_depth,
+    )
     suffix = "" if args.pose_source == "truth" else "_" + args.pose_source.replace("+", "_")
+    suffix += "_fine_depth" if args.fine_depth else ""
     out = Path(args.out + suffix)
     t0 = time.perf_counter()
     rows = fly(seeds, out, cfg, args.parallel, args.fresh)
@@ -196,7 +209,12 @@ def main() -> int:
         )
     print("\ntotals:", json.dumps(tot, indent=1))
     result = {
-        "config": {"pose_source": args.pose_source, "seeds": seeds, "parallel": args.parallel},
+        "config": {
+            "pose_source": args.pose_source,
+            "fine_depth": args.fine_depth,
+            "seeds": seeds,
+            "parallel": args.parallel,
+        },
         "totals": tot,
     }
     if args.baseline:

@@ -198,3 +198,11 @@ def test_an_unobserved_point_that_sets_the_speed_is_looked_at_freely():
     g = guide(rest, DroneState(rest[0].copy(), np.zeros(3), 0.0, 0.0), 6.0, cfg)
     assert g.limit is not None and g.limit.reason == "path_seen" and unobserved_binds(g.limit)
     assert g.look_within_rad is None and np.allclose(g.look_at, [5.0, 1.0, 15.0])
+
+
+def test_fine_depth_is_opt_in_for_the_tracker():
+    from skyrecon.mission.perception import FINE_MAX_DISPARITY, flight_perception
+
+    assert flight_perception(MissionConfig()).fine_max_disparity == 0
+    assert flight_perception(MissionConfig(mover_fine_depth=True)).fine_max_disparity == FINE_MAX_DISPARITY
+    assert flight_perception(MissionConfig(mover_fine_depth=True, track_movers=False)).fine_max_disparity == 0

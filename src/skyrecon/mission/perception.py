@@ -39,13 +39,14 @@ FINE_MAX_DISPARITY = 16
 
 def flight_perception(cfg: MissionConfig) -> PerceptionSettings:
     """The stereo-depth rules of the delivery loop: :meth:`PerceptionSettings.flight` with the
-    mission's matcher, disparity bound and depth stride; when movers are tracked, also the
-    full-resolution fine depth (a drone 15-20 m away is lost at half resolution)."""
+    mission's matcher, disparity bound and depth stride; with ``mover_fine_depth`` (and movers
+    tracked), also the full-resolution fine depth (a drone 15-20 m away is lost at half
+    resolution)."""
     return PerceptionSettings.flight(
         method=cfg.matcher,
         max_disparity=int(cfg.max_disparity),
         depth_stride=int(cfg.depth_stride),
-        fine_max_disparity=FINE_MAX_DISPARITY if cfg.track_movers else 0,
+        fine_max_disparity=FINE_MAX_DISPARITY if cfg.track_movers and cfg.mover_fine_depth else 0,
     )
 
 
