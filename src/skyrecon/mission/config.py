@@ -98,7 +98,7 @@ class MissionConfig:
         mover_fine_depth: also match each pair at full resolution for the tracker
             (:attr:`skyrecon.perception.PerceptionSettings.fine_max_disparity`), which finds
             drones 12-20 m away that the half-resolution matcher loses (recall within 20 m 0.17
-            -> 0.32 on 23 dynamic missions). Off by default: it doubled the loop's median
+            -> 0.32 on 24 dynamic missions). Off by default: it doubled the loop's median
             latency on 2 cores (about 24 -> 55 ms, two missions at a time), and one new scaffold
             tower took 0.8 s to be mapped (its edges passed for movers at first).
         mover_horizon_s: how far ahead a tracked mover's motion is predicted for planning, seconds.
