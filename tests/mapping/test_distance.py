@@ -8,7 +8,7 @@ from scipy.ndimage import distance_transform_edt
 
 from skyrecon.errors import InputError
 from skyrecon.mapping import DistanceField, OccupancyMap
-from skyrecon.mapping._edt import squared_edt
+from skyrecon.mapping._edt import bounded_distance, squared_edt
 from skyrecon.mapping.distance import brute_force_distance
 
 
@@ -21,6 +21,25 @@ def test_edt_equals_scipy():
             np.testing.assert_allclose(d2, distance_transform_edt(~occ) ** 2, atol=1e-9)
         else:
             assert np.all(np.isinf(d2))
+
+
+@pytest.mark.parametrize(
+    "shape, p, voxel, max_d",
+    [
+        ((23, 17, 11), 0.03, 0.5, 3.43),
+        ((9, 40, 5), 0.005, 0.5, 2.0),
+        ((40, 30, 20), 0.01, 0.3, 1.7),
+        ((12, 12, 12), 0.0, 0.5, 3.0),
+        ((20, 21, 22), 0.002, 1.0, 0.6),
+    ],
+)
+def test_bounded_distance_equals_clipped_scipy(shape, p, voxel, max_d):
+    """The windowed transform is exact below the clip (the windows cover every source that near)."""
+    occ = np.random.default_rng(3).random(shape) < p
+    d = bounded_distance(occ, voxel, max_d)
+    assert d.dtype == np.float32 and d.shape == shape
+    ref = np.full(shape, max_d) if not occ.any() else np.minimum(distance_transform_edt(~occ) * voxel, max_d)
+    np.testing.assert_allclose(d, ref, atol=1e-5)
 
 
 @pytest.mark.parametrize("unknown_is_occupied", [False, True])
