@@ -104,6 +104,19 @@ def test_only_blocks_whose_occupied_voxels_change_reach_the_distance_field():
     assert len(occupied_changes()) == 0
 
 
+def test_warm_up_leaves_the_map_and_its_distance_field_alone():
+    cfg = MissionConfig()
+    nav = _box_navigator(cfg)
+    _look(nav, 6.0, 1)
+    before = nav.map.dense_log_odds(np.array([-16, -16, 16]), (96, 48, 32)).copy()
+    version = nav.df.version
+    nav.warm_up(Intrinsics.from_fov(64, 48, 90.0))
+    after = nav.map.dense_log_odds(np.array([-16, -16, 16]), (96, 48, 32))
+    np.testing.assert_array_equal(before, after)
+    assert nav.df.version == version
+    assert len(nav.map.pop_changed_blocks(occupied_only=True)) > 0  # the wall's changes are still pending
+
+
 def test_look_ahead_needs_the_path_observed():
     cfg = MissionConfig()
     nav = _box_navigator(cfg)

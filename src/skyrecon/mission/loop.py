@@ -597,6 +597,7 @@ def run_mission(
         if cfg.track_movers
         else None
     )
+    nav.warm_up(stereo.intrinsics)  # load the map's kernels now, not in the first cycle
     world = scenario.movers
     monitor = (
         WorldMonitor(scenario, cfg.voxel_size_m, hit_range) if world is not None or scenario.changes else None

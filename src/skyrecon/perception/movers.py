@@ -650,9 +650,8 @@ def _fill_strided(
     pixel (within ``st`` pixels) whose point lies in the cluster's box ``[lo, hi]`` grown by
     ``margin``, and the depth-edge pixels (``edges`` (H, W) bool) among them: the mover's
     silhouette, where stereo puts points between it and the background."""
-    from scipy.ndimage import binary_dilation
-
-    near = binary_dilation(mask, np.ones((2 * st + 1, 2 * st + 1), bool))
+    # (cv2, not scipy.ndimage: importing that on a mover's first sighting stalled a cycle by 60 ms)
+    near = cv2.dilate(mask.view(np.uint8), np.ones((2 * st + 1, 2 * st + 1), np.uint8)).view(bool)
     r, c = np.nonzero(near)
     z = depth[r, c].astype(np.float64)
     ok = np.isfinite(z)
