@@ -80,6 +80,9 @@ def mission_row(folder: Path) -> dict | None:
         "vacated": dyn.get("vacated_free_s") or {},
         "new_delay_s": added[0].get("delay_s") if added else None,
         "removed_delay_s": removed[0].get("free_delay_s_max") if removed else None,
+        "removed_delay_p95_s": removed[0].get("free_delay_s_p95") if removed else None,
+        "removed_late_voxels": removed[0].get("freed_after_2s_voxels") if removed else None,
+        "removed_touched_voxels": removed[0].get("touched_voxels") if removed else None,
         "replan_reasons": doc.get("replan_reasons") or {},
         "loop_ms_p50": doc.get("loop_ms_p50"),
         "loop_ms_p99": doc.get("loop_ms_p99"),
@@ -102,6 +105,9 @@ def totals(rows: list[dict]) -> dict:
     vac_max = [r["vacated"]["max"] for r in rows if r["vacated"].get("max") is not None]
     new = [r["new_delay_s"] for r in rows if r["new_delay_s"] is not None]
     gone = [r["removed_delay_s"] for r in rows if r["removed_delay_s"] is not None]
+    gone95 = [r["removed_delay_p95_s"] for r in rows if r.get("removed_delay_p95_s") is not None]
+    late = sum(r.get("removed_late_voxels") or 0 for r in rows)
+    touched = sum(r.get("removed_touched_voxels") or 0 for r in rows)
     p99 = [r["loop_ms_p99"] for r in rows if r["loop_ms_p99"] is not None]
     p50 = [r["loop_ms_p50"] for r in rows if r["loop_ms_p50"] is not None]
     cm = [r["min_clearance_moving_m"] for r in rows if r["min_clearance_moving_m"] is not None]
@@ -138,6 +144,9 @@ def totals(rows: list[dict]) -> dict:
         "new_obstacle_seen_in": len(new),
         "removed_freed_s_worst": max(gone) if gone else None,
         "removed_seen_in": len(gone),
+        "removed_freed_s_p95_worst": max(gone95) if gone95 else None,
+        "removed_voxels_freed_after_2s": late,
+        "removed_voxels_touched": touched,
         "loop_ms_p50_median": float(np.median(p50)) if p50 else None,
         "loop_ms_p99_worst": max(p99) if p99 else None,
         "loop_ms_p99_median": float(np.median(p99)) if p99 else None,
