@@ -235,8 +235,9 @@ def dynamic_section(result, metrics: dict, extent) -> list[str]:
                         f"gone: {c['name']}",
                         c.get("free_delay_s_max"),
                         f"seconds from first seen through "
-                        f"to free (worst voxel; {c.get('freed_voxels')} of {c.get('touched_voxels')} seen "
-                        "freed); target <= 2",
+                        f"to free (worst voxel; p95 {_fmt(c.get('free_delay_s_p95'))} s; "
+                        f"{c.get('freed_voxels')} of {c.get('touched_voxels')} seen freed, "
+                        f"{c.get('freed_after_2s_voxels', '-')} after 2 s); target <= 2",
                     )
                 )
         out += ["<h3>Changes since the prior map</h3>", _table(rows)]
