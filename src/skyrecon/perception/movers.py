@@ -29,10 +29,8 @@ static occupancy map they would leave phantom trails, and the planner would not 
 Frames and units: world frame z up, metres, seconds; camera frame x right, y down, z forward
 (OpenCV); poses are ``world_from_cam`` (``p_world = R @ p_cam + t``).
 
-Known limits: the visible part of a mover is what is measured, so a detection's centre would be
-biased towards the camera; stereo smear at its silhouette stretches its box away from the camera
-more (measured: 0.26 m too far along the ray, median, for drones), so the centre is pushed away
-only a little (``MoverSettings.max_push_m``); the parts of a mover
+Known limits: the visible part of a mover is what is measured, so a detection's centre is biased
+towards the camera (the tracker corrects it by the track's remembered size); the parts of a mover
 that share a voxel with a static surface (the lowest ~0.5 m of a vehicle on the road) are not
 candidates and stay out of the mask.
 """
@@ -167,16 +165,11 @@ class MoverSettings:
             stereo smear of a small far object (depth error grows with the square of the range)
             does not stretch its box and centre; nearer ones span all their points (0, the
             default: every box spans all its points).
-        max_push_m: None: a matched detection's centre is pushed away from the camera per axis
-            by the half size the track remembers and the view does not show; a number: along the
-            viewing ray by that depth, capped at this many metres (0.2, the default). The
-            remembered size is the largest box of the track's past, stretched by stereo smear
-            along the ray: in 16 dynamic missions (200 sightings of drones) the per-axis push
-            moved the measured centres from 0.38 m (median, unpushed) to 0.67 m off the true
-            centres, 0.52 m too far along the ray (unpushed: 0.26 m too far); capped at 0.2 m,
-            0.45 m. Not pushing at all was best there, but a drone crossing near the camera
-            (tests/perception/test_movers.py) then showed another face each frame and its
-            track's velocity was 0.63 m/s off; 0.2 keeps that within 0.5 m/s.
+        max_push_m: None (default): a matched detection's centre is pushed away from the camera
+            per axis by the half size the track remembers and the view does not show; a number:
+            along the viewing ray by that depth, capped at this many metres (0.3 with
+            ``box_quantile`` 0.05 lowered the centre error on replayed missions; off by default,
+            see :data:`SEE_THROUGH_AGES_S`).
     """
 
     stride: int = 1
@@ -208,7 +201,7 @@ class MoverSettings:
     history_s: tuple[float, ...] = ()
     box_quantile: float = 0.0
     robust_box_range_m: float = 10.0
-    max_push_m: float | None = 0.2
+    max_push_m: float | None = None
     far_range_m: float = 20.0
     fine_min_range_m: float = 12.0
     fine_range_m: float = 20.0
