@@ -133,6 +133,8 @@ def _bounded_squared_edt(obstacle, w):
                     last = k
                 dk = min(g[i, j, k], np.float32(last - k))
                 g[i, j, k] = dk * dk if dk <= w else far
+    # the y and x passes are written out: one helper over 2-D views runs 1.8 ms against 1.2 ms
+    # on an 80x72x64 box (Numba does not vectorise the x pass's strided views)
     h = np.empty((X, Y, Z), np.float32)
     for i in prange(X):  # along y: minimum over the window
         for j in range(Y):

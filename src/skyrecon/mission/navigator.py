@@ -109,7 +109,7 @@ class Navigator:
         """Load the map's kernels before the first cycle: integrate one synthetic depth image
         (a wall 8 m ahead, a band beyond the range, a band of invalid pixels) with the camera's
         ``intrinsics`` into a throwaway map of the same configuration, mark a flown segment free
-        and update its distance field. Numba loads each cached kernel on its first call (about
+        and build its distance field. Numba loads each cached kernel on its first call (about
         8 ms apiece); left to the first cycle, that stalled it by 50 ms. This map is not touched."""
         scratch = OccupancyMap(self.map.config)
         h, w = intrinsics.height, intrinsics.width
@@ -119,9 +119,7 @@ class Navigator:
         cam = Rigid3.identity("world", "cam")
         scratch.integrate_depth(depth, intrinsics, cam)
         scratch.mark_flown_free(np.array([[0.0, 0.0, -1.0], [0.0, 0.0, 0.0]]), self.cfg.drone_radius_m)
-        DistanceField(scratch, max_distance_m=self.df.max_distance, unknown_is_occupied=False).update(
-            scratch.pop_changed_blocks(occupied_only=True)
-        )
+        DistanceField(scratch, max_distance_m=self.df.max_distance, unknown_is_occupied=False)  # computes it
 
     # ----- sensing -----------------------------------------------------------------------
     def integrate(
