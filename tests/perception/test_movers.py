@@ -257,6 +257,44 @@ def test_noisy_static_scene_has_no_false_movers():
     assert n_dets <= 5
 
 
+def flat_drone(t: float) -> np.ndarray:
+    """A flat drone (0.2 m tall) 15 m ahead crossing at 3 m/s: every pixel of it at a depth edge."""
+    return np.array([15.0, -6.0, 5.8]) + V_DRONE * t
+
+
+def test_small_far_drone_on_its_depth_edges():
+    half = np.array([0.4, 0.4, 0.1])
+    run = run_mover(flat_drone, 10, half=half)
+    assert all(len(f.detections) == 1 for f in run.frames)
+    last = [t for t in run.frames[-1].tracks if t.moving]
+    assert len(last) == 1 and np.linalg.norm(last[0].position - run.centers[-1]) < 0.5
+    # without the near side of the depth edges nothing of it is left
+    run = run_mover(flat_drone, 10, half=half, settings=MoverSettings(edge_near_frac=0.0))
+    assert all(not f.detections for f in run.frames)
+
+
+def test_near_side_of_widened_static_edges_is_not_a_mover():
+    # a matcher widens near edges onto the background beside them (here by 1 pixel): those
+    # points lie on the near side of the jump, in free space, but within a voxel of the surface
+    import cv2
+
+    def detections(settings: MoverSettings) -> int:
+        occ = static_map()
+        tr = MoverTracker(settings)
+        n = 0
+        for i in range(10):
+            pose = forward_pose(0.3 * i)
+            d = np.where(np.isfinite(d := render(pose)), d, 1e4).astype(np.float32)
+            widened = cv2.erode(d, np.ones((3, 3), np.uint8))
+            widened[widened >= 1e4] = np.inf
+            n += len(tr.update(i * DT, widened, CAM, pose, occ).detections)
+        return n
+
+    assert detections(MoverSettings()) == 0
+    # the clearance from mapped surfaces is what keeps them out
+    assert detections(MoverSettings(fine_clear_m=0.0)) > 0
+
+
 def test_vehicle_on_the_road():
     """A car (4.5 x 1.9 x 1.6 m) at 8 m/s that emerges from behind a building: one track."""
     half = np.array([2.25, 0.95, 0.8])
