@@ -27,6 +27,7 @@ Usage:
   .venv/bin/python benchmarks/dynamic/run.py --seeds 10 --baseline # and the no-tracking runs
   .venv/bin/python benchmarks/dynamic/run.py --pose-source odometry
   .venv/bin/python benchmarks/dynamic/run.py --fine-depth          # results_fine_depth.json
+  .venv/bin/python benchmarks/dynamic/run.py --first-seed 150       # held-out: results_seeds150-199.json
 
 Resumable: a mission whose folder has ``mission.json`` is read back (``--fresh`` flies all
 again). Missions side by side share the cores: with ``--parallel 2`` on 2 cores the loop
@@ -199,6 +200,8 @@ def main() -> int:
     )
     suffix = "" if args.pose_source == "truth" else "_" + args.pose_source.replace("+", "_")
     suffix += "_fine_depth" if args.fine_depth else ""
+    if (args.first_seed, args.seeds) != (100, 50):  # other seeds (a held-out set) keep their own file
+        suffix += f"_seeds{seeds[0]}-{seeds[-1]}"
     out = Path(args.out + suffix)
     t0 = time.perf_counter()
     rows = fly(seeds, out, cfg, args.parallel, args.fresh)

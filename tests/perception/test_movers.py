@@ -257,6 +257,9 @@ def test_noisy_static_scene_has_no_false_movers():
     assert n_dets <= 5
 
 
+NEAR_EDGES = MoverSettings(edge_near_frac=0.03, edge_near_min_range_m=8.0)
+
+
 def flat_drone(t: float) -> np.ndarray:
     """A flat drone (0.2 m tall) 15 m ahead crossing at 3 m/s: every pixel of it at a depth edge."""
     return np.array([15.0, -6.0, 5.8]) + V_DRONE * t
@@ -264,12 +267,12 @@ def flat_drone(t: float) -> np.ndarray:
 
 def test_small_far_drone_on_its_depth_edges():
     half = np.array([0.4, 0.4, 0.1])
-    run = run_mover(flat_drone, 10, half=half)
+    run = run_mover(flat_drone, 10, half=half, settings=NEAR_EDGES)
     assert all(len(f.detections) == 1 for f in run.frames)
     last = [t for t in run.frames[-1].tracks if t.moving]
     assert len(last) == 1 and np.linalg.norm(last[0].position - run.centers[-1]) < 0.5
-    # without the near side of the depth edges nothing of it is left
-    run = run_mover(flat_drone, 10, half=half, settings=MoverSettings(edge_near_frac=0.0))
+    # without the near side of the depth edges (the default) nothing of it is left
+    run = run_mover(flat_drone, 10, half=half)
     assert all(not f.detections for f in run.frames)
 
 
@@ -290,9 +293,9 @@ def test_near_side_of_widened_static_edges_is_not_a_mover():
             n += len(tr.update(i * DT, widened, CAM, pose, occ).detections)
         return n
 
-    assert detections(MoverSettings()) == 0
+    assert detections(NEAR_EDGES) == 0
     # the clearance from mapped surfaces is what keeps them out
-    assert detections(MoverSettings(fine_clear_m=0.0)) > 0
+    assert detections(replace(NEAR_EDGES, fine_clear_m=0.0)) > 0
 
 
 def test_vehicle_on_the_road():

@@ -97,11 +97,16 @@ class MoverSettings:
             metres, and no voxel within ``fine_clear_m`` of them (26 steps) is occupied (so that
             a near edge of a static surface, widened onto the background by the matcher, is not
             a mover). A drone 10 m away spans a few half-resolution pixels and nearly all of
-            them lie at a depth edge: without this it was found only once it came within 4 m
-            (a crossing drone at 6 m/s in a held-out mission, seed 165, was hit). On ten
-            dynamic missions (seeds 100-108 and 165) it raised recall within 20 m from 0.155 to
-            0.208; nearer than 8 m (0: everywhere) it confirmed chains of stereo outliers in free
-            air as movers (2.5x the track-frames away from every mover).
+            them lie at a depth edge: without this, the crossing drone of held-out mission 165
+            was found only 4 m away and hit; with 0.03 and 8 m it was found 10 m away. Off by
+            default (0): flown with 0.03 and 8 m in the 50 dynamic missions (seeds 100-149) and
+            50 held-out ones (150-199), recall within 20 m rose from 0.17 to 0.22 (within 10 m
+            0.60 to 0.80 on 100-149), but the median position error grew from 0.52 to 0.79-0.84
+            m, a new scaffold took up to 1.3 s to be mapped (its near edges passed for movers;
+            target 0.5 s), and the changed flights met two other movers (seeds 139 and 155: one
+            head-on, one the drone turned away from): 2 collisions in 100 against 1 locally
+            (seed 165) and 2 in 47 on another machine without it. Nearer than 8 m it confirmed
+            chains of stereo outliers in free air as movers.
         behind_m: the free-space test also looks this far behind the point along the viewing
             ray, metres (one map voxel of 0.5 m) ...
         depth_noise_frac, noise_sigmas: ... plus ``noise_sigmas * depth_noise_frac * range``, so
@@ -224,7 +229,7 @@ class MoverSettings:
     fine_clear_m: float = 0.5
     fine_unknown: bool = False
     see_through_frac: float = 0.1
-    edge_near_frac: float = 0.03
+    edge_near_frac: float = 0.0
     edge_near_min_range_m: float = 8.0
 
     def __post_init__(self) -> None:
