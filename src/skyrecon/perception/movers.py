@@ -99,14 +99,12 @@ class MoverSettings:
             a mover). A drone 10 m away spans a few half-resolution pixels and nearly all of
             them lie at a depth edge: without this, the crossing drone of held-out mission 165
             was found only 4 m away and hit; with 0.03 and 8 m it was found 10 m away. Off by
-            default (0): flown with 0.03 and 8 m in the 50 dynamic missions (seeds 100-149) and
-            50 held-out ones (150-199), recall within 20 m rose from 0.17 to 0.22 (within 10 m
-            0.60 to 0.80 on 100-149), but the median position error grew from 0.52 to 0.79-0.84
-            m, a new scaffold took up to 1.3 s to be mapped (its near edges passed for movers;
-            target 0.5 s), and the changed flights met two other movers (seeds 139 and 155: one
-            head-on, one the drone turned away from): 2 collisions in 100 against 1 locally
-            (seed 165) and 2 in 47 on another machine without it. Nearer than 8 m it confirmed
-            chains of stereo outliers in free air as movers.
+            default (0): flown with 0.03 and 8 m on the 50 dynamic missions (seeds 100-149) and
+            50 held-out ones (150-199), it gave recall within 20 m 0.22 / 0.21 against 0.17 /
+            0.23 without, median position error 0.79 / 0.84 m against 0.52 / 0.59 m, a new
+            scaffold up to 1.3 s to be mapped (its near edges passed for movers; target 0.5 s)
+            against 0.3 s, and 1 + 1 collisions (seeds 139, 155) against 0 + 2 (155, 165).
+            Nearer than 8 m it confirmed chains of stereo outliers in free air as movers.
         behind_m: the free-space test also looks this far behind the point along the viewing
             ray, metres (one map voxel of 0.5 m) ...
         depth_noise_frac, noise_sigmas: ... plus ``noise_sigmas * depth_noise_frac * range``, so
