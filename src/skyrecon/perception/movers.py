@@ -522,11 +522,11 @@ def detect_movers(
     here, back = states[: len(flat)], states[len(flat) :]
     with np.errstate(invalid="ignore"):
         seen_free = lo_odds <= -s.free_evidence
-    edges_full = _depth_edges(depth, s.edge_jump_frac)
+    edges_full, near_full = _depth_edges(depth, s.edge_jump_frac, s.edge_near_frac)
     edges = edges_full[::st, ::st].reshape(-1)[flat]
     near_edge = np.zeros(len(flat), bool)
-    if s.edge_near_frac > 0:  # the near side of a jump is the object's own surface
-        near_edge = edges & _near_side(depth, s.edge_near_frac)[::st, ::st].reshape(-1)[flat]
+    if near_full is not None:  # the near side of a jump is the object's own surface
+        near_edge = edges & near_full[::st, ::st].reshape(-1)[flat]
         near_edge &= rng.reshape(-1)[flat] >= s.edge_near_min_range_m
     not_edge = ~edges | near_edge
     here_free = seen_free[: len(flat)]
@@ -652,12 +652,21 @@ def merge_fine_depth(
     return np.where(taken, fine, depth), taken, seen_behind
 
 
-def _depth_edges(depth: np.ndarray, jump_frac: float) -> np.ndarray:
+def _depth_edges(
+    depth: np.ndarray, jump_frac: float, near_frac: float = 0.0
+) -> tuple[np.ndarray, np.ndarray | None]:
     """(H, W) bool: pixels whose 3x3 neighbourhood spans a depth jump above ``jump_frac`` of
-    their depth (invalid neighbours count as far: the border of a hole or of the sky is an edge)."""
+    their depth (invalid neighbours count as far: the border of a hole or of the sky is an edge);
+    and, when ``near_frac`` > 0, (H, W) bool: valid pixels within ``near_frac`` of their depth of
+    the nearest depth in that neighbourhood (the near side of a jump: the foreground object's own
+    pixels), else None."""
     d = np.where(np.isfinite(depth), depth, 1e4).astype(np.float32)
     k = np.ones((3, 3), np.uint8)
-    return (cv2.dilate(d, k) - cv2.erode(d, k)) > jump_frac * d
+    nearest = cv2.erode(d, k)
+    edges = (cv2.dilate(d, k) - nearest) > jump_frac * d
+    if near_frac <= 0:
+        return edges, None
+    return edges, (d < 1e4) & (d <= nearest * np.float32(1.0 + near_frac))
 
 
 def _clear_of_surfaces(occ_map: OccupancyMap, pts: np.ndarray, clear_m: float) -> np.ndarray:
@@ -670,13 +679,6 @@ def _clear_of_surfaces(occ_map: OccupancyMap, pts: np.ndarray, clear_m: float) -
     around = (pts[None, :, :] + (_CUBE_STEPS * clear_m)[:, None, :]).reshape(-1, 3)
     state = occ_map.classify(occ_map.log_odds_at(around)).reshape(len(_CUBE_STEPS), -1)
     return np.all(state != OCCUPIED, axis=0)
-
-
-def _near_side(depth: np.ndarray, frac: float) -> np.ndarray:
-    """(H, W) bool: valid pixels within ``frac`` of their depth of the nearest depth in their 3x3
-    neighbourhood (the near side of a depth jump: the foreground object's own pixels)."""
-    d = np.where(np.isfinite(depth), depth, 1e4).astype(np.float32)
-    return (d < 1e4) & (d <= cv2.erode(d, np.ones((3, 3), np.uint8)) * np.float32(1.0 + frac))
 
 
 def _fill_strided(
