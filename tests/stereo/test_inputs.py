@@ -52,6 +52,11 @@ def test_unknown_method_and_setting():
         SkyreconSettings(paths=5)
     with pytest.raises(InputError, match="32 bits"):
         SkyreconSettings(census_width=11, census_height=9)
+    with pytest.raises(InputError, match="p2_edge_alpha"):
+        SkyreconSettings(p2_edge_alpha=-1.0)
+    # the edge-aware jump penalty: mild at full resolution, strong at half resolution, or as given
+    assert SkyreconSettings().edge_alpha == 0.05 and SkyreconSettings(fast=True).edge_alpha == 0.5
+    assert SkyreconSettings(fast=True, p2_edge_alpha=0.0).edge_alpha == 0.0
     assert set(METHODS) <= set(available_matchers())
 
 
