@@ -213,6 +213,34 @@ def test_backing_off_flies_the_track_back_looking_at_the_point_and_ends_there():
     assert not out_of_reach_of(s.position, b.look, cfg)
 
 
+def test_a_back_off_that_never_arrives_ends_after_its_time_limit():
+    """The no-progress failsafe's clock stops while backing off, so a back-off that circles the
+    end of its way back (held-out dynamic seed 179, 112 s) must end on its own."""
+    from skyrecon.mission.guidance import RETREAT_AFTER_S, RETREAT_SLACK_S, RETREAT_SPEED_MPS, BackOff
+    from skyrecon.mission.safety import speed_limit
+
+    cfg = MissionConfig()
+    p = np.array([0.0, 0.0, 15.0])
+    rest = np.array([p, [2.0, 0.0, 21.0], [20.0, 0.0, 21.0]])
+    track = np.array([p, [-30.0, 0.0, 15.0]])
+    held = speed_limit(cfg, 4.0, math.inf, 30.0, 99.0)
+    b = BackOff()
+    assert b.consider(rest, 4.0, RETREAT_AFTER_S, held, p, lambda q: track, cfg)
+    limit = b.time_limit_s()
+    length = float(np.sum(np.linalg.norm(np.diff(b.path, axis=0), axis=1)))
+    assert limit == pytest.approx(2.0 * length / RETREAT_SPEED_MPS + RETREAT_SLACK_S)
+    stuck = DroneState(p.copy(), np.array([0.5, 0.0, 0.0]), 0.0, 0.0, time_s=40.0)  # never gets there
+    ended_at = None
+    for k in range(int(10 * (limit + 5))):
+        stuck.time_s = 40.0 + 0.1 * k
+        b.guide(stuck.position, stuck, cfg, math.inf)
+        if not b.active:
+            ended_at = stuck.time_s - 40.0
+            break
+    assert ended_at == pytest.approx(limit, abs=0.11)
+    assert b.started_s is None and b.count == 1
+
+
 def out_of_reach_of(position, point, cfg):
     from skyrecon.mission.guidance import out_of_reach
 

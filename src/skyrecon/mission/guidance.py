@@ -143,6 +143,11 @@ RETREAT_MAX_M = 25.0
 RETREAT_SPEED_MPS = 1.5
 #: Backing off more often than this in one mission does not help: the no-progress failsafe acts.
 MAX_RETREATS = 3
+#: A back-off ends after twice the time its way back takes at :data:`RETREAT_SPEED_MPS` plus this,
+#: seconds, arrived or not: the no-progress failsafe's clock stops while backing off, and held-out
+#: dynamic mission 179 circled the end of a 1 m way back for 112 s until the time limit, never
+#: returning home.
+RETREAT_SLACK_S = 10.0
 
 
 def vertical_reach_rad(cfg: MissionConfig) -> tuple[float, float]:
@@ -192,18 +197,27 @@ class BackOff:
             not backing off.
         look: (3,) the point it backs off to see, world metres.
         count: times it has backed off this mission (at most :data:`MAX_RETREATS`).
+        started_s: simulated time the current back-off was first flown, seconds (None: not yet).
     """
 
     path: np.ndarray | None = None
     look: np.ndarray = field(default_factory=lambda: np.zeros(3))
     count: int = 0
+    started_s: float | None = None
 
     @property
     def active(self) -> bool:
         return self.path is not None
 
     def cancel(self) -> None:
-        self.path = None
+        self.path, self.started_s = None, None
+
+    def time_limit_s(self) -> float:
+        """How long the current back-off may last, seconds (see :data:`RETREAT_SLACK_S`)."""
+        if self.path is None or len(self.path) < 2:
+            return RETREAT_SLACK_S
+        length = float(np.sum(np.linalg.norm(np.diff(self.path, axis=0), axis=1)))
+        return 2.0 * length / RETREAT_SPEED_MPS + RETREAT_SLACK_S
 
     def label(self, mode: str) -> str:
         """The cycle's mode for the log: "retreat" while backing off in the failsafe ``mode`` "fly"."""
@@ -248,13 +262,17 @@ class BackOff:
         self, position: np.ndarray, state: DroneState, cfg: MissionConfig, momentum_room_m: float
     ) -> Guidance:
         """Guidance back along :attr:`path` (flown, so observed free) at most
-        :data:`RETREAT_SPEED_MPS`, the camera on :attr:`look`; done once at its end and still."""
+        :data:`RETREAT_SPEED_MPS`, the camera on :attr:`look`; done once at its end and still, or
+        after :meth:`time_limit_s` (``state.time_s`` is the clock)."""
         assert self.path is not None
+        if self.started_s is None:
+            self.started_s = state.time_s
         g = guide(remaining_path(self.path, position), state, cfg.verify_horizon_m, cfg, momentum_room_m)
         g.speed_limit = min(g.speed_limit, RETREAT_SPEED_MPS)
         g.look_at, g.look_within_rad, g.blind_mps = self.look.copy(), None, RETREAT_SPEED_MPS
-        if g.to_go_m < 0.3 and state.speed < 0.2:
-            self.path = None
+        arrived = g.to_go_m < 0.3 and state.speed < 0.2
+        if arrived or state.time_s - self.started_s >= self.time_limit_s():
+            self.cancel()
         return g
 
 
