@@ -145,7 +145,7 @@ RETREAT_SPEED_MPS = 1.5
 MAX_RETREATS = 3
 #: A back-off ends after twice the time its way back takes at :data:`RETREAT_SPEED_MPS` plus this,
 #: seconds, arrived or not: the no-progress failsafe's clock stops while backing off, and held-out
-#: dynamic mission 179 circled the end of a 1 m way back for 112 s until the time limit, never
+#: dynamic mission 179 circled the end of a short way back for 112 s until the time limit, never
 #: returning home.
 RETREAT_SLACK_S = 10.0
 
