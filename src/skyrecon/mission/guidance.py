@@ -38,7 +38,7 @@ import numpy as np
 
 from skyrecon.mission.config import MissionConfig
 from skyrecon.mission.safety import SpeedLimit, speed_limit
-from skyrecon.mission.vehicle import DroneState, corner_speed_limit, point_along, sample_path
+from skyrecon.mission.vehicle import DroneState, corner_speed_limit, path_length, point_along, sample_path
 from skyrecon.planning.replan import remaining_path
 
 
@@ -214,9 +214,7 @@ class BackOff:
 
     def time_limit_s(self) -> float:
         """How long the current back-off may last, seconds (see :data:`RETREAT_SLACK_S`)."""
-        if self.path is None or len(self.path) < 2:
-            return RETREAT_SLACK_S
-        length = float(np.sum(np.linalg.norm(np.diff(self.path, axis=0), axis=1)))
+        length = 0.0 if self.path is None else path_length(self.path)
         return 2.0 * length / RETREAT_SPEED_MPS + RETREAT_SLACK_S
 
     def label(self, mode: str) -> str:

@@ -43,6 +43,7 @@ import numpy as np
 from skyrecon.mission.loop import LOOP_STAGES, STAGES, CycleRecord, MissionResult
 from skyrecon.mission.prior import prior_changes
 from skyrecon.mission.safety import rig_supported_speed, speed_warning
+from skyrecon.mission.vehicle import path_length
 
 
 def _stats(values: np.ndarray | Sequence[float]) -> dict:
@@ -55,12 +56,6 @@ def _stats(values: np.ndarray | Sequence[float]) -> dict:
         "mean": round(float(v.mean()), 3),
         "max": round(float(v.max()), 3),
     }
-
-
-def path_length(points: np.ndarray) -> float:
-    """Length of a polyline (N, 3), metres."""
-    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    return float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum()) if len(p) > 1 else 0.0
 
 
 def stop_rule_holds(records: list[CycleRecord], max_accel_mps2: float, dt: float) -> list[bool]:

@@ -49,6 +49,12 @@ class DroneState:
         return look_from(self.position, self.yaw, self.pitch_down).with_frames("cam", "world")
 
 
+def path_length(points: np.ndarray) -> float:
+    """Length of a polyline (N, 3), metres."""
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    return float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum()) if len(p) > 1 else 0.0
+
+
 def point_along(path: np.ndarray, s: float) -> np.ndarray:
     """The (3,) point at arc length ``s`` metres along a polyline (K, 3) (clamped to its ends)."""
     if len(path) == 1:

@@ -524,11 +524,8 @@ def detect_movers(
         seen_free = lo_odds <= -s.free_evidence
     edges_full, near_full = _depth_edges(depth, s.edge_jump_frac, s.edge_near_frac)
     edges = edges_full[::st, ::st].reshape(-1)[flat]
-    near_edge = np.zeros(len(flat), bool)
-    if near_full is not None:  # the near side of a jump is the object's own surface
-        near_edge = edges & near_full[::st, ::st].reshape(-1)[flat]
-        near_edge &= rng.reshape(-1)[flat] >= s.edge_near_min_range_m
-    not_edge = ~edges | near_edge
+    near_edge = _near_edge_points(edges, near_full, rng, flat, st, s.edge_near_min_range_m)
+    not_edge = ~edges if near_edge is None else ~edges | near_edge
     here_free = seen_free[: len(flat)]
     back_free = seen_free[len(flat) :]
     fine_f = np.zeros(len(flat), bool)
@@ -548,8 +545,7 @@ def detect_movers(
         with np.errstate(invalid="ignore"):
             cand[c1] = np.all(occ_map.log_odds_at(around).reshape(6, -1) <= -s.free_evidence, axis=0)
     # a fine point, or the near side of a depth edge, is not a widened edge of a mapped surface
-    c3 = np.flatnonzero(cand & near_edge & ~fine_f)
-    cand[c3] = _clear_of_surfaces(occ_map, pts[c3], s.fine_clear_m)
+    _keep_near_edges_clear_of_surfaces(cand, near_edge, fine_f, occ_map, pts, s.fine_clear_m)
     c2 = np.flatnonzero(cand & fine_f)
     if c2.size:
         cand[c2] = _clear_of_surfaces(occ_map, pts[c2], s.fine_clear_m)
@@ -667,6 +663,39 @@ def _depth_edges(
     if near_frac <= 0:
         return edges, None
     return edges, (d < 1e4) & (d <= nearest * np.float32(1.0 + near_frac))
+
+
+def _near_edge_points(
+    edges: np.ndarray,
+    near_full: np.ndarray | None,
+    rng: np.ndarray,
+    flat: np.ndarray,
+    st: int,
+    min_range_m: float,
+) -> np.ndarray | None:
+    """(N,) bool over the points ``flat`` (indices into the strided depth image, ranges ``rng``):
+    depth-edge points on the near side of their jump (the object's own surface, ``near_full`` of
+    :func:`_depth_edges`) at least ``min_range_m`` metres away; None when that option is off."""
+    if near_full is None:
+        return None
+    near = edges & near_full[::st, ::st].reshape(-1)[flat]
+    return near & (rng.reshape(-1)[flat] >= min_range_m)
+
+
+def _keep_near_edges_clear_of_surfaces(
+    cand: np.ndarray,
+    near_edge: np.ndarray | None,
+    fine_f: np.ndarray,
+    occ_map: OccupancyMap,
+    pts: np.ndarray,
+    clear_m: float,
+) -> None:
+    """Drop (in ``cand``, in place) the near-edge candidates (not fine points) that lie within
+    ``clear_m`` of an occupied voxel: a static surface's edge widened onto the background."""
+    if near_edge is None:
+        return
+    c3 = np.flatnonzero(cand & near_edge & ~fine_f)
+    cand[c3] = _clear_of_surfaces(occ_map, pts[c3], clear_m)
 
 
 def _clear_of_surfaces(occ_map: OccupancyMap, pts: np.ndarray, clear_m: float) -> np.ndarray:
