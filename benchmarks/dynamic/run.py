@@ -80,6 +80,7 @@ def mission_row(folder: Path) -> dict | None:
         "phantom": dyn.get("phantom_trail") or {},
         "vacated": dyn.get("vacated_free_s") or {},
         "new_delay_s": added[0].get("delay_s") if added else None,
+        "new_in_view_s": added[0].get("in_view_s") if added else None,
         "removed_delay_s": removed[0].get("free_delay_s_max") if removed else None,
         "removed_delay_p95_s": removed[0].get("free_delay_s_p95") if removed else None,
         "removed_late_voxels": removed[0].get("freed_after_2s_voxels") if removed else None,
@@ -105,6 +106,7 @@ def totals(rows: list[dict]) -> dict:
     vac_med = [r["vacated"]["median"] for r in rows if r["vacated"].get("median") is not None]
     vac_max = [r["vacated"]["max"] for r in rows if r["vacated"].get("max") is not None]
     new = [r["new_delay_s"] for r in rows if r["new_delay_s"] is not None]
+    new_view = [r["new_in_view_s"] for r in rows if r.get("new_in_view_s") is not None]
     gone = [r["removed_delay_s"] for r in rows if r["removed_delay_s"] is not None]
     gone95 = [r["removed_delay_p95_s"] for r in rows if r.get("removed_delay_p95_s") is not None]
     late = sum(r.get("removed_late_voxels") or 0 for r in rows)
@@ -143,6 +145,7 @@ def totals(rows: list[dict]) -> dict:
         "new_obstacle_in_map_s_worst": max(new) if new else None,
         "new_obstacle_in_map_s_median": float(np.median(new)) if new else None,
         "new_obstacle_seen_in": len(new),
+        "new_obstacle_in_view_s_worst": max(new_view) if new_view else None,
         "removed_freed_s_worst": max(gone) if gone else None,
         "removed_seen_in": len(gone),
         "removed_freed_s_p95_worst": max(gone95) if gone95 else None,

@@ -68,3 +68,38 @@ def test_start_inside_a_capsule_can_escape():
         assert not r.success and r.reason in ("start_too_close", "start_in_obstacle")
         esc = planner.nearest_clear_point(p, 5.0, toward=g)
     assert esc is not None and capsule_distance(esc[None], caps)[0] >= planner.threshold
+
+
+def test_keep_out_matches_a_grid_rebuilt_with_the_capsules_and_restores_every_level():
+    """Inside the block the grid (distances, flyable voxels, safe cells and every search level)
+    equals one recomputed from scratch with the capsules' distances; on exit all is restored."""
+    from skyrecon.planning._los import lattice, safe_cells
+
+    planner = Planner(open_map(), 2.0, min_z=5.0, max_z=15.0)
+    s, g = np.array([-15.0, 0.0, 10.0]), np.array([15.0, 0.0, 10.0])
+    grid = planner.grid_for(s, g)
+    for f in planner.levels:
+        grid.level(f)
+    before = {f: a.copy() for f, a in grid._levels.items()}
+    dist_before, fly_before = grid.dist.copy(), grid.flyable.copy()
+    # two overlapping capsules, one a sphere, one slanted, reaching out of the altitude band
+    caps = np.array([[1.3, -7.9, 9.2, -2.6, 6.1, 13.7, 1.2], [3.0, 2.0, 6.0, 3.0, 2.0, 6.0, 2.5]])
+    ijk = np.stack(np.meshgrid(*[np.arange(n) for n in grid.shape], indexing="ij"), -1).reshape(-1, 3)
+    centres = grid.origin + (ijk + 0.5) * grid.voxel
+    want_dist = np.minimum(
+        dist_before, capsule_distance(centres, caps).reshape(grid.shape).astype(np.float32)
+    )
+    zc = centres[:, 2].reshape(grid.shape)
+    want_fly = ((want_dist >= grid.threshold) & (zc >= 5.0) & (zc <= 15.0)).astype(np.uint8)
+    want_safe = safe_cells(want_fly)
+    with planner.avoiding(caps, s, g) as lowered:
+        assert lowered >= int(np.count_nonzero(want_dist < dist_before)) > 0  # overlaps count twice
+        np.testing.assert_array_equal(grid.dist, want_dist)
+        np.testing.assert_array_equal(grid.flyable, want_fly)
+        np.testing.assert_array_equal(grid.safe, want_safe)
+        for f in before:
+            np.testing.assert_array_equal(grid.level(f), lattice(want_safe, f))
+    np.testing.assert_array_equal(grid.dist, dist_before)
+    np.testing.assert_array_equal(grid.flyable, fly_before)
+    for f, a in before.items():
+        np.testing.assert_array_equal(grid.level(f), a)

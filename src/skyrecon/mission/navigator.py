@@ -43,6 +43,7 @@ from skyrecon.mission.prior import OBSERVED_FREE_LOG_ODDS, PriorMap
 from skyrecon.mission.scenario import MapBox
 from skyrecon.mission.vehicle import sample_path
 from skyrecon.planning import Planner, PlanResult, Replanner, path_conflict, remaining_path
+from skyrecon.planning.keep_out import warm_kernels as warm_keep_out
 
 
 @dataclass
@@ -100,7 +101,12 @@ class Navigator:
         need = cfg.clearance_m + cfg.planning_margin_m + 2 * v + 0.05  # what the Planner needs, no more
         self.df = DistanceField(self.map, max_distance_m=need, unknown_is_occupied=False)
         self.planner = Planner(
-            self.df, cfg.clearance_m, allow_unknown=True, min_z=cfg.min_altitude_m, max_z=cfg.max_altitude_m
+            self.df,
+            cfg.clearance_m,
+            allow_unknown=True,
+            min_z=cfg.min_altitude_m,
+            max_z=cfg.max_altitude_m,
+            heuristic_weight=cfg.planner_heuristic_weight,
         )
         self.replanner = Replanner(self.planner, self.goal)
         self.escape_to: np.ndarray | None = None  # the escape point of the path followed, if any
@@ -109,8 +115,10 @@ class Navigator:
         """Load the map's kernels before the first cycle: integrate one synthetic depth image
         (a wall 8 m ahead, a band beyond the range, a band of invalid pixels) with the camera's
         ``intrinsics`` into a throwaway map of the same configuration, mark a flown segment free
-        and build its distance field. Numba loads each cached kernel on its first call (about
-        8 ms apiece); left to the first cycle, that stalled it by 50 ms. This map is not touched."""
+        and build its distance field; load the keep-out kernel and build the planner's dense grid
+        (24 ms on a 512 x 512 x 40 map, once). Numba loads each cached kernel
+        on its first call (about 8 ms apiece); left to the first cycle, that stalled it by 50 ms.
+        This map is not touched."""
         scratch = OccupancyMap(self.map.config)
         h, w = intrinsics.height, intrinsics.width
         depth = np.full((h, w), 8.0, np.float32)
@@ -120,6 +128,9 @@ class Navigator:
         scratch.integrate_depth(depth, intrinsics, cam)
         scratch.mark_flown_free(np.array([[0.0, 0.0, -1.0], [0.0, 0.0, 0.0]]), self.cfg.drone_radius_m)
         DistanceField(scratch, max_distance_m=self.df.max_distance, unknown_is_occupied=False)  # computes it
+        warm_keep_out()  # the first replan around a mover must not load it either
+        # the dense planning grid (the whole map box; patched from now on, not rebuilt in a cycle)
+        self.planner.grid_for(self.goal, self.goal)
 
     # ----- sensing -----------------------------------------------------------------------
     def integrate(

@@ -14,7 +14,9 @@ the drone believed with the simulator's truth:
   has left it, the time until the map frees it.
 * **changes since the prior** (:mod:`skyrecon.mission.changes`, the crane's tower): for an
   added obstacle, the time from when it first shows within the trusted range to when the map
-  holds :data:`MAPPED_VOXELS` occupied voxels inside it; for a removed one, per voxel the time
+  holds :data:`MAPPED_VOXELS` occupied voxels inside it (``delay_s``), and how much of that time
+  it was in view, showing :data:`MIN_VISIBLE_PX` pixels within the range (``in_view_s``: a
+  drone that turns away after a first glimpse cannot map it until it looks again); for a removed one, per voxel the time
   from its first miss (the cameras saw through it) to free (median, p95, max, and how many voxels
   took over 2 s: the top of a stack seen through once at the top edge of a camera pitched down,
   then out of view until the drone is past it, is freed only when seen again).
@@ -71,6 +73,7 @@ class _Change:
     object_ids: set[int] = field(default_factory=set)
     t_in_range: float | None = None
     t_mapped: float | None = None
+    in_view_s: float = 0.0  # time in view between t_in_range and t_mapped
     touched: dict[tuple, float] = field(default_factory=dict)
     freed: dict[tuple, float] = field(default_factory=dict)
 
@@ -198,18 +201,22 @@ class WorldMonitor:
                 del self.vacate_pending[key]
 
     def _changes(self, t, cam_position, object_id, occ_map: OccupancyMap, to_est) -> None:
+        dt = t - self.times[-2] if len(self.times) > 1 else 0.0
         for ch in self.changes:
             vox = ch.voxels
             if len(vox) == 0:
                 continue
             lo = occ_map.log_odds_at(to_est((vox + 0.5) * self.v))
             if ch.kind == "added":
-                if ch.t_in_range is None and ch.object_ids:
+                if ch.t_mapped is None and ch.object_ids:
                     px = int(np.isin(object_id, list(ch.object_ids)).sum())
                     b = ch.boxes[0]
                     d = float(np.linalg.norm(np.clip(cam_position, b[:3], b[3:]) - cam_position))
-                    if px >= MIN_VISIBLE_PX and d <= self.range_m:
+                    in_view = px >= MIN_VISIBLE_PX and d <= self.range_m
+                    if ch.t_in_range is None and in_view:
                         ch.t_in_range = t
+                    elif ch.t_in_range is not None and in_view:
+                        ch.in_view_s += dt  # in view over the last cycle
                 if ch.t_mapped is None and ch.t_in_range is not None:
                     with np.errstate(invalid="ignore"):
                         if int(np.count_nonzero(lo >= 0.0)) >= MAPPED_VOXELS:
@@ -293,6 +300,7 @@ class WorldMonitor:
                     if ch.t_mapped is not None and ch.t_in_range is not None
                     else None
                 )
+                row["in_view_s"] = round(ch.in_view_s, 3) if ch.t_mapped is not None else None
             else:
                 delays = [ch.freed[k] - ch.touched[k] for k in ch.freed]
                 row["touched_voxels"] = len(ch.touched)

@@ -18,9 +18,10 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 
 import numpy as np
+from numba import njit
 
 from skyrecon.errors import InputError
-from skyrecon.planning._los import lattice, safe_cells
+from skyrecon.planning._los import safe_cells
 
 
 def as_capsules(capsules: np.ndarray | None) -> np.ndarray:
@@ -86,13 +87,51 @@ def _capsule_region(grid, cap: np.ndarray) -> tuple[np.ndarray, np.ndarray] | No
     return (lo, hi) if np.all(hi > lo) else None
 
 
+@njit(cache=True)
+def _stamp(dist, flyable, lo, hi, origin, voxel, cap, threshold, zmin, zmax):
+    """Lower ``dist`` (NX, NY, NZ) float32 to the capsule's (7,) surface distance over the voxel
+    box ``[lo, hi)`` and recompute ``flyable`` there; returns how many voxels were lowered."""
+    ax, ay, az = cap[0], cap[1], cap[2]
+    bx, by, bz = cap[3] - ax, cap[4] - ay, cap[5] - az
+    L2 = bx * bx + by * by + bz * bz
+    lowered = 0
+    for i in range(lo[0], hi[0]):
+        x = origin[0] + (i + 0.5) * voxel - ax
+        for j in range(lo[1], hi[1]):
+            y = origin[1] + (j + 0.5) * voxel - ay
+            for k in range(lo[2], hi[2]):
+                zw = origin[2] + (k + 0.5) * voxel
+                z = zw - az
+                t = 0.0
+                if L2 >= 1e-12:
+                    t = min(max((x * bx + y * by + z * bz) / L2, 0.0), 1.0)
+                ex, ey, ez = x - t * bx, y - t * by, z - t * bz
+                d = np.float32(np.sqrt(ex * ex + ey * ey + ez * ez) - cap[6])
+                if d < dist[i, j, k]:
+                    dist[i, j, k] = d
+                    lowered += 1
+                ok = dist[i, j, k] >= threshold and zw >= zmin and zw <= zmax
+                flyable[i, j, k] = 1 if ok else 0
+    return lowered
+
+
+def warm_kernels() -> None:
+    """Compile (or load) the stamping kernel on a tiny grid (``skyrecon warmup``)."""
+    dist = np.full((3, 3, 3), 5.0, np.float32)
+    fly = np.ones((3, 3, 3), np.uint8)
+    lo = np.zeros(3, np.int64)
+    hi = np.full(3, 3, np.int64)
+    _stamp(dist, fly, lo, hi, np.zeros(3), 1.0, np.array([1.5, 1.5, 1.5, 1.5, 1.5, 2.5, 0.5]), 1.0, 0.0, 3.0)
+
+
 @contextmanager
 def keep_out(grid, capsules: np.ndarray | None) -> Iterator[int]:
     """Within the ``with`` block, ``grid`` (a :class:`~skyrecon.planning.grid.PlanningGrid`)
     treats the capsules as obstacles; everything is restored on exit.
 
     Each capsule touches only the voxels within its radius plus the planner's threshold (and
-    inside the altitude band), so the cost grows with the capsules' size, not their spread.
+    inside the altitude band), and the search levels only over that box, so the cost grows
+    with the capsules' size, not with the grid's.
 
     Yields:
         The number of grid voxels whose distance was lowered.
@@ -102,9 +141,8 @@ def keep_out(grid, capsules: np.ndarray | None) -> Iterator[int]:
     if not regions:
         yield 0
         return
-    v = grid.voxel
     saved: list[tuple[tuple, np.ndarray, np.ndarray, tuple, np.ndarray]] = []
-    levels = {f: a.copy() for f, a in grid._levels.items() if f > 1}
+    saved_levels: list[tuple[int, tuple, np.ndarray]] = []
     lowered = 0
     try:
         for cap, (lo, hi) in regions:
@@ -113,26 +151,26 @@ def keep_out(grid, capsules: np.ndarray | None) -> Iterator[int]:
             s_hi = np.minimum(hi, np.array(grid.safe.shape))
             sbox = tuple(slice(int(a), int(b)) for a, b in zip(s_lo, s_hi))
             saved.append((box, grid.dist[box].copy(), grid.flyable[box].copy(), sbox, grid.safe[sbox].copy()))
-            axes = [grid.origin[i] + (np.arange(lo[i], hi[i]) + 0.5) * v for i in range(3)]
-            centres = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
-            d_cap = (
-                capsule_distance(centres, cap[None])
-                .reshape(tuple(int(x) for x in hi - lo))
-                .astype(np.float32)
-            )
-            lowered += int(np.count_nonzero(d_cap < grid.dist[box]))
-            np.minimum(grid.dist[box], d_cap, out=grid.dist[box])
-            zc = axes[2]
-            zok = (zc >= grid.zmin) & (zc <= grid.zmax)
-            grid.flyable[box] = (grid.dist[box] >= grid.threshold) & zok[None, None, :]
+            args = (grid.origin, grid.voxel, cap, grid.threshold, grid.zmin, grid.zmax)
+            lowered += int(_stamp(grid.dist, grid.flyable, lo, hi, *args))
             if np.all(s_hi > s_lo):
                 fly = grid.flyable[s_lo[0] : s_hi[0] + 1, s_lo[1] : s_hi[1] + 1, s_lo[2] : s_hi[2] + 1]
                 grid.safe[sbox] = safe_cells(np.ascontiguousarray(fly))
-        for f in levels:
-            grid._levels[f][...] = lattice(grid.safe, f)
+                for f, nodes in grid._levels.items():
+                    if f == 1:
+                        continue  # level 1 is grid.safe itself
+                    n_lo = -(-s_lo // f)  # level-f node I sits on safe cell f * I
+                    n_hi = np.minimum(-(-s_hi // f), np.array(nodes.shape))
+                    if np.any(n_hi <= n_lo):
+                        continue
+                    nbox = tuple(slice(int(a), int(b)) for a, b in zip(n_lo, n_hi))
+                    saved_levels.append((f, nbox, nodes[nbox].copy()))
+                    nodes[nbox] = grid.safe[
+                        f * n_lo[0] : s_hi[0] : f, f * n_lo[1] : s_hi[1] : f, f * n_lo[2] : s_hi[2] : f
+                    ]
         yield lowered
     finally:
+        for f, nbox, nodes in reversed(saved_levels):
+            grid._levels[f][nbox] = nodes
         for box, dist, fly, sbox, safe in reversed(saved):
             grid.dist[box], grid.flyable[box], grid.safe[sbox] = dist, fly, safe
-        for f, a in levels.items():
-            grid._levels[f][...] = a
