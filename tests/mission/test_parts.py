@@ -115,6 +115,9 @@ def test_warm_up_leaves_the_map_and_its_distance_field_alone():
     np.testing.assert_array_equal(before, after)
     assert nav.df.version == version
     assert len(nav.map.pop_changed_blocks(occupied_only=True)) > 0  # the wall's changes are still pending
+    grid = nav.planner._grid  # built now, patched in the cycles, not rebuilt in the first one
+    assert grid is not None and grid.version == nav.df.version
+    assert nav.planner.weight == cfg.planner_heuristic_weight == 1.2
 
 
 def test_look_ahead_needs_the_path_observed():

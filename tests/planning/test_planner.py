@@ -57,6 +57,22 @@ def test_path_around_a_wall_is_near_the_analytic_shortest():
     assert np.allclose(r.waypoints[0], s) and np.allclose(r.waypoints[-1], g)
 
 
+def test_an_inflated_heuristic_searches_less_and_stays_within_its_bound():
+    """Weighted A* (the delivery loop's planner, weight 1.2): fewer expansions than the optimal
+    search (0.63x around this wall; 0.03x around a mover's keep-out in flight), a path at most
+    that factor longer, and the same clearance."""
+    m = wall_map(y_half=3.0)
+    s, g = np.array([-8.0, 0.3, 5.0]), np.array([8.0, -0.4, 5.0])
+    best = Planner(m, 1.0, min_z=2.0, max_z=8.0, levels=(1,)).plan(s, g)
+    fast = Planner(m, 1.0, min_z=2.0, max_z=8.0, levels=(1,), heuristic_weight=1.2).plan(s, g)
+    assert best.success and fast.success
+    assert fast.expansions < 0.8 * best.expansions
+    assert best.length_m - 1e-9 <= fast.length_m <= 1.2 * best.length_m
+    assert fast.min_distance_m >= 1.0 + fast.margin_m - 1e-6
+    with pytest.raises(InputError):
+        Planner(m, 1.0, heuristic_weight=0.9)
+
+
 def test_straight_line_when_nothing_is_in_the_way():
     m = wall_map()
     r = plan_path(m, [-8.0, 8.0, 5.0], [8.0, 9.0, 6.0], clearance_m=1.0)
