@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from skyrecon.core import Intrinsics
+from skyrecon.errors import InputError
 from skyrecon.mission import MissionConfig, make_scenario
 from skyrecon.mission.guidance import guide, hover
 from skyrecon.mission.navigator import Navigator
@@ -117,7 +118,34 @@ def test_warm_up_leaves_the_map_and_its_distance_field_alone():
     assert len(nav.map.pop_changed_blocks(occupied_only=True)) > 0  # the wall's changes are still pending
     grid = nav.planner._grid  # built now, patched in the cycles, not rebuilt in the first one
     assert grid is not None and grid.version == nav.df.version
-    assert nav.planner.weight == cfg.planner_heuristic_weight == 1.2
+
+
+def test_only_replans_around_movers_inflate_the_heuristic():
+    cfg = MissionConfig()
+    nav = _box_navigator(cfg)
+    _look(nav, np.inf, 2)  # open sky ahead
+    nav.update_distance()
+    seen: list[float] = []
+    plan = nav.planner.plan
+
+    def spy(*args, **kwargs):
+        seen.append(nav.planner.weight)
+        return plan(*args, **kwargs)
+
+    nav.planner.plan = spy  # type: ignore[method-assign]
+    p = np.array([2.0, 4.0, 14.0])
+    assert nav.replan(p)[0].success
+    mover = np.array([[12.0, -4.0, 14.0, 12.0, 12.0, 14.0, 0.5]])  # a sweep across the way
+    r, _ = nav.replan(p, mover)
+    assert r.success and len(r.waypoints) > 2  # around it
+    assert (
+        seen[0] == 1.0
+        and set(seen[1:]) == {cfg.keep_out_heuristic_weight}
+        and cfg.keep_out_heuristic_weight > 1
+    )
+    assert nav.planner.weight == 1.0  # restored
+    with pytest.raises(InputError):
+        MissionConfig(keep_out_heuristic_weight=0.5)
 
 
 def test_look_ahead_needs_the_path_observed():

@@ -106,7 +106,6 @@ class Navigator:
             allow_unknown=True,
             min_z=cfg.min_altitude_m,
             max_z=cfg.max_altitude_m,
-            heuristic_weight=cfg.planner_heuristic_weight,
         )
         self.replanner = Replanner(self.planner, self.goal)
         self.escape_to: np.ndarray | None = None  # the escape point of the path followed, if any
@@ -218,8 +217,15 @@ class Navigator:
             "plan" or "escape".
         """
         p = np.asarray(position, dtype=np.float64)
-        with self.planner.avoiding(keep_out, p, self.goal):
-            return self._replan(p, 3.0 if keep_out is None or len(keep_out) == 0 else 6.0)
+        if keep_out is None or len(keep_out) == 0:
+            return self._replan(p, 3.0)
+        # a way around a mover's predicted sweep is needed now and kept only while it passes:
+        # an inflated heuristic finds it with a small fraction of the expansions
+        with (
+            self.planner.avoiding(keep_out, p, self.goal),
+            self.planner.weighted(self.cfg.keep_out_heuristic_weight),
+        ):
+            return self._replan(p, 6.0)
 
     def _replan(self, p: np.ndarray, escape_radius_m: float) -> tuple[PlanResult, str]:
         r = self.replanner.replan(p)

@@ -206,6 +206,20 @@ class Planner:
         with keep_out(grid, capsules) as n:
             yield n
 
+    @contextmanager
+    def weighted(self, heuristic_weight: float) -> Iterator[None]:
+        """Within the ``with`` block, searches inflate their heuristic by ``heuristic_weight``
+        (>= 1; paths at most that factor longer than the shortest, found with far fewer
+        expansions); the planner's own weight is restored on exit."""
+        if not heuristic_weight >= 1.0:
+            raise InputError(f"heuristic_weight must be >= 1, got {heuristic_weight}")
+        old = self.weight
+        self.weight = float(heuristic_weight)
+        try:
+            yield
+        finally:
+            self.weight = old
+
     # ----- queries --------------------------------------------------------------------------
     def _kw(self) -> dict:
         return {"clearance_m": self.clearance, "margin_m": self.margin}
