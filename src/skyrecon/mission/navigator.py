@@ -101,11 +101,7 @@ class Navigator:
         need = cfg.clearance_m + cfg.planning_margin_m + 2 * v + 0.05  # what the Planner needs, no more
         self.df = DistanceField(self.map, max_distance_m=need, unknown_is_occupied=False)
         self.planner = Planner(
-            self.df,
-            cfg.clearance_m,
-            allow_unknown=True,
-            min_z=cfg.min_altitude_m,
-            max_z=cfg.max_altitude_m,
+            self.df, cfg.clearance_m, allow_unknown=True, min_z=cfg.min_altitude_m, max_z=cfg.max_altitude_m
         )
         self.replanner = Replanner(self.planner, self.goal)
         self.escape_to: np.ndarray | None = None  # the escape point of the path followed, if any
@@ -115,9 +111,9 @@ class Navigator:
         (a wall 8 m ahead, a band beyond the range, a band of invalid pixels) with the camera's
         ``intrinsics`` into a throwaway map of the same configuration, mark a flown segment free
         and build its distance field; load the keep-out kernel and build the planner's dense grid
-        (24 ms on a 512 x 512 x 40 map, once). Numba loads each cached kernel
-        on its first call (about 8 ms apiece); left to the first cycle, that stalled it by 50 ms.
-        This map is not touched."""
+        (24 ms on a 512 x 512 x 40 map, once). Numba loads each cached kernel on its first call
+        (about 8 ms apiece); left to the first cycle, that stalled it by 50 ms. This map is not
+        touched."""
         scratch = OccupancyMap(self.map.config)
         h, w = intrinsics.height, intrinsics.width
         depth = np.full((h, w), 8.0, np.float32)

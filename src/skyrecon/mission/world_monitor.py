@@ -16,10 +16,11 @@ the drone believed with the simulator's truth:
   added obstacle, the time from when it first shows within the trusted range to when the map
   holds :data:`MAPPED_VOXELS` occupied voxels inside it (``delay_s``), and how much of that time
   it was in view, showing :data:`MIN_VISIBLE_PX` pixels within the range (``in_view_s``: a
-  drone that turns away after a first glimpse cannot map it until it looks again); for a removed one, per voxel the time
-  from its first miss (the cameras saw through it) to free (median, p95, max, and how many voxels
-  took over 2 s: the top of a stack seen through once at the top edge of a camera pitched down,
-  then out of view until the drone is past it, is freed only when seen again).
+  drone that turns away after a first glimpse cannot map it until it looks again); for a
+  removed one, per voxel the time from its first miss (the cameras saw through it) to free
+  (median, p95, max, and how many voxels took over 2 s: the top of a stack seen through once at
+  the top edge of a camera pitched down, then out of view until the drone is past it, is freed
+  only when seen again).
 
 Positions are compared in the drone's estimated world (``est_from_true`` maps the truth
 there), so a drifting pose does not count against perception.
