@@ -121,7 +121,7 @@ def test_warm_up_leaves_the_map_and_its_distance_field_alone():
 
 
 def test_only_replans_around_movers_inflate_the_heuristic():
-    cfg = MissionConfig()
+    cfg = MissionConfig(keep_out_heuristic_weight=1.2)
     nav = _box_navigator(cfg)
     _look(nav, np.inf, 2)  # open sky ahead
     nav.update_distance()

@@ -215,8 +215,8 @@ class Navigator:
         p = np.asarray(position, dtype=np.float64)
         if keep_out is None or len(keep_out) == 0:
             return self._replan(p, 3.0)
-        # a way around a mover's predicted sweep is needed now and kept only while it passes:
-        # an inflated heuristic finds it with a small fraction of the expansions
+        # MissionConfig.keep_out_heuristic_weight > 1 finds a way around a mover's predicted
+        # sweep with a small fraction of the expansions (see its notes: 1 by default)
         with (
             self.planner.avoiding(keep_out, p, self.goal),
             self.planner.weighted(self.cfg.keep_out_heuristic_weight),
