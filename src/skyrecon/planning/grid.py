@@ -126,17 +126,46 @@ class PlanningGrid:
                 zc = self.origin[2] + (np.arange(lo[2], hi[2]) + 0.5) * self.voxel
                 zok = (zc >= self.zmin) & (zc <= self.zmax)
                 self.flyable[box] = (self.dist[box] >= self.threshold) & zok[None, None, :]
-                s_lo = np.maximum(lo - 1, 0)
-                s_hi = np.minimum(hi, np.array(self.safe.shape))
-                if np.all(s_hi > s_lo):
-                    fly = self.flyable[s_lo[0] : s_hi[0] + 1, s_lo[1] : s_hi[1] + 1, s_lo[2] : s_hi[2] + 1]
-                    self.safe[s_lo[0] : s_hi[0], s_lo[1] : s_hi[1], s_lo[2] : s_hi[2]] = safe_cells(
-                        np.ascontiguousarray(fly)
-                    )
-                for f in list(self._levels):
-                    if f > 1:
-                        self._levels[f][...] = lattice(self.safe, f)
+                self.recompute_safe(lo, hi)
         self.version = df.version
+
+    def recompute_safe(self, lo: np.ndarray, hi: np.ndarray, save: bool = False) -> list[tuple]:
+        """Recompute the safe cells and every search level over the part that the flyable voxels
+        ``[lo, hi)`` (3,) reach, after those voxels changed; only that box, not the whole grid.
+
+        Returns:
+            With ``save``, the old values, ``(level, box, array)`` per level (level 1 is ``safe``),
+            for :meth:`restore`; else an empty list.
+        """
+        s_lo = np.maximum(np.asarray(lo) - 1, 0)
+        s_hi = np.minimum(np.asarray(hi), np.array(self.safe.shape))
+        if np.any(s_hi <= s_lo):
+            return []
+        saved: list[tuple] = []
+        sbox = tuple(slice(int(a), int(b)) for a, b in zip(s_lo, s_hi))
+        if save:
+            saved.append((1, sbox, self.safe[sbox].copy()))
+        fly = self.flyable[s_lo[0] : s_hi[0] + 1, s_lo[1] : s_hi[1] + 1, s_lo[2] : s_hi[2] + 1]
+        self.safe[sbox] = safe_cells(np.ascontiguousarray(fly))
+        for f, nodes in self._levels.items():
+            if f == 1:
+                continue  # level 1 is self.safe itself
+            n_lo = -(-s_lo // f)  # level-f node I sits on safe cell f * I
+            n_hi = np.minimum(-(-s_hi // f), np.array(nodes.shape))
+            if np.any(n_hi <= n_lo):
+                continue
+            nbox = tuple(slice(int(a), int(b)) for a, b in zip(n_lo, n_hi))
+            if save:
+                saved.append((f, nbox, nodes[nbox].copy()))
+            nodes[nbox] = self.safe[
+                f * n_lo[0] : s_hi[0] : f, f * n_lo[1] : s_hi[1] : f, f * n_lo[2] : s_hi[2] : f
+            ]
+        return saved
+
+    def restore(self, saved: list[tuple]) -> None:
+        """Put back what :meth:`recompute_safe` saved (lists from several calls: newest first)."""
+        for f, box, old in saved:
+            self.level(f)[box] = old
 
     def nbytes(self) -> int:
         n = self.dist.nbytes + self.flyable.nbytes + sum(a.nbytes for a in self._levels.values())

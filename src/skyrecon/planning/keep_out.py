@@ -21,7 +21,6 @@ import numpy as np
 from numba import njit
 
 from skyrecon.errors import InputError
-from skyrecon.planning._los import safe_cells
 
 
 def as_capsules(capsules: np.ndarray | None) -> np.ndarray:
@@ -141,36 +140,19 @@ def keep_out(grid, capsules: np.ndarray | None) -> Iterator[int]:
     if not regions:
         yield 0
         return
-    saved: list[tuple[tuple, np.ndarray, np.ndarray, tuple, np.ndarray]] = []
-    saved_levels: list[tuple[int, tuple, np.ndarray]] = []
+    saved: list[tuple[tuple, np.ndarray, np.ndarray]] = []
+    saved_safe: list[list[tuple]] = []
     lowered = 0
     try:
         for cap, (lo, hi) in regions:
             box = tuple(slice(int(a), int(b)) for a, b in zip(lo, hi))
-            s_lo = np.maximum(lo - 1, 0)
-            s_hi = np.minimum(hi, np.array(grid.safe.shape))
-            sbox = tuple(slice(int(a), int(b)) for a, b in zip(s_lo, s_hi))
-            saved.append((box, grid.dist[box].copy(), grid.flyable[box].copy(), sbox, grid.safe[sbox].copy()))
+            saved.append((box, grid.dist[box].copy(), grid.flyable[box].copy()))
             args = (grid.origin, grid.voxel, cap, grid.threshold, grid.zmin, grid.zmax)
             lowered += int(_stamp(grid.dist, grid.flyable, lo, hi, *args))
-            if np.all(s_hi > s_lo):
-                fly = grid.flyable[s_lo[0] : s_hi[0] + 1, s_lo[1] : s_hi[1] + 1, s_lo[2] : s_hi[2] + 1]
-                grid.safe[sbox] = safe_cells(np.ascontiguousarray(fly))
-                for f, nodes in grid._levels.items():
-                    if f == 1:
-                        continue  # level 1 is grid.safe itself
-                    n_lo = -(-s_lo // f)  # level-f node I sits on safe cell f * I
-                    n_hi = np.minimum(-(-s_hi // f), np.array(nodes.shape))
-                    if np.any(n_hi <= n_lo):
-                        continue
-                    nbox = tuple(slice(int(a), int(b)) for a, b in zip(n_lo, n_hi))
-                    saved_levels.append((f, nbox, nodes[nbox].copy()))
-                    nodes[nbox] = grid.safe[
-                        f * n_lo[0] : s_hi[0] : f, f * n_lo[1] : s_hi[1] : f, f * n_lo[2] : s_hi[2] : f
-                    ]
+            saved_safe.append(grid.recompute_safe(lo, hi, save=True))
         yield lowered
     finally:
-        for f, nbox, nodes in reversed(saved_levels):
-            grid._levels[f][nbox] = nodes
-        for box, dist, fly, sbox, safe in reversed(saved):
-            grid.dist[box], grid.flyable[box], grid.safe[sbox] = dist, fly, safe
+        for old in reversed(saved_safe):
+            grid.restore(old)
+        for box, dist, fly in reversed(saved):
+            grid.dist[box], grid.flyable[box] = dist, fly
