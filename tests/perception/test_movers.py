@@ -150,6 +150,43 @@ def test_track_velocity_converges(crossing):
     assert crossing.frames[2].tracks[0].confirmed  # confirm_hits = 3
 
 
+def test_track_centre_is_the_movers_not_its_visible_face(crossing):
+    """The camera sees the face of the drone nearest to it; the centre push (by the size seen from
+    the side) keeps the track's centre within 0.4 m of the true one as that face turns (without
+    it, 0.54 m)."""
+    for i, f in enumerate(crossing.frames[10:], 10):
+        (trk,) = f.moving_tracks
+        assert np.linalg.norm(trk.position - crossing.centers[i]) <= 0.4
+
+
+def test_size_along_the_ray_is_not_learned_for_the_push():
+    """A far drone straight ahead is smeared along the viewing ray (x) by stereo: its size along x
+    is not learned from such views (only the keep-out size grows), so the centre is pushed by at
+    most ``max_push_m``, and an axis seen from the side (y) is learned."""
+    from skyrecon.perception.movers import MoverDetection
+
+    tr = MoverTracker()
+    cam = np.zeros(3)
+    half_far = np.array([2.0, 0.5, 0.2])  # 4 m of smear along the ray
+    for k in range(5):
+        c = np.array([15.0, 0.0, 0.0])
+        det = MoverDetection(c, half_far.copy(), 50, np.zeros((1, 1), bool))
+        tr._associate([det], 0.1 * k, cam)
+    (t,) = tr.tracks
+    assert t.half_size[0] == pytest.approx(2.0)  # the keep-out volume holds the smear
+    # a compact view along the same ray: the push is capped, not 1.5 m
+    det = MoverDetection(np.array([15.0, 0.0, 0.0]), np.array([0.5, 0.5, 0.2]), 50, np.zeros((1, 1), bool))
+    before = t.position.copy()
+    tr._associate([det], 0.5, cam)
+    assert np.linalg.norm(t.position - before) <= MoverSettings().max_push_m + 1e-9
+    # seen from the side (ray along y), x is learned, y is not
+    side = MoverDetection(np.array([0.0, 15.0, 0.0]), np.array([0.9, 3.0, 0.2]), 50, np.zeros((1, 1), bool))
+    t.side_half_size = np.array([0.5, 0.5, 0.2])
+    t.position = side.center.copy()
+    tr._associate([side], 0.6, cam)
+    assert t.side_half_size[0] == pytest.approx(0.9) and t.side_half_size[1] == pytest.approx(0.5)
+
+
 def test_mask_covers_the_mover_only(crossing):
     vis = np.flatnonzero(crossing.visible)
     hit = sum((crossing.frames[i].dynamic_mask & crossing.mover_px[i]).sum() for i in vis)
