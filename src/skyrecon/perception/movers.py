@@ -182,7 +182,9 @@ class MoverSettings:
         max_push_m, side_view_cos: a matched detection's centre is pushed away from the camera
             (the visible surface is nearer than the centre) by the half size the track has seen
             from the side and this view does not show: per axis with ``max_push_m`` None, else
-            along the viewing ray, capped at ``max_push_m`` metres (0: no push). A track learns
+            along the viewing ray, capped at ``max_push_m`` metres (0: no push); only once the
+            track has moved (a cluster that may be a new static obstacle is taken as it is, so
+            that pushes that differ from view to view do not look like motion). A track learns
             an axis's size (:attr:`MoverTrack.side_half_size`) only from views whose ray makes a
             cosine of at most ``side_view_cos`` with that axis: along a ray, stereo smears a far
             object over metres, and a size remembered from such views pushed far too far.
@@ -944,7 +946,9 @@ class MoverTracker:
             ray = ray / max(float(np.linalg.norm(ray)), 1e-9)
             # the visible surface is nearer than the centre: push the centre away from the camera
             # by the size the track has seen from the side and this view does not show
-            hidden = np.maximum(t.side_half_size - det.half_size, 0.0)
+            # (only once it has moved: a cluster that may be a new static obstacle is measured
+            # as it is, so that pushes from one view to the next do not look like motion)
+            hidden = np.maximum(t.side_half_size - det.half_size, 0.0) * float(t.was_moving)
             if s.max_push_m is None:
                 z = det.center + np.sign(ray) * hidden
             else:  # along the ray, capped
