@@ -187,6 +187,21 @@ def test_size_along_the_ray_is_not_learned_for_the_push():
     assert t.side_half_size[0] == pytest.approx(0.9) and t.side_half_size[1] == pytest.approx(0.5)
 
 
+def test_track_replays_recorded_detections(crossing):
+    """``track`` on the detections ``update`` made (the replay tool's path) gives the same tracks."""
+    from skyrecon.perception.movers import MoverDetection
+
+    tr = MoverTracker()
+    for i, f in enumerate(crossing.frames):
+        dets = [
+            MoverDetection(d.center, d.half_size, d.n_points, np.zeros((1, 1), bool)) for d in f.detections
+        ]
+        tracks = tr.track(f.time_s, dets, forward_pose(0.4 * i * DT).t)
+        assert [t.track_id for t in tracks] == [t.track_id for t in f.tracks]
+        for a, b in zip(tracks, f.tracks):
+            assert np.allclose(a.position, b.position) and np.allclose(a.velocity, b.velocity)
+
+
 def test_mask_covers_the_mover_only(crossing):
     vis = np.flatnonzero(crossing.visible)
     hit = sum((crossing.frames[i].dynamic_mask & crossing.mover_px[i]).sum() for i in vis)

@@ -103,6 +103,9 @@ class WorldMonitor:
         self.detected_frames = {i: 0 for i in self.judged}
         self.errors: list[float] = []
         self.sightings: list[tuple[float, bool]] = []  # (distance m, detected) per visible mover-frame
+        # per visible mover-frame: (time s, mover index, distance m, true centre (3,) in the
+        # estimate's world frame), for replaying the tracker (benchmarks/dynamic/replay_tracker.py)
+        self.sighting_log: list[tuple[float, int, float, np.ndarray]] = []
         self.times: list[float] = []
         self.vacate_pending: dict[tuple, float] = {}
         self.vacate_delays: list[float] = []
@@ -160,6 +163,7 @@ class WorldMonitor:
                     continue
                 self.visible_frames[i] += 1
                 c = to_est(np.asarray(states[i]["center"], dtype=np.float64)[None])[0]
+                self.sighting_log.append((t, i, d, c))
                 hit = False
                 if live:
                     err = np.array([np.linalg.norm(tr.position - c) for tr in live])

@@ -863,14 +863,7 @@ class MoverTracker:
 
         t0 = time.perf_counter()
         s = self.settings
-        time_s = float(time_s)
-        if self._time is not None and time_s < self._time:
-            raise InputError(f"mover tracker: time went backwards ({time_s} s after {self._time} s)")
-        dt = 0.0 if self._time is None else time_s - self._time
-        self._time = time_s
-        for t in self._tracks:
-            self._predict_track(t, dt)
-            t.age_s = time_s - t.first_seen_s
+        time_s = self._advance(time_s)
         pose = as_world_from_cam(world_from_cam)
         gated = [t for t in self._tracks if t.confirmed and t.moving]
         references = self._references(time_s)
@@ -886,8 +879,51 @@ class MoverTracker:
         )
         if s.history_s:
             self._history.append(SeenDepth.of(time_s, depth_m, intrinsics, pose))
-        self._associate(dets, time_s, pose.t)
-        # drop tracks unseen too long (tentative ones at their first miss)
+        live = self._track(dets, time_s, pose.t)
+        by_id = {t.track_id: t for t in live}
+        mask = np.zeros(np.asarray(depth_m).shape, bool)
+        for det in dets:
+            tr = by_id.get(det.track_id)
+            if tr is not None and not tr.static:
+                mask |= det.pixel_mask
+        ms = (time.perf_counter() - t0) * 1e3
+        return MoverFrame(time_s, dets, [t.copy() for t in live], mask, ms)
+
+    def track(
+        self, time_s: float, detections: list[MoverDetection], cam_center: np.ndarray
+    ) -> list[MoverTrack]:
+        """Update the tracks with detections made elsewhere (or recorded): what :meth:`update`
+        does after its detection step. For replaying recorded detections with other settings
+        (``benchmarks/dynamic/replay_tracker.py``).
+
+        Args:
+            time_s: frame time, seconds (non-decreasing).
+            detections: this frame's :class:`MoverDetection` (world frame; their ``track_id`` is set).
+            cam_center: (3,) camera centre, world metres.
+        Returns:
+            copies of the live tracks.
+        """
+        time_s = self._advance(time_s)
+        live = self._track(list(detections), time_s, np.asarray(cam_center, dtype=np.float64))
+        return [t.copy() for t in live]
+
+    def _advance(self, time_s: float) -> float:
+        """Predict every track forward to ``time_s`` (seconds, checked non-decreasing)."""
+        time_s = float(time_s)
+        if self._time is not None and time_s < self._time:
+            raise InputError(f"mover tracker: time went backwards ({time_s} s after {self._time} s)")
+        dt = 0.0 if self._time is None else time_s - self._time
+        self._time = time_s
+        for t in self._tracks:
+            self._predict_track(t, dt)
+            t.age_s = time_s - t.first_seen_s
+        return time_s
+
+    def _track(self, dets: list[MoverDetection], time_s: float, cam_center: np.ndarray) -> list[MoverTrack]:
+        """Associate ``dets``, then drop the tracks unseen too long (tentative ones at their first
+        miss) and those no real mover would make; the live tracks."""
+        s = self.settings
+        self._associate(dets, time_s, cam_center)
         live = []
         for t in self._tracks:
             t.coasting = t.last_seen_s < time_s
@@ -899,14 +935,7 @@ class MoverTracker:
                 continue  # no real mover moves like that: outliers chained by chance
             live.append(t)
         self._tracks = live
-        by_id = {t.track_id: t for t in live}
-        mask = np.zeros(np.asarray(depth_m).shape, bool)
-        for det in dets:
-            tr = by_id.get(det.track_id)
-            if tr is not None and not tr.static:
-                mask |= det.pixel_mask
-        ms = (time.perf_counter() - t0) * 1e3
-        return MoverFrame(time_s, dets, [t.copy() for t in live], mask, ms)
+        return live
 
     def _references(self, time_s: float) -> list[SeenDepth]:
         """Per age in ``history_s``, the latest remembered frame at least that much older than

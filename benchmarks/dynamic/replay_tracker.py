@@ -1,0 +1,192 @@
+"""Replay the mover tracker on recorded detections: tracker settings judged in seconds, not hours.
+
+Flying the 50 dynamic missions takes about 25 minutes on 2 cores, and every flight changes when
+the tracker does. The tracker's own figures (the movers' position error and recall) can be judged
+on what the detector saw in recorded flights instead: ``record`` flies missions and keeps, per
+depth frame, the detections (world centre, half size, points) and the camera centre, and per
+visible mover-frame the mover's true centre (the world monitor's sightings: within 20 m, at least
+30 pixels). ``replay`` runs :meth:`skyrecon.perception.MoverTracker.track` over them with the
+recorded settings and the overrides given, and scores the tracks as the world monitor does
+(the nearest confirmed, not static track within 1.5 m of the true centre detects the mover; its
+distance is the position error). The flights themselves (what the drone would have seen had it
+flown otherwise) are not replayed: a change chosen here must still be flown
+(``benchmarks/dynamic/run.py``).
+
+Usage:
+  .venv/bin/python benchmarks/dynamic/replay_tracker.py record --seeds 300-317 --out /tmp/rec
+  .venv/bin/python benchmarks/dynamic/replay_tracker.py replay /tmp/rec --set max_push_m=0 \\
+      --set max_push_m=None,side_view_cos=1
+
+``replay`` prints one row per variant (the recorded settings first): the median over missions of
+the missions' median position error (the benchmark's figure), the pooled median and p95, and
+recall within 20 and 10 m.
+"""
+
+from __future__ import annotations
+
+import argparse
+import bisect
+import os
+import pickle
+import sys
+from dataclasses import asdict, fields, replace
+from pathlib import Path
+
+os.environ.setdefault("OMP_WAIT_POLICY", "passive")
+
+ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT / "src"))
+
+import numpy as np  # noqa: E402
+
+from skyrecon.mission.world_monitor import MATCH_RADIUS_M  # noqa: E402
+from skyrecon.perception import MoverSettings, MoverTracker  # noqa: E402
+from skyrecon.perception.movers import MoverDetection  # noqa: E402
+
+
+def parse_seeds(text: str) -> list[int]:
+    """``"300-317"`` or ``"101,105,110"`` -> seeds."""
+    out: list[int] = []
+    for part in text.split(","):
+        a, _, b = part.partition("-")
+        out += list(range(int(a), int(b) + 1)) if b else [int(a)]
+    return out
+
+
+def record_one(seed: int, out_dir: Path) -> Path:
+    """Fly one dynamic mission (the benchmark's settings) and write ``seed_NNNN.pkl``."""
+    import skyrecon.mission.world_monitor as wm
+    from skyrecon.mission import MissionConfig
+    from skyrecon.mission.batch import fly_and_write
+
+    frames: list[dict] = []
+    settings: list[MoverSettings] = []
+    monitors: list = []
+    track_fn, init_fn = MoverTracker._track, wm.WorldMonitor.__init__
+
+    def track(self, dets, time_s, cam_center):  # the detections of every frame, before tracking
+        if not settings:
+            settings.append(self.settings)
+        frames.append(
+            {
+                "t": float(time_s),
+                "cam": np.asarray(cam_center, dtype=np.float64).copy(),
+                "dets": [(d.center.copy(), d.half_size.copy(), int(d.n_points)) for d in dets],
+            }
+        )
+        return track_fn(self, dets, time_s, cam_center)
+
+    def init(self, *a, **k):
+        init_fn(self, *a, **k)
+        monitors.append(self)
+
+    MoverTracker._track, wm.WorldMonitor.__init__ = track, init
+    try:
+        cfg = MissionConfig(movers=True, city_changes=True, prior_map="earlier")
+        outcome = fly_and_write(seed, out_dir / f"seed_{seed:04d}", cfg)
+    finally:
+        MoverTracker._track, wm.WorldMonitor.__init__ = track_fn, init_fn
+    sightings = [(t, i, d, np.asarray(c)) for t, i, d, c in (monitors[0].sighting_log if monitors else [])]
+    doc = {
+        "seed": seed,
+        "settings": asdict(settings[0]) if settings else asdict(MoverSettings()),
+        "frames": frames,
+        "sightings": sightings,
+        "flown_error_m": (outcome.doc.get("dynamic") or {}).get("mover_position_error_m"),
+    }
+    path = out_dir / f"seed_{seed:04d}.pkl"
+    tmp = path.with_suffix(".tmp")
+    tmp.write_bytes(pickle.dumps(doc))
+    tmp.replace(path)
+    return path
+
+
+def load(path: Path) -> dict:
+    doc = pickle.loads(path.read_bytes())
+    s = doc["settings"]
+    known = {f.name for f in fields(MoverSettings)}
+    s = s if isinstance(s, dict) else asdict(s)
+    doc["settings"] = MoverSettings(**{k: v for k, v in s.items() if k in known})
+    doc["sightings"] = [tuple(x[:4]) for x in doc["sightings"]]
+    return doc
+
+
+def replay(doc: dict, **overrides) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(position errors of the detected mover-frames (m), detected flags, distances (m)) of one
+    recorded mission replayed with ``overrides`` on its recorded settings."""
+    tracker = MoverTracker(replace(doc["settings"], **overrides))
+    times, live = [], []
+    for f in doc["frames"]:
+        dets = [MoverDetection(c.copy(), h.copy(), n, np.zeros((1, 1), bool)) for c, h, n in f["dets"]]
+        tracks = tracker.track(f["t"], dets, f["cam"])
+        times.append(f["t"])
+        live.append([t.position for t in tracks if t.confirmed and not t.static])
+    errs, hits, dists = [], [], []
+    for t, _i, d, c in doc["sightings"]:
+        k = bisect.bisect_right(times, t + 1e-9) - 1
+        e = min((float(np.linalg.norm(p - c)) for p in live[k]), default=np.inf) if k >= 0 else np.inf
+        hit = e <= MATCH_RADIUS_M
+        if hit:
+            errs.append(e)
+        hits.append(hit)
+        dists.append(d)
+    return np.array(errs), np.array(hits, bool), np.array(dists)
+
+
+def parse_set(text: str) -> dict:
+    """``"max_push_m=0,side_view_cos=1"`` -> overrides (``None`` and numbers understood)."""
+    out = {}
+    for item in filter(None, text.split(",")):
+        k, _, v = item.partition("=")
+        out[k.strip()] = None if v.strip() == "None" else float(v)
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    rec = sub.add_parser("record", help="fly missions and record the detections")
+    rec.add_argument("--seeds", default="300-317")
+    rec.add_argument("--out", type=Path, required=True)
+    rep = sub.add_parser("replay", help="replay recordings with other tracker settings")
+    rep.add_argument("folder", type=Path)
+    rep.add_argument("--set", action="append", default=[], help="overrides, e.g. max_push_m=0 (repeatable)")
+    args = ap.parse_args()
+    if args.cmd == "record":
+        args.out.mkdir(parents=True, exist_ok=True)
+        for seed in parse_seeds(args.seeds):
+            p = record_one(seed, args.out)
+            print(f"seed {seed}: {p}", flush=True)
+        return
+    docs = [load(p) for p in sorted(args.folder.glob("*.pkl"))]
+    if not docs:
+        print(f"no recordings (*.pkl) in {args.folder}: run the record command first", file=sys.stderr)
+        raise SystemExit(2)
+    print(f"{len(docs)} recorded missions, {sum(len(d['sightings']) for d in docs)} mover-frames within 20 m")
+    print(f"{'variant':40s} {'err med':>8} {'pooled':>7} {'p95':>6} {'rec20':>6} {'rec10':>6}")
+    for text in ["", *args.set]:
+        ov = parse_set(text)
+        meds, pooled, hits, dists = [], [], [], []
+        for d in docs:
+            e, h, dist = replay(d, **ov)
+            if len(e):
+                meds.append(float(np.median(e)))
+            pooled += list(e)
+            hits += list(h)
+            dists += list(dist)
+        h, dist = np.array(hits, bool), np.array(dists)
+        name = text or "as recorded"
+
+        def fmt(x):
+            return f"{x:.3f}" if x is not None and np.isfinite(x) else "-"
+
+        print(
+            f"{name:40s} {fmt(np.median(meds) if meds else None):>8} "
+            f"{fmt(np.median(pooled) if pooled else None):>7} "
+            f"{fmt(np.percentile(pooled, 95) if pooled else None):>6} "
+            f"{fmt(h.mean() if len(h) else None):>6} {fmt(h[dist <= 10].mean() if (dist <= 10).any() else None):>6}"
+        )
+
+
+if __name__ == "__main__":
+    main()
