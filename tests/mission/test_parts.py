@@ -215,7 +215,7 @@ def test_a_climb_above_the_cameras_reach_is_seen_by_backing_off_along_the_flown_
     assert retreat_path(np.array([p, p + [-0.5, 0, 0]]), steep, cfg) is None  # nowhere to go
 
 
-def test_backing_off_flies_the_track_back_looking_at_the_point_and_ends_there():
+def test_backing_off_flies_the_track_back_looking_where_it_flies_and_ends_in_reach():
     from skyrecon.mission.guidance import RETREAT_AFTER_S, RETREAT_SPEED_MPS, BackOff
     from skyrecon.mission.safety import speed_limit
 
@@ -233,15 +233,51 @@ def test_backing_off_flies_the_track_back_looking_at_the_point_and_ends_there():
     assert b.consider(rest, 4.0, RETREAT_AFTER_S, held, p, lambda q: track, cfg) and b.active
     assert b.label("fly") == "retreat" and b.label("return") == "return"
     s = DroneState(p.copy(), np.zeros(3), 0.0, 0.0)  # facing the climb, backing off behind it
-    for _ in range(400):
+    moved = 0
+    for _ in range(600):
         g = b.guide(s.position, s, cfg, math.inf)
-        assert g.speed_limit <= RETREAT_SPEED_MPS and np.allclose(g.look_at, b.look)
+        assert g.speed_limit <= RETREAT_SPEED_MPS
         s = step(s, g.carrot, g.speed_limit, cfg, look_at=g.look_at, blind_mps=g.blind_mps)
-        assert abs(s.yaw) < math.radians(1.0)  # the camera stays on the climb
+        if np.hypot(*s.velocity[:2]) > 0.3:  # moving back: the camera looks the way it goes (-x)
+            moved += 1
+            assert abs(abs(s.yaw) - math.pi) < math.radians(30.0)
         if not b.active:
             break
+    assert moved > 10
     assert not b.active and s.position[0] < -3.0
     assert not out_of_reach_of(s.position, b.look, cfg)
+
+
+def test_backing_off_stops_when_its_way_back_meets_a_mover():
+    """The way back was free when flown; a mover's predicted sweep across it ends the back-off
+    (the plan and its escapes keep clear of movers); a sweep elsewhere, or none, does not."""
+    from skyrecon.mission.guidance import RETREAT_AFTER_S, BackOff
+    from skyrecon.mission.safety import speed_limit
+
+    cfg = MissionConfig()
+    p = np.array([0.0, 0.0, 15.0])
+    rest = np.array([p, [2.0, 0.0, 21.0], [20.0, 0.0, 21.0]])
+    track = np.array([p, [-30.0, 0.0, 15.0]])
+    held = speed_limit(cfg, 4.0, math.inf, 30.0, 99.0)
+
+    def conflict(way, keep):  # arc length of the first way point within a capsule's radius
+        s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(way, axis=0), axis=1))])
+        for k in keep:
+            a, b, r = k[:3], k[3:6], k[6]
+            ab = b - a
+            t = np.clip((way - a) @ ab / max(ab @ ab, 1e-9), 0.0, 1.0)
+            d = np.linalg.norm(way - (a + t[:, None] * ab), axis=1)
+            if (d < r).any():
+                return float(s[np.argmax(d < r)])
+        return math.inf
+
+    b = BackOff()
+    assert b.consider(rest, 4.0, RETREAT_AFTER_S, held, p, lambda q: track, cfg)
+    away = np.array([[0.0, 30.0, 15.0, 5.0, 30.0, 15.0, 1.0]])  # a drone's sweep far to the side
+    assert not b.yield_to_movers(p, away, conflict) and b.active
+    assert not b.yield_to_movers(p, None, conflict) and b.active
+    behind = np.array([[-2.0, -3.0, 15.0, -2.0, 3.0, 15.0, 1.0]])  # crossing the way back, 2 m behind
+    assert b.yield_to_movers(p, behind, conflict) and not b.active
 
 
 def test_a_back_off_that_never_arrives_ends_after_its_time_limit():

@@ -20,8 +20,8 @@ observed free (:meth:`~skyrecon.mission.navigator.Navigator.verified_distance`):
 * **backing off to see** (:func:`out_of_reach`, :func:`retreat_path`): a drone held still by an
   unobserved point it cannot look at (a climb steeper than the camera's upward reach: its tilt
   bound plus half the vertical field of view, 52 degrees for the default rig) flies back along
-  its own flown track (swept free by its body), slowly and with its camera kept on that point,
-  until the point lies well within the reach, then comes on again seeing it. Scanning from where
+  its own flown track (swept free by its body), slowly and looking where it flies (other things
+  move), until the point lies well within the reach, then turns and comes on again seeing it. Scanning from where
   it stands cannot help: the gimbal is at its bound (mission seed 10 on odometry hovered 30 s
   under a 58 degree climb and returned).
 
@@ -256,18 +256,38 @@ class BackOff:
         self.look, self.count = q, self.count + 1
         return True
 
+    def yield_to_movers(
+        self,
+        position: np.ndarray,
+        keep_out: np.ndarray | None,
+        conflict: Callable[[np.ndarray, np.ndarray], float],
+    ) -> bool:
+        """Stop backing off when the way back from ``position`` (3,) meets a mover's predicted
+        sweep: ``keep_out`` (K, 7) capsules or None, ``conflict(way, keep_out)`` the arc length
+        (m) where the path ``way`` (M, 3) meets one, inf if nowhere (the navigator's
+        ``mover_conflict``).
+        The way back was free when flown but knows nothing of movers; the plan and its escapes
+        do. Returns whether it stopped."""
+        if self.path is None or keep_out is None or not len(keep_out):
+            return False
+        if not math.isfinite(conflict(remaining_path(self.path, position), keep_out)):
+            return False
+        self.cancel()
+        return True
+
     def guide(
         self, position: np.ndarray, state: DroneState, cfg: MissionConfig, momentum_room_m: float
     ) -> Guidance:
-        """Guidance back along :attr:`path` (flown, so observed free) at most
-        :data:`RETREAT_SPEED_MPS`, the camera on :attr:`look`; done once at its end and still, or
-        after :meth:`time_limit_s` (``state.time_s`` is the clock)."""
+        """Guidance back along :attr:`path` at most :data:`RETREAT_SPEED_MPS`, looking where it
+        flies (the track was free when flown, but other things move: backing off blind with the
+        camera on :attr:`look`, dynamic mission seed 123 backed into a drone it never saw); done
+        once at its end and still, or after :meth:`time_limit_s` (``state.time_s`` is the clock).
+        Then the drone turns to the path again, :attr:`look` now within its camera's reach."""
         assert self.path is not None
         if self.started_s is None:
             self.started_s = state.time_s
         g = guide(remaining_path(self.path, position), state, cfg.verify_horizon_m, cfg, momentum_room_m)
         g.speed_limit = min(g.speed_limit, RETREAT_SPEED_MPS)
-        g.look_at, g.look_within_rad, g.blind_mps = self.look.copy(), None, RETREAT_SPEED_MPS
         arrived = g.to_go_m < 0.3 and state.speed < 0.2
         if arrived or state.time_s - self.started_s >= self.time_limit_s():
             self.cancel()
