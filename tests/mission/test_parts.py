@@ -233,7 +233,7 @@ def test_backing_off_flies_the_track_back_looking_where_it_flies_and_ends_in_rea
     assert b.consider(rest, 4.0, RETREAT_AFTER_S, held, p, lambda q: track, cfg) and b.active
     assert b.label("fly") == "retreat" and b.label("return") == "return"
     s = DroneState(p.copy(), np.zeros(3), 0.0, 0.0)  # facing the climb, backing off behind it
-    moved = 0
+    moved, last_look = 0, None
     for _ in range(600):
         g = b.guide(s.position, s, cfg, math.inf)
         assert g.speed_limit <= RETREAT_SPEED_MPS
@@ -241,9 +241,13 @@ def test_backing_off_flies_the_track_back_looking_where_it_flies_and_ends_in_rea
         if np.hypot(*s.velocity[:2]) > 0.3:  # moving back: the camera looks the way it goes (-x)
             moved += 1
             assert abs(abs(s.yaw) - math.pi) < math.radians(30.0)
+        if b.looking_since_s is not None:  # at the end: holding, looking at the climb
+            assert np.allclose(g.look_at, b.look) and g.speed_limit == 0.0
+            last_look = g
         if not b.active:
             break
-    assert moved > 10
+    assert moved > 10 and last_look is not None
+    assert abs(s.yaw) < math.radians(10.0)  # it turned back to the climb before flying on
     assert not b.active and s.position[0] < -3.0
     assert not out_of_reach_of(s.position, b.look, cfg)
 
@@ -278,6 +282,10 @@ def test_backing_off_stops_when_its_way_back_meets_a_mover():
     assert not b.yield_to_movers(p, None, conflict) and b.active
     behind = np.array([[-2.0, -3.0, 15.0, -2.0, 3.0, 15.0, 1.0]])  # crossing the way back, 2 m behind
     assert b.yield_to_movers(p, behind, conflict) and not b.active
+    # holding at the end of the way back to look: any tracked mover ends it
+    assert b.consider(rest, 4.0, RETREAT_AFTER_S, held, p, lambda q: track, cfg)
+    b.looking_since_s = 50.0
+    assert b.yield_to_movers(p, away, conflict) and not b.active and b.looking_since_s is None
 
 
 def test_a_back_off_that_never_arrives_ends_after_its_time_limit():

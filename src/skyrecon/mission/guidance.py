@@ -21,8 +21,8 @@ observed free (:meth:`~skyrecon.mission.navigator.Navigator.verified_distance`):
   unobserved point it cannot look at (a climb steeper than the camera's upward reach: its tilt
   bound plus half the vertical field of view, 52 degrees for the default rig) flies back along
   its own flown track (swept free by its body), slowly and looking where it flies (other things
-  move), until the point lies well within the reach, then turns and comes on again seeing it. Scanning from where
-  it stands cannot help: the gimbal is at its bound (mission seed 10 on odometry hovered 30 s
+  move), until the point lies well within the reach, then holds looking at it
+  (:data:`RETREAT_LOOK_S`) and comes on again. Scanning from where it stands cannot help: the gimbal is at its bound (mission seed 10 on odometry hovered 30 s
   under a 58 degree climb and returned).
 
 World frame, metres, m/s, radians.
@@ -148,6 +148,10 @@ MAX_RETREATS = 3
 #: dynamic mission 179 circled the end of a short way back for 112 s until the time limit, never
 #: returning home.
 RETREAT_SLACK_S = 10.0
+#: At the end of the way back the drone holds this long (seconds) with its camera on the point it
+#: backed off to see, so that the point is observed before it flies on (looking where it flew, it
+#: had not seen it: dynamic seed 129 climbed to the same unobserved point three times).
+RETREAT_LOOK_S = 2.0
 
 
 def vertical_reach_rad(cfg: MissionConfig) -> tuple[float, float]:
@@ -198,19 +202,22 @@ class BackOff:
         look: (3,) the point it backs off to see, world metres.
         count: times it has backed off this mission (at most :data:`MAX_RETREATS`).
         started_s: simulated time the current back-off was first flown, seconds (None: not yet).
+        looking_since_s: simulated time it arrived at the end of the way back and began looking
+            at :attr:`look`, seconds (None: not yet).
     """
 
     path: np.ndarray | None = None
     look: np.ndarray = field(default_factory=lambda: np.zeros(3))
     count: int = 0
     started_s: float | None = None
+    looking_since_s: float | None = None
 
     @property
     def active(self) -> bool:
         return self.path is not None
 
     def cancel(self) -> None:
-        self.path, self.started_s = None, None
+        self.path, self.started_s, self.looking_since_s = None, None, None
 
     def time_limit_s(self) -> float:
         """How long the current back-off may last, seconds (see :data:`RETREAT_SLACK_S`)."""
@@ -270,7 +277,8 @@ class BackOff:
         do. Returns whether it stopped."""
         if self.path is None or keep_out is None or not len(keep_out):
             return False
-        if not math.isfinite(conflict(remaining_path(self.path, position), keep_out)):
+        holding = self.looking_since_s is not None  # holding still at the end: any mover ends it
+        if not holding and not math.isfinite(conflict(remaining_path(self.path, position), keep_out)):
             return False
         self.cancel()
         return True
@@ -281,15 +289,20 @@ class BackOff:
         """Guidance back along :attr:`path` at most :data:`RETREAT_SPEED_MPS`, looking where it
         flies (the track was free when flown, but other things move: backing off blind with the
         camera on :attr:`look`, dynamic mission seed 123 backed into a drone it never saw); done
-        once at its end and still, or after :meth:`time_limit_s` (``state.time_s`` is the clock).
-        Then the drone turns to the path again, :attr:`look` now within its camera's reach."""
+        once it has held still at its end for :data:`RETREAT_LOOK_S` with the camera on
+        :attr:`look` (now within its reach), or after :meth:`time_limit_s` (``state.time_s`` is
+        the clock)."""
         assert self.path is not None
         if self.started_s is None:
             self.started_s = state.time_s
         g = guide(remaining_path(self.path, position), state, cfg.verify_horizon_m, cfg, momentum_room_m)
         g.speed_limit = min(g.speed_limit, RETREAT_SPEED_MPS)
-        arrived = g.to_go_m < 0.3 and state.speed < 0.2
-        if arrived or state.time_s - self.started_s >= self.time_limit_s():
+        if self.looking_since_s is None and g.to_go_m < 0.3 and state.speed < 0.2:
+            self.looking_since_s = state.time_s  # arrived: hold and look at the point
+        if self.looking_since_s is not None:
+            g = hover(position, self.look)
+        looked = self.looking_since_s is not None and state.time_s - self.looking_since_s >= RETREAT_LOOK_S
+        if looked or state.time_s - self.started_s >= self.time_limit_s():
             self.cancel()
         return g
 
