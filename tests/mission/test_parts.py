@@ -215,11 +215,40 @@ def test_a_climb_above_the_cameras_reach_is_seen_by_backing_off_along_the_flown_
     assert retreat_path(np.array([p, p + [-0.5, 0, 0]]), steep, cfg) is None  # nowhere to go
 
 
-def test_backing_off_flies_the_track_back_looking_where_it_flies_and_ends_in_reach():
+def test_backing_off_flies_the_track_back_looking_at_the_point_and_ends_there():
     from skyrecon.mission.guidance import RETREAT_AFTER_S, RETREAT_SPEED_MPS, BackOff
     from skyrecon.mission.safety import speed_limit
 
     cfg = MissionConfig()
+    p = np.array([0.0, 0.0, 15.0])
+    rest = np.array([p, [2.0, 0.0, 21.0], [20.0, 0.0, 21.0]])  # a climb at 72 degrees just ahead
+    track = np.array([p, [-30.0, 0.0, 15.0]])
+    held = speed_limit(cfg, 4.0, math.inf, 30.0, 99.0)
+    assert held.reason == "path_seen"
+    b = BackOff()
+    # not yet held long enough, not in normal flight, or not held by the unobserved point: nothing
+    assert not b.consider(rest, 4.0, RETREAT_AFTER_S - 0.5, held, p, lambda q: track, cfg)
+    assert not b.consider(rest, 4.0, RETREAT_AFTER_S, held, p, lambda q: track, cfg, mode="hold")
+    assert not b.consider(rest, 4.0, RETREAT_AFTER_S, None, p, lambda q: track, cfg)
+    assert b.consider(rest, 4.0, RETREAT_AFTER_S, held, p, lambda q: track, cfg) and b.active
+    assert b.label("fly") == "retreat" and b.label("return") == "return"
+    s = DroneState(p.copy(), np.zeros(3), 0.0, 0.0)  # facing the climb, backing off behind it
+    for _ in range(400):
+        g = b.guide(s.position, s, cfg, math.inf)
+        assert g.speed_limit <= RETREAT_SPEED_MPS and np.allclose(g.look_at, b.look)
+        s = step(s, g.carrot, g.speed_limit, cfg, look_at=g.look_at, blind_mps=g.blind_mps)
+        assert abs(s.yaw) < math.radians(1.0)  # the camera stays on the climb
+        if not b.active:
+            break
+    assert not b.active and s.position[0] < -3.0
+    assert not out_of_reach_of(s.position, b.look, cfg)
+
+
+def test_backing_off_flies_the_track_back_looking_where_it_flies_and_ends_in_reach():
+    from skyrecon.mission.guidance import RETREAT_AFTER_S, RETREAT_SPEED_MPS, BackOff
+    from skyrecon.mission.safety import speed_limit
+
+    cfg = MissionConfig(backoff_looks_ahead=True)
     p = np.array([0.0, 0.0, 15.0])
     rest = np.array([p, [2.0, 0.0, 21.0], [20.0, 0.0, 21.0]])  # a climb at 72 degrees just ahead
     track = np.array([p, [-30.0, 0.0, 15.0]])

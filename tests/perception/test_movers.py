@@ -153,19 +153,25 @@ def test_track_velocity_converges(crossing):
 def test_track_centre_is_the_movers_not_its_visible_face(crossing):
     """The camera sees the face of the drone nearest to it; the centre push (by the size seen from
     the side) keeps the track's centre within 0.4 m of the true one as that face turns (without
-    it, 0.54 m)."""
-    for i, f in enumerate(crossing.frames[10:], 10):
-        (trk,) = f.moving_tracks
-        assert np.linalg.norm(trk.position - crossing.centers[i]) <= 0.4
+    it, 0.54 m), with the default push and with the one along the ray from sizes seen from the
+    side."""
+    side = MoverSettings(max_push_m=0.2, side_view_cos=0.5, push_once_moving=True)
+    along = run_mover(drone_center, 50, cam_x_at=lambda t: 0.4 * t, settings=side)
+    for run in (crossing, along):
+        for i, f in enumerate(run.frames[10:], 10):
+            (trk,) = f.moving_tracks
+            assert np.linalg.norm(trk.position - run.centers[i]) <= 0.4
 
 
 def test_size_along_the_ray_is_not_learned_for_the_push():
-    """A far drone straight ahead is smeared along the viewing ray (x) by stereo: its size along x
-    is not learned from such views (only the keep-out size grows), so the centre is pushed by at
-    most ``max_push_m``, and an axis seen from the side (y) is learned."""
+    """With sizes learned from the side (``side_view_cos`` 0.5) and the push along the ray capped
+    (0.2 m): a far drone straight ahead is smeared along the viewing ray (x) by stereo, its size
+    along x is not learned from such views (only the keep-out size grows), so the centre is
+    pushed by at most ``max_push_m``, and an axis seen from the side (y) is learned."""
     from skyrecon.perception.movers import MoverDetection
 
-    tr = MoverTracker()
+    settings = MoverSettings(max_push_m=0.2, side_view_cos=0.5)
+    tr = MoverTracker(settings)
     cam = np.zeros(3)
     half_far = np.array([2.0, 0.5, 0.2])  # 4 m of smear along the ray
     for k in range(5):
@@ -178,7 +184,7 @@ def test_size_along_the_ray_is_not_learned_for_the_push():
     det = MoverDetection(np.array([15.0, 0.0, 0.0]), np.array([0.5, 0.5, 0.2]), 50, np.zeros((1, 1), bool))
     before = t.position.copy()
     tr._associate([det], 0.5, cam)
-    assert np.linalg.norm(t.position - before) <= MoverSettings().max_push_m + 1e-9
+    assert np.linalg.norm(t.position - before) <= settings.max_push_m + 1e-9
     # seen from the side (ray along y), x is learned, y is not
     side = MoverDetection(np.array([0.0, 15.0, 0.0]), np.array([0.9, 3.0, 0.2]), 50, np.zeros((1, 1), bool))
     t.side_half_size = np.array([0.5, 0.5, 0.2])

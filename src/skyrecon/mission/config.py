@@ -58,6 +58,14 @@ class MissionConfig:
             (seed 131, 0.30 m). Weight 1.2 on every plan made a held-out seed never take off
             (a plan from the take-off point dipped 1.2 m over ground too plain for stereo to
             show the space below the dip free). So 1 by default.
+        backoff_looks_ahead: a drone backing off along its flown track to see a climb (see
+            :class:`~skyrecon.mission.guidance.BackOff`) looks where it flies, holds 2 s at the
+            end looking at the climb, and stops backing off when its way back meets a mover's
+            predicted sweep; off (the default), it flies back blind with the camera on the
+            climb. Flown in session 26 with a changed tracker only (seeds 100-149): looking
+            where it flew, seed 129 did not see the climb and climbed to it three times
+            (before the 2 s hold was added), and blind, seed 123 backed into a drone. Off until
+            flown in the dynamic missions without a failure.
         min_altitude_m, max_altitude_m: flight band, world z metres. Streets are free above
             10 m (poles, trees and overhead wires stay below), so the band starts at 12 m.
     Vehicle:
@@ -140,6 +148,7 @@ class MissionConfig:
     clearance_m: float = 2.0
     replan_tolerance_m: float = 0.5
     keep_out_heuristic_weight: float = 1.0
+    backoff_looks_ahead: bool = False
     min_altitude_m: float = 12.0
     max_altitude_m: float = 30.0
     cruise_speed_mps: float = 6.0

@@ -20,9 +20,10 @@ observed free (:meth:`~skyrecon.mission.navigator.Navigator.verified_distance`):
 * **backing off to see** (:func:`out_of_reach`, :func:`retreat_path`): a drone held still by an
   unobserved point it cannot look at (a climb steeper than the camera's upward reach: its tilt
   bound plus half the vertical field of view, 52 degrees for the default rig) flies back along
-  its own flown track (swept free by its body), slowly and looking where it flies (other things
-  move), until the point lies well within the reach, then holds looking at it
-  (:data:`RETREAT_LOOK_S`) and comes on again. Scanning from where it stands cannot help: the gimbal is at its bound (mission seed 10 on odometry hovered 30 s
+  its own flown track (swept free by its body), slowly and with its camera kept on that point
+  (``MissionConfig.backoff_looks_ahead``: looking where it flies, then holding to look at the
+  point), until the point lies well within the reach, then comes on again seeing it. Scanning
+  from where it stands cannot help: the gimbal is at its bound (mission seed 10 on odometry hovered 30 s
   under a 58 degree climb and returned).
 
 World frame, metres, m/s, radians.
@@ -286,18 +287,27 @@ class BackOff:
     def guide(
         self, position: np.ndarray, state: DroneState, cfg: MissionConfig, momentum_room_m: float
     ) -> Guidance:
-        """Guidance back along :attr:`path` at most :data:`RETREAT_SPEED_MPS`, looking where it
-        flies (the track was free when flown, but other things move: backing off blind with the
-        camera on :attr:`look`, dynamic mission seed 123 backed into a drone it never saw); done
-        once it has held still at its end for :data:`RETREAT_LOOK_S` with the camera on
-        :attr:`look` (now within its reach), or after :meth:`time_limit_s` (``state.time_s`` is
-        the clock)."""
+        """Guidance back along :attr:`path` at most :data:`RETREAT_SPEED_MPS`
+        (``state.time_s`` is the clock; it ends after :meth:`time_limit_s` in any case).
+
+        With ``cfg.backoff_looks_ahead`` off (the default) the camera stays on :attr:`look` and
+        the drone flies back blind (the track was free when flown); done on arrival. On, it
+        looks where it flies (other things move: in session 26, dynamic seed 123 backed off
+        blind into a drone it never saw), holds at the end for :data:`RETREAT_LOOK_S` with the
+        camera on :attr:`look` (now within its reach), then is done.
+        """
         assert self.path is not None
         if self.started_s is None:
             self.started_s = state.time_s
         g = guide(remaining_path(self.path, position), state, cfg.verify_horizon_m, cfg, momentum_room_m)
         g.speed_limit = min(g.speed_limit, RETREAT_SPEED_MPS)
-        if self.looking_since_s is None and g.to_go_m < 0.3 and state.speed < 0.2:
+        arrived = g.to_go_m < 0.3 and state.speed < 0.2
+        if not cfg.backoff_looks_ahead:  # blind, the camera on the point; done on arrival
+            g.look_at, g.look_within_rad, g.blind_mps = self.look.copy(), None, RETREAT_SPEED_MPS
+            if arrived or state.time_s - self.started_s >= self.time_limit_s():
+                self.cancel()
+            return g
+        if self.looking_since_s is None and arrived:
             self.looking_since_s = state.time_s  # arrived: hold and look at the point
         if self.looking_since_s is not None:
             g = hover(position, self.look)

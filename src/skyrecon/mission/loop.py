@@ -687,7 +687,9 @@ def run_mission(
         conflict_m = math.inf
         if keep is not None and len(keep) and outcome.clear and len(nav.waypoints):
             conflict_m = nav.mover_conflict(nav.rest(p), keep, reach_m)
-        backoff.yield_to_movers(p, keep, partial(nav.mover_conflict, reach_m=reach_m))
+        backoff.yield_to_movers(
+            p, keep if cfg.backoff_looks_ahead else None, partial(nav.mover_conflict, reach_m=reach_m)
+        )
         ms["check"] = 1e3 * (time.perf_counter() - t0)
         replanned = replan_ok = False
         replan_reason = ""
