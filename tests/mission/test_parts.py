@@ -215,16 +215,28 @@ def test_a_climb_above_the_cameras_reach_is_seen_by_backing_off_along_the_flown_
     assert retreat_path(np.array([p, p + [-0.5, 0, 0]]), steep, cfg) is None  # nowhere to go
 
 
-def test_backing_off_flies_the_track_back_looking_at_the_point_and_ends_there():
-    from skyrecon.mission.guidance import RETREAT_AFTER_S, RETREAT_SPEED_MPS, BackOff
+def _held_under_a_climb(cfg: MissionConfig):
+    """A drone at 15 m held still by a climb at 72 degrees just ahead that its camera cannot look
+    at, with 30 m of flown track behind it: (position, path ahead, flown track, speed limit)."""
     from skyrecon.mission.safety import speed_limit
 
-    cfg = MissionConfig()
     p = np.array([0.0, 0.0, 15.0])
-    rest = np.array([p, [2.0, 0.0, 21.0], [20.0, 0.0, 21.0]])  # a climb at 72 degrees just ahead
+    rest = np.array([p, [2.0, 0.0, 21.0], [20.0, 0.0, 21.0]])
     track = np.array([p, [-30.0, 0.0, 15.0]])
     held = speed_limit(cfg, 4.0, math.inf, 30.0, 99.0)
     assert held.reason == "path_seen"
+    return p, rest, track, held
+
+
+@pytest.mark.parametrize("looks_ahead", [False, True])
+def test_backing_off_flies_the_track_back_and_ends_with_the_climb_in_reach(looks_ahead):
+    """Blind (the default), the camera stays on the climb all the way; with
+    ``backoff_looks_ahead`` the camera looks the way it flies, then holds at the end looking at
+    the climb before the back-off ends."""
+    from skyrecon.mission.guidance import RETREAT_AFTER_S, RETREAT_SPEED_MPS, BackOff
+
+    cfg = MissionConfig(backoff_looks_ahead=looks_ahead)
+    p, rest, track, held = _held_under_a_climb(cfg)
     b = BackOff()
     # not yet held long enough, not in normal flight, or not held by the unobserved point: nothing
     assert not b.consider(rest, 4.0, RETREAT_AFTER_S - 0.5, held, p, lambda q: track, cfg)
@@ -233,50 +245,26 @@ def test_backing_off_flies_the_track_back_looking_at_the_point_and_ends_there():
     assert b.consider(rest, 4.0, RETREAT_AFTER_S, held, p, lambda q: track, cfg) and b.active
     assert b.label("fly") == "retreat" and b.label("return") == "return"
     s = DroneState(p.copy(), np.zeros(3), 0.0, 0.0)  # facing the climb, backing off behind it
-    for _ in range(400):
-        g = b.guide(s.position, s, cfg, math.inf)
-        assert g.speed_limit <= RETREAT_SPEED_MPS and np.allclose(g.look_at, b.look)
-        s = step(s, g.carrot, g.speed_limit, cfg, look_at=g.look_at, blind_mps=g.blind_mps)
-        assert abs(s.yaw) < math.radians(1.0)  # the camera stays on the climb
-        if not b.active:
-            break
-    assert not b.active and s.position[0] < -3.0
-    assert not out_of_reach_of(s.position, b.look, cfg)
-
-
-def test_backing_off_flies_the_track_back_looking_where_it_flies_and_ends_in_reach():
-    from skyrecon.mission.guidance import RETREAT_AFTER_S, RETREAT_SPEED_MPS, BackOff
-    from skyrecon.mission.safety import speed_limit
-
-    cfg = MissionConfig(backoff_looks_ahead=True)
-    p = np.array([0.0, 0.0, 15.0])
-    rest = np.array([p, [2.0, 0.0, 21.0], [20.0, 0.0, 21.0]])  # a climb at 72 degrees just ahead
-    track = np.array([p, [-30.0, 0.0, 15.0]])
-    held = speed_limit(cfg, 4.0, math.inf, 30.0, 99.0)
-    assert held.reason == "path_seen"
-    b = BackOff()
-    # not yet held long enough, not in normal flight, or not held by the unobserved point: nothing
-    assert not b.consider(rest, 4.0, RETREAT_AFTER_S - 0.5, held, p, lambda q: track, cfg)
-    assert not b.consider(rest, 4.0, RETREAT_AFTER_S, held, p, lambda q: track, cfg, mode="hold")
-    assert not b.consider(rest, 4.0, RETREAT_AFTER_S, None, p, lambda q: track, cfg)
-    assert b.consider(rest, 4.0, RETREAT_AFTER_S, held, p, lambda q: track, cfg) and b.active
-    assert b.label("fly") == "retreat" and b.label("return") == "return"
-    s = DroneState(p.copy(), np.zeros(3), 0.0, 0.0)  # facing the climb, backing off behind it
-    moved, last_look = 0, None
+    moved, held_looking = 0, 0
     for _ in range(600):
         g = b.guide(s.position, s, cfg, math.inf)
         assert g.speed_limit <= RETREAT_SPEED_MPS
+        if not looks_ahead:
+            assert np.allclose(g.look_at, b.look)
         s = step(s, g.carrot, g.speed_limit, cfg, look_at=g.look_at, blind_mps=g.blind_mps)
-        if np.hypot(*s.velocity[:2]) > 0.3:  # moving back: the camera looks the way it goes (-x)
+        if not looks_ahead:
+            assert abs(s.yaw) < math.radians(1.0)  # the camera stays on the climb
+        elif np.hypot(*s.velocity[:2]) > 0.3:  # moving back: the camera looks the way it goes (-x)
             moved += 1
             assert abs(abs(s.yaw) - math.pi) < math.radians(30.0)
         if b.looking_since_s is not None:  # at the end: holding, looking at the climb
             assert np.allclose(g.look_at, b.look) and g.speed_limit == 0.0
-            last_look = g
+            held_looking += 1
         if not b.active:
             break
-    assert moved > 10 and last_look is not None
-    assert abs(s.yaw) < math.radians(10.0)  # it turned back to the climb before flying on
+    if looks_ahead:
+        assert moved > 10 and held_looking > 10
+        assert abs(s.yaw) < math.radians(10.0)  # turned back to the climb before flying on
     assert not b.active and s.position[0] < -3.0
     assert not out_of_reach_of(s.position, b.look, cfg)
 
@@ -285,13 +273,9 @@ def test_backing_off_stops_when_its_way_back_meets_a_mover():
     """The way back was free when flown; a mover's predicted sweep across it ends the back-off
     (the plan and its escapes keep clear of movers); a sweep elsewhere, or none, does not."""
     from skyrecon.mission.guidance import RETREAT_AFTER_S, BackOff
-    from skyrecon.mission.safety import speed_limit
 
     cfg = MissionConfig()
-    p = np.array([0.0, 0.0, 15.0])
-    rest = np.array([p, [2.0, 0.0, 21.0], [20.0, 0.0, 21.0]])
-    track = np.array([p, [-30.0, 0.0, 15.0]])
-    held = speed_limit(cfg, 4.0, math.inf, 30.0, 99.0)
+    p, rest, track, held = _held_under_a_climb(cfg)
 
     def conflict(way, keep):  # arc length of the first way point within a capsule's radius
         s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(way, axis=0), axis=1))])
@@ -321,13 +305,9 @@ def test_a_back_off_that_never_arrives_ends_after_its_time_limit():
     """The no-progress failsafe's clock stops while backing off, so a back-off that circles the
     end of its way back (held-out dynamic seed 179, 112 s) must end on its own."""
     from skyrecon.mission.guidance import RETREAT_AFTER_S, RETREAT_SLACK_S, RETREAT_SPEED_MPS, BackOff
-    from skyrecon.mission.safety import speed_limit
 
     cfg = MissionConfig()
-    p = np.array([0.0, 0.0, 15.0])
-    rest = np.array([p, [2.0, 0.0, 21.0], [20.0, 0.0, 21.0]])
-    track = np.array([p, [-30.0, 0.0, 15.0]])
-    held = speed_limit(cfg, 4.0, math.inf, 30.0, 99.0)
+    p, rest, track, held = _held_under_a_climb(cfg)
     b = BackOff()
     assert b.consider(rest, 4.0, RETREAT_AFTER_S, held, p, lambda q: track, cfg)
     limit = b.time_limit_s()
