@@ -31,8 +31,9 @@ Frames and units: world frame z up, metres, seconds; camera frame x right, y dow
 
 Known limits: the visible part of a mover is what is measured, so a detection's centre is biased
 towards the camera by up to the mover's half depth (the tracker pushes it back by the size the
-track remembers, see ``MoverSettings.max_push_m``); the parts of a mover that share a voxel with a static surface (the lowest ~0.5 m of a vehicle on the road) are not
-candidates and stay out of the mask.
+track remembers, see ``MoverSettings.max_push_m``); the parts of a mover that share a voxel
+with a static surface (the lowest ~0.5 m of a vehicle on the road) are not candidates and stay
+out of the mask.
 """
 
 from __future__ import annotations
