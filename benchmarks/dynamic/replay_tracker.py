@@ -39,7 +39,7 @@ sys.path.insert(0, str(ROOT / "src"))
 
 import numpy as np  # noqa: E402
 
-from skyrecon.mission.world_monitor import MATCH_RADIUS_M  # noqa: E402
+from skyrecon.mission.world_monitor import detection_error  # noqa: E402
 from skyrecon.perception import MoverSettings, MoverTracker  # noqa: E402
 from skyrecon.perception.movers import MoverDetection  # noqa: E402
 
@@ -124,11 +124,10 @@ def replay(doc: dict, **overrides) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     errs, hits, dists = [], [], []
     for t, _i, d, c in doc["sightings"]:
         k = bisect.bisect_right(times, t + 1e-9) - 1
-        e = min((float(np.linalg.norm(p - c)) for p in live[k]), default=np.inf) if k >= 0 else np.inf
-        hit = e <= MATCH_RADIUS_M
-        if hit:
+        e = detection_error(live[k] if k >= 0 else [], c)
+        if e is not None:
             errs.append(e)
-        hits.append(hit)
+        hits.append(e is not None)
         dists.append(d)
     return np.array(errs), np.array(hits, bool), np.array(dists)
 

@@ -273,20 +273,13 @@ def test_backing_off_stops_when_its_way_back_meets_a_mover():
     """The way back was free when flown; a mover's predicted sweep across it ends the back-off
     (the plan and its escapes keep clear of movers); a sweep elsewhere, or none, does not."""
     from skyrecon.mission.guidance import RETREAT_AFTER_S, BackOff
+    from skyrecon.planning.keep_out import path_conflict
 
     cfg = MissionConfig()
     p, rest, track, held = _held_under_a_climb(cfg)
 
-    def conflict(way, keep):  # arc length of the first way point within a capsule's radius
-        s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(way, axis=0), axis=1))])
-        for k in keep:
-            a, b, r = k[:3], k[3:6], k[6]
-            ab = b - a
-            t = np.clip((way - a) @ ab / max(ab @ ab, 1e-9), 0.0, 1.0)
-            d = np.linalg.norm(way - (a + t[:, None] * ab), axis=1)
-            if (d < r).any():
-                return float(s[np.argmax(d < r)])
-        return math.inf
+    def conflict(way, keep):  # where the way back comes within a capsule's radius (no margin)
+        return path_conflict(way, keep, 0.0, 0.1)
 
     b = BackOff()
     assert b.consider(rest, 4.0, RETREAT_AFTER_S, held, p, lambda q: track, cfg)

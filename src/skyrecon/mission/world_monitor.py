@@ -46,6 +46,15 @@ MATCH_RADIUS_M = 1.5
 MAPPED_VOXELS = 20
 
 
+def detection_error(track_positions, center: np.ndarray) -> float | None:
+    """Distance (m) from a mover's true ``center`` (3,) to the nearest of the live tracks'
+    positions ((3,) each), when within :data:`MATCH_RADIUS_M` (the mover is detected); else None."""
+    if not len(track_positions):
+        return None
+    err = float(np.min(np.linalg.norm(np.asarray(track_positions) - center, axis=1)))
+    return err if err <= MATCH_RADIUS_M else None
+
+
 def _recall(sightings: list[tuple[float, bool]], within_m: float) -> float | None:
     """Share of the mover-frames within ``within_m`` metres in which the mover was detected."""
     near = [h for d, h in sightings if d <= within_m]
@@ -164,15 +173,11 @@ class WorldMonitor:
                 self.visible_frames[i] += 1
                 c = to_est(np.asarray(states[i]["center"], dtype=np.float64)[None])[0]
                 self.sighting_log.append((t, i, d, c))
-                hit = False
-                if live:
-                    err = np.array([np.linalg.norm(tr.position - c) for tr in live])
-                    k = int(np.argmin(err))
-                    if err[k] <= MATCH_RADIUS_M:
-                        hit = True
-                        self.detected_frames[i] += 1
-                        self.errors.append(float(err[k]))
-                self.sightings.append((d, hit))
+                err = detection_error([tr.position for tr in live], c)
+                if err is not None:
+                    self.detected_frames[i] += 1
+                    self.errors.append(err)
+                self.sightings.append((d, err is not None))
             self._vacated(t, occ_map, to_est)
         self._changes(t, cam_position, object_id, occ_map, to_est)
 
