@@ -132,3 +132,25 @@ def test_settings_overrides_reach_the_perception_rules():
     assert flying.perception == PerceptionSettings.flight(depth_stride=1)
     with pytest.raises(InputError, match="unknown"):
         s.with_overrides(voxels=3)
+
+
+def test_command_line_flat_ground_learns_the_ground_level(flight, tmp_path):
+    """``skyrecon map --flat-ground`` is the mapper with the ground level on: the level is the
+    city's ground (z = 0), and the ground adds no free space (its hits are tested in
+    test_ground_level)."""
+    from skyrecon.mapping.ground_level import GroundSettings
+
+    _, rig, poses, frames = flight
+    seq = tmp_path / "seq"
+    write_sequence(seq, rig, ((f.left, f.right) for f in frames), poses)
+    out = tmp_path / "map"
+    args = ["map", str(seq), "--out", str(out), "--voxel-size", str(VOXEL), "--quiet", "--flat-ground"]
+    assert main(args) == 0
+    cli = load_map(out)
+    lib = _map(flight, ground=GroundSettings())
+    assert lib.ground is not None and lib.ground.z_m == pytest.approx(0.0, abs=0.3)
+    plain = _map(flight).map
+    a = {tuple(v) for v in cli.occupied_voxels().tolist()}
+    b = {tuple(v) for v in lib.map.occupied_voxels().tolist()}
+    assert len(a ^ b) <= 0.01 * len(b)
+    assert lib.map.counts()["free"] == plain.counts()["free"]  # no free space carved by the ground

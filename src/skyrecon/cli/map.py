@@ -69,6 +69,7 @@ from skyrecon.mapping import (
     write_map_preview,
     write_octomap_bt,
 )
+from skyrecon.mapping.ground_level import GroundSettings
 from skyrecon.mapping.merge import merge_maps
 from skyrecon.mapping.occupancy import load_map
 from skyrecon.mapping.tiles import TiledMap, is_tiled_map
@@ -136,6 +137,12 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "--depth", metavar="SUBDIR", help="use SOURCE/SUBDIR/<frame>.pfm depth maps instead of stereo"
     )
     p.add_argument("--method", default="skyrecon", help="stereo matcher (default skyrecon)")
+    p.add_argument(
+        "--flat-ground",
+        action="store_true",
+        help="plain streets on flat terrain: learn the ground level over the flight and mark the ground "
+        "where the matcher's guesses agree with it (hits only, never free space)",
+    )
     p.add_argument(
         "--max-disparity", type=positive_int, default=128, help="stereo search range, pixels (default 128)"
     )
@@ -451,7 +458,11 @@ def _map_sequence(
     if first and not args.quiet:
         info(f"resuming from frame {first} of {n} (checkpoint in {ckpt.path.parent})")
     if args.depth is None:
-        settings = StereoMapSettings(voxel_size_m=args.voxel_size, max_range_m=args.max_range).with_overrides(
+        settings = StereoMapSettings(
+            voxel_size_m=args.voxel_size,
+            max_range_m=args.max_range,
+            ground=GroundSettings() if args.flat_ground else None,
+        ).with_overrides(
             method=args.method, max_disparity=args.max_disparity, max_depth_error_m=args.max_depth_error
         )
         observer = MapRecording(recorder, seq.timestamps_s, args.max_disparity) if recorder.enabled else None

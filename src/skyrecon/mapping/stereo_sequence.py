@@ -59,6 +59,7 @@ from skyrecon.errors import InputError
 from skyrecon.mapping.config import MapConfig
 from skyrecon.mapping.depth_sequence import FrameTimings, MappedFrame, as_rigid
 from skyrecon.mapping.frame_support import FrameSupport
+from skyrecon.mapping.ground_level import GroundLevel, GroundSettings
 from skyrecon.mapping.occupancy import IntegrationStats, OccupancyMap
 from skyrecon.perception import PerceptionSettings, StereoDepth
 from skyrecon.stereo import Matcher
@@ -82,6 +83,12 @@ class StereoMapSettings:
             or smoothed over plain surfaces) become hits, never free space, in the voxels that
             the guesses of at least this many frames fall into (:class:`FrameSupport`);
             0: not used.
+        ground: with ``perception.guesses``, the guesses that agree with the ground level
+            learnt over the flight become hits on the ground plane (never free space) where two
+            frames agree (:mod:`skyrecon.mapping.ground_level`): plain streets and squares on
+            flat terrain (``skyrecon map --flat-ground``); None (default): off. Off by default
+            because the level can be wrong when little ground is seen: three views of a wall
+            from 3 m up took a stretch of the wall's foot for the ground.
     """
 
     voxel_size_m: float = 0.2
@@ -90,6 +97,7 @@ class StereoMapSettings:
     prob_hit: float = 0.6
     prob_miss: float = 0.35
     guess_min_frames: int = 3
+    ground: GroundSettings | None = None
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.voxel_size_m) and self.voxel_size_m > 0):
@@ -148,6 +156,8 @@ class StereoMapper:
         map: the :class:`OccupancyMap` being built (range = :meth:`StereoMapSettings.hit_range_m`).
         stereo: the :class:`StereoDepth` stage.
         support: the :class:`FrameSupport` of the guesses, or None.
+        ground: the :class:`GroundLevel` learnt so far, or None; ground_support: the
+            :class:`FrameSupport` of the ground pixels, or None.
         timings: per-frame wall times.
     """
 
@@ -181,16 +191,26 @@ class StereoMapper:
             if s.guess_min_frames and s.perception.guesses
             else None
         )
+        use_ground = s.ground is not None and s.perception.guesses
+        self.ground = GroundLevel(s.ground, self.hit_range_m) if use_ground else None
+        self.ground_support = (
+            FrameSupport(self.map, 2, self.hit_range_m, next_to_occupied=False) if use_ground else None
+        )
         self.timings = FrameTimings()
 
-    def resume_state(self) -> tuple[OccupancyMap, FrameSupport | None, FrameTimings]:
+    def resume_state(self) -> tuple[OccupancyMap, FrameSupport | None, FrameTimings, tuple]:
         """What a checkpoint must hold to resume this mapper: the map, the guesses' support
-        (which refers to the map) and the timings (picklable)."""
-        return self.map, self.support, self.timings
+        (which refers to the map), the timings and the ground level with its support
+        (picklable)."""
+        return self.map, self.support, self.timings, (self.ground, self.ground_support)
 
-    def restore(self, state: tuple[OccupancyMap, FrameSupport | None, FrameTimings]) -> None:
+    def restore(self, state: tuple) -> None:
         """Take back a :meth:`resume_state` (of a mapper with the same rig and settings)."""
-        self.map, self.support, self.timings = state
+        self.map, self.support, self.timings = state[:3]
+        if len(state) > 3:  # checkpoints of earlier versions hold no ground level
+            self.ground, self.ground_support = state[3]
+        elif self.ground_support is not None:
+            self.ground_support.map = self.map
 
     @property
     def matcher(self) -> Matcher:
@@ -215,8 +235,16 @@ class StereoMapper:
         depth = frame.depth_m
         t1 = time.perf_counter()
         stats = self.map.integrate_depth(depth, self.stereo.intrinsics, world_from_left)
+        intr = self.stereo.intrinsics
         if self.support is not None and frame.guess_depth_m is not None:
-            self.support.add(frame.guess_depth_m, self.stereo.intrinsics, world_from_left)
+            self.support.add(frame.guess_depth_m, intr, world_from_left)
+        if self.ground is not None and self.ground_support is not None:
+            self.ground.add(depth, intr, world_from_left)
+            if frame.guess_depth_m is not None:
+                fb = self.rig.left.fx * self.rig.baseline_m
+                on_ground = self.ground.ground_depth(frame.guess_depth_m, intr, world_from_left, fb)
+                if on_ground is not None:
+                    self.ground_support.add(on_ground, intr, world_from_left)
         t2 = time.perf_counter()
         self.timings.depth_s.append(t1 - t0)
         self.timings.integrate_s.append(t2 - t1)

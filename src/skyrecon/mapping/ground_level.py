@@ -1,0 +1,218 @@
+"""Plain ground from stereo: the ground level learnt over a flight, and the guesses that lie on it.
+
+A stereo matcher measures almost nothing on a plain road or square seen from a drone: only the
+kerbs, the feet of walls and poles, and the odd marking. Its smoothed values over the plain
+ground are guesses (:class:`~skyrecon.mapping.frame_support.FrameSupport`), too noisy to be
+depth (a median error of about 0.4 pixel, a metre at 17 m), and the guesses alone become hits
+only next to an occupied voxel, so a plain street stays unknown in the map.
+
+But the ground is one surface the whole flight measures in pieces, and the drone knows which way
+is down. :class:`GroundLevel` keeps a histogram of the world height of every trusted depth pixel
+whose ray points down (the feet of every wall, kerb and pole it has seen) and takes the ground as
+the *lowest* well-supported level (:func:`lowest_level`): roofs and terraces are higher levels,
+and stereo noise below the ground is spread thin. Then, per frame, a guessed pixel is a ground
+pixel when its guess agrees with the disparity the ground plane would have there
+(``|d_guess - d_plane| <= tolerance``); its depth is the plane's, exact up to the level's
+error, not the guess's. The ground pixels go to a :class:`FrameSupport` as hits only (never free
+space), once two frames agree on a voxel and not in a voxel trusted rays found free.
+
+Safe by construction: a guess on a plain object standing on the ground (a container, a bus) that
+happens to agree with the ground plane adds a hit on the ground behind or under it, never free
+space in front; a wrong level (no ground seen yet, sloping terrain) makes guesses disagree, and
+nothing is added. The level is a flat-ground model: for terrain that slopes by more than the
+tolerance over the flight the guesses disagree with it and the street stays unknown, as before.
+
+Frames and units: world frame z up, metres; depth (H, W) float32 metres along the camera's
+optical axis; disparity ``d = f B / Z - doffs`` pixels.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from skyrecon.core.intrinsics import Intrinsics
+from skyrecon.core.rigid import Rigid3
+from skyrecon.errors import InputError
+from skyrecon.mapping.inputs import as_world_from_cam
+
+_LEVEL_STEP = 2  # every 2nd pixel of each row and column counts towards the level
+_FARTHEST_FACTOR = 4.0  # depth beyond this many times the range (weight under 1/16) is not counted
+_FARTHEST_M = 1000.0  # nor beyond this, metres (keeps the histogram small)
+
+
+def lowest_level(
+    heights_m: np.ndarray,
+    weights: np.ndarray,
+    bin_m: float,
+    min_share: float,
+    window_m: float,
+    prominence: float = 1.5,
+    prominence_m: float = 0.5,
+) -> float | None:
+    """The lowest well-supported level of a height histogram, metres, or None.
+
+    Args:
+        heights_m: (K,) bin centres, ascending, metres; weights: (K,) counts per bin.
+        bin_m: bin width, metres.
+        min_share: a level needs at least this share of the strongest level's count (smoothed
+            over 5 bins).
+        window_m: the level is the weighted mean of the bins within this distance of its peak.
+        prominence: ... and at least this many times the (smoothed) count ``prominence_m``
+            metres above and below it: a horizontal surface is a peak, a wall seen from above
+            a plateau (its every height is as common as the next).
+        prominence_m: see ``prominence``, metres.
+    """
+    if weights.sum() <= 0:
+        return None
+    smooth = np.convolve(np.pad(weights, 2), np.ones(5) / 5.0, mode="valid")  # len(weights), any length
+    prev = np.concatenate([[-1.0], smooth[:-1]])
+    nxt = np.concatenate([smooth[1:], [-1.0]])
+    k = max(1, int(round(prominence_m / bin_m)))
+    padded = np.pad(smooth, k)
+    flanks = np.maximum(padded[: len(smooth)], padded[2 * k :])  # the counts k bins below and above
+    peaks = np.nonzero(
+        (smooth >= prev)
+        & (smooth > nxt)
+        & (smooth >= min_share * smooth.max())
+        & (smooth >= prominence * flanks)
+    )[0]
+    if len(peaks) == 0:
+        return None
+    p = int(peaks[0])
+    near = np.abs(heights_m - heights_m[p]) <= window_m + 1e-9
+    w = weights[near]
+    return float(np.sum(heights_m[near] * w) / w.sum()) if w.sum() > 0 else None
+
+
+@dataclass(frozen=True)
+class GroundSettings:
+    """How plain ground is found (see the module docstring).
+
+    Attributes:
+        min_down_cos: only rays at least this steep downwards count (cosine between the ray and
+            straight down): a ray along the horizon meets the ground too far off to tell.
+        bin_m: height histogram bin, metres.
+        min_share: a level needs this share of the strongest level's support.
+        min_points: trusted pixels counted (every second one of each row and column) before
+            the level is used.
+        tolerance_px: a guess agrees with the ground plane within this disparity, pixels ...
+        tolerance_rel: ... plus this fraction of the plane's disparity.
+    """
+
+    min_down_cos: float = 0.2
+    bin_m: float = 0.1
+    min_share: float = 0.15
+    min_points: int = 500
+    tolerance_px: float = 1.0
+    tolerance_rel: float = 0.1
+
+    def __post_init__(self) -> None:
+        if not (0 < self.min_down_cos < 1 and self.bin_m > 0 and 0 < self.min_share <= 1):
+            raise InputError("ground settings: need 0 < min_down_cos < 1, bin_m > 0, 0 < min_share <= 1")
+        if self.tolerance_px < 0 or self.tolerance_rel < 0 or self.min_points < 1:
+            raise InputError("ground settings: tolerances must be >= 0 and min_points >= 1")
+
+
+class GroundLevel:
+    """The world height of the ground, learnt from trusted depth over a flight.
+
+    Args:
+        settings: :class:`GroundSettings`.
+        max_range_m: depth counts with weight 1 up to this range (from the camera, metres),
+            and less beyond it (weight ``(max_range_m / range)^2``: stereo depth error grows
+            with the square of the range, and far depth too far would put the ground low).
+    Attributes:
+        z_m: the ground's world height, metres, or None until enough has been seen.
+    """
+
+    def __init__(self, settings: GroundSettings | None = None, max_range_m: float = np.inf):
+        self.settings = settings or GroundSettings()
+        self.max_range_m = float(max_range_m)
+        self._rays: tuple[tuple, np.ndarray, np.ndarray] | None = None  # key, dirs, lengths
+        self._lo_bin = 0
+        self._counts = np.zeros(0, np.float64)
+        self._n = 0
+        self.z_m: float | None = None
+
+    def _rays_down(self, intrinsics: Intrinsics, pose: Rigid3) -> tuple[np.ndarray, np.ndarray]:
+        """(H, W) lengths of the camera's ray directions (z = 1), and (H, W) the metres down
+        (world) per metre of depth along each."""
+        key = (
+            intrinsics.width,
+            intrinsics.height,
+            intrinsics.fx,
+            intrinsics.fy,
+            intrinsics.cx,
+            intrinsics.cy,
+        )
+        if self._rays is None or self._rays[0] != key:
+            dirs = intrinsics.ray_directions().astype(np.float64)
+            self._rays = (key, dirs, np.linalg.norm(dirs, axis=2))
+        _, dirs, norm = self._rays
+        down = dirs @ (pose.R.T @ np.array([0.0, 0.0, -1.0]))
+        return norm, down
+
+    def add(self, depth_m: np.ndarray, intrinsics: Intrinsics, world_from_cam: Rigid3 | np.ndarray) -> None:
+        """Count the world heights of one frame's trusted depth (H, W) (metres, NaN none)."""
+        pose = as_world_from_cam(world_from_cam)
+        norm, down = self._rays_down(intrinsics, pose)
+        k = _LEVEL_STEP  # a histogram needs no full resolution
+        norm, down = norm[::k, ::k], down[::k, ::k]
+        depth = np.asarray(depth_m, np.float64)[::k, ::k]
+        with np.errstate(invalid="ignore"):
+            ok = down >= self.settings.min_down_cos * norm
+            ok &= depth * norm <= min(_FARTHEST_FACTOR * self.max_range_m, _FARTHEST_M)
+        if not ok.any():
+            return
+        z = pose.t[2] - depth[ok] * down[ok]
+        weight = np.minimum(1.0, (self.max_range_m / (depth[ok] * norm[ok])) ** 2)
+        b = np.floor(z / self.settings.bin_m).astype(np.int64)
+        lo, hi = int(b.min()), int(b.max())
+        if len(self._counts) == 0:
+            self._lo_bin, self._counts = lo, np.zeros(hi - lo + 1)
+        else:
+            new_lo = min(lo, self._lo_bin)
+            new_hi = max(hi, self._lo_bin + len(self._counts) - 1)
+            grown = np.zeros(new_hi - new_lo + 1)
+            grown[self._lo_bin - new_lo : self._lo_bin - new_lo + len(self._counts)] = self._counts
+            self._lo_bin, self._counts = new_lo, grown
+        self._counts += np.bincount(b - self._lo_bin, weight, minlength=len(self._counts))
+        self._n += int(ok.sum())
+        if self._n >= self.settings.min_points:
+            s = self.settings
+            centres = (np.arange(len(self._counts)) + self._lo_bin + 0.5) * s.bin_m
+            self.z_m = lowest_level(centres, self._counts, s.bin_m, s.min_share, 2 * s.bin_m)
+
+    def ground_depth(
+        self,
+        guess_depth_m: np.ndarray,
+        intrinsics: Intrinsics,
+        world_from_cam: Rigid3 | np.ndarray,
+        focal_baseline_px_m: float,
+    ) -> np.ndarray | None:
+        """The ground plane's depth at the guessed pixels that agree with it.
+
+        Args:
+            guess_depth_m: (H, W) float32 guessed depth, metres (NaN none).
+            intrinsics: the depth camera; world_from_cam: its pose.
+            focal_baseline_px_m: ``f B`` of the rig (disparity = f B / depth), pixel metres.
+        Returns:
+            (H, W) float32 depth of the ground plane where the guess agrees with it (NaN
+            elsewhere), metres along the optical axis; None before the level is known.
+        """
+        if self.z_m is None:
+            return None
+        pose = as_world_from_cam(world_from_cam)
+        s = self.settings
+        norm, down = self._rays_down(intrinsics, pose)
+        drop = pose.t[2] - self.z_m  # camera height above the ground, metres
+        if drop <= 0:
+            return None
+        with np.errstate(divide="ignore", invalid="ignore"):
+            plane = np.where(down >= s.min_down_cos * norm, drop / down, np.nan)
+            d_plane = focal_baseline_px_m / plane
+            d_guess = focal_baseline_px_m / np.asarray(guess_depth_m, np.float64)
+            agree = np.abs(d_guess - d_plane) <= s.tolerance_px + s.tolerance_rel * d_plane
+        return np.where(agree, plane, np.nan).astype(np.float32)

@@ -1,0 +1,108 @@
+"""The ground level learnt over a flight and the guesses that lie on it (plain ground)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from skyrecon.core import Intrinsics, Rigid3
+from skyrecon.errors import InputError
+from skyrecon.mapping import OccupancyMap
+from skyrecon.mapping.ground_level import GroundLevel, GroundSettings, lowest_level
+from skyrecon.mapping.stereo_sequence import StereoMapSettings
+
+CAM = Intrinsics(80.0, 80.0, 40.0, 30.0, 80, 60)
+FB = 80.0 * 0.3  # f B of a 0.3 m rig with this camera, pixel metres
+
+
+def _pose(x: float, height: float = 10.0) -> Rigid3:
+    """world_from_cam of a camera at (x, 0, height) looking 45 degrees down along +y (z up)."""
+    eye = np.array([x, 0.0, height])
+    return Rigid3.look_at(eye, eye + np.array([0.0, 1.0, -1.0])).inverse()
+
+
+def _ground_depth(pose: Rigid3, ground_z: float) -> np.ndarray:
+    """(60, 80) exact depth of the plane z = ground_z seen from ``pose`` (NaN above the horizon)."""
+    dirs = CAM.ray_directions().astype(np.float64)
+    down = dirs @ (pose.R.T @ np.array([0.0, 0.0, -1.0]))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(down > 1e-6, (pose.t[2] - ground_z) / down, np.nan).astype(np.float32)
+
+
+def test_lowest_level_is_the_lowest_strong_peak_not_the_strongest():
+    z = np.arange(-2.0, 12.0, 0.1) + 0.05
+    w = np.zeros_like(z)
+    w[np.abs(z - 0.05) < 0.2] = 100  # the ground
+    w[np.abs(z - 6.05) < 0.2] = 400  # a big roof
+    w[np.abs(z + 1.55) < 0.05] = 10  # a little noise below the ground
+    assert lowest_level(z, w, 0.1, 0.15, 0.2) == pytest.approx(0.05, abs=0.06)
+    assert lowest_level(z, np.zeros_like(z), 0.1, 0.15, 0.2) is None
+
+
+def test_the_level_is_learnt_from_trusted_depth_and_ignores_roofs():
+    ground = GroundLevel(GroundSettings(min_points=100), max_range_m=20.0)
+    assert ground.z_m is None
+    for x in (0.0, 1.0, 2.0):
+        pose = _pose(x)
+        depth = _ground_depth(pose, 0.3)
+        roof = _ground_depth(pose, 6.0)
+        depth[:, 50:] = roof[:, 50:]  # a roof covers a third of every view: more pixels than ground
+        ground.add(depth, CAM, pose)
+    assert ground.z_m == pytest.approx(0.3, abs=0.1)
+
+
+def test_only_guesses_that_agree_with_the_ground_plane_are_ground():
+    ground = GroundLevel(GroundSettings(min_points=100), max_range_m=20.0)
+    pose = _pose(0.0)
+    exact = _ground_depth(pose, 0.0)
+    ground.add(exact, CAM, pose)
+    guess = exact * np.float32(1.02)  # a guess within the tolerance (2 % of disparity)
+    guess[:20] = np.float32(5.0)  # a plain box standing 5 m in front: not ground
+    out = ground.ground_depth(guess, CAM, pose, FB)
+    assert out is not None
+    on = np.isfinite(out)
+    assert not on[:20].any()
+    assert on[30:].all()
+    np.testing.assert_allclose(out[on], exact[on], rtol=0.05)  # the plane's depth, not the guess's
+    # above the camera, or before any depth: nothing
+    assert GroundLevel().ground_depth(guess, CAM, pose, FB) is None
+    high = GroundLevel(GroundSettings(min_points=100))
+    high.add(_ground_depth(pose, 0.0), CAM, _pose(0.0, height=30.0))  # a level at 20 m, above 10 m
+    assert high.z_m is not None and high.z_m > pose.t[2]
+    assert high.ground_depth(guess, CAM, pose, FB) is None
+
+
+def test_ground_hits_reach_the_map_as_hits_only():
+    """Through the mapper's ground support: two frames' ground guesses become occupied ground
+    voxels, no free space is carved, and the voxels are those of the ground plane."""
+    from skyrecon.mapping.frame_support import FrameSupport
+
+    m = OccupancyMap(voxel_size_m=0.5, max_range_m=20.0)
+    support = FrameSupport(m, 2, 20.0, next_to_occupied=False)
+    ground = GroundLevel(GroundSettings(min_points=100), max_range_m=20.0)
+    for x in (0.0, 0.3):
+        pose = _pose(x)
+        exact = _ground_depth(pose, -0.2)
+        ground.add(exact, CAM, pose)
+        on = ground.ground_depth(exact, CAM, pose, FB)
+        assert on is not None
+        support.add(on, CAM, pose)
+    assert m.counts()["free"] == 0 and m.counts()["occupied"] > 20
+    z = m.occupied_centers()[:, 2]
+    assert np.all(np.abs(z + 0.25) < 1e-6)  # the voxel layer holding the ground at z = -0.2 ([-0.5, 0))
+
+
+def test_settings():
+    assert StereoMapSettings().ground is None  # off by default (see StereoMapSettings)
+    assert StereoMapSettings().with_overrides(ground=GroundSettings()).ground is not None
+    with pytest.raises(InputError):
+        GroundSettings(min_down_cos=0.0)
+    with pytest.raises(InputError):
+        GroundSettings(tolerance_px=-1.0)
+
+
+def test_a_wall_seen_from_above_is_no_level():
+    """A wall's foot seen from above spreads over every height: a plateau, not a level."""
+    z = np.arange(0.0, 8.0, 0.1) + 0.05
+    w = np.where((z > 0.2) & (z < 4.0), 300.0, 0.0)
+    assert lowest_level(z, w, 0.1, 0.15, 0.2) is None
