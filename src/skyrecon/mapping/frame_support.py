@@ -22,6 +22,7 @@ from skyrecon.core.rigid import Rigid3
 from skyrecon.errors import InputError
 from skyrecon.mapping.inputs import as_world_from_cam
 from skyrecon.mapping.occupancy import OccupancyMap
+from skyrecon.mapping.rays import camera_rays
 
 _OFF = 1 << 20  # voxel indices within +-2^20 pack into 21 bits per axis
 _NEIGHBOURS = np.array(
@@ -72,15 +73,6 @@ class FrameSupport:
         self.next_to_occupied = bool(next_to_occupied)
         self._keys = np.zeros(0, np.int64)  # sorted packed voxel indices
         self._frames = np.zeros(0, np.int32)  # frames that hit each
-        self._rays: dict[tuple, np.ndarray] = {}
-
-    def _directions(self, intr: Intrinsics) -> np.ndarray:
-        key = (intr.width, intr.height, intr.fx, intr.fy, intr.cx, intr.cy, self.step)
-        dirs = self._rays.get(key)
-        if dirs is None:
-            dirs = intr.ray_directions()[:: self.step, :: self.step].astype(np.float64)
-            self._rays = {key: dirs}
-        return dirs
 
     def add(
         self, guess_depth_m: np.ndarray, intrinsics: Intrinsics, world_from_cam: Rigid3 | np.ndarray
@@ -96,7 +88,7 @@ class FrameSupport:
         """
         pose = as_world_from_cam(world_from_cam)
         d = np.asarray(guess_depth_m)[:: self.step, :: self.step]
-        dirs = self._directions(intrinsics)
+        dirs, _ = camera_rays(intrinsics, self.step)
         ok = np.isfinite(d) & (d > 0)
         pc = dirs[ok] * d[ok, None]
         pc = pc[np.linalg.norm(pc, axis=1) <= self.max_range_m]

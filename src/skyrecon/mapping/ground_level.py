@@ -36,10 +36,12 @@ from skyrecon.core.intrinsics import Intrinsics
 from skyrecon.core.rigid import Rigid3
 from skyrecon.errors import InputError
 from skyrecon.mapping.inputs import as_world_from_cam
+from skyrecon.mapping.rays import camera_rays
 
 _LEVEL_STEP = 2  # every 2nd pixel of each row and column counts towards the level
 _FARTHEST_FACTOR = 4.0  # depth beyond this many times the range (weight under 1/16) is not counted
 _FARTHEST_M = 1000.0  # nor beyond this, metres (keeps the histogram small)
+_DOWN = np.array([0.0, 0.0, -1.0])  # world
 
 
 def lowest_level(
@@ -130,36 +132,23 @@ class GroundLevel:
     def __init__(self, settings: GroundSettings | None = None, max_range_m: float = np.inf):
         self.settings = settings or GroundSettings()
         self.max_range_m = float(max_range_m)
-        self._rays: tuple[tuple, np.ndarray, np.ndarray] | None = None  # key, dirs, lengths
         self._lo_bin = 0
         self._counts = np.zeros(0, np.float64)
         self._n = 0
         self.z_m: float | None = None
 
-    def _rays_down(self, intrinsics: Intrinsics, pose: Rigid3) -> tuple[np.ndarray, np.ndarray]:
-        """(H, W) lengths of the camera's ray directions (z = 1), and (H, W) the metres down
-        (world) per metre of depth along each."""
-        key = (
-            intrinsics.width,
-            intrinsics.height,
-            intrinsics.fx,
-            intrinsics.fy,
-            intrinsics.cx,
-            intrinsics.cy,
-        )
-        if self._rays is None or self._rays[0] != key:
-            dirs = intrinsics.ray_directions().astype(np.float64)
-            self._rays = (key, dirs, np.linalg.norm(dirs, axis=2))
-        _, dirs, norm = self._rays
-        down = dirs @ (pose.R.T @ np.array([0.0, 0.0, -1.0]))
-        return norm, down
+    @staticmethod
+    def _rays_down(intrinsics: Intrinsics, pose: Rigid3, step: int) -> tuple[np.ndarray, np.ndarray]:
+        """(H', W') lengths of the rays of every ``step``-th pixel (directions with z = 1), and
+        (H', W') the metres down (world) per metre of depth along each."""
+        dirs, lengths = camera_rays(intrinsics, step)
+        return lengths, dirs @ (pose.R.T @ _DOWN)
 
     def add(self, depth_m: np.ndarray, intrinsics: Intrinsics, world_from_cam: Rigid3 | np.ndarray) -> None:
         """Count the world heights of one frame's trusted depth (H, W) (metres, NaN none)."""
         pose = as_world_from_cam(world_from_cam)
-        norm, down = self._rays_down(intrinsics, pose)
         k = _LEVEL_STEP  # a histogram needs no full resolution
-        norm, down = norm[::k, ::k], down[::k, ::k]
+        norm, down = self._rays_down(intrinsics, pose, k)
         depth = np.asarray(depth_m, np.float64)[::k, ::k]
         with np.errstate(invalid="ignore"):
             ok = down >= self.settings.min_down_cos * norm
@@ -206,7 +195,7 @@ class GroundLevel:
             return None
         pose = as_world_from_cam(world_from_cam)
         s = self.settings
-        norm, down = self._rays_down(intrinsics, pose)
+        norm, down = self._rays_down(intrinsics, pose, 1)
         drop = pose.t[2] - self.z_m  # camera height above the ground, metres
         if drop <= 0:
             return None

@@ -66,6 +66,9 @@ from skyrecon.stereo import Matcher
 
 _PERCEPTION_FIELDS = frozenset(f.name for f in fields(PerceptionSettings))
 
+#: :meth:`StereoMapper.resume_state`: map, guesses' support, timings, ground level, ground support
+ResumeState = tuple[OccupancyMap, FrameSupport | None, FrameTimings, GroundLevel | None, FrameSupport | None]
+
 
 @dataclass(frozen=True)
 class StereoMapSettings:
@@ -198,19 +201,15 @@ class StereoMapper:
         )
         self.timings = FrameTimings()
 
-    def resume_state(self) -> tuple[OccupancyMap, FrameSupport | None, FrameTimings, tuple]:
+    def resume_state(self) -> ResumeState:
         """What a checkpoint must hold to resume this mapper: the map, the guesses' support
-        (which refers to the map), the timings and the ground level with its support
+        (which refers to the map), the timings, and the ground level with its support
         (picklable)."""
-        return self.map, self.support, self.timings, (self.ground, self.ground_support)
+        return self.map, self.support, self.timings, self.ground, self.ground_support
 
-    def restore(self, state: tuple) -> None:
+    def restore(self, state: ResumeState) -> None:
         """Take back a :meth:`resume_state` (of a mapper with the same rig and settings)."""
-        self.map, self.support, self.timings = state[:3]
-        if len(state) > 3:  # checkpoints of earlier versions hold no ground level
-            self.ground, self.ground_support = state[3]
-        elif self.ground_support is not None:
-            self.ground_support.map = self.map
+        self.map, self.support, self.timings, self.ground, self.ground_support = state
 
     @property
     def matcher(self) -> Matcher:
