@@ -74,6 +74,28 @@ def test_depth_carves_free_space_and_marks_the_wall():
     assert m.state_at(np.array([[5.0, 8.0, 0.05]]))[0] == UNKNOWN  # outside the field of view
 
 
+def test_surface_pull_takes_the_surface_nearer_the_sensor():
+    # a wall measured 5 cm into the voxel [10.5, 11.0) along x: by default that voxel holds it
+    # and the one in front is free; pulled back 0.2 voxel (10 cm), the hit goes to the voxel in
+    # front and the one behind stays unknown (stereo noise behind a surface cannot be cleared)
+    front, behind = np.array([[10.25, 0.05, 0.05]]), np.array([[10.75, 0.05, 0.05]])
+    plain = OccupancyMap(voxel_size_m=0.5, max_range_m=30.0)
+    plain.integrate_depth(wall_depth(10.5), CAM, POSE)
+    assert (plain.state_at(front)[0], plain.state_at(behind)[0]) == (FREE, OCCUPIED)
+    pulled = OccupancyMap(voxel_size_m=0.5, max_range_m=30.0, surface_pull_voxels=0.2)
+    pulled.integrate_depth(wall_depth(10.5), CAM, POSE)
+    assert (pulled.state_at(front)[0], pulled.state_at(behind)[0]) == (OCCUPIED, UNKNOWN)
+    assert pulled.state_at(np.array([[9.25, 0.05, 0.05]]))[0] == FREE
+    # the same for points cast as rays
+    origin = np.array([0.25, 0.25, 0.25])
+    rays = OccupancyMap(voxel_size_m=0.5, surface_pull_voxels=0.2)
+    rays.integrate_points(np.array([[10.55, 0.25, 0.25]]), origin)
+    assert rays.state_at(np.array([[10.25, 0.25, 0.25], [10.75, 0.25, 0.25]])).tolist() == [OCCUPIED, UNKNOWN]
+    for bad in (-0.1, 0.6):
+        with pytest.raises(InputError, match="surface_pull_voxels"):
+            MapConfig(surface_pull_voxels=bad)
+
+
 def test_max_range_carves_up_to_the_range_without_hits():
     m = OccupancyMap(voxel_size_m=0.25, max_range_m=6.0)
     st = m.integrate_depth(wall_depth(20.0), CAM, POSE)

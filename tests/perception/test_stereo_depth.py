@@ -123,6 +123,7 @@ def test_bad_input(pair):
         {"max_disparity_step_px": 0.0},
         {"fine_max_disparity": 20},
         {"fine_block_px": 4},
+        {"plane_max_guess_gap_px": 0.0},
     ):
         with pytest.raises(InputError):
             PerceptionSettings.mapping(**bad)

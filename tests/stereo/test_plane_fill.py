@@ -127,3 +127,30 @@ def test_a_plane_that_does_not_map_onto_the_right_image_is_refused():
     disp[r0 - 3 : r1 + 3, c0 - 3 : c1 + 3][measured[r0 - 3 : r1 + 3, c0 - 3 : c1 + 3]] = float(d_sq)
     _, right_plane = plane_supported_fill(disp, measured, left=left, right=right)
     assert right_plane[r0 + 3 : r1 - 3, c0 + 3 : c1 - 3].all()
+
+
+def test_a_plain_road_between_two_poles_is_not_a_sheet_hung_between_them():
+    # a gantry (two poles and a beam at disparity 8) over a plain road the matcher sees at
+    # about 5 (its paths come in from the road around the poles): the poles "bound" the road on
+    # a plane of their own, open to the bottom of the image; only the guesses tell them apart
+    rng = np.random.default_rng(1)
+    disp = np.full((H, W), 5.0, np.float32) + rng.normal(0.0, 0.4, (H, W)).astype(np.float32)
+    measured = np.zeros((H, W), bool)
+    for c0 in (30, 126):  # the poles
+        measured[40:, c0 : c0 + 4] = True
+    measured[40:44, 30:130] = True  # the beam
+    disp[measured] = 8.0
+    out, accepted = plane_supported_fill(disp, measured)
+    assert accepted[60:110, 40:120].all()  # without the check: the sheet
+    out, accepted = plane_supported_fill(disp, measured, max_guess_gap_px=1.5)
+    assert not accepted.any() and np.isnan(out[~measured]).all()
+    # a plain wall whose guesses are smoothed in from its border (within a pixel) keeps its plane
+    truth = _plane(0.03, -0.02, 12.0)
+    wall = _hole(20, 100, 30, 130)
+    guessed = truth + rng.uniform(-1.0, 1.0, truth.shape).astype(np.float32)
+    out, accepted = plane_supported_fill(np.where(wall, truth, guessed), wall, max_guess_gap_px=1.5)
+    assert accepted[22:98, 32:128].all()
+    assert np.abs(out[accepted] - truth[accepted]).max() < 0.05
+    # invalid guesses (NaN) are no evidence either way
+    out, accepted = plane_supported_fill(np.where(wall, truth, np.nan), wall, max_guess_gap_px=1.5)
+    assert accepted[22:98, 32:128].all()

@@ -36,6 +36,12 @@ class MapConfig:
             space are left untouched).
         max_plausible_depth_m: if the median valid depth of a frame exceeds this, the depth is
             rejected as not in metres (e.g. millimetres by mistake).
+        surface_pull_voxels: each measured surface is taken this many voxels nearer its sensor
+            before hits and free space are decided (0: where measured). For noisy depth
+            (stereo): the noise that falls behind a surface marks voxels inside the obstacle
+            that no later ray can clear, while the noise in front is cleared by the rays of
+            other frames; pulling the surface back a fraction of a voxel keeps the hits on the
+            surface's own voxel and stops free space short of it. Exact depth should keep 0.
     """
 
     voxel_size_m: float = 0.2
@@ -49,6 +55,7 @@ class MapConfig:
     min_range_m: float = 0.05
     grazing_cap_voxels: float = 4.0
     max_plausible_depth_m: float = 2000.0
+    surface_pull_voxels: float = 0.0
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -72,6 +79,8 @@ class MapConfig:
             raise InputError(f"need 0 <= min_range < max_range, got {self.min_range_m}, {self.max_range_m} m")
         if self.grazing_cap_voxels <= 0:
             raise InputError(f"grazing_cap_voxels must be positive, got {self.grazing_cap_voxels}")
+        if not 0 <= self.surface_pull_voxels <= 0.5:
+            raise InputError(f"surface_pull_voxels must lie in [0, 0.5], got {self.surface_pull_voxels}")
         object.__setattr__(self, "block_size", int(self.block_size))
 
     @property

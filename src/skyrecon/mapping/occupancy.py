@@ -231,6 +231,12 @@ class OccupancyMap:
         fan = np.stack([gx.ravel(), gy.ravel(), np.ones(25)], 1)
         return planes, fan / np.linalg.norm(fan, axis=1, keepdims=True)
 
+    def _surface_push_m(self) -> float:
+        """How far a measured point moves along its ray before it is binned, metres: a hair
+        into the surface (so that a surface on a voxel face, the ground at z = 0, marks the voxel
+        behind it), less the config's ``surface_pull_voxels``."""
+        return (0.005 - self.config.surface_pull_voxels) * self.voxel_size
+
     def integrate_depth(
         self,
         depth_m: np.ndarray,
@@ -255,6 +261,7 @@ class OccupancyMap:
         depth = check_depth(depth_m, intrinsics, cfg.max_plausible_depth_m)
         cam_from_world = pose.inverse()
         v = self.voxel_size
+        eps = self._surface_push_m()
         dirs, ray_norm, planes, fan = self._camera_tables(intrinsics)
         plane, lo, hi = proj.prepare_depth(
             depth,
@@ -266,7 +273,7 @@ class OccupancyMap:
             cfg.min_range_m,
             cfg.max_range_m,
             v,
-            0.005 * v,
+            eps,
             cfg.grazing_cap_voxels * v,
         )
         mn, mx, offs, _hs, ws = proj.build_pyramid(lo, hi)
@@ -325,7 +332,7 @@ class OccupancyMap:
             self.block_size,
             cfg.min_range_m,
             cfg.max_range_m,
-            0.005 * v,
+            eps,
             self.grid.tkeys,
             self.grid.tvals,
             self._local_of_pool,
@@ -383,7 +390,8 @@ class OccupancyMap:
         Returns:
             IntegrationStats. Points beyond ``max_range_m`` carve free space up to the range and
             give no hit; points nearer than ``min_range_m`` are ignored. Each point is pushed
-            ``0.005 * voxel_size`` further along its ray before it is binned.
+            ``0.005 * voxel_size`` further along its ray before it is binned (less
+            ``surface_pull_voxels`` of the config).
         """
         t0 = time.perf_counter()
         cfg = self.config
@@ -396,7 +404,7 @@ class OccupancyMap:
         far = rng > cfg.max_range_m
         # end points pushed a hair into the surface, so that a surface lying exactly on a voxel
         # face (the ground at z = 0) marks the voxel behind it, as depth integration does
-        ends = p + d * (0.005 * self.voxel_size / rng)[:, None]
+        ends = p + d * (self._surface_push_m() / rng)[:, None]
         ends[far] = o + d[far] * (cfg.max_range_m / rng[far])[:, None]
         v = self.voxel_size
         o_v = o / v

@@ -57,6 +57,9 @@ class PerceptionSettings:
             (bounded by foreground and background) or the sky above a roof line does not.
         plane_tolerance_px: inlier band of the plane fit, pixels of disparity.
         plane_min_inlier_fraction: share of the bordering measured pixels that must be inliers.
+        plane_max_guess_gap_px: a segment whose plane differs from the matcher's own values
+            inside it by more than this on most of its pixels is not filled (the plain road
+            between two poles at one depth is not a sheet hung between them); None: no check.
         guesses: also return the depth of the matcher's values that are not kept (see
             :attr:`DepthFrame.guess_depth_m`), for evidence that needs several frames.
         fine_max_disparity: 0 (default): off; else also match the pair at full resolution with
@@ -86,6 +89,7 @@ class PerceptionSettings:
     plane_fill: bool = False
     plane_tolerance_px: float = 0.3
     plane_min_inlier_fraction: float = 0.7
+    plane_max_guess_gap_px: float | None = 1.5
     guesses: bool = False
     fine_max_disparity: int = 0
     fine_block_px: int = 9
@@ -129,6 +133,9 @@ class PerceptionSettings:
             raise InputError(
                 f"plane inlier fraction must lie in (0, 1], got {self.plane_min_inlier_fraction}"
             )
+        gap = self.plane_max_guess_gap_px
+        if gap is not None and not gap > 0:
+            raise InputError(f"plane guess gap must be positive or None, got {gap} px")
 
     @classmethod
     def mapping(cls, **overrides: Any) -> PerceptionSettings:

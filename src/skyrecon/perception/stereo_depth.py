@@ -279,6 +279,7 @@ class StereoDepth:
                 right=to_grey(np.asarray(right)),
                 tolerance_px=s.plane_tolerance_px,
                 min_inlier_fraction=s.plane_min_inlier_fraction,
+                max_guess_gap_px=s.plane_max_guess_gap_px,
                 max_step_px=s.max_disparity_step_px or 1.0,
             )
             disp = np.where(accepted, planar, disp)
