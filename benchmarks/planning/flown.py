@@ -13,6 +13,9 @@ clearance, and the median planning time.
 Usage:
   .venv/bin/python benchmarks/planning/flown.py                      # seeds 0..2, 40 frames
   .venv/bin/python benchmarks/planning/flown.py --seeds 5 --frames 60 --every 3
+  .venv/bin/python benchmarks/planning/flown.py --plain               # plain facades and ground (issue #13)
+
+Results go to ``results_flown.json`` (``results_flown_plain.json`` with --plain).
 """
 
 from __future__ import annotations
@@ -51,16 +54,19 @@ def _true_clearance(city, waypoints: np.ndarray) -> float:
     return float(city.distance(np.concatenate(pts), include_ground=True).min())
 
 
-def run_seed(seed: int, frames: int, every: int, snap: float, clearance: float, work: Path) -> dict:
+def run_seed(
+    seed: int, frames: int, every: int, snap: float, clearance: float, work: Path, plain: bool = False
+) -> dict:
     seq_dir, map_dir = work / f"flight_{seed}", work / f"map_{seed}"
-    _cli("render", "sequence", "--seed", str(seed), "--frames", str(frames), "--out", str(seq_dir))
+    extra = ["--plain"] if plain else []
+    _cli("render", "sequence", "--seed", str(seed), "--frames", str(frames), *extra, "--out", str(seq_dir))
     _cli("map", str(seq_dir), "--out", str(map_dir))
     seq = read_sequence(seq_dir)
     assert seq.world_from_left is not None
     centres = np.array([p.t for p in seq.world_from_left])[::every]
     occ = load_map(map_dir)
     track = read_flown_path(map_dir)
-    city = generate_city(seed)
+    city = generate_city(seed, plain=plain)
     rows = []
     for i, s in enumerate(centres):
         for j, g in enumerate(centres):
@@ -103,11 +109,14 @@ def main() -> int:
     ap.add_argument("--every", type=int, default=4, help="use every N-th camera position (default 4)")
     ap.add_argument("--snap-radius", type=float, default=3.0, help="as skyrecon plan's (default 3 m)")
     ap.add_argument("--clearance", type=float, default=2.0)
+    ap.add_argument("--plain", action="store_true", help="the plain city (skyrecon render sequence --plain)")
     args = ap.parse_args()
     results = []
     with tempfile.TemporaryDirectory() as tmp:
         for seed in range(args.first_seed, args.first_seed + args.seeds):
-            r = run_seed(seed, args.frames, args.every, args.snap_radius, args.clearance, Path(tmp))
+            r = run_seed(
+                seed, args.frames, args.every, args.snap_radius, args.clearance, Path(tmp), args.plain
+            )
             results.append(r)
             print(
                 f"seed {seed}: {r['planned']}/{r['queries']} planned, {r['snapped_endpoints']} endpoints snapped, "
@@ -130,7 +139,11 @@ def main() -> int:
     )
     doc = {"settings": vars(args), "seeds": results, "total": total}
     write_text_atomic(
-        ROOT / "benchmarks" / "planning" / "results_flown.json", json.dumps(doc, indent=2) + "\n"
+        ROOT
+        / "benchmarks"
+        / "planning"
+        / ("results_flown_plain.json" if args.plain else "results_flown.json"),
+        json.dumps(doc, indent=2) + "\n",
     )
     return 0
 

@@ -402,8 +402,9 @@ class OccupancyMap:
         keep = rng >= max(cfg.min_range_m, 1e-9)
         p, d, rng = p[keep], d[keep], rng[keep]
         far = rng > cfg.max_range_m
-        # end points pushed a hair into the surface, so that a surface lying exactly on a voxel
-        # face (the ground at z = 0) marks the voxel behind it, as depth integration does
+        # end points pushed a hair into the surface (so that a surface lying exactly on a voxel
+        # face, the ground at z = 0, marks the voxel behind it) less the configured pull, as
+        # depth integration does
         ends = p + d * (self._surface_push_m() / rng)[:, None]
         ends[far] = o + d[far] * (cfg.max_range_m / rng[far])[:, None]
         v = self.voxel_size
