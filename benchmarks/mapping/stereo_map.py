@@ -346,6 +346,9 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seed", type=int, default=7, help="seed of the textured city (default 7)")
     ap.add_argument(
+        "--textured-seeds", type=int, nargs="*", default=[], help="fly textured cities of these seeds instead"
+    )
+    ap.add_argument(
         "--plain-seeds", type=int, nargs="*", default=[], help="also fly plain cities of these seeds"
     )
     ap.add_argument("--plain", action="store_true", help="shorthand for --plain-seeds 3 7 11")
@@ -393,7 +396,10 @@ def main() -> None:
         variants["skyrecon-before"] = {"min_texture": None, "plane_fill": False, "guess_min_frames": 0}
     if args.flat_ground:
         variants["flat-ground"] = {"ground": GroundSettings()}
-    cases = ([] if args.no_textured else [(args.seed, False)]) + [(s, True) for s in plain_seeds]
+    textured_seeds = list(args.textured_seeds) or [args.seed]
+    cases = ([] if args.no_textured else [(s, False) for s in textured_seeds]) + [
+        (s, True) for s in plain_seeds
+    ]
     print(
         f"voxel {args.voxel} m, max range {args.max_range} m, baseline {args.baseline} m; "
         f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}"
