@@ -154,3 +154,31 @@ def test_command_line_flat_ground_learns_the_ground_level(flight, tmp_path):
     b = {tuple(v) for v in lib.map.occupied_voxels().tolist()}
     assert len(a ^ b) <= 0.01 * len(b)
     assert lib.map.counts()["free"] == plain.counts()["free"]  # no free space carved by the ground
+
+
+def test_command_line_says_how_far_stereo_is_trusted(flight, tmp_path, capsys):
+    """The stereo map marks obstacles only within the trusted range (2 voxels of depth error);
+    the command says how far that is, and when nothing lies within it, what reaches farther
+    (one line, exit status 2) rather than blaming the depth or the poses."""
+    _, rig, poses, frames = flight
+    seq = tmp_path / "seq"
+    write_sequence(seq, rig, ((f.left, f.right) for f in frames), poses)
+    trusted = stereo_hit_range_m(rig, VOXEL, 40.0)
+    assert main(["map", str(seq), "--out", str(tmp_path / "ok"), "--voxel-size", str(VOXEL)]) == 0
+    assert f"stereo depth is trusted to {trusted:.1f} m at {VOXEL:g} m voxels" in capsys.readouterr().err
+    tiny = stereo_hit_range_m(rig, VOXEL, 40.0, max_depth_error_m=0.02)
+    args = ["map", str(seq), "--out", str(tmp_path / "near"), "--voxel-size", str(VOXEL), "--quiet"]
+    assert main([*args, "--max-depth-error", "0.02"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"within {tiny:.1f} m" in err[0] and "larger --max-depth-error" in err[0]
+    assert not (tmp_path / "near").exists()
+
+
+def test_the_range_hint_scales_with_the_voxel():
+    from argparse import Namespace
+
+    from skyrecon.cli.map import _range_hint
+
+    fine = Namespace(voxel_size=0.2, max_range=40.0, max_depth_error=None)
+    assert "--voxel-size 0.5 trusts depth to about 19.6 m" in _range_hint(12.4, fine)  # range ~ sqrt(voxel)
+    assert "fly closer" in _range_hint(19.6, Namespace(voxel_size=0.5, max_range=40.0, max_depth_error=None))

@@ -404,6 +404,25 @@ def _merge_to_tiles(args: argparse.Namespace, dirs: list[Path], t0: float) -> in
     return 0
 
 
+_COARSE_VOXEL_M = 0.5  # the voxel of the flight map and the stereo benchmarks
+
+
+def _range_hint(trusted_m: float, args: argparse.Namespace) -> str:
+    """What reaches farther than the stereo map's trusted range ``trusted_m``: it is where a
+    quarter-pixel disparity error moves depth by 2 voxels, so it grows with the square root of
+    the voxel size."""
+    if args.max_depth_error is not None:
+        return "a larger --max-depth-error reaches farther (and puts far obstacles less precisely)"
+    coarse = _COARSE_VOXEL_M
+    if args.voxel_size < coarse:
+        farther = trusted_m * (coarse / args.voxel_size) ** 0.5
+        return (
+            f"--voxel-size {coarse:g} trusts depth to about {min(farther, args.max_range):.1f} m, "
+            "or set --max-depth-error (metres)"
+        )
+    return "fly closer to what should be mapped, or set --max-depth-error (metres)"
+
+
 def _check_and_write(
     occ: OccupancyMap,
     summary: dict[str, Any],
@@ -413,7 +432,14 @@ def _check_and_write(
     args: argparse.Namespace,
 ) -> None:
     counts = occ.counts()
+    trusted = summary.get("trusted_range_m")
     if counts.get("occupied", 0) == 0:
+        if trusted is not None and trusted < args.max_range:
+            raise InputError(
+                f"no occupied voxel was observed within {trusted:.1f} m, the range to which stereo depth "
+                f"is trusted at {args.voxel_size:g} m voxels: {_range_hint(trusted, args)}",
+                source,
+            )
         raise InputError(
             "no occupied voxel was observed: check the depth (metres?), the poses and --max-range", source
         )
@@ -434,6 +460,11 @@ def _check_and_write(
             f"at {args.voxel_size} m in {seconds:.1f} s"
             + (f" ({summary['frames_per_s']:.1f} frames/s)" if "frames_per_s" in summary else "")
         )
+        if trusted is not None and trusted < args.max_range:
+            hint = f"; {_range_hint(trusted, args)}" if args.voxel_size < _COARSE_VOXEL_M else ""
+            info(
+                f"stereo depth is trusted to {trusted:.1f} m at {args.voxel_size:g} m voxels: obstacles farther are not mapped{hint}"
+            )
         info(f"wrote {out}/map.json, blocks.npz, occupied.{args.format}, footprint.geojson, preview.png")
 
 
@@ -480,6 +511,7 @@ def _map_sequence(
             on_frame=observer,
         )
         occ, timings = built.map, built.timings
+        trusted_m: float | None = built.hit_range_m
     else:
         assert isinstance(seq.sequence, StereoSequence)
         depths = iter_depth_maps(sequence_depth_paths(seq.sequence, args.depth)[first:n], seq.rig.left)
@@ -500,6 +532,7 @@ def _map_sequence(
             on_frame=observer,
         )
         occ, timings = built_d.map, built_d.timings
+        trusted_m = None
     summary_ckpt = {"resumed_from_frame": first, "checkpoints_written": ckpt.saves}
     summary = timings.summary()
     summary.pop("frames", None)
@@ -509,6 +542,8 @@ def _map_sequence(
         "depth_from": args.depth or f"stereo ({args.method})",
         **summary,
     }
+    if trusted_m is not None:
+        summary["trusted_range_m"] = round(trusted_m, 2)
     if odometry_summary is not None:
         summary["poses_from"] = "odometry"
         summary["odometry"] = odometry_summary
