@@ -95,3 +95,29 @@ def test_sigterm_stops_a_command_with_143(tmp_path):
     proc.send_signal(signal.SIGTERM)
     _, err = proc.communicate(timeout=20)
     assert proc.returncode == 143 and "terminated" in err
+
+
+def test_the_resource_tracker_stays_quiet_after_an_interrupted_pool():
+    """An interruption that stops a worker pool can leave its semaphores to multiprocessing's
+    resource tracker, which shares stderr: with the command line's filter it cleans them up
+    without the two-line warning that would follow the one-line interruption message."""
+    leak = (
+        "import os, multiprocessing as mp\n"
+        "from skyrecon.cli.main import quiet_resource_tracker\n"
+        "{setup}"
+        "q = mp.get_context('forkserver').Queue()\n"
+        "from multiprocessing import resource_tracker\n"
+        "resource_tracker.register('/skyrecon_test_leak', 'semaphore')\n"
+        "os._exit(0)\n"  # exit with the semaphores alive, as a stopped pool can
+    )
+    loud = subprocess.run(
+        [sys.executable, "-c", leak.format(setup="")], capture_output=True, text=True, timeout=60
+    )
+    assert "leaked semaphore" in loud.stderr  # what users saw now and then
+    quiet = subprocess.run(
+        [sys.executable, "-c", leak.format(setup="quiet_resource_tracker()\n")],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert quiet.stderr.strip() == ""

@@ -77,11 +77,31 @@ def _install_sigterm() -> object:
         return None
 
 
+#: warnings filter handed to the processes multiprocessing starts (see :func:`quiet_resource_tracker`)
+RESOURCE_TRACKER_FILTER = "ignore:resource_tracker:UserWarning"
+
+
+def quiet_resource_tracker() -> None:
+    """Keep multiprocessing's resource tracker from warning about a worker pool's semaphores.
+
+    The tracker is a separate process that shares our stderr. When an interruption (Ctrl-C,
+    SIGTERM) stops a worker pool, the pool's semaphores may still be alive when the program
+    exits; the tracker then removes them itself, but first prints a two-line ``UserWarning``
+    ("There appear to be N leaked semaphore objects"), after the one-line interruption message.
+    The processes multiprocessing starts take their warnings filters from ``sys.warnoptions``
+    (``subprocess._args_from_interpreter_flags``), so the filter must be there before the first
+    pool; it changes nothing in this process.
+    """
+    if RESOURCE_TRACKER_FILTER not in sys.warnoptions:
+        sys.warnoptions.append(RESOURCE_TRACKER_FILTER)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit status (also used by ``python -m skyrecon``)."""
     in_process = argv is not None  # called from Python (tests, scripts), not as the program
     argv = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in argv
+    quiet_resource_tracker()
     previous = _install_sigterm()
     try:
         return _main(argv, debug)

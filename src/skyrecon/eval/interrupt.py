@@ -189,6 +189,8 @@ class KillTrial:
         differences: files of the resumed outputs that differ from the uninterrupted run's.
         left_temporaries: hidden temporaries still there after the resumed run.
         resume_s: wall time of the resumed run.
+        stderr: what the interrupted run printed on stderr (the last 600 characters), to tell
+            what an extra line was.
     """
 
     signal_name: str
@@ -202,6 +204,7 @@ class KillTrial:
     differences: list[str]
     left_temporaries: int
     resume_s: float
+    stderr: str = ""
 
     @property
     def ok(self) -> bool:
@@ -260,4 +263,5 @@ def kill_and_resume(
         else ["(rerun failed) " + rerun.stderr[-300:]],
         len(left),
         round(resume_s, 2),
+        got.stderr[-600:],
     )
