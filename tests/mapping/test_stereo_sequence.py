@@ -174,11 +174,12 @@ def test_command_line_says_how_far_stereo_is_trusted(flight, tmp_path, capsys):
     assert not (tmp_path / "near").exists()
 
 
-def test_the_range_hint_scales_with_the_voxel():
-    from argparse import Namespace
-
+def test_the_range_hint_scales_with_the_voxel(flight):
     from skyrecon.cli.map import _range_hint
 
-    fine = Namespace(voxel_size=0.2, max_range=40.0, max_depth_error=None)
-    assert "--voxel-size 0.5 trusts depth to about 19.6 m" in _range_hint(12.4, fine)  # range ~ sqrt(voxel)
-    assert "fly closer" in _range_hint(19.6, Namespace(voxel_size=0.5, max_range=40.0, max_depth_error=None))
+    rig = flight[1]  # trusted to 19.6 m at 0.5 m voxels, 12.4 m at 0.2 m
+    fine = StereoMapSettings(voxel_size_m=0.2, max_range_m=40.0)
+    assert StereoMapper(rig, fine).hit_range_m == pytest.approx(12.4, abs=0.05)
+    assert "--voxel-size 0.5 trusts depth to 19.6 m" in _range_hint(fine, rig)  # range ~ sqrt(voxel)
+    assert "fly closer" in _range_hint(StereoMapSettings(voxel_size_m=0.5, max_range_m=40.0), rig)
+    assert "larger --max-depth-error" in _range_hint(fine.with_overrides(max_depth_error_m=0.2), rig)

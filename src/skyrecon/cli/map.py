@@ -29,7 +29,7 @@ import json
 import os
 import shutil
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -49,6 +49,7 @@ from skyrecon.cli.common import (
     recording,
 )
 from skyrecon.core.rigid import Rigid3
+from skyrecon.core.stereo_rig import StereoRig
 from skyrecon.errors import InputError
 from skyrecon.io.atomic import make_temp_dir, sweep_stale_temps, write_text_atomic
 from skyrecon.io.checkpoint import Checkpoint
@@ -223,12 +224,13 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("not found; give a sequence directory or a .ply point cloud", source)
     with recording(args) as recorder:
         t0 = time.perf_counter()
+        range_hint = None
         if source.is_file() and source.suffix.lower() == ".ply":
             occ, summary, track = _map_cloud(source, args, recorder)
         else:
-            occ, summary, track = _map_sequence(source, args, recorder)
+            occ, summary, track, range_hint = _map_sequence(source, args, recorder)
         seconds = time.perf_counter() - t0
-        _check_and_write(occ, summary, track, seconds, source, args)
+        _check_and_write(occ, summary, track, seconds, source, args, range_hint)
     return 0
 
 
@@ -258,7 +260,7 @@ def _build_flight(job: _FlightJob) -> dict[str, Any]:
     args = argparse.Namespace(**job.options)
     args.source, args.out, args.quiet = job.source, job.out, True
     args.workspace = str(out.parent / f"{out.name}-workspace")
-    occ, summary, track = _map_sequence(Path(job.source), args)
+    occ, summary, track, _ = _map_sequence(Path(job.source), args)
     _write_map_dir(occ, out, summary, track, False)
     write_text_atomic(done, json.dumps({"key": key, "summary": summary}, default=str) + "\n")
     shutil.rmtree(args.workspace, ignore_errors=True)
@@ -407,19 +409,14 @@ def _merge_to_tiles(args: argparse.Namespace, dirs: list[Path], t0: float) -> in
 _COARSE_VOXEL_M = 0.5  # the voxel of the flight map and the stereo benchmarks
 
 
-def _range_hint(trusted_m: float, args: argparse.Namespace) -> str:
-    """What reaches farther than the stereo map's trusted range ``trusted_m``: it is where a
-    quarter-pixel disparity error moves depth by 2 voxels, so it grows with the square root of
-    the voxel size."""
-    if args.max_depth_error is not None:
+def _range_hint(settings: StereoMapSettings, rig: StereoRig) -> str:
+    """What maps obstacles farther than the stereo map's trusted range (where a disparity error
+    of a quarter pixel moves depth by 2 voxels, :meth:`StereoMapSettings.hit_range_m`)."""
+    if settings.perception.max_depth_error_m is not None:
         return "a larger --max-depth-error reaches farther (and puts far obstacles less precisely)"
-    coarse = _COARSE_VOXEL_M
-    if args.voxel_size < coarse:
-        farther = trusted_m * (coarse / args.voxel_size) ** 0.5
-        return (
-            f"--voxel-size {coarse:g} trusts depth to about {min(farther, args.max_range):.1f} m, "
-            "or set --max-depth-error (metres)"
-        )
+    if settings.voxel_size_m < _COARSE_VOXEL_M:
+        coarse_m = replace(settings, voxel_size_m=_COARSE_VOXEL_M).hit_range_m(rig)
+        return f"--voxel-size {_COARSE_VOXEL_M:g} trusts depth to {coarse_m:.1f} m, or set --max-depth-error (metres)"
     return "fly closer to what should be mapped, or set --max-depth-error (metres)"
 
 
@@ -430,14 +427,18 @@ def _check_and_write(
     seconds: float,
     source: Path,
     args: argparse.Namespace,
+    range_hint: str | None = None,
 ) -> None:
+    """Refuse an empty map, write the map folder and say what was done. ``range_hint``: for a
+    stereo map whose trusted range is short of ``--max-range``, what reaches farther
+    (:func:`_range_hint`); the range is ``summary["trusted_range_m"]``."""
     counts = occ.counts()
     trusted = summary.get("trusted_range_m")
     if counts.get("occupied", 0) == 0:
-        if trusted is not None and trusted < args.max_range:
+        if range_hint is not None:
             raise InputError(
                 f"no occupied voxel was observed within {trusted:.1f} m, the range to which stereo depth "
-                f"is trusted at {args.voxel_size:g} m voxels: {_range_hint(trusted, args)}",
+                f"is trusted at {args.voxel_size:g} m voxels: {range_hint}",
                 source,
             )
         raise InputError(
@@ -460,8 +461,8 @@ def _check_and_write(
             f"at {args.voxel_size} m in {seconds:.1f} s"
             + (f" ({summary['frames_per_s']:.1f} frames/s)" if "frames_per_s" in summary else "")
         )
-        if trusted is not None and trusted < args.max_range:
-            hint = f"; {_range_hint(trusted, args)}" if args.voxel_size < _COARSE_VOXEL_M else ""
+        if range_hint is not None:
+            hint = f"; {range_hint}" if args.voxel_size < _COARSE_VOXEL_M else ""
             info(
                 f"stereo depth is trusted to {trusted:.1f} m at {args.voxel_size:g} m voxels: obstacles farther are not mapped{hint}"
             )
@@ -470,9 +471,11 @@ def _check_and_write(
 
 def _map_sequence(
     root: Path, args: argparse.Namespace, recorder: Recorder | None = None
-) -> tuple[OccupancyMap, dict[str, Any], np.ndarray]:
-    """(map, summary, camera track (N, 3) world metres) of a sequence: stereo, or ``--depth`` maps;
-    each frame logged to ``recorder`` (:class:`~skyrecon.record.sequence.MapRecording`)."""
+) -> tuple[OccupancyMap, dict[str, Any], np.ndarray, str | None]:
+    """(map, summary, camera track (N, 3) world metres, range hint) of a sequence: stereo, or
+    ``--depth`` maps; each frame logged to ``recorder``
+    (:class:`~skyrecon.record.sequence.MapRecording`). The range hint (:func:`_range_hint`) is
+    there for a stereo map whose trusted range is short of ``--max-range``."""
     recorder = recorder or NullRecorder()
     seq = open_stereo_sequence(root, bag_topics(args))
     n = min(len(seq), args.frames or len(seq))
@@ -512,6 +515,7 @@ def _map_sequence(
         )
         occ, timings = built.map, built.timings
         trusted_m: float | None = built.hit_range_m
+        range_hint = _range_hint(settings, seq.rig) if built.hit_range_m < args.max_range else None
     else:
         assert isinstance(seq.sequence, StereoSequence)
         depths = iter_depth_maps(sequence_depth_paths(seq.sequence, args.depth)[first:n], seq.rig.left)
@@ -532,7 +536,7 @@ def _map_sequence(
             on_frame=observer,
         )
         occ, timings = built_d.map, built_d.timings
-        trusted_m = None
+        trusted_m, range_hint = None, None
     summary_ckpt = {"resumed_from_frame": first, "checkpoints_written": ckpt.saves}
     summary = timings.summary()
     summary.pop("frames", None)
@@ -557,7 +561,7 @@ def _map_sequence(
     summary["checkpoint"] = summary_ckpt
     if observer is not None:
         observer.finish(occ)
-    return occ, summary, track
+    return occ, summary, track, range_hint
 
 
 # a level camera looking along world +x: camera x right = world -y, y down = world -z, z forward = world +x

@@ -447,25 +447,23 @@ def plane_supported_fill(
         if gl.shape != d.shape or gr.shape != d.shape:
             raise InputError(f"grey images must be {d.shape}, got {gl.shape} and {gr.shape}")
         _photo_check(labels, ok, coef, gl, gr, 8.0, 0.25, 10.0)
-    _paint_planes(labels, coef, ok, out, accepted)
     if max_guess_gap_px is not None:
-        _refuse_against_guesses(d, labels, n, float(max_guess_gap_px), out, accepted)
+        _refuse_against_guesses(d, labels, coef, ok, float(max_guess_gap_px))
+    _paint_planes(labels, coef, ok, out, accepted)
     return out, accepted
 
 
 def _refuse_against_guesses(
-    guess: np.ndarray, labels: np.ndarray, n: int, max_gap_px: float, out: np.ndarray, accepted: np.ndarray
+    guess: np.ndarray, labels: np.ndarray, coef: np.ndarray, ok: np.ndarray, max_gap_px: float
 ) -> None:
-    """Unpaint (in place) the accepted segments where more than half of the finite ``guess``
-    values (H, W) differ from the painted plane ``out`` by more than ``max_gap_px`` pixels."""
-    with np.errstate(invalid="ignore"):
-        sel = accepted & np.isfinite(guess)
-        lab = labels[sel]
-        far = np.abs(out[sel] - guess[sel]) > max_gap_px
-    n_all = np.bincount(lab, minlength=n)
-    n_far = np.bincount(lab[far], minlength=n)
-    refused = 2 * n_far > n_all
-    if refused.any():
-        drop = accepted & refused[labels]
-        out[drop] = np.nan
-        accepted[drop] = False
+    """Refuse (in ``ok``, as :func:`_photo_check` does) the segments where more than half of the
+    finite ``guess`` values (H, W) on the pixels their plane would paint (see
+    :func:`_paint_planes`) differ from the plane by more than ``max_gap_px`` pixels."""
+    r, c = np.nonzero((labels > 0) & ok[labels] & np.isfinite(guess))
+    lab = labels[r, c]
+    plane = coef[lab, 0] * c + coef[lab, 1] * r + coef[lab, 2]
+    painted = plane > 0.0
+    far = painted & (np.abs(plane - guess[r, c]) > max_gap_px)
+    n_all = np.bincount(lab[painted], minlength=len(ok))
+    n_far = np.bincount(lab[far], minlength=len(ok))
+    ok &= ~(2 * n_far > n_all)
