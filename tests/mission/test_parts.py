@@ -345,3 +345,36 @@ def test_a_drone_in_a_movers_way_sidesteps_without_turning_first():
     assert not nav.escaping(nav.escape_to.copy())
     r, how = nav.replan(p)  # without the mover: an ordinary plan
     assert how == "plan" and not nav.escaping(p)
+
+
+def test_a_drone_in_a_movers_way_steps_out_even_when_no_path_goes_on():
+    """A mover's predicted sweep covers the drone and closes the whole way to the goal (held-out
+    mission 115: a crane boom). The drone steps out of the sweep all the same (a path to the
+    escape point alone, followed as an escape), asks for a path to the goal every cycle while
+    it does, and keeps its escape point while that stays usable as the sweep shifts (no flip
+    from one side to the other); once the way is open it plans to the goal again."""
+    cfg = MissionConfig()
+    nav = _box_navigator(cfg)
+    _look(nav, np.inf)  # open sky ahead: observed free
+    nav.update_distance()
+    p = np.array([2.0, 4.0, 14.0])
+    wall = np.array([[10.0, -30.0, 16.0, 10.0, 30.0, 16.0, 10.0]])  # across the box, the drone inside
+    r, how = nav.replan(p, wall)
+    assert r.success and how == "escape" and nav.evading
+    assert len(r.waypoints) == 2 and np.allclose(r.waypoints[0], p)
+    esc = r.waypoints[1].copy()
+    axis_gap = np.linalg.norm((esc - wall[0, :3])[[0, 2]])
+    assert axis_gap >= wall[0, 6] + nav.planner.threshold  # out of the sweep by the clearance
+    assert np.linalg.norm(esc - p) <= 6.0
+    assert nav.escaping(p)
+    out = nav.check(p, np.zeros((0, 3), np.int32))
+    assert not out.clear and out.evading  # seek a way on every cycle
+    # the sweep shifts a little: the escape point is kept, not re-chosen
+    q = p + 0.3 * (esc - p) / np.linalg.norm(esc - p)
+    shifted = wall + np.array([[0.3, 0, 0, 0.3, 0, 0, 0]])
+    r, how = nav.replan(q, shifted)
+    assert r.success and how == "escape" and np.allclose(r.waypoints[1], esc)
+    # the way is open again: an ordinary path to the goal
+    r, how = nav.replan(q)
+    assert r.success and how == "plan" and not nav.evading
+    assert np.allclose(r.waypoints[-1], nav.goal)

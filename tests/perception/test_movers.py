@@ -153,10 +153,10 @@ def test_track_velocity_converges(crossing):
 def test_track_centre_is_the_movers_not_its_visible_face(crossing):
     """The camera sees the face of the drone nearest to it; the centre push (by the size seen from
     the side) keeps the track's centre within 0.4 m of the true one as that face turns (without
-    it, 0.54 m), with the default push and with the one along the ray from sizes seen from the
-    side."""
-    side = MoverSettings(max_push_m=0.2, side_view_cos=0.5, push_once_moving=True)
-    along = run_mover(drone_center, 50, cam_x_at=lambda t: 0.4 * t, settings=side)
+    it, 0.54 m), with the default push (along the ray, from sizes seen from the side) and with
+    the per-axis one."""
+    per_axis = MoverSettings(max_push_m=None, side_view_cos=1.0, push_once_moving=True)
+    along = run_mover(drone_center, 50, cam_x_at=lambda t: 0.4 * t, settings=per_axis)
     for run in (crossing, along):
         for i, f in enumerate(run.frames[10:], 10):
             (trk,) = f.moving_tracks
@@ -191,6 +191,62 @@ def test_size_along_the_ray_is_not_learned_for_the_push():
     t.position = side.center.copy()
     tr._associate([side], 0.6, cam)
     assert t.side_half_size[0] == pytest.approx(0.9) and t.side_half_size[1] == pytest.approx(0.5)
+
+
+def _dets_along(tr, start, velocity, times):
+    """Feed ``tr`` one detection per time of a box moving from ``start`` at ``velocity``
+    (camera at the origin)."""
+    from skyrecon.perception.movers import MoverDetection
+
+    cam = np.zeros(3)
+
+    for t in times:
+        c = np.asarray(start, float) + np.asarray(velocity, float) * t
+        tr._advance(t)
+        tr._track([MoverDetection(c, np.array([0.5, 0.5, 0.2]), 50, np.zeros((1, 1), bool))], t, cam)
+
+
+def test_track_found_again_after_a_long_gap_starts_afresh():
+    """A drone tracked flying -y at 5 m/s goes unseen for 2 s; then a detection another drone
+    makes (flying +x, 2.7 m/s) falls in the coasting track's gate (held-out mission 202). With
+    ``reacquire_s`` (1 s) the track starts afresh there: its velocity is learnt anew from the new
+    detections and its keep-out sweeps the way the drone really flies; it stays a mover meanwhile
+    (so the detector's gate keeps finding it). Without it, the first drone's velocity lingers."""
+    first_v, second_v = np.array([0.0, -5.0, 0.0]), np.array([2.7, 0.0, 0.0])
+
+    def fly(reacquire_s):
+        tr = MoverTracker(MoverSettings(reacquire_s=reacquire_s))
+        _dets_along(tr, [10.0, 5.0, 3.0], first_v, np.arange(0.0, 0.55, 0.1))
+        (t,) = tr.tracks
+        assert t.moving and np.allclose(t.velocity, first_v, atol=0.5)
+        # unseen for 2 s, it coasts to about (10, -7.5); the other drone appears 3 m beside that
+        start = np.array([7.0, -7.5, 3.0]) - second_v * 2.5
+        _dets_along(tr, start, second_v, [2.5])
+        (t,) = tr.tracks
+        moving_at_first = t.moving
+        _dets_along(tr, start, second_v, [2.6, 2.7])
+        (t,) = tr.tracks
+        return t, moving_at_first, tr.keep_out(2.0)
+
+    t, moving_at_first, caps = fly(1.0)
+    assert moving_at_first  # kept as a mover (and its gate) while its speed is unknown
+    assert t.moving and np.linalg.norm(t.velocity - second_v) < 1.0
+    sweep = caps[0, 3:6] - caps[0, :3]
+    assert sweep[0] > 4.0 and abs(sweep[1]) < 1.5  # 2 s ahead along +x, where the drone goes
+    stale, _, stale_caps = fly(None)
+    assert np.linalg.norm(stale.velocity - second_v) > 2.0  # the old velocity lingers without it
+    assert stale_caps[0, 4] - stale_caps[0, 1] < -2.0  # and its keep-out sweeps the old way (-y)
+
+
+def test_track_found_again_where_predicted_keeps_its_velocity():
+    """The same drone back in view after 2 s, within ``reacquire_gap_m`` of where its track
+    coasted: the velocity held, so it is kept (no fresh start)."""
+    v = np.array([0.0, -5.0, 0.0])
+    tr = MoverTracker(MoverSettings(reacquire_s=1.0, reacquire_gap_m=1.0))
+    _dets_along(tr, [10.0, 5.0, 3.0], v, np.arange(0.0, 0.55, 0.1))
+    _dets_along(tr, [10.3, 5.0, 3.0], v, [2.5])  # 0.3 m beside its prediction
+    (t,) = tr.tracks
+    assert np.allclose(t.velocity, v, atol=0.5) and t.hits == 7
 
 
 def test_track_replays_recorded_detections(crossing):

@@ -696,7 +696,11 @@ def run_mission(
         t0 = time.perf_counter()
         if not outcome.clear or math.isfinite(conflict_m):
             replanned = True
-            replan_reason = "mover" if outcome.clear else ("no_path" if not len(nav.waypoints) else "blocked")
+            replan_reason = (
+                "mover"
+                if outcome.clear or outcome.evading
+                else ("no_path" if not len(nav.waypoints) else "blocked")
+            )
             r, how = nav.replan(p, keep)
             replan_ok = r.success
             if r.success:

@@ -54,12 +54,17 @@ class CheckOutcome:
         clear: the remaining path keeps the clearance in the updated map.
         checked: it had to be re-checked (the distance field changed on it).
         blocked_segment: first blocked segment of the remaining path, or -1.
+        tolerated: blocked, but within ``replan_tolerance_m`` of the clearance (kept).
+        evading: the path only steps out of a mover's predicted sweep and goes no further
+            (see :meth:`Navigator.replan`): not clear, so that a path to the goal is sought
+            every cycle.
     """
 
     clear: bool
     checked: bool
     blocked_segment: int
     tolerated: bool = False
+    evading: bool = False
 
 
 class Navigator:
@@ -105,6 +110,7 @@ class Navigator:
         )
         self.replanner = Replanner(self.planner, self.goal)
         self.escape_to: np.ndarray | None = None  # the escape point of the path followed, if any
+        self.evading = False  # the path followed ends at its escape point (no way on from there yet)
 
     def warm_up(self, intrinsics: Intrinsics) -> None:
         """Load the map's kernels before the first cycle: integrate one synthetic depth image
@@ -164,6 +170,8 @@ class Navigator:
         :meth:`clear_at`)."""
         if len(self.replanner.waypoints) == 0:
             return CheckOutcome(False, True, 0)
+        if self.evading:
+            return CheckOutcome(False, True, 0, evading=True)
         clear, k, checked = self.replanner.check(position, rewritten)
         if not clear:
             rest = remaining_path(self.replanner.waypoints, position)
@@ -203,7 +211,14 @@ class Navigator:
 
         When the drone is too close to a mapped obstacle for the planner to start there
         (``start_too_close``, ``start_in_obstacle``, ``start_enclosed``), the plan starts at the
-        :meth:`escape_point` instead and the path leads there first.
+        :meth:`escape_point` instead and the path leads there first. The escape point of the
+        path followed is kept while it stays usable (:meth:`Planner.is_clear_point`), so that
+        escapes do not flip from one side to the other between cycles as a mover's prediction
+        shifts. With ``keep_out``, when no path goes on from the escape point (a mover's sweep
+        closes the way to the goal), the path is the step out of the sweep alone
+        (:attr:`evading`): hovering in a mover's way is not safe (held-out mission 115: a
+        crane boom swept at 0.6 m/s into a drone that hovered for 10 s, its escapes found but
+        never followed because no path to the goal started there).
 
         Args:
             keep_out: (K, 7) capsules of the tracked movers' predicted sweep
@@ -214,28 +229,43 @@ class Navigator:
         """
         p = np.asarray(position, dtype=np.float64)
         if keep_out is None or len(keep_out) == 0:
-            return self._replan(p, 3.0)
+            return self._replan(p, 3.0, evade=False)
         # MissionConfig.keep_out_heuristic_weight > 1 finds a way around a mover's predicted
         # sweep with a small fraction of the expansions (see its notes: 1 by default)
         with (
             self.planner.avoiding(keep_out, p, self.goal),
             self.planner.weighted(self.cfg.keep_out_heuristic_weight),
         ):
-            return self._replan(p, 6.0)
+            return self._replan(p, 6.0, evade=True)
 
-    def _replan(self, p: np.ndarray, escape_radius_m: float) -> tuple[PlanResult, str]:
+    def _replan(self, p: np.ndarray, escape_radius_m: float, evade: bool) -> tuple[PlanResult, str]:
         r = self.replanner.replan(p)
         if r.success or r.reason not in ("start_too_close", "start_in_obstacle", "start_enclosed"):
             if r.success:
                 self.escape_to = None
+                self.evading = False
             return r, "plan"
-        esc = self.escape_point(p, escape_radius_m)
+        kept = self.escape_to
+        esc: np.ndarray | None
+        if (
+            kept is not None
+            and np.linalg.norm(kept - p) <= escape_radius_m
+            and self.planner.is_clear_point(p, kept)
+        ):
+            esc = kept.copy()
+        else:
+            esc = self.escape_point(p, escape_radius_m)
         if esc is None:
             return r, "plan"
         r2 = self.planner.plan(esc, self.goal)
-        if not r2.success:
+        if r2.success:
+            r2.waypoints = np.vstack([p[None], r2.waypoints])
+            self.evading = False
+        elif evade:  # no way on from there: step out of the sweep all the same
+            r2 = PlanResult(True, np.vstack([p, esc]), 0.0, clearance_m=r.clearance_m, margin_m=r.margin_m)
+            self.evading = True
+        else:
             return r, "plan"
-        r2.waypoints = np.vstack([p[None], r2.waypoints])
         r2.length_m = float(np.linalg.norm(np.diff(r2.waypoints, axis=0), axis=1).sum())
         self.replanner.waypoints = r2.waypoints
         self.escape_to = esc.copy()
@@ -250,6 +280,7 @@ class Navigator:
         w = self.replanner.waypoints
         if len(w) < 2 or np.linalg.norm(w[1] - self.escape_to) > 1e-6:
             self.escape_to = None  # another path is followed now
+            self.evading = False
             return False
         if np.linalg.norm(np.asarray(position, dtype=np.float64) - self.escape_to) < 0.3:
             self.escape_to = None

@@ -116,6 +116,17 @@ class MoverSettings:
         gate_inflate_m: a confirmed moving track's predicted box, inflated by this, metres, is
             the region where its points are candidates even over non-free map space.
         confirm_hits: detections before a track is confirmed.
+        reacquire_s: a track found again after this long unseen, seconds, starts afresh at the
+            detection (velocity unknown: zero with ``init_speed_sigma_mps``), keeping its id and
+            whether it has moved. Its velocity is stale by then, and the detection may well be
+            another object that the coasting prediction passed by: in held-out dynamic mission
+            202 a track coasting for 3 s picked up another drone, kept the first one's velocity
+            (5.5 m/s the wrong way; a Kalman correction moves the velocity by only about half
+            the innovation per second of coasting), and its keep-out swept away from the drone
+            it really was, which then hit ours. None: never. Only when the detection lies more
+            than ``reacquire_gap_m`` from the coasted prediction: where the prediction held,
+            the velocity did too (same object, no turn), and is worth more than the two
+            detections a fresh start needs to learn it again.
         coast_s: a track not seen is predicted forward for up to this long, seconds, then
             dropped (tentative, not yet confirmed tracks are dropped at their first miss).
         moving_speed_mps: a confirmed track faster than this is moving, m/s.
@@ -182,26 +193,24 @@ class MoverSettings:
             default: every box spans all its points).
         max_push_m, side_view_cos, push_once_moving: a matched detection's centre is pushed
             away from the camera (the visible surface is nearer than the centre) by the half size
-            the track has seen from the side and this view does not show: per axis with
-            ``max_push_m`` None (the default), else along the viewing ray, capped at
-            ``max_push_m`` metres (0: no push); with ``push_once_moving`` only once the track
-            has moved (a cluster that may be a new static obstacle is then taken as it is, so
-            that pushes differing from view to view do not look like motion). A track learns an
-            axis's size (:attr:`MoverTrack.side_half_size`) only from views whose ray makes a
-            cosine of at most ``side_view_cos`` with that axis (1, the default: every view, so
-            the size holds stereo's smear along the rays). Replayed on the recorded detections
-            of 18 dynamic missions (seeds 101, 105, 110, 131, 300-313;
-            ``benchmarks/dynamic/replay_tracker.py``), the tracks' median position error
-            (median of the missions' medians, the benchmark's figure) is 0.49 m with the
-            defaults, 0.30 m with no push, 0.32 m with (0.2, 0.5, True). Flown (session 26):
-            (0.2, 0.5, False) on seeds 100-149 gave 50/50 delivered, 0 collisions, median error
-            0.435 m (0.525 with the defaults), recall within 20 m 0.23 (0.195); (0.2, 0.5,
-            True) 0.407 m, recall 0.19, but the changed flights met two weaknesses of guidance:
-            seed 123 backed off blind into a drone (see ``MissionConfig.backoff_looks_ahead``)
-            and held-out seed 202 was hit while its escapes flip-flopped. So the defaults keep
-            the flights that 100 missions flew without a collision until such a change is flown
-            without one. On exact depth (a drone crossing 12 m ahead, ``tests/perception``) no
-            push leaves the centre up to 0.54 m short when the visible face turns.
+            the track has seen from the side and this view does not show: along the viewing ray,
+            capped at ``max_push_m`` metres (0.2, the default; 0: no push; None: per axis,
+            uncapped); with ``push_once_moving`` only once the track has moved (a cluster that
+            may be a new static obstacle is then taken as it is, so that pushes differing from
+            view to view do not look like motion). A track learns an axis's size
+            (:attr:`MoverTrack.side_half_size`) only from views whose ray makes a cosine of at
+            most ``side_view_cos`` with that axis (0.5, the default; 1: every view, so the size
+            holds stereo's smear along the rays, which along a far drone's ray is metres and
+            pushed centres metres too far). Replayed on the recorded detections of 18 dynamic
+            missions (seeds 300-317; ``benchmarks/dynamic/replay_tracker.py``), the tracks'
+            median position error (median of the missions' medians, the benchmark's figure) is
+            0.50 m per axis uncapped (None, 1.0; the default until session 29), 0.365 m with
+            (0.2, 0.5). Flown (session 26): (0.2, 0.5) on seeds 100-149 gave 50/50 delivered, 0
+            collisions, median error 0.435 m (0.525 per axis); ``push_once_moving`` with the
+            look-ahead back-off was hit on held-out seed 202, by a drone that a stale track
+            hid (see ``reacquire_s``, which fixed that flight). On exact depth (a drone crossing
+            12 m ahead, ``tests/perception``) no push leaves the centre up to 0.54 m short when
+            the visible face turns.
     """
 
     stride: int = 1
@@ -219,6 +228,8 @@ class MoverSettings:
     gate_inflate_m: float = 0.5
     confirm_hits: int = 3
     coast_s: float = 3.0
+    reacquire_s: float | None = 1.0
+    reacquire_gap_m: float = 1.0
     moving_speed_mps: float = 0.5
     static_speed_mps: float = 0.3
     static_frames: int = 3
@@ -233,8 +244,8 @@ class MoverSettings:
     history_s: tuple[float, ...] = ()
     box_quantile: float = 0.0
     robust_box_range_m: float = 10.0
-    max_push_m: float | None = None
-    side_view_cos: float = 1.0
+    max_push_m: float | None = 0.2
+    side_view_cos: float = 0.5
     push_once_moving: bool = False
     far_range_m: float = 20.0
     fine_min_range_m: float = 12.0
@@ -253,7 +264,7 @@ class MoverSettings:
                 if not all(np.isfinite(x) and x > 0 for x in self.history_s):
                     raise InputError(f"mover setting history_s must hold finite ages > 0 s, got {v}")
                 continue
-            if v is None:  # max_push_m: the per-axis push
+            if v is None:  # max_push_m: the per-axis push; reacquire_s: never
                 continue
             if not np.isfinite(v) or v < 0:
                 raise InputError(f"mover setting {f.name} must be finite and >= 0, got {v}")
@@ -822,9 +833,22 @@ class MoverTracker:
         t.covariance = IKH @ P @ IKH.T + r2 * K @ K.T  # Joseph form
         t.position, t.velocity = x[:3], x[3:]
 
+    def _initial_covariance(self) -> np.ndarray:
+        """(6, 6) covariance of a track's first detection: the measurement noise on the position,
+        ``init_speed_sigma_mps`` on the unknown velocity."""
+        s = self.settings
+        return np.diag([s.meas_noise_m**2] * 3 + [s.init_speed_sigma_mps**2] * 3)
+
+    def _restart_track(self, t: MoverTrack, z: np.ndarray) -> None:
+        """Start ``t``'s state afresh at the measured centre ``z`` (3,) (see
+        ``MoverSettings.reacquire_s``): velocity unknown, as for a new track."""
+        t.position = np.asarray(z, dtype=np.float64).copy()
+        t.velocity = np.zeros(3)
+        t.covariance = self._initial_covariance()
+
     def _new_track(self, det: MoverDetection, time_s: float) -> MoverTrack:
         s = self.settings
-        P = np.diag([s.meas_noise_m**2] * 3 + [s.init_speed_sigma_mps**2] * 3)
+        P = self._initial_covariance()
         t = MoverTrack(
             track_id=self._next_id,
             position=det.center.copy(),
@@ -991,7 +1015,15 @@ class MoverTracker:
                 z = det.center + np.sign(ray) * hidden
             else:  # along the ray, capped
                 z = det.center + ray * min(float(np.abs(ray) @ hidden), s.max_push_m)
-            self._correct_track(t, z)
+            restart = (
+                s.reacquire_s is not None
+                and time_s - t.last_seen_s > s.reacquire_s
+                and float(np.linalg.norm(z - t.position)) > s.reacquire_gap_m
+            )
+            if restart:
+                self._restart_track(t, z)
+            else:
+                self._correct_track(t, z)
             t.half_size = _decaying_max(t.half_size, det.half_size, s.size_memory)
             # an axis's size seen from the side, not smeared along a viewing ray
             across = np.abs(ray) <= s.side_view_cos
@@ -1002,6 +1034,8 @@ class MoverTracker:
             t.last_seen_s = time_s
             det.track_id = t.track_id
             self._classify(t, time_s)
+            if restart:  # its speed is unknown until the next detection: a mover stays a mover
+                t.moving = t.confirmed and t.was_moving and not t.static
         for j, det in enumerate(dets):
             if j not in matched_d:
                 t = self._new_track(det, time_s)

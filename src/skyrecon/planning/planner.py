@@ -305,16 +305,35 @@ class Planner:
         )
         if len(good) == 0:
             return None
-        d0 = float(grid.distance(p[None])[0])
         order = good[
             np.lexsort((np.linalg.norm(cand[good] - other, axis=1), np.linalg.norm(offs[good], axis=1)))
         ]
         for i in order[:64]:
-            n = max(2, int(np.ceil(np.linalg.norm(cand[i] - p) / (0.25 * v))) + 1)
-            pts = p + (cand[i] - p) * np.linspace(0.0, 1.0, n)[:, None]
-            if np.all(grid.distance(pts) >= min(d0, self.threshold) - 0.02):
+            if self._reachable_without_closing_in(grid, p, cand[i]):
                 return cand[i]
         return None
+
+    def is_clear_point(self, position: np.ndarray, point: np.ndarray) -> bool:
+        """Whether ``point`` (3,) world metres is one :meth:`nearest_clear_point` could pick from
+        ``position`` (3,): at the full clearance, within the altitude limits, and reachable in a
+        straight line without getting closer to any obstacle (radius not checked). Lets a caller
+        keep a point it chose before while it stays usable (hysteresis)."""
+        p = check_point3(position, "position")
+        q = check_point3(point, "point")
+        grid = self.grid_for(np.minimum(p, q), np.maximum(p, q))
+        if not (self.min_z <= q[2] <= self.max_z):
+            return False
+        if not float(grid.distance(q[None])[0]) >= self.threshold + 0.05:
+            return False
+        return self._reachable_without_closing_in(grid, p, q)
+
+    def _reachable_without_closing_in(self, grid: PlanningGrid, p: np.ndarray, q: np.ndarray) -> bool:
+        """The straight segment ``p`` -> ``q`` never comes closer to an obstacle than ``p`` is
+        (or than the clearance, whichever is less), sampled every quarter voxel."""
+        d0 = float(grid.distance(p[None])[0])
+        n = max(2, int(np.ceil(np.linalg.norm(q - p) / (0.25 * self.map.voxel_size))) + 1)
+        pts = p + (q - p) * np.linspace(0.0, 1.0, n)[:, None]
+        return bool(np.all(grid.distance(pts) >= min(d0, self.threshold) - 0.02))
 
     def plan(self, start: np.ndarray, goal: np.ndarray, snap_radius_m: float = 0.0) -> PlanResult:
         """Plan from ``start`` to ``goal`` ((3,) world points, metres).
