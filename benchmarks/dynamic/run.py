@@ -28,6 +28,7 @@ Usage:
   .venv/bin/python benchmarks/dynamic/run.py --pose-source odometry
   .venv/bin/python benchmarks/dynamic/run.py --fine-depth          # results_fine_depth.json
   .venv/bin/python benchmarks/dynamic/run.py --first-seed 150       # held-out: results_seeds150-199.json
+  .venv/bin/python benchmarks/dynamic/run.py --tracker reacquire_s=1 --evade  # tried settings: results_tried.json
 
 Resumable: a mission whose folder has ``mission.json`` is read back (``--fresh`` flies all
 again). Missions side by side share the cores: with ``--parallel 2`` on 2 cores the loop
@@ -191,6 +192,17 @@ def main() -> int:
         action="store_true",
         help="track movers with the full-resolution fine depth too (MissionConfig.mover_fine_depth)",
     )
+    ap.add_argument(
+        "--tracker",
+        default="",
+        help="fly tried tracker settings, e.g. max_push_m=0.2,side_view_cos=0.5,reacquire_s=1 "
+        "(MissionConfig.tracker_settings); results_tried*.json",
+    )
+    ap.add_argument(
+        "--evade",
+        action="store_true",
+        help="step out of a mover's sweep even with no path on (MissionConfig.evade_movers); results_tried*.json",
+    )
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "dynamic" / "out"))
     args = ap.parse_args()
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
@@ -200,9 +212,12 @@ def main() -> int:
         prior_map="earlier",
         pose_source=args.pose_source,
         mover_fine_depth=args.fine_depth,
+        tracker_settings=args.tracker,
+        evade_movers=args.evade,
     )
     suffix = "" if args.pose_source == "truth" else "_" + args.pose_source.replace("+", "_")
     suffix += "_fine_depth" if args.fine_depth else ""
+    suffix += "_tried" if (args.tracker or args.evade) else ""  # not the defaults: their own file
     if (args.first_seed, args.seeds) != (100, 50):  # other seeds (a held-out set) keep their own file
         suffix += f"_seeds{seeds[0]}-{seeds[-1]}"
     out = Path(args.out + suffix)
@@ -227,6 +242,8 @@ def main() -> int:
         "config": {
             "pose_source": args.pose_source,
             "fine_depth": args.fine_depth,
+            "tracker_settings": args.tracker,
+            "evade_movers": args.evade,
             "seeds": seeds,
             "parallel": args.parallel,
         },

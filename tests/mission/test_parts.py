@@ -352,13 +352,19 @@ def test_a_drone_in_a_movers_way_steps_out_even_when_no_path_goes_on():
     mission 115: a crane boom). The drone steps out of the sweep all the same (a path to the
     escape point alone, followed as an escape), asks for a path to the goal every cycle while
     it does, and keeps its escape point while that stays usable as the sweep shifts (no flip
-    from one side to the other); once the way is open it plans to the goal again."""
-    cfg = MissionConfig()
+    from one side to the other); once the way is open it plans to the goal again. With
+    ``evade_movers`` (off by default): without it, it hovers where it is."""
+    off = _box_navigator(MissionConfig())
+    _look(off, np.inf)
+    off.update_distance()
+    p = np.array([2.0, 4.0, 14.0])
+    wall = np.array([[10.0, -30.0, 16.0, 10.0, 30.0, 16.0, 10.0]])  # across the box, the drone inside
+    r, how = off.replan(p, wall)
+    assert not r.success and not off.evading
+    cfg = MissionConfig(evade_movers=True)
     nav = _box_navigator(cfg)
     _look(nav, np.inf)  # open sky ahead: observed free
     nav.update_distance()
-    p = np.array([2.0, 4.0, 14.0])
-    wall = np.array([[10.0, -30.0, 16.0, 10.0, 30.0, 16.0, 10.0]])  # across the box, the drone inside
     r, how = nav.replan(p, wall)
     assert r.success and how == "escape" and nav.evading
     assert len(r.waypoints) == 2 and np.allclose(r.waypoints[0], p)

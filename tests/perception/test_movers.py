@@ -153,10 +153,10 @@ def test_track_velocity_converges(crossing):
 def test_track_centre_is_the_movers_not_its_visible_face(crossing):
     """The camera sees the face of the drone nearest to it; the centre push (by the size seen from
     the side) keeps the track's centre within 0.4 m of the true one as that face turns (without
-    it, 0.54 m), with the default push (along the ray, from sizes seen from the side) and with
-    the per-axis one."""
-    per_axis = MoverSettings(max_push_m=None, side_view_cos=1.0, push_once_moving=True)
-    along = run_mover(drone_center, 50, cam_x_at=lambda t: 0.4 * t, settings=per_axis)
+    it, 0.54 m), with the default push and with the one along the ray from sizes seen from the
+    side."""
+    side = MoverSettings(max_push_m=0.2, side_view_cos=0.5, push_once_moving=True)
+    along = run_mover(drone_center, 50, cam_x_at=lambda t: 0.4 * t, settings=side)
     for run in (crossing, along):
         for i, f in enumerate(run.frames[10:], 10):
             (trk,) = f.moving_tracks
@@ -236,6 +236,22 @@ def test_track_found_again_after_a_long_gap_starts_afresh():
     stale, _, stale_caps = fly(None)
     assert np.linalg.norm(stale.velocity - second_v) > 2.0  # the old velocity lingers without it
     assert stale_caps[0, 4] - stale_caps[0, 1] < -2.0  # and its keep-out sweeps the old way (-y)
+
+
+def test_mover_overrides_are_parsed_and_checked():
+    from skyrecon.errors import InputError
+    from skyrecon.mission import MissionConfig
+    from skyrecon.perception.movers import parse_mover_overrides
+
+    o = parse_mover_overrides("max_push_m=0.2, side_view_cos=0.5,reacquire_s=None,push_once_moving=True")
+    assert o == {"max_push_m": 0.2, "side_view_cos": 0.5, "reacquire_s": None, "push_once_moving": True}
+    assert parse_mover_overrides("") == {}
+    for bad in ("max_push=0.2", "max_push_m", "max_push_m=far"):
+        with pytest.raises(InputError):
+            parse_mover_overrides(bad)
+    assert MissionConfig(tracker_settings="reacquire_s=1").tracker_settings == "reacquire_s=1"
+    with pytest.raises(InputError):
+        MissionConfig(tracker_settings="side_view_cos=-1")  # MoverSettings refuses it
 
 
 def test_track_found_again_where_predicted_keeps_its_velocity():

@@ -58,6 +58,16 @@ class MissionConfig:
             (seed 131, 0.30 m). Weight 1.2 on every plan made a held-out seed never take off
             (a plan from the take-off point dipped 1.2 m over ground too plain for stereo to
             show the space below the dip free). So 1 by default.
+        evade_movers: a drone inside a mover's predicted sweep steps out of it even when no
+            path to the goal starts from its escape point (the path is then the step alone, and
+            a path on is sought every cycle), and an escape keeps its point while that stays
+            usable, so that escapes do not flip sides between cycles as a mover's prediction
+            shifts (see :meth:`~skyrecon.mission.navigator.Navigator.replan`). Off by default
+            (session 29): it saved seed 115 (hovering 10 s in a crane boom's sweep, its escapes
+            found but unused, it was hit), but in the same 100-149 set seed 103 hovered inside
+            a crane boom's keep-out capsule of 6-7 m radius, with no point at the full
+            clearance within the 6 m escape radius, and was hit: a boom needs a best-effort
+            escape (away from the sweep when no point clears it) before this can be the default.
         backoff_looks_ahead: a drone backing off along its flown track to see a climb (see
             :class:`~skyrecon.mission.guidance.BackOff`) looks where it flies, holds 2 s at the
             end looking at the climb, and stops backing off when its way back meets a mover's
@@ -112,6 +122,10 @@ class MissionConfig:
             ``skyrecon demo`` output); see :mod:`skyrecon.mission.prior`.
         track_movers: separate moving objects from the static map and track them
             (:mod:`skyrecon.perception.movers`); the planner keeps clear of their predicted sweep.
+        tracker_settings: overrides of the tracker's :class:`~skyrecon.perception.MoverSettings`,
+            ``"name=value,..."`` (e.g. ``"max_push_m=0.2,side_view_cos=0.5,reacquire_s=1"``;
+            empty: its defaults), for flying tried settings (``benchmarks/dynamic/run.py
+            --tracker``).
         mover_fine_depth: also match each pair at full resolution for the tracker
             (:attr:`skyrecon.perception.PerceptionSettings.fine_max_disparity`), which finds
             drones 12-20 m away that the half-resolution matcher loses (recall within 20 m 0.17
@@ -148,6 +162,7 @@ class MissionConfig:
     clearance_m: float = 2.0
     replan_tolerance_m: float = 0.5
     keep_out_heuristic_weight: float = 1.0
+    evade_movers: bool = False
     backoff_looks_ahead: bool = False
     min_altitude_m: float = 12.0
     max_altitude_m: float = 30.0
@@ -177,6 +192,7 @@ class MissionConfig:
     city_changes: bool = False
     prior_map: str = ""
     track_movers: bool = True
+    tracker_settings: str = ""
     mover_fine_depth: bool = False
     mover_horizon_s: float = 3.0
     mover_margin_m: float = 1.0
@@ -249,8 +265,16 @@ class MissionConfig:
                 "mover_horizon_s must be positive and keep_out_heuristic_weight at least 1, got "
                 f"{self.mover_horizon_s} and {self.keep_out_heuristic_weight}"
             )
+        self._check_tracker_settings()
         if self.time_limit_s is not None and not self.time_limit_s > 0:
             raise InputError(f"time_limit_s must be positive, got {self.time_limit_s}")
+
+    def _check_tracker_settings(self) -> None:
+        """Refuse ``tracker_settings`` with unknown names or values MoverSettings refuses."""
+        if self.tracker_settings:
+            from skyrecon.perception.movers import MoverSettings, parse_mover_overrides
+
+            MoverSettings(**parse_mover_overrides(self.tracker_settings))
 
     @property
     def dt(self) -> float:

@@ -83,7 +83,7 @@ from skyrecon.mission.vehicle import DroneState, step
 from skyrecon.mission.world_monitor import WorldMonitor
 from skyrecon.odometry.types import TrackingState
 from skyrecon.perception import StereoDepth
-from skyrecon.perception.movers import MoverSettings, MoverTracker
+from skyrecon.perception.movers import MoverSettings, MoverTracker, parse_mover_overrides
 from skyrecon.record import NullRecorder, Recorder
 from skyrecon.record.mission import MissionRecording
 from skyrecon.sim import render_stereo
@@ -594,7 +594,15 @@ def run_mission(
     # movers are told from the static map where it holds obstacles (farther, a static surface's
     # points fall in space carved free and would pass for movers)
     tracker = (
-        MoverTracker(MoverSettings(max_range_m=hit_range, fine_range_m=cfg.max_range_m))
+        MoverTracker(
+            MoverSettings(
+                **{
+                    "max_range_m": hit_range,
+                    "fine_range_m": cfg.max_range_m,
+                    **parse_mover_overrides(cfg.tracker_settings),
+                }
+            )
+        )
         if cfg.track_movers
         else None
     )

@@ -211,14 +211,15 @@ class Navigator:
 
         When the drone is too close to a mapped obstacle for the planner to start there
         (``start_too_close``, ``start_in_obstacle``, ``start_enclosed``), the plan starts at the
-        :meth:`escape_point` instead and the path leads there first. The escape point of the
+        :meth:`escape_point` instead and the path leads there first. With
+        ``MissionConfig.evade_movers`` (off by default, see there), the escape point of the
         path followed is kept while it stays usable (:meth:`Planner.is_clear_point`), so that
         escapes do not flip from one side to the other between cycles as a mover's prediction
-        shifts. With ``keep_out``, when no path goes on from the escape point (a mover's sweep
-        closes the way to the goal), the path is the step out of the sweep alone
-        (:attr:`evading`): hovering in a mover's way is not safe (held-out mission 115: a
-        crane boom swept at 0.6 m/s into a drone that hovered for 10 s, its escapes found but
-        never followed because no path to the goal started there).
+        shifts; and with ``keep_out``, when no path goes on from the escape point (a mover's
+        sweep closes the way to the goal), the path is the step out of the sweep alone
+        (:attr:`evading`): hovering in a mover's way is not safe (mission 115: a crane boom
+        swept at 0.6 m/s into a drone that hovered for 10 s, its escapes found but never
+        followed because no path to the goal started there).
 
         Args:
             keep_out: (K, 7) capsules of the tracked movers' predicted sweep
@@ -236,7 +237,7 @@ class Navigator:
             self.planner.avoiding(keep_out, p, self.goal),
             self.planner.weighted(self.cfg.keep_out_heuristic_weight),
         ):
-            return self._replan(p, 6.0, evade=True)
+            return self._replan(p, 6.0, evade=self.cfg.evade_movers)
 
     def _replan(self, p: np.ndarray, escape_radius_m: float, evade: bool) -> tuple[PlanResult, str]:
         r = self.replanner.replan(p)
@@ -245,7 +246,7 @@ class Navigator:
                 self.escape_to = None
                 self.evading = False
             return r, "plan"
-        kept = self.escape_to
+        kept = self.escape_to if self.cfg.evade_movers else None
         esc: np.ndarray | None
         if (
             kept is not None

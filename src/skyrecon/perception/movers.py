@@ -116,17 +116,21 @@ class MoverSettings:
         gate_inflate_m: a confirmed moving track's predicted box, inflated by this, metres, is
             the region where its points are candidates even over non-free map space.
         confirm_hits: detections before a track is confirmed.
-        reacquire_s: a track found again after this long unseen, seconds, starts afresh at the
-            detection (velocity unknown: zero with ``init_speed_sigma_mps``), keeping its id and
-            whether it has moved. Its velocity is stale by then, and the detection may well be
-            another object that the coasting prediction passed by: in held-out dynamic mission
-            202 a track coasting for 3 s picked up another drone, kept the first one's velocity
-            (5.5 m/s the wrong way; a Kalman correction moves the velocity by only about half
-            the innovation per second of coasting), and its keep-out swept away from the drone
-            it really was, which then hit ours. None: never. Only when the detection lies more
-            than ``reacquire_gap_m`` from the coasted prediction: where the prediction held,
-            the velocity did too (same object, no turn), and is worth more than the two
-            detections a fresh start needs to learn it again.
+        reacquire_s, reacquire_gap_m: a track found again after more than ``reacquire_s``
+            seconds unseen, more than ``reacquire_gap_m`` from its coasted prediction, starts
+            afresh at the detection (velocity unknown: zero with ``init_speed_sigma_mps``),
+            keeping its id and staying a mover meanwhile (so the detector's gate keeps finding
+            it). Its velocity is stale by then, and the detection may be another object that
+            the coasting prediction passed by: in held-out dynamic mission 202 (with the push
+            below on) a track coasting for 3 s picked up another drone, kept the first one's
+            velocity (5.5 m/s the wrong way; a Kalman correction moves the velocity by only
+            about half the innovation per second of coasting), its keep-out swept away from the
+            drone it really was, which then hit ours; with (1 s, 1 m) that flight delivered.
+            Where the prediction held (within the gap), the velocity did too and is kept. None
+            (the default): never. Not the default because the flights it changes meet a
+            weakness of guidance around crane booms (session 29, see
+            ``MissionConfig.evade_movers``): with it and the push below, seeds 200-249 flew
+            50/50 without a collision, but seed 115 hovered in a boom's sweep and was hit.
         coast_s: a track not seen is predicted forward for up to this long, seconds, then
             dropped (tentative, not yet confirmed tracks are dropped at their first miss).
         moving_speed_mps: a confirmed track faster than this is moving, m/s.
@@ -193,24 +197,25 @@ class MoverSettings:
             default: every box spans all its points).
         max_push_m, side_view_cos, push_once_moving: a matched detection's centre is pushed
             away from the camera (the visible surface is nearer than the centre) by the half size
-            the track has seen from the side and this view does not show: along the viewing ray,
-            capped at ``max_push_m`` metres (0.2, the default; 0: no push; None: per axis,
-            uncapped); with ``push_once_moving`` only once the track has moved (a cluster that
-            may be a new static obstacle is then taken as it is, so that pushes differing from
-            view to view do not look like motion). A track learns an axis's size
-            (:attr:`MoverTrack.side_half_size`) only from views whose ray makes a cosine of at
-            most ``side_view_cos`` with that axis (0.5, the default; 1: every view, so the size
-            holds stereo's smear along the rays, which along a far drone's ray is metres and
-            pushed centres metres too far). Replayed on the recorded detections of 18 dynamic
-            missions (seeds 300-317; ``benchmarks/dynamic/replay_tracker.py``), the tracks'
-            median position error (median of the missions' medians, the benchmark's figure) is
-            0.50 m per axis uncapped (None, 1.0; the default until session 29), 0.365 m with
-            (0.2, 0.5). Flown (session 26): (0.2, 0.5) on seeds 100-149 gave 50/50 delivered, 0
-            collisions, median error 0.435 m (0.525 per axis); ``push_once_moving`` with the
-            look-ahead back-off was hit on held-out seed 202, by a drone that a stale track
-            hid (see ``reacquire_s``, which fixed that flight). On exact depth (a drone crossing
-            12 m ahead, ``tests/perception``) no push leaves the centre up to 0.54 m short when
-            the visible face turns.
+            the track has seen from the side and this view does not show: per axis with
+            ``max_push_m`` None (the default), else along the viewing ray, capped at
+            ``max_push_m`` metres (0: no push); with ``push_once_moving`` only once the track
+            has moved (a cluster that may be a new static obstacle is then taken as it is, so
+            that pushes differing from view to view do not look like motion). A track learns an
+            axis's size (:attr:`MoverTrack.side_half_size`) only from views whose ray makes a
+            cosine of at most ``side_view_cos`` with that axis (1, the default: every view, so
+            the size holds stereo's smear along the rays, metres along a far drone's ray).
+            Replayed on the recorded detections of 18 dynamic missions (seeds 300-317, recorded
+            in session 29; ``benchmarks/dynamic/replay_tracker.py``), the tracks' median position
+            error (median of the missions' medians, the benchmark's figure) is 0.50 m with the
+            defaults and 0.365 m with (0.2, 0.5). Flown: (0.2, 0.5) on seeds 100-149 (session 26)
+            50/50 delivered, 0 collisions, 0.435 m (0.525 with the defaults); with
+            ``reacquire_s`` 1 on held-out 200-249 (session 29) 50/50, 0 collisions, 0.378 m
+            (0.541), but on 100-149 seed 115 was hit (see ``reacquire_s``). (0.2, 0.5, True)
+            with the look-ahead back-off: held-out seed 202 was hit (see ``reacquire_s``). So
+            the defaults keep the flights that 100 missions flew without a collision. On exact
+            depth (a drone crossing 12 m ahead, ``tests/perception``) no push leaves the centre
+            up to 0.54 m short when the visible face turns.
     """
 
     stride: int = 1
@@ -228,7 +233,7 @@ class MoverSettings:
     gate_inflate_m: float = 0.5
     confirm_hits: int = 3
     coast_s: float = 3.0
-    reacquire_s: float | None = 1.0
+    reacquire_s: float | None = None
     reacquire_gap_m: float = 1.0
     moving_speed_mps: float = 0.5
     static_speed_mps: float = 0.3
@@ -244,8 +249,8 @@ class MoverSettings:
     history_s: tuple[float, ...] = ()
     box_quantile: float = 0.0
     robust_box_range_m: float = 10.0
-    max_push_m: float | None = 0.2
-    side_view_cos: float = 0.5
+    max_push_m: float | None = None
+    side_view_cos: float = 1.0
     push_once_moving: bool = False
     far_range_m: float = 20.0
     fine_min_range_m: float = 12.0
@@ -278,6 +283,30 @@ class MoverSettings:
             raise InputError(f"box_quantile must lie in [0, 0.5), got {self.box_quantile}")
         if not 0 <= self.size_memory < 1:
             raise InputError(f"size_memory must lie in [0, 1), got {self.size_memory}")
+
+
+def parse_mover_overrides(text: str) -> dict:
+    """``"max_push_m=0.2,side_view_cos=0.5,reacquire_s=None"`` -> :class:`MoverSettings`
+    overrides (numbers, ``None``, ``True``/``False``); checked against the settings' fields.
+
+    Raises:
+        InputError: an unknown name or a value that is not a number, None, True or False.
+    """
+    names = {f.name for f in fields(MoverSettings)}
+    out: dict = {}
+    for item in filter(None, (x.strip() for x in text.split(","))):
+        k, sep, v = item.partition("=")
+        k, v = k.strip(), v.strip()
+        if not sep or k not in names:
+            raise InputError(f"mover setting {item!r}: expected name=value with a MoverSettings name")
+        if v in ("None", "True", "False"):
+            out[k] = {"None": None, "True": True, "False": False}[v]
+            continue
+        try:
+            out[k] = float(v)
+        except ValueError:
+            raise InputError(f"mover setting {k}: {v!r} is not a number, None, True or False") from None
+    return out
 
 
 @dataclass
