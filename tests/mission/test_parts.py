@@ -384,3 +384,28 @@ def test_a_drone_in_a_movers_way_steps_out_even_when_no_path_goes_on():
     r, how = nav.replan(q)
     assert r.success and how == "plan" and not nav.evading
     assert np.allclose(r.waypoints[-1], nav.goal)
+
+
+def test_with_no_point_clear_of_a_huge_sweep_the_drone_still_moves_away():
+    """A keep-out capsule 12 m in radius (a crane boom tracked with a large uncertainty) covers
+    everything within the 6 m escape radius: with ``evade_movers`` the drone steps to the reachable
+    point farthest from it rather than hovering inside (held-out-set seed 103)."""
+    from skyrecon.planning.keep_out import capsule_distance
+
+    cfg = MissionConfig(evade_movers=True)
+    nav = _box_navigator(cfg)
+    _look(nav, np.inf)
+    nav.update_distance()
+    p = np.array([8.0, 4.0, 16.0])
+    boom = np.array([[14.0, -30.0, 16.0, 14.0, 30.0, 16.0, 12.0]])
+    assert nav.escape_point(p, 6.0) is not None  # without the boom there is room ...
+    r, how = nav.replan(p, boom)
+    assert r.success and how == "escape" and nav.evading and len(r.waypoints) == 2
+    away = r.waypoints[1]
+    gain = capsule_distance(away[None], boom)[0] - capsule_distance(p[None], boom)[0]
+    assert gain >= 4.0 and np.linalg.norm(away - p) <= 6.0 + 1e-9
+    assert nav.planner.grid_for(away, away).distance(away[None])[0] >= nav.planner.threshold
+    off = _box_navigator(MissionConfig())
+    _look(off, np.inf)
+    off.update_distance()
+    assert not off.replan(p, boom)[0].success  # the default hovers

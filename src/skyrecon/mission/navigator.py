@@ -45,6 +45,9 @@ from skyrecon.mission.vehicle import sample_path
 from skyrecon.planning import Planner, PlanResult, Replanner, path_conflict, remaining_path
 from skyrecon.planning.keep_out import warm_kernels as warm_keep_out
 
+#: Why a plan cannot start where the drone is (too close to an obstacle): an escape point is sought.
+_START_PROBLEMS = ("start_too_close", "start_in_obstacle", "start_enclosed")
+
 
 @dataclass
 class CheckOutcome:
@@ -219,7 +222,9 @@ class Navigator:
         sweep closes the way to the goal), the path is the step out of the sweep alone
         (:attr:`evading`): hovering in a mover's way is not safe (mission 115: a crane boom
         swept at 0.6 m/s into a drone that hovered for 10 s, its escapes found but never
-        followed because no path to the goal started there).
+        followed because no path to the goal started there); when no point within reach clears
+        the sweep, the step goes to the reachable point farthest from it
+        (:meth:`Planner.point_away_from`).
 
         Args:
             keep_out: (K, 7) capsules of the tracked movers' predicted sweep
@@ -237,11 +242,23 @@ class Navigator:
             self.planner.avoiding(keep_out, p, self.goal),
             self.planner.weighted(self.cfg.keep_out_heuristic_weight),
         ):
-            return self._replan(p, 6.0, evade=self.cfg.evade_movers)
+            r, how = self._replan(p, 6.0, evade=self.cfg.evade_movers)
+        if self.cfg.evade_movers and not r.success and r.reason in _START_PROBLEMS:
+            # no point within reach clears the sweep (a crane boom's keep-out can be 7 m across):
+            # farther from it is still safer than hovering in it
+            away = self.planner.point_away_from(p, 6.0, keep_out)
+            if away is not None:
+                r = PlanResult(
+                    True, np.vstack([p, away]), float(np.linalg.norm(away - p)), clearance_m=r.clearance_m
+                )
+                self.replanner.waypoints = r.waypoints
+                self.escape_to, self.evading = away.copy(), True
+                return r, "escape"
+        return r, how
 
     def _replan(self, p: np.ndarray, escape_radius_m: float, evade: bool) -> tuple[PlanResult, str]:
         r = self.replanner.replan(p)
-        if r.success or r.reason not in ("start_too_close", "start_in_obstacle", "start_enclosed"):
+        if r.success or r.reason not in _START_PROBLEMS:
             if r.success:
                 self.escape_to = None
                 self.evading = False

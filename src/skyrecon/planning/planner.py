@@ -313,6 +313,54 @@ class Planner:
                 return cand[i]
         return None
 
+    def point_away_from(
+        self, position: np.ndarray, radius_m: float, capsules: np.ndarray, min_gain_m: float = 0.5
+    ) -> np.ndarray | None:
+        """The point within ``radius_m`` of ``position`` (3,) world metres farthest from the
+        keep-out ``capsules`` (K, 7) (:mod:`skyrecon.planning.keep_out`) among those at the full
+        clearance from the map's obstacles, within the altitude limits, and reachable in a
+        straight line that gets closer to neither the map's obstacles nor the capsules; None
+        when none is at least ``min_gain_m`` farther from the capsules than ``position``.
+
+        A best-effort escape for when no point within reach clears a mover's predicted sweep
+        (a crane boom's keep-out can be 7 m across): farther away is still safer than hovering
+        in it. Call it outside :meth:`avoiding` (the map's own distances).
+        """
+        from skyrecon.planning.keep_out import as_capsules, capsule_distance
+
+        p = check_point3(position, "position")
+        caps = as_capsules(capsules)
+        if len(caps) == 0:
+            return None
+        v = self.map.voxel_size
+        grid = self.grid_for(p - radius_m, p + radius_m)
+        r = np.arange(-radius_m, radius_m + 1e-9, v)
+        offs = np.stack(np.meshgrid(r, r, r, indexing="ij"), -1).reshape(-1, 3)
+        norm = np.linalg.norm(offs, axis=1)
+        cand = p + offs[(norm <= radius_m) & (norm > 0)]
+        ok = (
+            (grid.distance(cand) >= self.threshold + 0.05)
+            & (cand[:, 2] >= self.min_z)
+            & (cand[:, 2] <= self.max_z)
+        )
+        cand = cand[ok]
+        if len(cand) == 0:
+            return None
+        c0 = float(capsule_distance(p[None], caps)[0])
+        gain = capsule_distance(cand, caps) - c0
+        order = np.lexsort((np.linalg.norm(cand - p, axis=1), -gain))
+        for i in order[:64]:
+            if gain[i] < min_gain_m:
+                return None
+            q = cand[i]
+            n = max(2, int(np.ceil(np.linalg.norm(q - p) / (0.25 * v))) + 1)
+            pts = p + (q - p) * np.linspace(0.0, 1.0, n)[:, None]
+            if self._reachable_without_closing_in(grid, p, q) and np.all(
+                capsule_distance(pts, caps) >= c0 - 0.02
+            ):
+                return q
+        return None
+
     def is_clear_point(self, position: np.ndarray, point: np.ndarray) -> bool:
         """Whether ``point`` (3,) world metres is one :meth:`nearest_clear_point` could pick from
         ``position`` (3,): at the full clearance, within the altitude limits, and reachable in a
