@@ -62,12 +62,14 @@ class MissionConfig:
             path to the goal starts from its escape point (the path is then the step alone, and
             a path on is sought every cycle), and an escape keeps its point while that stays
             usable, so that escapes do not flip sides between cycles as a mover's prediction
-            shifts (see :meth:`~skyrecon.mission.navigator.Navigator.replan`). Off by default
-            (session 29): it saved seed 115 (hovering 10 s in a crane boom's sweep, its escapes
-            found but unused, it was hit), but in the same 100-149 set seed 103 hovered inside
-            a crane boom's keep-out capsule of 6-7 m radius, with no point at the full
-            clearance within the 6 m escape radius, and was hit: a boom needs a best-effort
-            escape (away from the sweep when no point clears it) before this can be the default.
+            shifts; when no point within reach clears the sweep (a crane boom's keep-out can be
+            7 m in radius), it steps to the reachable point farthest from it (see
+            :meth:`~skyrecon.mission.navigator.Navigator.replan`). Off by default: flown in
+            session 29 only with the tried tracker (``tracker_settings`` with the side-view
+            push and ``reacquire_s``) on seeds 100-149: 50/50 delivered, 0 collisions, where
+            that tracker without it let seed 115 hover 10 s in a crane boom's sweep (its escapes
+            found but unused) and be hit, and without the farthest-point step seed 103 hovered
+            inside a 7 m keep-out and was hit. Not yet flown on the held-out seeds 200-249.
         backoff_looks_ahead: a drone backing off along its flown track to see a climb (see
             :class:`~skyrecon.mission.guidance.BackOff`) looks where it flies, holds 2 s at the
             end looking at the climb, and stops backing off when its way back meets a mover's

@@ -127,10 +127,10 @@ class MoverSettings:
             about half the innovation per second of coasting), its keep-out swept away from the
             drone it really was, which then hit ours; with (1 s, 1 m) that flight delivered.
             Where the prediction held (within the gap), the velocity did too and is kept. None
-            (the default): never. Not the default because the flights it changes meet a
-            weakness of guidance around crane booms (session 29, see
-            ``MissionConfig.evade_movers``): with it and the push below, seeds 200-249 flew
-            50/50 without a collision, but seed 115 hovered in a boom's sweep and was hit.
+            (the default): never. Not yet the default (session 29): with it and the push below,
+            held-out seeds 200-249 flew 50/50 without a collision, but on seeds 100-149 seed 115
+            hovered in a crane boom's sweep and was hit; with ``MissionConfig.evade_movers`` too,
+            seeds 100-149 flew 50/50 without a collision, a combination not yet flown on 200-249.
         coast_s: a track not seen is predicted forward for up to this long, seconds, then
             dropped (tentative, not yet confirmed tracks are dropped at their first miss).
         moving_speed_mps: a confirmed track faster than this is moving, m/s.
@@ -211,7 +211,8 @@ class MoverSettings:
             defaults and 0.365 m with (0.2, 0.5). Flown: (0.2, 0.5) on seeds 100-149 (session 26)
             50/50 delivered, 0 collisions, 0.435 m (0.525 with the defaults); with
             ``reacquire_s`` 1 on held-out 200-249 (session 29) 50/50, 0 collisions, 0.378 m
-            (0.541), but on 100-149 seed 115 was hit (see ``reacquire_s``). (0.2, 0.5, True)
+            (0.541), but on 100-149 seed 115 was hit (see ``reacquire_s``); with
+            ``MissionConfig.evade_movers`` too, 100-149 50/50, 0 collisions, 0.379 m. (0.2, 0.5, True)
             with the look-ahead back-off: held-out seed 202 was hit (see ``reacquire_s``). So
             the defaults keep the flights that 100 missions flew without a collision. On exact
             depth (a drone crossing 12 m ahead, ``tests/perception``) no push leaves the centre
