@@ -41,7 +41,7 @@ import numpy as np  # noqa: E402
 
 from skyrecon.mission.world_monitor import detection_error  # noqa: E402
 from skyrecon.perception import MoverSettings, MoverTracker  # noqa: E402
-from skyrecon.perception.movers import MoverDetection  # noqa: E402
+from skyrecon.perception.movers import MoverDetection, parse_mover_overrides  # noqa: E402
 
 
 def parse_seeds(text: str) -> list[int]:
@@ -132,15 +132,6 @@ def replay(doc: dict, **overrides) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return np.array(errs), np.array(hits, bool), np.array(dists)
 
 
-def parse_set(text: str) -> dict:
-    """``"max_push_m=0,side_view_cos=1"`` -> overrides (``None`` and numbers understood)."""
-    out = {}
-    for item in filter(None, text.split(",")):
-        k, _, v = item.partition("=")
-        out[k.strip()] = None if v.strip() == "None" else float(v)
-    return out
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -164,7 +155,7 @@ def main() -> None:
     print(f"{len(docs)} recorded missions, {sum(len(d['sightings']) for d in docs)} mover-frames within 20 m")
     print(f"{'variant':40s} {'err med':>8} {'pooled':>7} {'p95':>6} {'rec20':>6} {'rec10':>6}")
     for text in ["", *args.set]:
-        ov = parse_set(text)
+        ov = parse_mover_overrides(text)
         meds, pooled, hits, dists = [], [], [], []
         for d in docs:
             e, h, dist = replay(d, **ov)

@@ -248,12 +248,7 @@ class Navigator:
             # farther from it is still safer than hovering in it
             away = self.planner.point_away_from(p, 6.0, keep_out)
             if away is not None:
-                r = PlanResult(
-                    True, np.vstack([p, away]), float(np.linalg.norm(away - p)), clearance_m=r.clearance_m
-                )
-                self.replanner.waypoints = r.waypoints
-                self.escape_to, self.evading = away.copy(), True
-                return r, "escape"
+                return self._escape_along(p, away, None, r), "escape"
         return r, how
 
     def _replan(self, p: np.ndarray, escape_radius_m: float, evade: bool) -> tuple[PlanResult, str]:
@@ -275,19 +270,29 @@ class Navigator:
             esc = self.escape_point(p, escape_radius_m)
         if esc is None:
             return r, "plan"
-        r2 = self.planner.plan(esc, self.goal)
-        if r2.success:
-            r2.waypoints = np.vstack([p[None], r2.waypoints])
-            self.evading = False
-        elif evade:  # no way on from there: step out of the sweep all the same
-            r2 = PlanResult(True, np.vstack([p, esc]), 0.0, clearance_m=r.clearance_m, margin_m=r.margin_m)
-            self.evading = True
-        else:
+        on = self.planner.plan(esc, self.goal)
+        if not on.success and not evade:
             return r, "plan"
-        r2.length_m = float(np.linalg.norm(np.diff(r2.waypoints, axis=0), axis=1).sum())
-        self.replanner.waypoints = r2.waypoints
-        self.escape_to = esc.copy()
-        return r2, "escape"
+        # with evade and no way on from there: step out of the sweep all the same
+        return self._escape_along(p, esc, on if on.success else None, r), "escape"
+
+    def _escape_along(
+        self, p: np.ndarray, esc: np.ndarray, on: PlanResult | None, failed: PlanResult
+    ) -> PlanResult:
+        """Follow the straight step from ``p`` to the escape point ``esc`` (3,), then the plan
+        ``on`` from there to the goal; with ``on`` None, the step alone (:attr:`evading`).
+        ``failed`` is the plan that could not start at ``p`` (its clearance is reported)."""
+        if on is None:
+            out = PlanResult(
+                True, np.vstack([p, esc]), 0.0, clearance_m=failed.clearance_m, margin_m=failed.margin_m
+            )
+        else:
+            out = on
+            out.waypoints = np.vstack([p[None], on.waypoints])
+        out.length_m = float(np.linalg.norm(np.diff(out.waypoints, axis=0), axis=1).sum())
+        self.replanner.waypoints = out.waypoints
+        self.escape_to, self.evading = esc.copy(), on is None
+        return out
 
     def escaping(self, position: np.ndarray) -> bool:
         """Whether the drone at ``position`` (3,) is on the first leg of an escape path (to the

@@ -291,25 +291,19 @@ class Planner:
         space the map has not observed.
         """
         p = check_point3(position, "position")
-        v = self.map.voxel_size
         other = p if toward is None else check_point3(toward, "toward")
         grid = self.grid_for(np.minimum(p, other), np.maximum(p, other))
-        r = np.arange(-radius_m, radius_m + 1e-9, v)
-        offs = np.stack(np.meshgrid(r, r, r, indexing="ij"), -1).reshape(-1, 3)
-        norm = np.linalg.norm(offs, axis=1)
-        offs = offs[(norm <= radius_m) & (norm > 0)]
+        offs = self._ball_offsets(radius_m)
         cand = p + offs
-        d = grid.distance(cand)
-        good = np.flatnonzero(
-            (d >= self.threshold + 0.05) & (cand[:, 2] >= self.min_z) & (cand[:, 2] <= self.max_z)
-        )
+        good = np.flatnonzero(self._usable(grid, cand))
         if len(good) == 0:
             return None
         order = good[
             np.lexsort((np.linalg.norm(cand[good] - other, axis=1), np.linalg.norm(offs[good], axis=1)))
         ]
+        d0 = float(grid.distance(p[None])[0])
         for i in order[:64]:
-            if self._reachable_without_closing_in(grid, p, cand[i]):
+            if self._reachable_without_closing_in(grid, p, cand[i], d0):
                 return cand[i]
         return None
 
@@ -332,31 +326,21 @@ class Planner:
         caps = as_capsules(capsules)
         if len(caps) == 0:
             return None
-        v = self.map.voxel_size
         grid = self.grid_for(p - radius_m, p + radius_m)
-        r = np.arange(-radius_m, radius_m + 1e-9, v)
-        offs = np.stack(np.meshgrid(r, r, r, indexing="ij"), -1).reshape(-1, 3)
-        norm = np.linalg.norm(offs, axis=1)
-        cand = p + offs[(norm <= radius_m) & (norm > 0)]
-        ok = (
-            (grid.distance(cand) >= self.threshold + 0.05)
-            & (cand[:, 2] >= self.min_z)
-            & (cand[:, 2] <= self.max_z)
-        )
-        cand = cand[ok]
+        cand = p + self._ball_offsets(radius_m)
+        cand = cand[self._usable(grid, cand)]
         if len(cand) == 0:
             return None
         c0 = float(capsule_distance(p[None], caps)[0])
         gain = capsule_distance(cand, caps) - c0
         order = np.lexsort((np.linalg.norm(cand - p, axis=1), -gain))
+        d0 = float(grid.distance(p[None])[0])
         for i in order[:64]:
             if gain[i] < min_gain_m:
                 return None
             q = cand[i]
-            n = max(2, int(np.ceil(np.linalg.norm(q - p) / (0.25 * v))) + 1)
-            pts = p + (q - p) * np.linspace(0.0, 1.0, n)[:, None]
-            if self._reachable_without_closing_in(grid, p, q) and np.all(
-                capsule_distance(pts, caps) >= c0 - 0.02
+            if self._reachable_without_closing_in(grid, p, q, d0) and np.all(
+                capsule_distance(self._segment(p, q), caps) >= c0 - 0.02
             ):
                 return q
         return None
@@ -369,19 +353,36 @@ class Planner:
         p = check_point3(position, "position")
         q = check_point3(point, "point")
         grid = self.grid_for(np.minimum(p, q), np.maximum(p, q))
-        if not (self.min_z <= q[2] <= self.max_z):
+        if not self._usable(grid, q[None])[0]:
             return False
-        if not float(grid.distance(q[None])[0]) >= self.threshold + 0.05:
-            return False
-        return self._reachable_without_closing_in(grid, p, q)
+        return self._reachable_without_closing_in(grid, p, q, float(grid.distance(p[None])[0]))
 
-    def _reachable_without_closing_in(self, grid: PlanningGrid, p: np.ndarray, q: np.ndarray) -> bool:
-        """The straight segment ``p`` -> ``q`` never comes closer to an obstacle than ``p`` is
-        (or than the clearance, whichever is less), sampled every quarter voxel."""
-        d0 = float(grid.distance(p[None])[0])
+    def _ball_offsets(self, radius_m: float) -> np.ndarray:
+        """(N, 3) offsets on the voxel lattice within ``radius_m`` (metres), the zero one left out."""
+        r = np.arange(-radius_m, radius_m + 1e-9, self.map.voxel_size)
+        offs = np.stack(np.meshgrid(r, r, r, indexing="ij"), -1).reshape(-1, 3)
+        norm = np.linalg.norm(offs, axis=1)
+        return offs[(norm <= radius_m) & (norm > 0)]
+
+    def _usable(self, grid: PlanningGrid, pts: np.ndarray) -> np.ndarray:
+        """(N,) bool: the points (N, 3) lie at the full clearance and within the altitude limits."""
+        return (
+            (grid.distance(pts) >= self.threshold + 0.05)
+            & (pts[:, 2] >= self.min_z)
+            & (pts[:, 2] <= self.max_z)
+        )
+
+    def _segment(self, p: np.ndarray, q: np.ndarray) -> np.ndarray:
+        """(n, 3) points from ``p`` to ``q`` (both included), every quarter voxel."""
         n = max(2, int(np.ceil(np.linalg.norm(q - p) / (0.25 * self.map.voxel_size))) + 1)
-        pts = p + (q - p) * np.linspace(0.0, 1.0, n)[:, None]
-        return bool(np.all(grid.distance(pts) >= min(d0, self.threshold) - 0.02))
+        return p + (q - p) * np.linspace(0.0, 1.0, n)[:, None]
+
+    def _reachable_without_closing_in(
+        self, grid: PlanningGrid, p: np.ndarray, q: np.ndarray, d0: float
+    ) -> bool:
+        """The straight segment ``p`` -> ``q`` never comes closer to an obstacle than ``p`` is
+        (``d0``, its distance) or than the clearance, whichever is less."""
+        return bool(np.all(grid.distance(self._segment(p, q)) >= min(d0, self.threshold) - 0.02))
 
     def plan(self, start: np.ndarray, goal: np.ndarray, snap_radius_m: float = 0.0) -> PlanResult:
         """Plan from ``start`` to ``goal`` ((3,) world points, metres).
