@@ -12,7 +12,8 @@ Scenes:
 Metrics:
   cam err       estimated camera centre (``survey.json`` lat/lon/alt) vs the truth, metres (median, p95)
   GPS limit     the median error of the *true* camera centres placed on the GPS tags by a
-                similarity: what a perfect model would reach from these tags (their noise, averaged)
+                similarity: what a perfect model would reach from these tags (their noise, averaged);
+                benchmarks/survey/gps_bound.py gives it over many GPS draws, with the nadir prior
   dsm ok        share of covered DSM cells within 0.3 m of the true highest surface (synthetic only)
   rel.          the same after the similarity that best maps the estimated cameras onto the true
                 ones: the model's own shape, without the georeferencing's error

@@ -54,6 +54,13 @@ def test_wrong_tags_are_named_and_do_not_move_the_fit():
     # (this draw's mean height noise is -1.3 m: no fit to these tags does better than that)
     assert np.median(err) < 1.5 and geo.level is not None and geo.level["weight"] > 0.9
     assert geo.gps_residuals_m[wrong[0]] > 30
+    # without the prior: the GPS fit's own tilt, the oracle's figures (the same tags kept), and
+    # worse at the edges of the area, where a tilt error lifts or lowers the cameras most
+    plain = georeference_to_gps(model, gps, seed=0, nadir_prior=False)
+    err_plain = np.linalg.norm(plain.enu_from_model.apply(S) - T, axis=1)
+    assert plain.level is None and set(plain.set_aside) == set(geo.set_aside)
+    assert abs(np.median(err_plain) - np.median(err_oracle)) < 0.05
+    assert err_plain.max() > err.max() + 0.1
 
 
 def test_too_few_tags_is_an_input_error():

@@ -84,7 +84,11 @@ def _gps_residuals(rec: Reconstruction, T: Sim3, gps_enu: dict[str, np.ndarray])
 
 
 def georeference_to_gps(
-    rec: Reconstruction, gps_enu: dict[str, np.ndarray], seed: int = 0, threshold_m: float | None = None
+    rec: Reconstruction,
+    gps_enu: dict[str, np.ndarray],
+    seed: int = 0,
+    threshold_m: float | None = None,
+    nadir_prior: bool = True,
 ) -> Georeference:
     """Fit ``enu_from_model`` to the GPS positions of the registered photos (see the module).
 
@@ -93,6 +97,8 @@ def georeference_to_gps(
         gps_enu: photo name -> (3,) GPS position in the ENU frame, metres.
         seed: RANSAC seed.
         threshold_m: fixed inlier distance instead of the adaptive one, metres.
+        nadir_prior: combine the tilt with the photos' mean viewing direction when they look
+            straight down on average (see the module); False: the GPS fit's tilt alone.
     Raises:
         InputError: fewer than 3 registered photos have GPS, or they lie on a line.
         EstimationError: the positions do not fit one similarity.
@@ -109,7 +115,9 @@ def georeference_to_gps(
     T = res.world_from_model
     outliers = sorted(res.outliers or [], key=lambda n: -(res.residuals_m or {}).get(n, 0.0))
     inliers = [n for n in (res.residuals_m or {}) if n not in set(outliers)]
-    T, level = _nadir_level(rec, T, {n: gps_enu[n] for n in inliers if n in gps_enu})
+    level = None
+    if nadir_prior:
+        T, level = _nadir_level(rec, T, {n: gps_enu[n] for n in inliers if n in gps_enu})
     resid = _gps_residuals(rec, T, gps_enu)
     warnings = list(res.warnings)
     kept = np.array([resid[n] for n in inliers if n in resid])
