@@ -69,7 +69,12 @@ class MissionConfig:
             push and ``reacquire_s``) on seeds 100-149: 50/50 delivered, 0 collisions, where
             that tracker without it let seed 115 hover 10 s in a crane boom's sweep (its escapes
             found but unused) and be hit, and without the farthest-point step seed 103 hovered
-            inside a 7 m keep-out and was hit. Not yet flown on the held-out seeds 200-249.
+            inside a 7 m keep-out and was hit. On the held-out seeds 200-249 (session 30): 48/50
+            delivered, 0 collisions, median position error 0.389 m, but seeds 231 and 248 ended
+            hovering: their escapes led onto paths climbing more steeply than the camera looks up,
+            whose way the ``path_seen`` speed limit never lets the drone fly unseen (231 sat at its
+            escape point for 30 s; the same tracker without this delivered both). Off until the
+            guidance can verify such a climb (or the escape prefers level points).
         backoff_looks_ahead: a drone backing off along its flown track to see a climb (see
             :class:`~skyrecon.mission.guidance.BackOff`) looks where it flies, holds 2 s at the
             end looking at the climb, and stops backing off when its way back meets a mover's
