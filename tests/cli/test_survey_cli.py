@@ -111,3 +111,40 @@ def test_photos_without_gps_and_without_gcps_is_one_clear_error(tmp_path, capsys
     )
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--gcp" in err[0]
+
+
+def _retagged(photos, out, tag):
+    """The survey's photos re-encoded with ``tag(name) -> (lat, lon, alt) or None`` as their GPS."""
+    from PIL import Image
+
+    from skyrecon.survey.exif import write_geotagged_jpeg
+
+    out.mkdir()
+    for p in sorted((photos / "images").glob("*.jpg")):
+        rgb = np.asarray(Image.open(p).convert("RGB"))
+        t = tag(p.name)
+        if t is None:
+            Image.fromarray(rgb).save(out / p.name, quality=95)
+        else:
+            write_geotagged_jpeg(out / p.name, rgb, *t, focal_mm=8.8, sensor_width_mm=13.2)
+    return out
+
+
+@pytest.mark.parametrize("case", ["no GPS", "tripod"])
+def test_a_survey_that_cannot_be_georeferenced_still_writes_its_model(photos, tmp_path, capsys, case):
+    """No GPS and no control points, or every tag at one place (a tripod): one clear line (exit 2)
+    saying what is needed, and the model that could be made, unreferenced, in ``model/`` with a
+    ``survey.json`` that says so."""
+    tag = (lambda n: None) if case == "no GPS" else (lambda n: (47.3769, 8.5417, 500.0))
+    images = _retagged(photos, tmp_path / "images", tag)
+    out = tmp_path / "out"
+    args = ["survey", str(images), "--out", str(out), "--camera", str(photos / "K.txt")]
+    args += ["--max-image-size", "320", "--workers", "2", "--quiet"]
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(images) in err[0] and "unreferenced model" in err[0], err
+    assert "--gcp" in err[0] and (case == "no GPS" or "tripod" in err[0]), err
+    doc = json.loads((out / "survey.json").read_text())
+    assert doc["georeferenced"] is False and doc["why"] in err[0]
+    assert len(doc["cameras"]) >= 10 and "center_model" in doc["cameras"][0]
+    assert (out / "model" / "images.txt").is_file() and not (out / "cloud.laz").exists()

@@ -116,3 +116,36 @@ def test_points_do_not_matter_for_the_fit():
     model.points3d[1] = Point3D(1, np.zeros(3), np.zeros(3, np.uint8), 0.0, np.zeros((0, 2), np.int64))
     geo = georeference_to_gps(model, truth)
     assert geo.rms_m < 1e-6 and not geo.set_aside
+
+
+def test_control_points_matching_no_photo_fall_back_to_gps_with_a_warning(tmp_path):
+    """A GCP file whose image names match none of the registered photos: with GPS tags the survey
+    is georeferenced to them and says why; without tags it is an input error naming the cause."""
+    from skyrecon.survey.gcp import GcpList, GroundControlPoint
+    from skyrecon.survey.geo import GeoOrigin
+    from skyrecon.survey.pipeline import SurveyOptions, _georeference
+
+    truth, model = _survey()
+    rng = np.random.default_rng(2)
+    gps = {n: c + rng.normal(0, 1, 3) for n, c in truth.items()}
+    points = [
+        GroundControlPoint(
+            f"gcp{k}", np.zeros(3), 47.0, 8.0 + 1e-4 * k, 400.0, {"DSC_9999.JPG": np.array([10.0, 20.0])}
+        )
+        for k in range(4)
+    ]
+    gcps = GcpList(tmp_path / "gcp_list.txt", "WGS84", points)
+    origin = GeoOrigin(47.0, 8.0, 400.0)
+    geo = _georeference(model, gps, gcps, origin, SurveyOptions())
+    assert geo.method == "gps" and "control points cannot be used" in geo.warnings[0]
+    good = [n for n in truth]
+    err = np.linalg.norm(
+        geo.enu_from_model.apply(np.stack([model.image_by_name(n).center_world for n in good]))
+        - np.stack([truth[n] for n in good]),
+        axis=1,
+    )
+    assert np.median(err) < 0.5
+    with pytest.raises(InputError, match="control points cannot be used"):
+        _georeference(model, {}, gcps, origin, SurveyOptions())
+    with pytest.raises(InputError, match="tripod"):
+        _georeference(model, {n: np.zeros(3) for n in truth}, None, origin, SurveyOptions())

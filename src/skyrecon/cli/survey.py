@@ -130,8 +130,8 @@ def run(args: argparse.Namespace) -> int:
     _check_geo_extra()
     from skyrecon.cli.sfm import list_images
     from skyrecon.survey.geo import GeoOrigin
-    from skyrecon.survey.outputs import write_survey_outputs
-    from skyrecon.survey.pipeline import SurveyInputs, SurveyOptions, run_survey
+    from skyrecon.survey.outputs import write_survey_outputs, write_unreferenced_outputs
+    from skyrecon.survey.pipeline import NotGeoreferenced, SurveyInputs, SurveyOptions, run_survey
 
     t0 = time.perf_counter()
     photos = list_images(args.photos_dir)
@@ -158,7 +158,14 @@ def run(args: argparse.Namespace) -> int:
     if not args.quiet:
         info(f"{len(photos)} photos in {args.photos_dir}; workspace {workspace}")
     with open_executor(args) as executor:
-        result = run_survey(inputs, workspace, options, executor)
+        try:
+            result = run_survey(inputs, workspace, options, executor)
+        except NotGeoreferenced as e:  # the model it could make, then the one line of what is needed
+            write_unreferenced_outputs(e.model, e.unregistered, e.warnings, e.reason, len(photos), out)
+            raise InputError(
+                f"{e.reason}; wrote the unreferenced model of {len(e.model.images)} photos to {out / 'model'}",
+                args.photos_dir,
+            ) from None
     files = write_survey_outputs(result, out, args.format, args.cell, args.epsg, release_map=True)
     geo = result.georef
     if geo.set_aside:

@@ -19,6 +19,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from skyrecon.core.reconstruction import Reconstruction
 from skyrecon.io.atomic import make_temp_dir, sweep_stale_temps, write_text_atomic
 from skyrecon.io.colmap import write_colmap_text
 from skyrecon.io.las import write_point_cloud
@@ -99,6 +100,40 @@ def survey_json(result: SurveyResult, rasters: SurfaceRasters | None, files: lis
             "covered_cells": int(rasters.valid.sum()),
         }
     return doc
+
+
+def write_unreferenced_outputs(
+    model: Reconstruction,
+    unregistered: dict[str, str],
+    warnings: list[str],
+    reason: str,
+    photos: int,
+    out: str | Path,
+) -> list[str]:
+    """What a survey that cannot be georeferenced can still give: ``model/`` (COLMAP text, the
+    structure-from-motion model in its own gauge: arbitrary origin, orientation and scale) and
+    ``survey.json`` (``georeferenced: false``, why, and per photo its centre in that gauge).
+    Returns the names written (``survey.json`` last)."""
+    out = Path(out)
+    write_colmap_text(out / "model", model)
+    ims = sorted(model.images.values(), key=lambda im: im.name)
+    doc = {
+        "command": "skyrecon survey",
+        "georeferenced": False,
+        "why": reason,
+        "frame": "the structure-from-motion model's own gauge (arbitrary origin, orientation and scale)",
+        "photos": photos,
+        "registered": len(model.images),
+        "not_registered": unregistered,
+        "cameras": [
+            {"name": im.name, "center_model": [round(float(v), 6) for v in im.center_world]} for im in ims
+        ],
+        "points_sparse": len(model.points3d),
+        "warnings": warnings,
+        "files": ["model/", "survey.json"],
+    }
+    _json(out / "survey.json", doc)
+    return ["model/", "survey.json"]
 
 
 def _write_map(result: SurveyResult, out: Path) -> None:

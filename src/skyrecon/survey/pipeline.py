@@ -36,7 +36,7 @@ import numpy as np
 from skyrecon.core import PosedView
 from skyrecon.core.intrinsics import Intrinsics
 from skyrecon.core.reconstruction import Reconstruction
-from skyrecon.errors import InputError
+from skyrecon.errors import EstimationError, InputError
 from skyrecon.executor import Executor, get_executor
 from skyrecon.io.atomic import write_bytes_atomic
 from skyrecon.io.calib import read_K_txt
@@ -54,7 +54,7 @@ from skyrecon.survey.gcp import GcpList, read_gcp_list
 from skyrecon.survey.geo import GeoOrigin, enu_from_lla
 from skyrecon.survey.georef import Georeference, georeference_to_gcps, georeference_to_gps
 
-__all__ = ["SurveyInputs", "SurveyOptions", "SurveyResult", "run_survey", "gps_pairs"]
+__all__ = ["NotGeoreferenced", "SurveyInputs", "SurveyOptions", "SurveyResult", "run_survey", "gps_pairs"]
 
 
 @dataclass(frozen=True)
@@ -158,7 +158,9 @@ def _camera(inputs: SurveyInputs, metas: list[PhotoMeta]) -> tuple[Intrinsics, s
     return intrinsics_from_meta(first), "exif" if exact else "exif-35mm"
 
 
-def _origin(inputs: SurveyInputs, metas: list[PhotoMeta], gcps: GcpList | None) -> GeoOrigin:
+def _origin(inputs: SurveyInputs, metas: list[PhotoMeta], gcps: GcpList | None) -> GeoOrigin | None:
+    """The local frame's origin: ``--origin``, else the median GPS tag, else the control points'
+    centre; None when there is neither (the model can then only be made unreferenced)."""
     if inputs.origin is not None:
         return inputs.origin
     tagged = [m for m in metas if m.has_gps]
@@ -173,10 +175,34 @@ def _origin(inputs: SurveyInputs, metas: list[PhotoMeta], gcps: GcpList | None) 
             float(np.median([g.lon_deg for g in gcps.points])),
             float(np.min([g.alt_m for g in gcps.points])),
         )
-    raise InputError(
-        "none of the photos has GPS tags (EXIF GPSLatitude/GPSLongitude/GPSAltitude); give ground control "
-        "points with --gcp FILE"
-    )
+    return None
+
+
+#: What a survey without any GPS tag or control point needs.
+NO_GEO_HINT = (
+    "none of the photos has GPS tags (EXIF GPSLatitude/GPSLongitude/GPSAltitude); give ground control "
+    "points with --gcp FILE"
+)
+
+
+class NotGeoreferenced(InputError):
+    """The photos made a model, but nothing places it on the Earth: no GPS tags and no control
+    points, tags that cannot fix a similarity (all at one place, as on a tripod, or on a line),
+    or control points that match no registered photo, without GPS to fall back on.
+
+    Attributes:
+        model: the structure-from-motion model in its own gauge (arbitrary frame and scale).
+        unregistered: photo name -> why it is not in the model.
+        warnings: what the stages before georeferencing had to say.
+    """
+
+    def __init__(
+        self, message: str, model: Reconstruction, unregistered: dict[str, str], warnings: list[str]
+    ):
+        super().__init__(message)
+        self.model = model
+        self.unregistered = unregistered
+        self.warnings = warnings
 
 
 def gps_pairs(
@@ -284,15 +310,31 @@ def _georeference(
     model: Reconstruction,
     gps_enu: dict[str, np.ndarray],
     gcps: GcpList | None,
-    origin: GeoOrigin,
+    origin: GeoOrigin | None,
     options: SurveyOptions,
 ) -> Georeference:
+    """The model into the ENU frame: by the control points when given (by GPS, with a warning, when
+    they cannot be used and there are tags), else by GPS.
+
+    Raises:
+        InputError: nothing usable places the model (the message says what is needed).
+        EstimationError: the tags do not fit one similarity.
+    """
+    if origin is None:
+        raise InputError(NO_GEO_HINT)
     if gcps is not None:
         pts = [
             (g.name, enu_from_lla(origin, g.lat_deg, g.lon_deg, g.alt_m)[0], g.observations)
             for g in gcps.points
         ]
-        geo = georeference_to_gcps(model, pts, options.seed)
+        try:
+            geo = georeference_to_gcps(model, pts, options.seed)
+        except (InputError, EstimationError) as e:
+            if len(gps_enu) < 3:
+                raise InputError(f"the control points cannot be used: {e}") from None
+            geo = georeference_to_gps(model, gps_enu, options.seed, options.gps_threshold_m)
+            geo.warnings.insert(0, f"the control points cannot be used ({e}); georeferenced to GPS instead")
+            return geo
         if len(gps_enu) >= 3:
             centres = {im.name: geo.enu_from_model.apply(im.center_world) for im in model.images.values()}
             geo.gps_residuals_m = {
@@ -302,6 +344,12 @@ def _georeference(
     if len(gps_enu) < 3:
         raise InputError(
             f"only {len(gps_enu)} photos have GPS tags; at least 3 are needed to georeference (or give --gcp FILE)"
+        )
+    spread = float(np.ptp(np.stack(list(gps_enu.values())), axis=0).max())
+    if spread < 1.0:
+        raise InputError(
+            f"the GPS tags of all {len(gps_enu)} photos lie within {spread:.2f} m of each other (a tripod, or "
+            "a receiver that did not update): they cannot scale or orient the model; give --gcp FILE"
         )
     return georeference_to_gps(model, gps_enu, options.seed, options.gps_threshold_m)
 
@@ -365,8 +413,11 @@ def run_survey(
         options: see :class:`SurveyOptions`.
         executor: where per-image work runs (default: local processes, ``options.workers``).
     Raises:
-        InputError: unreadable photos, no camera, no GPS and no GCPs, too few tags or control points.
-        EstimationError: no model can be made, or the tags do not fit one similarity.
+        InputError: unreadable photos, no camera.
+        NotGeoreferenced: a model was made but nothing places it (no GPS and no GCPs, too few or
+            degenerate tags, control points that match no registered photo, tags that do not fit
+            one similarity); it carries the unreferenced model.
+        EstimationError: no model can be made.
     """
     options = options or SurveyOptions()
     ws = Path(workspace)
@@ -380,11 +431,19 @@ def run_survey(
     metas = [read_photo_meta(p) for p in inputs.photos]
     gcps = read_gcp_list(inputs.gcp_file) if inputs.gcp_file is not None else None
     cam, camera_source = _camera(inputs, metas)
+    sizes = sorted({(m.width, m.height) for m in metas} - {tuple(cam.size)})
+    if sizes:
+        others = [m.path.name for m in metas if (m.width, m.height) != tuple(cam.size)]
+        warnings.append(
+            f"mixed cameras: {len(others)} photos are not {cam.size[0]}x{cam.size[1]} like the others "
+            f"({', '.join(f'{w}x{h}' for w, h in sizes)}: {', '.join(others[:5])}{' ...' if len(others) > 5 else ''}); "
+            "the survey leaves them out (survey them on their own)"
+        )
     origin = _origin(inputs, metas, gcps)
     gps_enu: dict[str, np.ndarray] = {}
     positions: list[np.ndarray | None] = []
     for m in metas:
-        if m.has_gps:
+        if m.has_gps and origin is not None:  # (a tag gives an origin)
             p = enu_from_lla(origin, m.lat_deg, m.lon_deg, m.alt_m)[0]
             gps_enu[m.path.name] = p
             positions.append(p)
@@ -404,15 +463,27 @@ def run_survey(
     executor, release = run_scoped_executor(executor or get_executor(None, options.workers))
     try:
         t = time.perf_counter()
-        model0, unregistered, sfm_warnings = _sfm(
-            inputs, cam, camera_source, pairs, options, executor, ws, diag
-        )
+        try:
+            model0, unregistered, sfm_warnings = _sfm(
+                inputs, cam, camera_source, pairs, options, executor, ws, diag
+            )
+        except (InputError, EstimationError) as e:
+            if origin is None:  # say both: no model, and nothing to georeference one with
+                if isinstance(e, InputError):
+                    raise InputError(f"{e.reason}; and {NO_GEO_HINT}", e.path) from None
+                raise EstimationError(f"{e}; and {NO_GEO_HINT}") from None
+            raise
         warnings.extend(sfm_warnings)
         release_free_memory()  # the matcher's and mapper's freed arrays
         timings["sfm"] = time.perf_counter() - t
 
         t = time.perf_counter()
-        geo = _georeference(model0, gps_enu, gcps, origin, options)
+        try:
+            geo = _georeference(model0, gps_enu, gcps, origin, options)
+        except (InputError, EstimationError) as e:
+            why = e.reason if isinstance(e, InputError) else str(e)
+            raise NotGeoreferenced(why, model0, unregistered, warnings) from None
+        assert origin is not None  # _georeference needs one
         model = geo.enu_from_model.transform_reconstruction(model0)
         if inputs.origin is None:  # move the origin down to the ground, so heights are above ground
             dz = _ground_shift(model)
