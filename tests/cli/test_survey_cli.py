@@ -1,6 +1,7 @@
 """End to end: ``skyrecon render survey`` then ``skyrecon survey`` on a tiny survey, then ``skyrecon plan`` on its map."""
 
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -148,3 +149,24 @@ def test_a_survey_that_cannot_be_georeferenced_still_writes_its_model(photos, tm
     assert doc["georeferenced"] is False and doc["why"] in err[0]
     assert len(doc["cameras"]) >= 10 and "center_model" in doc["cameras"][0]
     assert (out / "model" / "images.txt").is_file() and not (out / "cloud.laz").exists()
+
+
+def test_mixed_cameras_are_named_and_left_out(photos, tmp_path, capsys):
+    """One photo from another camera (another image size) among the survey's: the survey goes on
+    without it, and the warning names it and the size."""
+    from PIL import Image
+
+    images = tmp_path / "images"
+    shutil.copytree(photos / "images", images)
+    odd = images / "IMG_0005.jpg"
+    im = Image.open(odd)
+    im.resize((400, 300)).save(odd, exif=im.info["exif"], quality=95)
+    out = tmp_path / "out"
+    args = ["survey", str(images), "--out", str(out), "--max-image-size", "320"]
+    args += ["--mvs-image-size", "200", "--no-planar-prior", "--workers", "2", "--quiet"]
+    assert main(args) == 0
+    doc = json.loads((out / "survey.json").read_text())
+    assert list(doc["not_registered"]) == ["IMG_0005.jpg"] and doc["registered"] == 11
+    assert any("mixed cameras" in w and "400x300: IMG_0005.jpg" in w for w in doc["warnings"]), doc[
+        "warnings"
+    ]

@@ -226,3 +226,18 @@ def test_image_names_of_symbolic_links_are_the_links_names(tmp_path):
     assert names == ["photo_b.png", "photo_a.png", "sub/photo_c.png"]
     assert all((tmp_path / "links" / n).is_file() for n in names)
     assert image_names([Path("rel") / ".." / "x" / "a.png", Path("x/b.png")]) == ["a.png", "b.png"]
+
+
+def test_weaker_initial_pair_when_none_has_the_matches_it_needs(orbit, orbit_result):
+    """No pair has ``init_min_inliers`` verified matches (small images: a 12-photo survey at 320x240
+    had 99 for 100): the mapper starts from the best pair down to half of that, says so, and the
+    model is as good; without that step it could not start."""
+    _, paths, gt = orbit
+    chosen = orbit_result[0].diagnostics["mapper"]["init_pair_inliers"]
+    settings = SfMSettings(mapper=MapperSettings(init_min_inliers=2 * chosen))
+    res = run_sfm(paths, INTR, settings, executor=SerialExecutor(), seed=0)
+    assert any("started from a weaker pair" in w for w in res.warnings), res.warnings
+    assert res.num_registered == len(paths)
+    est = {im.name: im.cam_from_world for im in res.reconstruction.images.values()}
+    s = evaluate_sfm_poses(est, gt).summary()
+    assert s["rotation_max_deg"] < 0.3 and s["center_max_pct"] < 0.3

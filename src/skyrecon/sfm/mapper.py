@@ -32,6 +32,12 @@ from skyrecon.sfm.triangulation import max_triangulation_angles_deg, triangulate
 
 __all__ = ["MapperInput", "MapperOutput", "IncrementalMapper"]
 
+#: The fewest verified matches an initial pair may have when no pair has
+#: ``MapperSettings.init_min_inliers`` (then half of that, at least this). Small images (a 12-photo
+#: survey at 320x240) can fall just short of 100 (99) while the model they make is sound; the
+#: initialisation still needs ``init_min_points`` triangulated points after its adjustment.
+INIT_MIN_INLIERS_FLOOR = 30
+
 
 @dataclass
 class MapperInput:
@@ -582,14 +588,18 @@ class IncrementalMapper:
 
     # ------------------------------------------------------------------ initialisation
     def _init_candidates(self) -> list[PairGeometry]:
-        ok = [
-            p
-            for p in self.d.pairs
-            if p.status == "ok"
-            and self.d.usable[p.i]
-            and self.d.usable[p.j]
-            and p.num_inliers >= self.s.init_min_inliers
-        ]
+        posed = [p for p in self.d.pairs if p.status == "ok" and self.d.usable[p.i] and self.d.usable[p.j]]
+        ok = [p for p in posed if p.num_inliers >= self.s.init_min_inliers]
+        if not ok:  # small or weak images: try the best pairs down to half the matches, and say so
+            floor = max(INIT_MIN_INLIERS_FLOOR, self.s.init_min_inliers // 2)
+            ok = [p for p in posed if p.num_inliers >= floor]
+            if ok:
+                best = max(p.num_inliers for p in ok)
+                self.warnings.append(
+                    f"no image pair has the {self.s.init_min_inliers} verified matches an initial pair "
+                    f"needs (the best has {best}): started from a weaker pair (at least {floor}); "
+                    "check the model, or give larger images"
+                )
         seen: set[tuple[int, int]] = set()
         out: list[PairGeometry] = []
         stages = [
@@ -684,7 +694,8 @@ class IncrementalMapper:
         best = max((p.num_inliers for p in self.d.pairs if p.status == "ok"), default=0)
         msg = (
             f"cannot start the reconstruction: {n_ok} image pairs have a relative pose"
-            f" (the best with {best} inlier matches; an initial pair needs {self.s.init_min_inliers})"
+            f" (the best with {best} inlier matches; an initial pair needs {self.s.init_min_inliers}, or"
+            f" {max(INIT_MIN_INLIERS_FLOOR, self.s.init_min_inliers // 2)} when no pair has that)"
         )
         if reasons:
             msg += "; tried " + "; ".join(reasons[:5])
