@@ -71,10 +71,13 @@ class MissionConfig:
             found but unused) and be hit, and without the farthest-point step seed 103 hovered
             inside a 7 m keep-out and was hit. On the held-out seeds 200-249 (session 30): 48/50
             delivered, 0 collisions, median position error 0.389 m, but seeds 231 and 248 ended
-            hovering: their escapes led onto paths climbing more steeply than the camera looks up,
-            whose way the ``path_seen`` speed limit never lets the drone fly unseen (231 sat at its
-            escape point for 30 s; the same tracker without this delivered both). Off until the
-            guidance can verify such a climb (or the escape prefers level points).
+            hovering under the ``path_seen`` speed limit on steep climbs (the same tracker without
+            this delivered both). In 231 the path on from the escape point climbed at 41 degrees:
+            its first sample 1.5 m ahead was observed free, but the tube probe 1 m to its side lay
+            straight above the drone, beyond the camera's upward reach, and kept the prior map's
+            "free, not yet observed" value, so the way was never verified (25 s of looking; the
+            back-off only starts for path points out of reach, not for tube probes). Off until
+            that is handled (a tube probe the camera cannot reach, or climbs that steep).
         backoff_looks_ahead: a drone backing off along its flown track to see a climb (see
             :class:`~skyrecon.mission.guidance.BackOff`) looks where it flies, holds 2 s at the
             end looking at the climb, and stops backing off when its way back meets a mover's
