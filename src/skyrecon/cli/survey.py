@@ -14,6 +14,11 @@ OpenDroneMap's ``gcp_list.txt``), then multi-view stereo and mapping. Writes int
   lon, alt, gps_residual_m}]``, tags set aside, timings) and ``report.html``.
 
 Intermediate work is kept in ``OUT/workspace`` (or ``--workspace``): a rerun resumes from it.
+
+When nothing can place the model (no GPS tags and no ``--gcp``; tags all at one place, as on a
+tripod, or on a line), OUT still gets ``model/`` (the SfM model in its own gauge) and ``survey.json``
+(``georeferenced: false`` and why), and the command ends with exit status 2 and one line saying
+what is needed. Control points that match no registered photo fall back to the GPS tags (a warning).
 """
 
 from __future__ import annotations
