@@ -28,7 +28,7 @@ Usage:
   .venv/bin/python benchmarks/dynamic/run.py --pose-source odometry
   .venv/bin/python benchmarks/dynamic/run.py --fine-depth          # results_fine_depth.json
   .venv/bin/python benchmarks/dynamic/run.py --first-seed 150       # held-out: results_seeds150-199.json
-  .venv/bin/python benchmarks/dynamic/run.py --tracker reacquire_s=1 --evade  # tried settings: results_tried.json
+  .venv/bin/python benchmarks/dynamic/run.py --tracker reacquire_s=1 --evade  # tried settings: results_tried_evade.json
 
 Resumable: a mission whose folder has ``mission.json`` is read back (``--fresh`` flies all
 again). Missions side by side share the cores: with ``--parallel 2`` on 2 cores the loop
@@ -203,6 +203,12 @@ def main() -> int:
         action="store_true",
         help="step out of a mover's sweep even with no path on (MissionConfig.evade_movers); results_tried*.json",
     )
+    ap.add_argument(
+        "--reach-aware",
+        action="store_true",
+        help="count near tube probes the camera cannot reach as known and back off sooner on steep climbs "
+        "(MissionConfig.reach_aware_verify); results_tried*.json",
+    )
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "dynamic" / "out"))
     args = ap.parse_args()
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
@@ -214,10 +220,13 @@ def main() -> int:
         mover_fine_depth=args.fine_depth,
         tracker_settings=args.tracker,
         evade_movers=args.evade,
+        reach_aware_verify=args.reach_aware,
     )
     suffix = "" if args.pose_source == "truth" else "_" + args.pose_source.replace("+", "_")
     suffix += "_fine_depth" if args.fine_depth else ""
-    suffix += "_tried" if (args.tracker or args.evade) else ""  # not the defaults: their own file
+    # not the defaults: their own file, named by what is tried
+    suffix += "_tried" if (args.tracker or args.evade or args.reach_aware) else ""
+    suffix += ("_evade" if args.evade else "") + ("_reach" if args.reach_aware else "")
     if (args.first_seed, args.seeds) != (100, 50):  # other seeds (a held-out set) keep their own file
         suffix += f"_seeds{seeds[0]}-{seeds[-1]}"
     out = Path(args.out + suffix)
@@ -244,6 +253,7 @@ def main() -> int:
             "fine_depth": args.fine_depth,
             "tracker_settings": args.tracker,
             "evade_movers": args.evade,
+            "reach_aware_verify": args.reach_aware,
             "seeds": seeds,
             "parallel": args.parallel,
         },

@@ -409,3 +409,44 @@ def test_with_no_point_clear_of_a_huge_sweep_the_drone_still_moves_away():
     _look(off, np.inf)
     off.update_distance()
     assert not off.replan(p, boom)[0].success  # the default hovers
+
+
+@pytest.mark.parametrize("aware", [False, True])
+def test_a_steep_climb_is_verified_when_its_unseen_tube_probe_lies_beyond_the_cameras_reach(aware):
+    """A 70-degree climb from the drone: the path and the tube below it are observed free, the
+    tube probes beside it are not (the camera cannot look that far up: held-out seed 231). With
+    ``reach_aware_verify`` the probes near the drone and beyond the camera's reach count as known,
+    as the path samples within ``verify_skip_m`` do; farther ones still hold the drone."""
+    cfg = MissionConfig(reach_aware_verify=aware)
+    nav = _box_navigator(cfg)
+    p = np.array([0.0, 4.2, 14.0])
+    ang = np.radians(np.linspace(-30.0, 88.0, 400))  # rays in the climb's vertical plane only
+    ends = p + 12.0 * np.stack([np.cos(ang), np.zeros_like(ang), np.sin(ang)], axis=1)
+    for _ in range(3):
+        nav.map.integrate_points(ends, p)
+    up = np.radians(70.0)
+    rest = np.array([p, p + 2.4 * np.array([np.cos(up), 0.0, np.sin(up)]), [8.0, 4.2, 16.3]])
+    side = np.array([0.0, 1.0, 0.0])
+    first = p + 1.5 * np.array([np.cos(up), 0.0, np.sin(up)])
+    assert np.isnan(nav.map.log_odds_at(np.stack([first + side, first - side]))).all()  # unknown
+    seen = nav.verified_distance(rest, cfg.verify_horizon_m, cfg.verify_skip_m)
+    # without: held at the first sample past the skip; with: on to the first sample whose side
+    # probes are more than verify_skip_m + verify_radius_m (2.5 m) from the drone
+    assert seen == (2.5 if aware else 1.5)
+
+
+@pytest.mark.parametrize("aware", [False, True])
+def test_the_back_off_starts_sooner_on_steep_climbs_with_reach_aware_verify(aware):
+    """A path point 45 degrees up, 7 degrees inside the camera's 52-degree reach (held-out seed
+    248): the back-off starts only with ``reach_aware_verify`` (12 degrees of margin, not 5)."""
+    from skyrecon.mission.guidance import RETREAT_AFTER_S, BackOff
+    from skyrecon.mission.safety import speed_limit
+
+    cfg = MissionConfig(reach_aware_verify=aware)
+    p = np.array([0.0, 0.0, 15.0])
+    rest = np.array([p, [2.0, 0.0, 17.0], [20.0, 0.0, 17.0]])  # 45 degrees up for 2.8 m
+    track = np.array([p, [-30.0, 0.0, 15.0]])
+    held = speed_limit(cfg, 1.5, math.inf, 30.0, 99.0)
+    assert held.reason == "path_seen"
+    b = BackOff()
+    assert b.consider(rest, 1.5, RETREAT_AFTER_S, held, p, lambda q: track, cfg) == aware

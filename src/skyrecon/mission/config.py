@@ -77,7 +77,18 @@ class MissionConfig:
             straight above the drone, beyond the camera's upward reach, and kept the prior map's
             "free, not yet observed" value, so the way was never verified (25 s of looking; the
             back-off only starts for path points out of reach, not for tube probes). Off until
-            that is handled (a tube probe the camera cannot reach, or climbs that steep).
+            that is handled: ``reach_aware_verify`` is the handling tried (see there).
+        reach_aware_verify: steep climbs the camera cannot verify from where the drone is: a
+            tube probe of the path's verification (``verify_radius_m`` beside or below it) that
+            lies within ``verify_skip_m + verify_radius_m`` of the drone and out of the camera's
+            vertical reach counts as known, as the path samples within ``verify_skip_m`` already
+            do (held-out seed 231 with ``evade_movers``: such a probe straight above the drone kept
+            its way unverified for 25 s); and the back-off along the flown track starts for a path
+            point within 12 degrees of the edge of that reach instead of 5 (seed 248: a point at
+            45 degrees, 7 degrees inside the 52-degree reach, stayed unobserved for 20 s: the top
+            rows of the image do not carve it). Off by default: tried in session 30 only with
+            ``evade_movers`` and the tried tracker on seeds 200-249 (see
+            ``benchmarks/dynamic/results_tried_evade_reach_seeds200-249.json``).
         backoff_looks_ahead: a drone backing off along its flown track to see a climb (see
             :class:`~skyrecon.mission.guidance.BackOff`) looks where it flies, holds 2 s at the
             end looking at the climb, and stops backing off when its way back meets a mover's
@@ -173,6 +184,7 @@ class MissionConfig:
     replan_tolerance_m: float = 0.5
     keep_out_heuristic_weight: float = 1.0
     evade_movers: bool = False
+    reach_aware_verify: bool = False
     backoff_looks_ahead: bool = False
     min_altitude_m: float = 12.0
     max_altitude_m: float = 30.0

@@ -39,6 +39,7 @@ import numpy as np
 from skyrecon.core import Intrinsics, Rigid3
 from skyrecon.mapping import FREE, OCCUPIED, UNKNOWN, DistanceField, MapConfig, OccupancyMap
 from skyrecon.mission.config import MissionConfig
+from skyrecon.mission.guidance import out_of_reach_mask
 from skyrecon.mission.prior import OBSERVED_FREE_LOG_ODDS, PriorMap
 from skyrecon.mission.scenario import MapBox
 from skyrecon.mission.vehicle import sample_path
@@ -368,7 +369,16 @@ class Navigator:
         lo = self.map.log_odds_at(probes).reshape(4, -1)
         with np.errstate(invalid="ignore"):
             seen_free = lo < self.observed_free_below
-            ok = seen_free[0] & np.all(seen_free[1:] | (lo[1:] >= 0.0), axis=0)
+            known = seen_free[1:] | (lo[1:] >= 0.0)
+        if self.cfg.reach_aware_verify and not known.all():
+            # near tube probes the camera cannot reach from here count as known, as the path
+            # samples within skip_m do (see MissionConfig.reach_aware_verify)
+            tube = probes.reshape(4, -1, 3)[1:]
+            near = np.linalg.norm(tube - rest[0], axis=2) <= skip_m + r
+            check = near & ~known
+            if check.any():
+                known[check] = out_of_reach_mask(rest[0], tube[check], self.cfg)
+        ok = seen_free[0] & np.all(known, axis=0)
         bad = np.flatnonzero(~ok)
         return float(s[bad[0]]) if len(bad) else horizon_m
 
