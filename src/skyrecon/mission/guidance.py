@@ -155,21 +155,12 @@ RETREAT_SLACK_S = 10.0
 RETREAT_LOOK_S = 2.0
 
 
-#: With ``MissionConfig.reach_aware_verify``: a path point within this many degrees of the edge of
-#: the camera's vertical reach counts as out of reach for the back-off (the top rows of the image
-#: seldom carve free space: held-out seed 248 waited 20 s on a point 7 degrees inside).
+#: Degrees inside the edge of the camera's vertical reach that still count as out of reach (the
+#: edge of the image sees little).
+REACH_MARGIN_DEG = 5.0
+#: With ``MissionConfig.reach_aware_verify``: the back-off's margin instead (the top rows of the
+#: image seldom carve free space: held-out seed 248 waited 20 s on a point 7 degrees inside).
 REACH_AWARE_MARGIN_DEG = 12.0
-
-
-def out_of_reach_mask(
-    position: np.ndarray, points: np.ndarray, cfg: MissionConfig, margin_deg: float = 5.0
-) -> np.ndarray:
-    """:func:`out_of_reach` for many ``points`` (N, 3) world metres at once: (N,) bool."""
-    up, down = vertical_reach_rad(cfg)
-    m = math.radians(margin_deg)
-    d = np.asarray(points, dtype=np.float64).reshape(-1, 3) - np.asarray(position, dtype=np.float64)
-    e = np.arctan2(d[:, 2], np.hypot(d[:, 0], d[:, 1]))
-    return (e > up - m) | (e < -(down - m))
 
 
 def vertical_reach_rad(cfg: MissionConfig) -> tuple[float, float]:
@@ -179,20 +170,23 @@ def vertical_reach_rad(cfg: MissionConfig) -> tuple[float, float]:
     return math.radians(cfg.max_camera_pitch_up_deg) + half, math.radians(cfg.max_camera_pitch_deg) + half
 
 
-def _elevation(position: np.ndarray, point: np.ndarray) -> float:
-    d = np.asarray(point, dtype=np.float64) - np.asarray(position, dtype=np.float64)
-    return math.atan2(float(d[2]), math.hypot(float(d[0]), float(d[1])))
+def out_of_reach_mask(
+    position: np.ndarray, points: np.ndarray, cfg: MissionConfig, margin_deg: float = REACH_MARGIN_DEG
+) -> np.ndarray:
+    """Whether each of ``points`` (N, 3) world metres lies above or below what the camera at
+    ``position`` (3,) can see at any tilt, less ``margin_deg``: (N,) bool."""
+    up, down = vertical_reach_rad(cfg)
+    m = math.radians(margin_deg)
+    d = np.asarray(points, dtype=np.float64).reshape(-1, 3) - np.asarray(position, dtype=np.float64)
+    e = np.arctan2(d[:, 2], np.hypot(d[:, 0], d[:, 1]))
+    return (e > up - m) | (e < -(down - m))
 
 
 def out_of_reach(
-    position: np.ndarray, point: np.ndarray, cfg: MissionConfig, margin_deg: float = 5.0
+    position: np.ndarray, point: np.ndarray, cfg: MissionConfig, margin_deg: float = REACH_MARGIN_DEG
 ) -> bool:
-    """Whether ``point`` (3,) world metres lies above or below what the camera at ``position``
-    (3,) can see at any tilt, less ``margin_deg`` (the edge of the image sees little)."""
-    up, down = vertical_reach_rad(cfg)
-    m = math.radians(margin_deg)
-    e = _elevation(position, point)
-    return e > up - m or e < -(down - m)
+    """:func:`out_of_reach_mask` for one ``point`` (3,)."""
+    return bool(out_of_reach_mask(position, point, cfg, margin_deg)[0])
 
 
 def retreat_path(way_back: np.ndarray, point: np.ndarray, cfg: MissionConfig) -> np.ndarray | None:
@@ -273,7 +267,7 @@ class BackOff:
         ):
             return False
         q = point_along(rest, verified_m)
-        margin = REACH_AWARE_MARGIN_DEG if cfg.reach_aware_verify else 5.0
+        margin = REACH_AWARE_MARGIN_DEG if cfg.reach_aware_verify else REACH_MARGIN_DEG
         if not out_of_reach(position, q, cfg, margin):
             return False
         self.path = retreat_path(way_back(position), q, cfg)

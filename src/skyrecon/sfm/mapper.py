@@ -591,7 +591,7 @@ class IncrementalMapper:
         posed = [p for p in self.d.pairs if p.status == "ok" and self.d.usable[p.i] and self.d.usable[p.j]]
         ok = [p for p in posed if p.num_inliers >= self.s.init_min_inliers]
         if not ok:  # small or weak images: try the best pairs down to half the matches, and say so
-            floor = max(INIT_MIN_INLIERS_FLOOR, self.s.init_min_inliers // 2)
+            floor = self._init_inliers_floor
             ok = [p for p in posed if p.num_inliers >= floor]
             if ok:
                 best = max(p.num_inliers for p in ok)
@@ -618,6 +618,11 @@ class IncrementalMapper:
                 seen.add((p.i, p.j))
                 out.append(p)
         return out
+
+    @property
+    def _init_inliers_floor(self) -> int:
+        """Verified matches an initial pair needs when no pair has ``init_min_inliers``."""
+        return max(INIT_MIN_INLIERS_FLOOR, self.s.init_min_inliers // 2)
 
     def _homography_ratio(self, p: PairGeometry) -> float:
         """Share of a pair's inliers a homography explains (computed once, on demand)."""
@@ -695,7 +700,7 @@ class IncrementalMapper:
         msg = (
             f"cannot start the reconstruction: {n_ok} image pairs have a relative pose"
             f" (the best with {best} inlier matches; an initial pair needs {self.s.init_min_inliers}, or"
-            f" {max(INIT_MIN_INLIERS_FLOOR, self.s.init_min_inliers // 2)} when no pair has that)"
+            f" {self._init_inliers_floor} when no pair has that)"
         )
         if reasons:
             msg += "; tried " + "; ".join(reasons[:5])

@@ -332,7 +332,7 @@ def _georeference(
         except (InputError, EstimationError) as e:
             if len(gps_enu) < 3:
                 raise InputError(f"the control points cannot be used: {e}") from None
-            geo = georeference_to_gps(model, gps_enu, options.seed, options.gps_threshold_m)
+            geo = _georeference(model, gps_enu, None, origin, options)  # the tags' own checks
             geo.warnings.insert(0, f"the control points cannot be used ({e}); georeferenced to GPS instead")
             return geo
         if len(gps_enu) >= 3:
