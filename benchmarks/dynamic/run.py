@@ -28,7 +28,8 @@ Usage:
   .venv/bin/python benchmarks/dynamic/run.py --pose-source odometry
   .venv/bin/python benchmarks/dynamic/run.py --fine-depth          # results_fine_depth.json
   .venv/bin/python benchmarks/dynamic/run.py --first-seed 150       # held-out: results_seeds150-199.json
-  .venv/bin/python benchmarks/dynamic/run.py --tracker reacquire_s=1 --evade  # tried settings: results_tried_evade.json
+  .venv/bin/python benchmarks/dynamic/run.py --tracker reacquire_s=None      # tried settings: results_tried.json
+  .venv/bin/python benchmarks/dynamic/run.py --no-evade --no-reach-aware    # results_tried_no_evade_no_reach.json
 
 Resumable: a mission whose folder has ``mission.json`` is read back (``--fresh`` flies all
 again). Missions side by side share the cores: with ``--parallel 2`` on 2 cores the loop
@@ -199,15 +200,15 @@ def main() -> int:
         "(MissionConfig.tracker_settings); results_tried*.json",
     )
     ap.add_argument(
-        "--evade",
+        "--no-evade",
         action="store_true",
-        help="step out of a mover's sweep even with no path on (MissionConfig.evade_movers); results_tried*.json",
+        help="hover where no path goes on, even in a mover's sweep (MissionConfig.evade_movers off); "
+        "results_tried*.json",
     )
     ap.add_argument(
-        "--reach-aware",
+        "--no-reach-aware",
         action="store_true",
-        help="count near tube probes the camera cannot reach as known and back off sooner on steep climbs "
-        "(MissionConfig.reach_aware_verify); results_tried*.json",
+        help="verify steep climbs as before session 31 (MissionConfig.reach_aware_verify off); results_tried*.json",
     )
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "dynamic" / "out"))
     args = ap.parse_args()
@@ -219,14 +220,14 @@ def main() -> int:
         pose_source=args.pose_source,
         mover_fine_depth=args.fine_depth,
         tracker_settings=args.tracker,
-        evade_movers=args.evade,
-        reach_aware_verify=args.reach_aware,
+        evade_movers=not args.no_evade,
+        reach_aware_verify=not args.no_reach_aware,
     )
     suffix = "" if args.pose_source == "truth" else "_" + args.pose_source.replace("+", "_")
     suffix += "_fine_depth" if args.fine_depth else ""
     # not the defaults: their own file, named by what is tried
-    suffix += "_tried" if (args.tracker or args.evade or args.reach_aware) else ""
-    suffix += ("_evade" if args.evade else "") + ("_reach" if args.reach_aware else "")
+    suffix += "_tried" if (args.tracker or args.no_evade or args.no_reach_aware) else ""
+    suffix += ("_no_evade" if args.no_evade else "") + ("_no_reach" if args.no_reach_aware else "")
     if (args.first_seed, args.seeds) != (100, 50):  # other seeds (a held-out set) keep their own file
         suffix += f"_seeds{seeds[0]}-{seeds[-1]}"
     out = Path(args.out + suffix)
@@ -252,8 +253,8 @@ def main() -> int:
             "pose_source": args.pose_source,
             "fine_depth": args.fine_depth,
             "tracker_settings": args.tracker,
-            "evade_movers": args.evade,
-            "reach_aware_verify": args.reach_aware,
+            "evade_movers": not args.no_evade,
+            "reach_aware_verify": not args.no_reach_aware,
             "seeds": seeds,
             "parallel": args.parallel,
         },

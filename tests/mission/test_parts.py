@@ -353,8 +353,9 @@ def test_a_drone_in_a_movers_way_steps_out_even_when_no_path_goes_on():
     escape point alone, followed as an escape), asks for a path to the goal every cycle while
     it does, and keeps its escape point while that stays usable as the sweep shifts (no flip
     from one side to the other); once the way is open it plans to the goal again. With
-    ``evade_movers`` (off by default): without it, it hovers where it is."""
-    off = _box_navigator(MissionConfig())
+    ``evade_movers`` (the default): without it, it hovers where it is."""
+    assert MissionConfig().evade_movers
+    off = _box_navigator(MissionConfig(evade_movers=False))
     _look(off, np.inf)
     off.update_distance()
     p = np.array([2.0, 4.0, 14.0])
@@ -405,10 +406,10 @@ def test_with_no_point_clear_of_a_huge_sweep_the_drone_still_moves_away():
     gain = capsule_distance(away[None], boom)[0] - capsule_distance(p[None], boom)[0]
     assert gain >= 4.0 and np.linalg.norm(away - p) <= 6.0 + 1e-9
     assert nav.planner.grid_for(away, away).distance(away[None])[0] >= nav.planner.threshold
-    off = _box_navigator(MissionConfig())
+    off = _box_navigator(MissionConfig(evade_movers=False))
     _look(off, np.inf)
     off.update_distance()
-    assert not off.replan(p, boom)[0].success  # the default hovers
+    assert not off.replan(p, boom)[0].success  # without it, it hovers
 
 
 @pytest.mark.parametrize("aware", [False, True])

@@ -153,11 +153,14 @@ def test_track_velocity_converges(crossing):
 def test_track_centre_is_the_movers_not_its_visible_face(crossing):
     """The camera sees the face of the drone nearest to it; the centre push (by the size seen from
     the side) keeps the track's centre within 0.4 m of the true one as that face turns (without
-    it, 0.54 m), with the default push and with the one along the ray from sizes seen from the
-    side."""
-    side = MoverSettings(max_push_m=0.2, side_view_cos=0.5, push_once_moving=True)
-    along = run_mover(drone_center, 50, cam_x_at=lambda t: 0.4 * t, settings=side)
-    for run in (crossing, along):
+    it, 0.54 m), with the default push (along the ray, from sizes seen from the side), that push
+    only once the track moves, and the per-axis push of every view (the default before session
+    31)."""
+    assert (MoverSettings().max_push_m, MoverSettings().side_view_cos) == (0.2, 0.5)
+    once = MoverSettings(push_once_moving=True)
+    per_axis = MoverSettings(max_push_m=None, side_view_cos=1.0)
+    runs = [run_mover(drone_center, 50, cam_x_at=lambda t: 0.4 * t, settings=s) for s in (once, per_axis)]
+    for run in (crossing, *runs):
         for i, f in enumerate(run.frames[10:], 10):
             (trk,) = f.moving_tracks
             assert np.linalg.norm(trk.position - run.centers[i]) <= 0.4

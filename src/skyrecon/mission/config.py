@@ -64,31 +64,23 @@ class MissionConfig:
             usable, so that escapes do not flip sides between cycles as a mover's prediction
             shifts; when no point within reach clears the sweep (a crane boom's keep-out can be
             7 m in radius), it steps to the reachable point farthest from it (see
-            :meth:`~skyrecon.mission.navigator.Navigator.replan`). Off by default: flown in
-            session 29 only with the tried tracker (``tracker_settings`` with the side-view
-            push and ``reacquire_s``) on seeds 100-149: 50/50 delivered, 0 collisions, where
-            that tracker without it let seed 115 hover 10 s in a crane boom's sweep (its escapes
-            found but unused) and be hit, and without the farthest-point step seed 103 hovered
-            inside a 7 m keep-out and was hit. On the held-out seeds 200-249 (session 30): 48/50
-            delivered, 0 collisions, median position error 0.389 m, but seeds 231 and 248 ended
-            hovering under the ``path_seen`` speed limit on steep climbs (the same tracker without
-            this delivered both). In 231 the path on from the escape point climbed at 41 degrees:
-            its first sample 1.5 m ahead was observed free, but the tube probe 1 m to its side lay
-            straight above the drone, beyond the camera's upward reach, and kept the prior map's
-            "free, not yet observed" value, so the way was never verified (25 s of looking; the
-            back-off only starts for path points out of reach, not for tube probes). Off until
-            that is handled: ``reach_aware_verify`` is the handling tried (see there).
+            :meth:`~skyrecon.mission.navigator.Navigator.replan`). On by default since session
+            31. Without it, seed 115 hovered 10 s in a crane boom's sweep (its escapes found but
+            unused, no path on from them) and was hit; without the farthest-point step, seed 103
+            hovered inside a 7 m keep-out and was hit (session 29, with the tracker's defaults of
+            today). With it and ``reach_aware_verify``: seeds 100-149 and the held-out 200-249
+            50/50 delivered each, 0 collisions (``benchmarks/dynamic/results.json``,
+            ``results_seeds200-249.json``).
         reach_aware_verify: steep climbs the camera cannot verify from where the drone is: a
             tube probe of the path's verification (``verify_radius_m`` beside or below it) that
             lies within ``verify_skip_m + verify_radius_m`` of the drone and out of the camera's
             vertical reach counts as known, as the path samples within ``verify_skip_m`` already
             do (held-out seed 231 with ``evade_movers``: such a probe straight above the drone kept
-            its way unverified for 25 s); and the back-off along the flown track starts for a path
-            point within 12 degrees of the edge of that reach instead of 5 (seed 248: a point at
-            45 degrees, 7 degrees inside the 52-degree reach, stayed unobserved for 20 s: the top
-            rows of the image do not carve it). Off by default: tried in session 30 only with
-            ``evade_movers`` and the tried tracker on seeds 200-249 (see
-            ``benchmarks/dynamic/results_tried_evade_reach_seeds200-249.json``).
+            its way unverified for 25 s, and the drone hovered); and the back-off along the flown
+            track starts for a path point within 12 degrees of the edge of that reach instead of 5
+            (seed 248: a point at 45 degrees, 7 degrees inside the 52-degree reach, stayed
+            unobserved for 20 s: the top rows of the image do not carve it). On by default since
+            session 31 (without it, 48/50 delivered on seeds 200-249: 231 and 248 hovered safely).
         backoff_looks_ahead: a drone backing off along its flown track to see a climb (see
             :class:`~skyrecon.mission.guidance.BackOff`) looks where it flies, holds 2 s at the
             end looking at the climb, and stops backing off when its way back meets a mover's
@@ -144,9 +136,9 @@ class MissionConfig:
         track_movers: separate moving objects from the static map and track them
             (:mod:`skyrecon.perception.movers`); the planner keeps clear of their predicted sweep.
         tracker_settings: overrides of the tracker's :class:`~skyrecon.perception.MoverSettings`,
-            ``"name=value,..."`` (e.g. ``"max_push_m=0.2,side_view_cos=0.5,reacquire_s=1"``;
-            empty: its defaults), for flying tried settings (``benchmarks/dynamic/run.py
-            --tracker``).
+            ``"name=value,..."`` (e.g. ``"max_push_m=None,side_view_cos=1,reacquire_s=None"``:
+            the defaults before session 31; empty: its defaults), for flying tried settings
+            (``benchmarks/dynamic/run.py --tracker``).
         mover_fine_depth: also match each pair at full resolution for the tracker
             (:attr:`skyrecon.perception.PerceptionSettings.fine_max_disparity`), which finds
             drones 12-20 m away that the half-resolution matcher loses (recall within 20 m 0.17
@@ -183,8 +175,8 @@ class MissionConfig:
     clearance_m: float = 2.0
     replan_tolerance_m: float = 0.5
     keep_out_heuristic_weight: float = 1.0
-    evade_movers: bool = False
-    reach_aware_verify: bool = False
+    evade_movers: bool = True
+    reach_aware_verify: bool = True
     backoff_looks_ahead: bool = False
     min_altitude_m: float = 12.0
     max_altitude_m: float = 30.0

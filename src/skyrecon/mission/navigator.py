@@ -216,7 +216,7 @@ class Navigator:
         When the drone is too close to a mapped obstacle for the planner to start there
         (``start_too_close``, ``start_in_obstacle``, ``start_enclosed``), the plan starts at the
         :meth:`escape_point` instead and the path leads there first. With
-        ``MissionConfig.evade_movers`` (off by default, see there), the escape point of the
+        ``MissionConfig.evade_movers`` (on by default, see there), the escape point of the
         path followed is kept while it stays usable (:meth:`Planner.is_clear_point`), so that
         escapes do not flip from one side to the other between cycles as a mover's prediction
         shifts; and with ``keep_out``, when no path goes on from the escape point (a mover's

@@ -126,12 +126,12 @@ class MoverSettings:
             velocity (5.5 m/s the wrong way; a Kalman correction moves the velocity by only
             about half the innovation per second of coasting), its keep-out swept away from the
             drone it really was, which then hit ours; with (1 s, 1 m) that flight delivered.
-            Where the prediction held (within the gap), the velocity did too and is kept. None
-            (the default): never. Not yet the default (session 29): with it and the push below,
-            held-out seeds 200-249 flew 50/50 without a collision, but on seeds 100-149 seed 115
-            hovered in a crane boom's sweep and was hit; with ``MissionConfig.evade_movers`` too,
-            seeds 100-149 flew 50/50 without a collision, and 200-249 48/50 without a collision
-            (session 30; two safe hovers on unseen climbs, see ``MissionConfig.evade_movers``).
+            Where the prediction held (within the gap), the velocity did too and is kept. None:
+            never. Default (1 s, 1 m) since session 31: with the push below and
+            ``MissionConfig.evade_movers`` / ``reach_aware_verify``, seeds 100-149 and the
+            held-out 200-249 flew 50/50 each without a collision
+            (``benchmarks/dynamic/results.json``, ``results_seeds200-249.json``); without
+            ``evade_movers``, seed 115 hovered in a crane boom's sweep and was hit.
         coast_s: a track not seen is predicted forward for up to this long, seconds, then
             dropped (tentative, not yet confirmed tracks are dropped at their first miss).
         moving_speed_mps: a confirmed track faster than this is moving, m/s.
@@ -199,25 +199,23 @@ class MoverSettings:
         max_push_m, side_view_cos, push_once_moving: a matched detection's centre is pushed
             away from the camera (the visible surface is nearer than the centre) by the half size
             the track has seen from the side and this view does not show: per axis with
-            ``max_push_m`` None (the default), else along the viewing ray, capped at
-            ``max_push_m`` metres (0: no push); with ``push_once_moving`` only once the track
+            ``max_push_m`` None, else along the viewing ray, capped at ``max_push_m`` metres
+            (0: no push; default 0.2); with ``push_once_moving`` only once the track
             has moved (a cluster that may be a new static obstacle is then taken as it is, so
             that pushes differing from view to view do not look like motion). A track learns an
             axis's size (:attr:`MoverTrack.side_half_size`) only from views whose ray makes a
-            cosine of at most ``side_view_cos`` with that axis (1, the default: every view, so
+            cosine of at most ``side_view_cos`` with that axis (default 0.5; 1: every view, so
             the size holds stereo's smear along the rays, metres along a far drone's ray).
             Replayed on the recorded detections of 18 dynamic missions (seeds 300-317, recorded
             in session 29; ``benchmarks/dynamic/replay_tracker.py``), the tracks' median position
             error (median of the missions' medians, the benchmark's figure) is 0.50 m with the
-            defaults and 0.365 m with (0.2, 0.5). Flown: (0.2, 0.5) on seeds 100-149 (session 26)
-            50/50 delivered, 0 collisions, 0.435 m (0.525 with the defaults); with
-            ``reacquire_s`` 1 on held-out 200-249 (session 29) 50/50, 0 collisions, 0.378 m
-            (0.541), but on 100-149 seed 115 was hit (see ``reacquire_s``); with
-            ``MissionConfig.evade_movers`` too, 100-149 50/50, 0 collisions, 0.379 m. (0.2, 0.5, True)
-            with the look-ahead back-off: held-out seed 202 was hit (see ``reacquire_s``). So
-            the defaults keep the flights that 100 missions flew without a collision. On exact
-            depth (a drone crossing 12 m ahead, ``tests/perception``) no push leaves the centre
-            up to 0.54 m short when the visible face turns.
+            per-axis push of every view (None, 1) and 0.365 m with (0.2, 0.5), the defaults
+            since session 31 (flown: see ``reacquire_s``; median position error about 0.38-0.39
+            m on seeds 100-149 and 200-249, against 0.525 / 0.541 m with (None, 1)).
+            ``push_once_moving`` with the look-ahead back-off met a collision on held-out seed
+            202 (session 26), so it stays off. On exact depth (a drone crossing 12 m ahead,
+            ``tests/perception``) no push leaves the centre up to 0.54 m short when the visible
+            face turns.
     """
 
     stride: int = 1
@@ -235,7 +233,7 @@ class MoverSettings:
     gate_inflate_m: float = 0.5
     confirm_hits: int = 3
     coast_s: float = 3.0
-    reacquire_s: float | None = None
+    reacquire_s: float | None = 1.0
     reacquire_gap_m: float = 1.0
     moving_speed_mps: float = 0.5
     static_speed_mps: float = 0.3
@@ -251,8 +249,8 @@ class MoverSettings:
     history_s: tuple[float, ...] = ()
     box_quantile: float = 0.0
     robust_box_range_m: float = 10.0
-    max_push_m: float | None = None
-    side_view_cos: float = 1.0
+    max_push_m: float | None = 0.2
+    side_view_cos: float = 0.5
     push_once_moving: bool = False
     far_range_m: float = 20.0
     fine_min_range_m: float = 12.0
