@@ -96,6 +96,40 @@ def test_surface_pull_takes_the_surface_nearer_the_sensor():
             MapConfig(surface_pull_voxels=bad)
 
 
+def test_a_stale_prior_belief_is_freed_by_its_first_miss():
+    """``stale_log_odds``: voxels seeded with yesterday's "occupied" (exactly that value) are
+    freed by the first miss of today's measurements, by depth (whole octants carved free and
+    voxels tested one by one) and by rays; a voxel hit first is confirmed and takes misses as
+    usual; with the setting off, the same miss only lowers it."""
+    stale = 1.0
+    box = np.full((40, 8, 8), np.nan, np.float32)  # x 0..20 m, y, z -2..2 m at 0.5 m
+    box[4:36] = stale  # a prior "block" the camera now sees through up to the wall at 19 m
+    origin = np.array([0.0, -2.0, -2.0])
+    l_miss = logit(0.4)
+    probes = np.array([[3.25, 0.25, 0.25], [9.75, -0.25, 0.25], [17.25, 0.75, -0.25]])
+    on = OccupancyMap.from_dense_log_odds(box, origin, MapConfig(voxel_size_m=0.5, stale_log_odds=stale))
+    off = OccupancyMap.from_dense_log_odds(box, origin, MapConfig(voxel_size_m=0.5))
+    for m in (on, off):
+        assert np.all(m.state_at(probes) == OCCUPIED)
+        m.integrate_depth(wall_depth(19.0), CAM, POSE)
+    assert on.log_odds_at(probes) == pytest.approx([l_miss] * 3, abs=1e-6)
+    assert np.all(on.state_at(probes) == FREE)
+    assert off.log_odds_at(probes) == pytest.approx([stale + l_miss] * 3, abs=1e-6)
+    assert np.all(off.state_at(probes) == OCCUPIED)
+    # rays: a voxel hit first (confirmed) is not freed by one miss; an untouched one is
+    origin_ray = np.array([0.25, 0.25, 0.25])
+    rays = OccupancyMap.from_dense_log_odds(box, origin, MapConfig(voxel_size_m=0.5, stale_log_odds=stale))
+    hit, seen_through = np.array([[6.25, 0.25, 0.25]]), np.array([[4.25, 0.25, 0.25]])
+    rays.integrate_points(hit, origin_ray)  # seen through the nearer voxel, hit at 6.25
+    assert rays.log_odds_at(seen_through)[0] == pytest.approx(l_miss, abs=1e-6)
+    rays.integrate_points(np.array([[12.25, 0.25, 0.25]]), origin_ray)  # now through both
+    assert rays.log_odds_at(hit)[0] == pytest.approx(stale + logit(0.7) + l_miss, abs=1e-5)
+    assert rays.state_at(hit)[0] == OCCUPIED
+    assert rays.log_odds_at(seen_through)[0] == pytest.approx(2 * l_miss, abs=1e-6)
+    with pytest.raises(InputError, match="stale_log_odds"):
+        MapConfig(stale_log_odds=float("inf"))
+
+
 def test_max_range_carves_up_to_the_range_without_hits():
     m = OccupancyMap(voxel_size_m=0.25, max_range_m=6.0)
     st = m.integrate_depth(wall_depth(20.0), CAM, POSE)

@@ -10,7 +10,7 @@ from skyrecon.errors import InputError
 from skyrecon.mapping import FREE, OCCUPIED, MapConfig, OccupancyMap
 from skyrecon.mission.changes import city_changes
 from skyrecon.mission.navigator import Navigator
-from skyrecon.mission.prior import load_prior_map, prior_changes, prior_from_city
+from skyrecon.mission.prior import OBSERVED_FREE_LOG_ODDS, load_prior_map, prior_changes, prior_from_city
 from skyrecon.mission.scenario import make_scenario
 from skyrecon.sim import render
 
@@ -66,9 +66,15 @@ def test_prior_seeds_weak_beliefs_that_the_cameras_overturn(changed):
     nav.integrate(depth, cam, cfw)
     face = np.array([added[3] + 0.1, (added[1] + added[4]) / 2, 15.0])
     assert nav.map.state_at(face[None])[0] == OCCUPIED
-    # the container stack is gone: seeing through where it stood frees it within a few frames
+    # the container stack is gone: the first frame that sees through where it stood frees it
+    # (yesterday's belief, not yet measured today: MapConfig.stale_log_odds), and counts as seen
     frm = r_c + np.array([0.0, 0.0, 8.0]) + 10.0 * np.array([1.0, 0.3, 0.0])
-    for k in range(5):
+    cam, cfw, depth = _look_at(sc.city, r_c - [0, 0, 8.0], frm)
+    nav.integrate(depth, cam, cfw)
+    assert nav.map.state_at(r_c[None])[0] == FREE
+    assert nav.map.log_odds_at(r_c[None])[0] <= OBSERVED_FREE_LOG_ODDS
+    # and stays free as the drone looks on
+    for k in range(1, 5):
         cam, cfw, depth = _look_at(sc.city, r_c - [0, 0, 8.0], frm + [0, 0.1 * k, 0])
         nav.integrate(depth, cam, cfw)
     assert nav.map.state_at(r_c[None])[0] == FREE

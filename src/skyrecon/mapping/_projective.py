@@ -532,8 +532,20 @@ def _add(l, delta, lo, hi):
 
 
 @njit(cache=True)
-def _carve_range(blk, B, x0, x1, y0, y1, z0, z1, l_miss, c_lo, c_hi, thr):
-    """Miss every voxel of the local box [x0, x1) x [y0, y1) x [z0, z1).
+def _miss(old, l_miss, c_lo, stale, stale_to):
+    """A voxel's log-odds after a miss: ``stale_to`` for a voxel still at the ``stale`` prior
+    value (NaN: none, see :attr:`skyrecon.mapping.MapConfig.stale_log_odds`), else ``old +
+    l_miss`` clamped at ``c_lo`` (``l_miss`` for an unknown voxel)."""
+    if old == stale:
+        return stale_to
+    if old == old:
+        return max(old + l_miss, c_lo)
+    return max(l_miss, c_lo)
+
+
+@njit(cache=True)
+def _carve_range(blk, B, x0, x1, y0, y1, z0, z1, l_miss, c_lo, c_hi, thr, stale, stale_to):
+    """Miss every voxel of the local box [x0, x1) x [y0, y1) x [z0, z1) (see :func:`_miss`).
 
     Returns (change code, see :func:`_change`; every voxel of the box now sits at ``c_lo``).
     """
@@ -544,7 +556,7 @@ def _carve_range(blk, B, x0, x1, y0, y1, z0, z1, l_miss, c_lo, c_hi, thr):
             base = (lx * B + ly) * B
             for lz in range(z0, z1):
                 old = blk[base + lz]
-                new = _add(old, l_miss, c_lo, c_hi)
+                new = _miss(old, l_miss, c_lo, stale, stale_to)
                 blk[base + lz] = new
                 ch |= _change(old, new, thr)
                 if new != c_lo:
@@ -565,6 +577,7 @@ def _voxels(
     """
     use_hm = hm.shape[0] > 0
     l_hit, l_miss, c_lo, c_hi, thr = lodds[0], lodds[1], lodds[2], lodds[3], lodds[4]
+    stale, stale_to = lodds[5], lodds[6]
     fx, fy, cx, cy = cam[0], cam[1], cam[2], cam[3]
     W = cam[4]
     H = cam[5]
@@ -625,7 +638,7 @@ def _voxels(
                 old = blk[q]
                 if sd < -plane[iv, iu, 4]:
                     nf += 1
-                    new = max(old + l_miss, c_lo) if old == old else max(l_miss, c_lo)
+                    new = _miss(old, l_miss, c_lo, stale, stale_to)
                 elif abs(sd) <= plane[iv, iu, 5]:
                     nh += 1
                     new = min(old + l_hit, c_hi) if old == old else min(l_hit, c_hi)
@@ -681,6 +694,7 @@ def _update_block(
 ):
     """Update block ``ids[j]``; returns its change code (see :func:`update_blocks`)."""
     l_miss, c_lo, c_hi, thr = lodds[1], lodds[2], lodds[3], lodds[4]
+    stale, stale_to = lodds[5], lodds[6]
     h = B // 2
     k = ids[j]
     blk = data[k]
@@ -693,7 +707,9 @@ def _update_block(
             x0 = h * (o >> 2)
             y0 = h * ((o >> 1) & 1)
             z0 = h * (o & 1)
-            c1, full = _carve_range(blk, B, x0, x0 + h, y0, y0 + h, z0, z0 + h, l_miss, c_lo, c_hi, thr)
+            c1, full = _carve_range(
+                blk, B, x0, x0 + h, y0, y0 + h, z0, z0 + h, l_miss, c_lo, c_hi, thr, stale, stale_to
+            )
             ch |= c1
             if full:
                 sat[k] |= 1 << o
@@ -728,7 +744,9 @@ def _update_block(
             continue
         if c == FREE:
             counts[j, 0] += h * h * h
-            c1, full = _carve_range(blk, B, x0, x0 + h, y0, y0 + h, z0, z0 + h, l_miss, c_lo, c_hi, thr)
+            c1, full = _carve_range(
+                blk, B, x0, x0 + h, y0, y0 + h, z0, z0 + h, l_miss, c_lo, c_hi, thr, stale, stale_to
+            )
             ch |= c1
             if full:
                 sat[k] |= bit
@@ -827,7 +845,7 @@ def update_blocks(
         plane: (H, W, 6) float32 from :func:`prepare_depth`.
         loc: (M,) int32 row of each block in ``hitmask`` / ``octflag`` (from
             :func:`mark_endpoints`), -1 for none.
-        lodds: (5,) float32 ``l_hit, l_miss, clamp_min, clamp_max, occupied_threshold``.
+        lodds: (7,) float32, :attr:`skyrecon.mapping.MapConfig.log_odds`.
     Returns:
         changed (M,) uint8 change code per block: bit ``CHANGED_STATE`` (1) when some voxel
         changed state (unknown / free / occupied), bit ``CHANGED_OCCUPIED`` (2) when some voxel

@@ -144,6 +144,7 @@ def apply_flags(data, sat, pool_ids, free, hits, lodds):
     changed = np.zeros(M, np.uint8)
     counts = np.zeros((M, 2), np.int64)
     l_hit, l_miss, c_lo, c_hi, thr = lodds[0], lodds[1], lodds[2], lodds[3], lodds[4]
+    stale, stale_to = lodds[5], lodds[6]
     for j in range(M):
         blk = data[pool_ids[j]]
         ch = 0
@@ -158,7 +159,10 @@ def apply_flags(data, sat, pool_ids, free, hits, lodds):
             else:
                 continue
             old = blk[q]
-            new = _add(old, delta, c_lo, c_hi)
+            if hits[j, q] or old != stale:  # NaN stale: never equal
+                new = _add(old, delta, c_lo, c_hi)
+            else:
+                new = stale_to  # a prior belief seen through (MapConfig.stale_log_odds)
             blk[q] = new
             ch |= _change(old, new, thr)
         changed[j] = ch

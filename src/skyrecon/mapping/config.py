@@ -42,6 +42,12 @@ class MapConfig:
             that no later ray can clear, while the noise in front is cleared by the rays of
             other frames; pulling the surface back a fraction of a voxel keeps the hits on the
             surface's own voxel and stops free space short of it. Exact depth should keep 0.
+        stale_log_odds: a voxel holding exactly this log-odds, a belief seeded from an earlier
+            flight that no measurement of this one has touched yet (see
+            :mod:`skyrecon.mission.prior`), takes ``logit(prob_miss)`` at its first miss, as an
+            unknown voxel would: one look through yesterday's obstacle disproves it. Hits add
+            to it as usual (a voxel once hit is no longer at this value). None (default): no
+            such voxel; every miss adds ``logit(prob_miss)``.
     """
 
     voxel_size_m: float = 0.2
@@ -56,6 +62,7 @@ class MapConfig:
     grazing_cap_voxels: float = 4.0
     max_plausible_depth_m: float = 2000.0
     surface_pull_voxels: float = 0.0
+    stale_log_odds: float | None = None
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -85,7 +92,9 @@ class MapConfig:
 
     @property
     def log_odds(self) -> np.ndarray:
-        """(5,) float32: ``l_hit, l_miss, clamp_min, clamp_max, occupied threshold`` in log-odds."""
+        """(7,) float32: ``l_hit, l_miss, clamp_min, clamp_max, occupied threshold`` in log-odds,
+        then ``stale_log_odds`` (NaN: none) and what such a voxel takes at its first miss."""
+        stale = math.nan if self.stale_log_odds is None else self.stale_log_odds
         return np.array(
             [
                 logit(self.prob_hit),
@@ -93,6 +102,8 @@ class MapConfig:
                 logit(self.clamp_min),
                 logit(self.clamp_max),
                 logit(self.occupancy_threshold),
+                stale,
+                logit(self.prob_miss),
             ],
             dtype=np.float32,
         )

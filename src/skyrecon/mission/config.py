@@ -82,13 +82,15 @@ class MissionConfig:
             unobserved for 20 s: the top rows of the image do not carve it). On by default since
             session 31 (without it, 48/50 delivered on seeds 200-249: 231 and 248 hovered safely).
         backoff_looks_ahead: a drone backing off along its flown track to see a climb (see
-            :class:`~skyrecon.mission.guidance.BackOff`) looks where it flies, holds 2 s at the
-            end looking at the climb, and stops backing off when its way back meets a mover's
-            predicted sweep; off (the default), it flies back blind with the camera on the
-            climb. Flown in session 26 with a changed tracker only (seeds 100-149): looking
-            where it flew, seed 129 did not see the climb and climbed to it three times
-            (before the 2 s hold was added), and blind, seed 123 backed into a drone. Off until
-            flown in the dynamic missions without a failure.
+            :class:`~skyrecon.mission.guidance.BackOff`) looks where it flies and holds 2 s at
+            the end looking at the climb (any tracked mover ends the hold); off (the default),
+            it flies back blind with the camera on the climb. Either way, backing off stops
+            when the way back meets a tracked mover's predicted sweep (until session 31 only
+            with this on: blind, seed 123 backed into a drone it tracked, in session 26 and
+            again in session 31). Flown in session 26 with a changed tracker only (seeds
+            100-149): looking where it flew, seed 129 did not see the climb and climbed to it
+            three times (before the 2 s hold was added). Off until flown in the dynamic
+            missions without a failure.
         min_altitude_m, max_altitude_m: flight band, world z metres. Streets are free above
             10 m (poles, trees and overhead wires stay below), so the band starts at 12 m.
     Vehicle:

@@ -22,7 +22,8 @@ observed free (:meth:`~skyrecon.mission.navigator.Navigator.verified_distance`):
   bound plus half the vertical field of view, 52 degrees for the default rig) flies back along
   its own flown track (swept free by its body), slowly and with its camera kept on that point
   (``MissionConfig.backoff_looks_ahead``: looking where it flies, then holding to look at the
-  point), until the point lies well within the reach, then comes on again seeing it. Scanning
+  point), until the point lies well within the reach, then comes on again seeing it. A tracked
+  mover's predicted sweep across the way back ends it (:meth:`BackOff.yield_to_movers`). Scanning
   from where it stands cannot help: the gimbal is at its bound (mission seed 10 on odometry
   hovered 30 s under a 58 degree climb and returned).
 

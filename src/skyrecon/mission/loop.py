@@ -695,9 +695,9 @@ def run_mission(
         conflict_m = math.inf
         if keep is not None and len(keep) and outcome.clear and len(nav.waypoints):
             conflict_m = nav.mover_conflict(nav.rest(p), keep, reach_m)
-        backoff.yield_to_movers(
-            p, keep if cfg.backoff_looks_ahead else None, partial(nav.mover_conflict, reach_m=reach_m)
-        )
+        # backing off blind or looking ahead, a mover's sweep across the way back ends it (dynamic
+        # seed 123 backed off blind for 3 s into a drone it tracked, its escapes computed but unused)
+        backoff.yield_to_movers(p, keep, partial(nav.mover_conflict, reach_m=reach_m))
         ms["check"] = 1e3 * (time.perf_counter() - t0)
         replanned = replan_ok = False
         replan_reason = ""

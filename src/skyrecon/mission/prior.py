@@ -6,11 +6,13 @@ changes: scaffolding goes up, a crane arrives, a container stack is gone. So the
 the drone's map with *weak* beliefs:
 
 * a prior-occupied voxel gets log-odds :data:`PRIOR_OCCUPIED_LOG_ODDS` (occupied, so the planner
-  avoids it from the first cycle, but three misses of its own cameras free it; two were tried:
-  in 50 dynamic missions the removed stacks' worst voxel was freed no sooner (6.3 s against 6.8 s:
-  the slow ones are seen through once, at the top edge of a camera pitched down, then not again
-  until the drone is past them), while the changed maps led two mover encounters closer, to
-  1.27 m from a building and 0.36 m from a mover, against 2.13 m and 0.54 m);
+  avoids it from the first cycle), and the first miss of this flight's cameras frees it
+  (:attr:`~skyrecon.mapping.MapConfig.stale_log_odds`: one look through yesterday's obstacle
+  disproves it; a voxel hit first is confirmed and takes misses as usual). Until session 31 it
+  took three misses (two were tried and freed the worst voxel no sooner): in 150 dynamic
+  missions the removed stacks' worst voxel was freed 5-14 s after its first miss, because the
+  slow ones are seen through once, at the top edge of a camera pitched down, then not again
+  until the drone is past them;
 * a prior-free voxel gets :data:`PRIOR_FREE_LOG_ODDS` (free, so the planner plans through it,
   but one hit of its own cameras makes it occupied);
 * unknown stays unknown.
@@ -26,7 +28,7 @@ mission's voxel size.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -37,7 +39,7 @@ from skyrecon.mission.config import MissionConfig
 from skyrecon.mission.scenario import MapBox
 from skyrecon.sim import City
 
-#: Log-odds of a voxel the prior says is occupied (p = 0.73: occupied, freed by 3 misses).
+#: Log-odds of a voxel the prior says is occupied (p = 0.73: occupied, freed by its first miss).
 PRIOR_OCCUPIED_LOG_ODDS = 1.0
 #: Log-odds of a voxel the prior says is free (p = 0.45: free, made occupied by 1 hit).
 PRIOR_FREE_LOG_ODDS = -0.2
@@ -66,7 +68,9 @@ class PriorMap:
 
     def seed_map(self, config: MapConfig) -> OccupancyMap:
         """The drone's starting map with ``config`` (voxel size, ranges): the prior's weak beliefs
-        over the box (blocks popped)."""
+        over the box (blocks popped); its occupied beliefs are freed by their first miss
+        (``stale_log_odds``, see the module docstring)."""
+        config = replace(config, stale_log_odds=PRIOR_OCCUPIED_LOG_ODDS)
         m = OccupancyMap.from_dense_log_odds(self.log_odds, self.box.origin, config)
         m.pop_changed_blocks()
         m.pop_changed_blocks(occupied_only=True)
