@@ -68,9 +68,9 @@ class MissionConfig:
             31. Without it, seed 115 hovered 10 s in a crane boom's sweep (its escapes found but
             unused, no path on from them) and was hit; without the farthest-point step, seed 103
             hovered inside a 7 m keep-out and was hit (session 29, with the tracker's defaults of
-            today). With it and ``reach_aware_verify``: seeds 100-149 and the held-out 200-249
-            50/50 delivered each, 0 collisions (``benchmarks/dynamic/results.json``,
-            ``results_seeds200-249.json``).
+            today). With it and the other defaults of session 31: seeds 100-149 49/50 delivered
+            (one safe hover) and the held-out 200-249 50/50, 0 collisions
+            (``benchmarks/dynamic/results.json``, ``results_seeds200-249.json``).
         reach_aware_verify: steep climbs the camera cannot verify from where the drone is: a
             tube probe of the path's verification (``verify_radius_m`` beside or below it) that
             lies within ``verify_skip_m + verify_radius_m`` of the drone and out of the camera's

@@ -129,8 +129,8 @@ class MoverSettings:
             Where the prediction held (within the gap), the velocity did too and is kept. None:
             never. Default (1 s, 1 m) since session 31: with the push below and
             ``MissionConfig.evade_movers`` / ``reach_aware_verify``, seeds 100-149 and the
-            held-out 200-249 flew 50/50 each without a collision
-            (``benchmarks/dynamic/results.json``, ``results_seeds200-249.json``); without
+            held-out 200-249 flew 49/50 (one safe hover) and 50/50 delivered without a
+            collision (``benchmarks/dynamic/results.json``, ``results_seeds200-249.json``); without
             ``evade_movers``, seed 115 hovered in a crane boom's sweep and was hit.
         coast_s: a track not seen is predicted forward for up to this long, seconds, then
             dropped (tentative, not yet confirmed tracks are dropped at their first miss).
