@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from skyrecon.mapping._projective import _add, _change
+from skyrecon.mapping._projective import _add, _change, _miss
 from skyrecon.mapping.blocks import EMPTY, table_find
 
 
@@ -149,20 +149,16 @@ def apply_flags(data, sat, pool_ids, free, hits, lodds):
         blk = data[pool_ids[j]]
         ch = 0
         for q in range(blk.shape[0]):
-            if hits[j, q]:
-                delta = l_hit
-                counts[j, 1] += 1
-                sat[pool_ids[j]] = 0
-            elif free[j, q]:
-                delta = l_miss
-                counts[j, 0] += 1
-            else:
+            if not (hits[j, q] or free[j, q]):
                 continue
             old = blk[q]
-            if hits[j, q] or old != stale:  # NaN stale: never equal
-                new = _add(old, delta, c_lo, c_hi)
+            if hits[j, q]:
+                new = _add(old, l_hit, c_lo, c_hi)
+                counts[j, 1] += 1
+                sat[pool_ids[j]] = 0
             else:
-                new = stale_to  # a prior belief seen through (MapConfig.stale_log_odds)
+                new = _miss(old, l_miss, c_lo, stale, stale_to)
+                counts[j, 0] += 1
             blk[q] = new
             ch |= _change(old, new, thr)
         changed[j] = ch

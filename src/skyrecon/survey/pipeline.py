@@ -431,9 +431,9 @@ def run_survey(
     metas = [read_photo_meta(p) for p in inputs.photos]
     gcps = read_gcp_list(inputs.gcp_file) if inputs.gcp_file is not None else None
     cam, camera_source = _camera(inputs, metas)
-    sizes = sorted({(m.width, m.height) for m in metas} - {tuple(cam.size)})
-    if sizes:
-        others = [m.path.name for m in metas if (m.width, m.height) != tuple(cam.size)]
+    others = [m.path.name for m in metas if (m.width, m.height) != tuple(cam.size)]
+    if others:
+        sizes = sorted({(m.width, m.height) for m in metas} - {tuple(cam.size)})
         warnings.append(
             f"mixed cameras: {len(others)} photos are not {cam.size[0]}x{cam.size[1]} like the others "
             f"({', '.join(f'{w}x{h}' for w, h in sizes)}: {', '.join(others[:5])}{' ...' if len(others) > 5 else ''}); "
