@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pytest
 
+from skyrecon.errors import InputError
 from skyrecon.executor import SerialExecutor
 from skyrecon.mission import ImpossibleMission, MissionConfig, make_scenario, run_mission
 from skyrecon.mission.batch import run_missions
@@ -42,6 +43,27 @@ def test_same_seed_flies_the_same_path(batch, tiny_config):
     again = run_mission(make_scenario(1, cfg), cfg).flown_path()
     first = np.array(json.loads((out / "seed_0001" / "path.json").read_text())["waypoints"])
     assert again.shape == first.shape and np.array_equal(again, first)
+
+
+def test_the_loop_runs_its_kernels_on_its_threads_with_the_heap_frozen(tiny_config):
+    import gc
+    from dataclasses import replace
+
+    import numba
+
+    before = numba.get_num_threads()
+    seen = []
+    cfg = replace(tiny_config, time_limit_s=1.0)
+    run_mission(
+        make_scenario(1, cfg),
+        cfg,
+        on_cycle=lambda rec, nav: seen.append((numba.get_num_threads(), gc.get_freeze_count())),
+    )
+    assert seen and all(n == 1 for n, _ in seen)  # loop_threads = 1 by default
+    assert all(f > 0 for _, f in seen)  # what existed before the flight is not scanned
+    assert numba.get_num_threads() == before and gc.get_freeze_count() == 0  # restored after
+    with pytest.raises(InputError):
+        MissionConfig(loop_threads=-1)
 
 
 def _courtyard(goal_xy, half=4.0, height=40.0, wall=2.0):

@@ -105,6 +105,18 @@ class MissionConfig:
         cycle_hz: rate of the sense-plan-act loop in simulated time (one stereo frame per cycle).
         latency_budget_s: the loop's latency budget, seconds: the stopping rule reacts one cycle
             plus this late (:mod:`skyrecon.mission.safety`); cycles slower than it are counted.
+        loop_threads: threads of the loop's Numba parallel kernels (depth integration, the
+            distance field) and of OpenBLAS (its matrix products); 0: as many as they have. 1
+            by default: each kernel does a millisecond or two per frame, and a parallel region
+            waits for its slowest thread, so on a 2-core machine a descheduled worker stalls it
+            by a scheduler slice (see :mod:`skyrecon.threads`). Flown on dynamic seed 102 alone,
+            2 threads gave loop p99 102 / 44 ms in two flights of the same path (depth
+            integration 50-57 ms on a few cycles, 1.1 ms at the median), 1 thread 35 / 33 ms at
+            the same median; two missions at a time, its mover detection took 60-90 ms on 7
+            cycles with OpenBLAS threaded, 11-25 ms with one thread. Over the 50 dynamic
+            missions (seeds 100-149, two at a time, the same flights), the worst mission's loop
+            p99 was 135.2 ms with both threaded (session 31), 111.7 ms with one Numba thread
+            and 59.3 ms with one of each (median of the missions' p99 40.2 ms).
         verify_buffer_m: the drone stops this far before the first stretch of its path it has
             not yet observed free, metres.
         verify_radius_m: radius of the tube around the path that must be observed (not unknown).
@@ -190,6 +202,7 @@ class MissionConfig:
     safety_margin_m: float = 1.0
     cycle_hz: float = 10.0
     latency_budget_s: float = 0.1
+    loop_threads: int = 1
     verify_buffer_m: float = 1.5
     verify_radius_m: float = 1.0
     verify_skip_m: float = 1.5
@@ -264,8 +277,7 @@ class MissionConfig:
             )
         if not 0 < self.min_goal_distance_m <= self.max_goal_distance_m:
             raise InputError("need 0 < min_goal_distance_m <= max_goal_distance_m")
-        if not self.latency_budget_s >= 0:
-            raise InputError(f"latency_budget_s must be at least 0, got {self.latency_budget_s}")
+        self._check_timing()
         if self.pose_source not in ("odometry", "truth", "gps+odometry"):
             raise InputError(f"pose_source must be odometry, truth or gps+odometry, got {self.pose_source!r}")
         if not (self.degraded_speed_mps >= 0 and self.delivery_tolerance_m >= 0):
@@ -284,6 +296,17 @@ class MissionConfig:
         self._check_tracker_settings()
         if self.time_limit_s is not None and not self.time_limit_s > 0:
             raise InputError(f"time_limit_s must be positive, got {self.time_limit_s}")
+
+    def _check_timing(self) -> None:
+        """Refuse a negative latency budget and a loop thread count that is not a count."""
+        if not self.latency_budget_s >= 0:
+            raise InputError(f"latency_budget_s must be at least 0, got {self.latency_budget_s}")
+        if (
+            isinstance(self.loop_threads, bool)
+            or not isinstance(self.loop_threads, int)
+            or self.loop_threads < 0
+        ):
+            raise InputError(f"loop_threads must be a whole number >= 0, got {self.loop_threads!r}")
 
     def _check_tracker_settings(self) -> None:
         """Refuse ``tracker_settings`` with unknown names or values MoverSettings refuses."""

@@ -21,7 +21,7 @@ from skyrecon.errors import SkyreconError
 from skyrecon.features.detect import FeatureSettings, detect_features
 from skyrecon.io.atomic import atomic_write
 from skyrecon.io.images import read_image
-from skyrecon.sfm._threads import limited_threads
+from skyrecon.threads import limited_threads
 
 __all__ = ["ExtractedImage", "ExtractTask", "extract_one", "load_features", "feature_cache_key"]
 

@@ -24,10 +24,10 @@ from skyrecon.geometry.homography import estimate_homography
 from skyrecon.geometry.sampling import RansacOptions
 from skyrecon.geometry.triangulation import parallax_angles_deg, triangulate_midpoint
 from skyrecon.io.task_cache import map_cached, task_key
-from skyrecon.sfm._threads import limited_threads
 from skyrecon.sfm.extract import load_features
 from skyrecon.sfm.guided import guided_match
 from skyrecon.sfm.settings import VerificationSettings
+from skyrecon.threads import limited_threads
 from skyrecon.twoview.estimate import fit_rotation
 
 __all__ = [

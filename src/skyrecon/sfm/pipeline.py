@@ -29,7 +29,6 @@ from skyrecon.errors import EstimationError, InputError
 from skyrecon.executor import Executor, get_executor
 from skyrecon.features.match import match_descriptors
 from skyrecon.sfm._pool import run_scoped_executor
-from skyrecon.sfm._threads import limited_threads
 from skyrecon.sfm.extract import ExtractedImage, ExtractTask, extract_one, load_features
 from skyrecon.sfm.mapper import IncrementalMapper, MapperInput, MapperOutput
 from skyrecon.sfm.matching import PairGeometry, run_matching
@@ -39,6 +38,7 @@ from skyrecon.sfm.retrieval import vlad_descriptors
 from skyrecon.sfm.settings import PairMode, SfMSettings
 from skyrecon.sfm.tracks import Tracks, build_tracks
 from skyrecon.sfm.viewgraph import rotation_inconsistent_pairs
+from skyrecon.threads import limited_threads
 from skyrecon.twoview.estimate import estimate_two_view_geometry
 from skyrecon.twoview.settings import TwoViewSettings
 
