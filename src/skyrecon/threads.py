@@ -71,12 +71,13 @@ def _openblas() -> list:
 def blas_threads(n: int | None) -> Iterator[None]:
     """Run the block with at most ``n`` OpenBLAS threads (None or 0: as they are); restore them
     afterwards. OpenBLAS's count is the whole process's."""
-    libs = _openblas() if n else []
+    want = int(n or 0)
+    libs = _openblas() if want else []
     before: list[int | None] = []
     for g, s in libs:
         try:
             before.append(int(g()))
-            s(int(n or 1))
+            s(want)
         except Exception:  # pragma: no cover - exotic builds
             before.append(None)
     try:
@@ -109,8 +110,7 @@ def kernel_threads(n: int | None) -> Iterator[None]:
     other threads' kernels are not affected."""
     before = numba.get_num_threads()
     most = int(numba.config.NUMBA_NUM_THREADS)  # type: ignore[attr-defined]  # set from the environment at import
-    want = most if not n else min(int(n), most)
-    numba.set_num_threads(max(1, int(want)))
+    numba.set_num_threads(min(int(n), most) if n else most)
     try:
         yield
     finally:

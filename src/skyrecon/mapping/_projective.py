@@ -532,19 +532,17 @@ def _add(l, delta, lo, hi):
 
 
 @njit(cache=True)
-def _miss(old, l_miss, c_lo, stale, stale_to):
-    """A voxel's log-odds after a miss: ``stale_to`` for a voxel still at the ``stale`` prior
-    value (NaN: none, see :attr:`skyrecon.mapping.MapConfig.stale_log_odds`), else ``old +
-    l_miss`` clamped at ``c_lo`` (``l_miss`` for an unknown voxel)."""
-    if old == stale:
-        return stale_to
-    if old == old:
-        return max(old + l_miss, c_lo)
-    return max(l_miss, c_lo)
+def _miss(old, l_miss, c_lo, stale):
+    """A voxel's log-odds after a miss: ``old + l_miss`` clamped at ``c_lo``; an unknown voxel
+    (NaN), or one still at the ``stale`` prior value (NaN: none, see
+    :attr:`skyrecon.mapping.MapConfig.stale_log_odds`), starts from 0 as if never measured."""
+    if old != old or old == stale:
+        return max(l_miss, c_lo)
+    return max(old + l_miss, c_lo)
 
 
 @njit(cache=True)
-def _carve_range(blk, B, x0, x1, y0, y1, z0, z1, l_miss, c_lo, c_hi, thr, stale, stale_to):
+def _carve_range(blk, B, x0, x1, y0, y1, z0, z1, l_miss, c_lo, c_hi, thr, stale):
     """Miss every voxel of the local box [x0, x1) x [y0, y1) x [z0, z1) (see :func:`_miss`).
 
     Returns (change code, see :func:`_change`; every voxel of the box now sits at ``c_lo``).
@@ -556,7 +554,7 @@ def _carve_range(blk, B, x0, x1, y0, y1, z0, z1, l_miss, c_lo, c_hi, thr, stale,
             base = (lx * B + ly) * B
             for lz in range(z0, z1):
                 old = blk[base + lz]
-                new = _miss(old, l_miss, c_lo, stale, stale_to)
+                new = _miss(old, l_miss, c_lo, stale)
                 blk[base + lz] = new
                 ch |= _change(old, new, thr)
                 if new != c_lo:
@@ -577,7 +575,7 @@ def _voxels(
     """
     use_hm = hm.shape[0] > 0
     l_hit, l_miss, c_lo, c_hi, thr = lodds[0], lodds[1], lodds[2], lodds[3], lodds[4]
-    stale, stale_to = lodds[5], lodds[6]
+    stale = lodds[5]
     fx, fy, cx, cy = cam[0], cam[1], cam[2], cam[3]
     W = cam[4]
     H = cam[5]
@@ -638,7 +636,7 @@ def _voxels(
                 old = blk[q]
                 if sd < -plane[iv, iu, 4]:
                     nf += 1
-                    new = _miss(old, l_miss, c_lo, stale, stale_to)
+                    new = _miss(old, l_miss, c_lo, stale)
                 elif abs(sd) <= plane[iv, iu, 5]:
                     nh += 1
                     new = min(old + l_hit, c_hi) if old == old else min(l_hit, c_hi)
@@ -694,7 +692,7 @@ def _update_block(
 ):
     """Update block ``ids[j]``; returns its change code (see :func:`update_blocks`)."""
     l_miss, c_lo, c_hi, thr = lodds[1], lodds[2], lodds[3], lodds[4]
-    stale, stale_to = lodds[5], lodds[6]
+    stale = lodds[5]
     h = B // 2
     k = ids[j]
     blk = data[k]
@@ -708,7 +706,7 @@ def _update_block(
             y0 = h * ((o >> 1) & 1)
             z0 = h * (o & 1)
             c1, full = _carve_range(
-                blk, B, x0, x0 + h, y0, y0 + h, z0, z0 + h, l_miss, c_lo, c_hi, thr, stale, stale_to
+                blk, B, x0, x0 + h, y0, y0 + h, z0, z0 + h, l_miss, c_lo, c_hi, thr, stale
             )
             ch |= c1
             if full:
@@ -745,7 +743,7 @@ def _update_block(
         if c == FREE:
             counts[j, 0] += h * h * h
             c1, full = _carve_range(
-                blk, B, x0, x0 + h, y0, y0 + h, z0, z0 + h, l_miss, c_lo, c_hi, thr, stale, stale_to
+                blk, B, x0, x0 + h, y0, y0 + h, z0, z0 + h, l_miss, c_lo, c_hi, thr, stale
             )
             ch |= c1
             if full:
@@ -845,7 +843,7 @@ def update_blocks(
         plane: (H, W, 6) float32 from :func:`prepare_depth`.
         loc: (M,) int32 row of each block in ``hitmask`` / ``octflag`` (from
             :func:`mark_endpoints`), -1 for none.
-        lodds: (7,) float32, :attr:`skyrecon.mapping.MapConfig.log_odds`.
+        lodds: (6,) float32, :attr:`skyrecon.mapping.MapConfig.log_odds`.
     Returns:
         changed (M,) uint8 change code per block: bit ``CHANGED_STATE`` (1) when some voxel
         changed state (unknown / free / occupied), bit ``CHANGED_OCCUPIED`` (2) when some voxel

@@ -144,7 +144,7 @@ def apply_flags(data, sat, pool_ids, free, hits, lodds):
     changed = np.zeros(M, np.uint8)
     counts = np.zeros((M, 2), np.int64)
     l_hit, l_miss, c_lo, c_hi, thr = lodds[0], lodds[1], lodds[2], lodds[3], lodds[4]
-    stale, stale_to = lodds[5], lodds[6]
+    stale = lodds[5]
     for j in range(M):
         blk = data[pool_ids[j]]
         ch = 0
@@ -157,7 +157,7 @@ def apply_flags(data, sat, pool_ids, free, hits, lodds):
                 counts[j, 1] += 1
                 sat[pool_ids[j]] = 0
             else:
-                new = _miss(old, l_miss, c_lo, stale, stale_to)
+                new = _miss(old, l_miss, c_lo, stale)
                 counts[j, 0] += 1
             blk[q] = new
             ch |= _change(old, new, thr)

@@ -92,8 +92,8 @@ class MapConfig:
 
     @property
     def log_odds(self) -> np.ndarray:
-        """(7,) float32: ``l_hit, l_miss, clamp_min, clamp_max, occupied threshold`` in log-odds,
-        then ``stale_log_odds`` (NaN: none) and what such a voxel takes at its first miss."""
+        """(6,) float32: ``l_hit, l_miss, clamp_min, clamp_max, occupied threshold`` in log-odds,
+        then ``stale_log_odds`` (NaN: none; such a voxel takes a miss as an unknown one does)."""
         stale = math.nan if self.stale_log_odds is None else self.stale_log_odds
         return np.array(
             [
@@ -103,7 +103,6 @@ class MapConfig:
                 logit(self.clamp_max),
                 logit(self.occupancy_threshold),
                 stale,
-                logit(self.prob_miss),
             ],
             dtype=np.float32,
         )
