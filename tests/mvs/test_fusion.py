@@ -110,3 +110,21 @@ def test_edge_of_coverage_needs_fewer_views() -> None:
     assert len(adaptive.cloud) < 0.05 * W * H
     lonely = [depths[0], depths[1], None, None]
     assert len(fuse_consistent(views, lonely, nb, FusionSettings(min_consistent=2)).cloud) > 0
+
+
+def test_planar_prior_pixels_need_fewer_agreeing_views() -> None:
+    # a patch only two views have (a plain wall a planar prior filled in two of four views)
+    views, depths = plane_views()
+    patch = [d.copy() for d in depths]
+    for k in (2, 3):
+        patch[k][:] = np.nan
+    filled = [np.ones((H, W), bool), np.ones((H, W), bool), None, None]
+    strict = FusionSettings(min_consistent=2, adaptive=False)  # the default: the same count for all
+    lenient = FusionSettings(min_consistent=2, adaptive=False, min_consistent_prior=1)
+    assert len(fuse_consistent(views, patch, all_neighbors(4), strict).cloud) == 0
+    assert len(fuse_consistent(views, patch, all_neighbors(4), strict, filled).cloud) == 0
+    fused = fuse_consistent(views, patch, all_neighbors(4), lenient, filled)
+    assert len(fused.cloud) > 0.3 * W * H and np.abs(fused.cloud.points[:, 2]).max() < 1e-4
+    # only for the pixels the prior filled
+    unfilled = [np.zeros((H, W), bool), np.zeros((H, W), bool), None, None]
+    assert len(fuse_consistent(views, patch, all_neighbors(4), lenient, unfilled).cloud) == 0

@@ -251,3 +251,39 @@ def test_dominant_planes_count_contact_points_on_the_whole_band() -> None:
     assert not is_global.any()
     _, is_global = pp._candidate_planes(*args, rays, d)
     assert is_global.sum() == 1
+
+
+def test_manhattan_planes_put_a_wall_through_its_two_corner_lines() -> None:
+    """A plain wall's support is its two vertical corner lines, and a column in front of it adds a
+    third line: the best supported plane by count runs through the column and one corner, slanted.
+    The vertical hypotheses keep the wall itself among the candidates, refitted to its corners."""
+    rng = np.random.default_rng(3)
+    pitch = np.radians(25.0)  # camera pitched down; world z up in the camera frame
+    up = np.array([0.0, -np.cos(pitch), -np.sin(pitch)])
+    normal = np.array([0.0, np.sin(pitch), -np.cos(pitch)])  # the wall faces the camera, vertical
+    assert abs(normal @ up) < 1e-12
+    h = -7.4  # n . X = h: 7.4 m in front of the camera
+    side = np.cross(up, normal)
+
+    def line(offset_m: float, depth_shift_m: float, n: int) -> np.ndarray:
+        t = rng.uniform(-1.0, 1.0, n)
+        base = h * normal  # the point of the wall nearest the camera (n . X = h)
+        pts = base[None] + offset_m * side + t[:, None] * up + depth_shift_m * normal
+        return pts + rng.normal(0.0, 0.01, pts.shape)
+
+    left, right = line(-1.2, 0.0, 60), line(1.2, 0.0, 120)
+    column = line(-0.8, 0.5, 160)  # 0.5 m in front of the wall, more points than a corner
+    X = np.concatenate([left, right, column])
+    X = X[X[:, 2] > 0]
+    planes = pp._manhattan_planes(X, up, PlanarPriorSettings())
+    assert len(planes) >= 1 and np.all(planes[:, 3] < 0)
+    # the wall is among them within 1 degree and 3 cm
+    angle = np.degrees(np.arccos(np.clip(planes[:, :3] @ normal, -1, 1)))
+    wall = (angle < 1.0) & (np.abs(planes[:, 3] - h) < 0.03)
+    assert wall.any(), (angle, planes[:, 3])
+    # vertical ones are vertical, level ones level
+    dots = np.abs(planes[:, :3] @ up)
+    assert np.all((dots < 1e-9) | (dots > 1 - 1e-9))
+    # same input, same planes; no hypotheses, no planes
+    assert np.array_equal(planes, pp._manhattan_planes(X, up, PlanarPriorSettings()))
+    assert len(pp._manhattan_planes(X, up, PlanarPriorSettings(manhattan_hypotheses=0))) == 0

@@ -115,6 +115,8 @@ class _MVSRun:
         depths: ``depth``: per view (H, W) float32 depth, metres, NaN invalid, or None
             (``prior``: with the plain segments filled).
         costs: ``depth``: per view the PatchMatch cost (H, W) float32, or None (emptied by ``fusion``).
+        prior_filled: ``prior``: per view the (H, W) bool pixels whose depth a plane gave, or None
+            (fusion asks fewer agreeing views of them, ``FusionSettings.min_consistent_prior``).
         pair_depths: ``depth``: (reference, depth) per task, for ``concat`` fusion.
         fused: ``fusion``: the fused cloud before cleanup.
         cloud, support: ``cleanup``: the final cloud and per-point support.
@@ -137,6 +139,7 @@ class _MVSRun:
     pairs: list[tuple[int, int]] = field(default_factory=list)
     depths: list[np.ndarray | None] = field(default_factory=list)
     costs: list[np.ndarray | None] = field(default_factory=list)
+    prior_filled: list[np.ndarray | None] = field(default_factory=list)
     pair_depths: list[tuple[int, np.ndarray]] = field(default_factory=list)
     fused: FusedCloud = field(default_factory=_empty_fused)
     cloud: PointCloud = field(default_factory=lambda: _empty_fused().cloud)
@@ -328,6 +331,7 @@ def _prior(run: _MVSRun) -> None:
     planes = np.concatenate(
         [dominant_planes(pts, s.planar_prior, seed=s.seed), horizontal_planes(pts, s.planar_prior)]
     )
+    before = run.depths
     run.depths, reports = apply_planar_prior(
         run.views,
         s,
@@ -341,6 +345,10 @@ def _prior(run: _MVSRun) -> None:
         points=run.sparse_points,
         cache_dir=None if run.workspace is None else os.path.join(run.workspace, "prior_tasks"),
     )
+    run.prior_filled = [
+        None if a is None or b is None else (np.isfinite(b) & ~np.isfinite(a))
+        for a, b in zip(before, run.depths)
+    ]
     prior = {run.views[r].stem: rep for r, rep in reports.items()}
     run.diagnostics["planar_prior"] = {
         "dominant_planes": np.round(planes, 4).tolist(),
@@ -361,7 +369,11 @@ def _fuse(run: _MVSRun) -> None:
         run.fused = fuse_concat(run.views, run.pair_depths)
     else:
         run.fused = fuse_consistent(
-            run.views, run.depths, _fusion_neighbors(run), run.settings.fusion_settings
+            run.views,
+            run.depths,
+            _fusion_neighbors(run),
+            run.settings.fusion_settings,
+            run.prior_filled or None,
         )
     if not run.settings.mesh:
         _release_pixels(run)

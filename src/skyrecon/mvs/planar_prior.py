@@ -22,12 +22,21 @@ beyond the support (the ground out to the image border):
    A horizontal dominant plane (world z up) also qualifies with no contact point when the whole
    band lies on or in front of it: the plain ground reaching behind everything that stands on it,
    whose feet this view does not see.
+   Besides, the Manhattan candidates of the band support (:func:`_manhattan_planes`): vertical
+   planes through pairs of points and level planes through single points, refitted to their
+   inliers. A plain wall's only support is often its two vertical corner lines, and an occluder
+   in front of it (a column) adds a third: the triangles and the best supported plane by count
+   then run slanted through the column, while a vertical plane through the two corners is the
+   wall itself.
 4. ``visibility``: a candidate must not hide what was measured. Two counts: the share of the band
    support that lies *beyond* the plane (this view would not see it through the segment), and
    the share of the segment's interior whose plane point a source sees *through* (the source's
    PatchMatch depth lies beyond it: free-space violation). A wrong plane floating in front of the
    true surface (a terrace height for the ground) is caught by them; one behind it is not, which
    the contact points and the border take care of.
+   A level candidate may hide at most ``max_front_hidden`` of the band; a wall more
+   (``max_front_hidden_wall``): beyond its top edge and its convex corners lies what stands
+   back (a set-back storey, the roof behind it), seen past it by this view.
 5. ``border``: the share of the segment's border ring (``ring_px`` wide) that looks the same in
    the sources under the plane: a wrong plane carries the border pixels onto other surfaces.
    Dominant planes win over triangle planes; within, the score is the border share less
@@ -114,6 +123,15 @@ class PlanarPriorSettings:
         max_front_hidden: a candidate that would hide more than this share of the band support is
             set aside.
         see_through_samples: interior pixels sampled (evenly) for the see-through test.
+        manhattan_hypotheses: vertical planes (through random pairs of band support points, a
+            fixed seed) and level planes (through single points) tried per segment; the 4
+            best supported vertical and 2 level ones, distinct by more than 3 degrees or
+            ``2 * inlier_rel`` of the depth, are candidates (0: none). With
+            ``max_front_hidden_wall`` they fill plain walls of the rings in ``benchmarks/mvs``
+            that were left empty in every view; fusion keeps a wall only where two other views
+            filled it too (``FusionSettings.min_consistent_prior``).
+        max_front_hidden_wall: as ``max_front_hidden`` for candidates that are not level (world
+            z up): a wall hides what lies beyond its top edge and convex corners.
         hidden_band: use the band-hidden test (off: only the sources' see-through test). It
             tells the plain ground from a terrace height on oblique views (a floating plane hides
             the feet of what stands on the ground); on nadir survey photos every plain roof hides
@@ -150,6 +168,8 @@ class PlanarPriorSettings:
     max_front_hidden: float = 0.2
     hidden_band: bool = True
     see_through_samples: int = 1000
+    manhattan_hypotheses: int = 200
+    max_front_hidden_wall: float = 0.5
 
     def __post_init__(self) -> None:
         if not (0 < self.support_cost <= 2) or self.edge_grad <= 0 or self.band_px < 1:
@@ -377,6 +397,74 @@ def _triangle_planes(uv: np.ndarray, X: np.ndarray) -> np.ndarray:
     return np.concatenate([n, h[:, None]], axis=1)
 
 
+def _manhattan_planes(X: np.ndarray, up: np.ndarray, s: PlanarPriorSettings) -> np.ndarray:
+    """(K, 4) camera-frame planes (n, h), n . X = h, facing the camera (h < 0): vertical and
+    horizontal planes (world z up, ``up`` (3,) its direction in the camera frame) through the
+    band support points ``X`` (N, 3) metres, camera frame.
+
+    City walls are vertical and roofs, terraces and roads horizontal (the Manhattan-world prior
+    of urban MVS, used for the heights in :func:`horizontal_planes`). A plain wall's support is
+    its two vertical corner lines, and a triangle through three noisy corner points tilts; a
+    vertical plane is fixed by two of them. Hypotheses: ``manhattan_hypotheses`` vertical planes
+    through random pairs of the points (a fixed seed: same input, same planes) and as many
+    horizontal planes through single points; the best supported of each kind are refitted to
+    their inliers (least squares under the constraint). They only add candidates: each still
+    needs its inliers' spread and the visibility and photometric checks.
+    """
+    up = np.asarray(up, np.float64)
+    up = up / np.linalg.norm(up)
+    n_pts = len(X)
+    k = int(s.manhattan_hypotheses)
+    if n_pts < 3 or k <= 0:
+        return np.zeros((0, 4))
+    rng = np.random.default_rng(n_pts)
+    i, j = rng.integers(0, n_pts, (2, k))
+    nv = np.cross(X[j] - X[i], up)
+    nn = np.linalg.norm(nv, axis=1)
+    ok = nn > 1e-6 * np.maximum(np.linalg.norm(X[i], axis=1), 1.0)
+    nv = nv[ok] / nn[ok, None]
+    hv = np.sum(nv * X[i[ok]], axis=1)
+    ih = rng.choice(n_pts, min(k, n_pts), replace=False)
+    nh = np.repeat(up[None], len(ih), axis=0)
+    hh = X[ih] @ up
+    P = np.concatenate([np.c_[nv, hv], np.c_[nh, hh]], axis=0)
+    flip = P[:, 3] > 0
+    P[flip] *= -1
+    rays = X / X[:, 2:3]
+    inl, score = _plane_inliers(P[:, :3] @ rays.T, P[:, 3].copy(), X[:, 2].copy(), float(s.inlier_rel))
+    vertical = np.arange(len(P)) < len(nv)
+    depth_scale = float(np.median(X[:, 2]))
+    out: list[np.ndarray] = []
+    for kind, limit in ((vertical, 4), (~vertical, 2)):
+        order = np.nonzero(kind & (score >= s.min_inliers))[0]
+        order = order[np.argsort(-score[order], kind="stable")]
+        kept: list[np.ndarray] = []
+        for q in order:
+            if len(kept) >= limit:
+                break
+            pts = X[inl[q]]
+            if kind is vertical:  # the line of the points' footprints on the horizontal plane
+                flat = pts - np.outer(pts @ up, up)
+                _, _, vt = np.linalg.svd(flat - flat.mean(axis=0), full_matrices=False)
+                n = np.cross(vt[0], up)
+                n /= np.linalg.norm(n)
+                h = float(n @ pts.mean(axis=0))
+            else:
+                n, h = up.copy(), float(np.median(pts @ up))
+            if h > 0:
+                n, h = -n, -h
+            # distinct planes, not distinct inlier sets: a wall and a slanted plane through its
+            # far corner and an occluder in front share half their support
+            if any(
+                float(n @ k[:3]) > np.cos(np.radians(3.0)) and abs(h - k[3]) < 2 * s.inlier_rel * depth_scale
+                for k in kept
+            ):
+                continue
+            kept.append(np.array([*n, h]))
+        out += kept
+    return np.array(out, np.float64).reshape(-1, 4)
+
+
 def _spreads(uv: np.ndarray, members: np.ndarray) -> np.ndarray:
     """How far each subset of image points spreads: the standard deviation along its least spread
     direction (the square root of the smaller eigenvalue of its 2x2 covariance), (K,) pixels, for
@@ -410,6 +498,7 @@ def _candidate_planes(
     all_rays: np.ndarray | None = None,
     all_d: np.ndarray | None = None,
     horizontal: np.ndarray | None = None,
+    up: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Distinct supported planes (K, 4) for one segment from its band support, best supported
     first, and (K,) bool which of them are dominant (``global_planes``) planes.
@@ -430,7 +519,8 @@ def _candidate_planes(
     X = rays * d[:, None]
     n_global = len(global_planes)
     tri = _triangle_planes(uv, X)
-    if n_global + len(tri) == 0:
+    level = _manhattan_planes(X, up, s) if up is not None else np.zeros((0, 4))
+    if n_global + len(tri) + len(level) == 0:
         return np.zeros((0, 4)), np.zeros(0, bool)
     r = seg_ray / np.linalg.norm(seg_ray)
     kept_global: list[int] = []
@@ -461,7 +551,17 @@ def _candidate_planes(
                 inl, score, order, spread, float(s.min_spread_px), int(s.max_candidates)
             )
         ]
-    P = np.concatenate([global_planes[kept_global], tri[kept_tri]], axis=0).reshape(-1, 4)
+    kept_level: list[int] = []
+    if len(level):  # kept on their own (not thinned by shared support with triangle planes)
+        inl, score = _plane_inliers(level[:, :3] @ rays.T, level[:, 3].copy(), d, float(s.inlier_rel))
+        spread = _spreads(uv, inl)
+        facing = -(level[:, :3] @ r) >= cos_max
+        kept_level = [
+            i
+            for i in range(len(level))
+            if facing[i] and score[i] >= s.min_inliers and spread[i] >= s.min_spread_px
+        ]
+    P = np.concatenate([global_planes[kept_global], level[kept_level], tri[kept_tri]], axis=0).reshape(-1, 4)
     return P, np.arange(len(P)) < len(kept_global)
 
 
@@ -716,6 +816,7 @@ def _judge_candidates(
     depth_range: tuple[float, float],
     colours: tuple[np.ndarray, list[np.ndarray], float],
     s: PlanarPriorSettings,
+    up: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The evidence on each candidate plane (K, 4) (camera frame) of one segment.
 
@@ -744,6 +845,11 @@ def _judge_candidates(
         bd = _plane_depth(cands[:, :3], cands[:, 3], all_rays)
         with np.errstate(invalid="ignore"):
             front = np.count_nonzero(all_d > bd * (1.0 + s.see_through_margin), axis=1) / len(all_d)
+    # a level plane (the ground, a terrace) hides nothing that stands on it; a wall hides what
+    # lies beyond its convex corners and top edge (a set-back storey, the roof behind it)
+    limit = np.full(len(cands), s.max_front_hidden)
+    if up is not None:
+        limit[np.abs(cands[:, :3] @ up) < 0.99] = s.max_front_hidden_wall
     if source_depths is not None:
         # the see-through test samples the segment's interior: at its border a source's depth
         # edge (a few pixels off) reads as a view through the plane
@@ -761,7 +867,7 @@ def _judge_candidates(
             # behind the camera or too near: the plane does not fit; beyond the far end of
             # the range (a ground reaching the horizon) is only not compared
             misses = np.count_nonzero(~(rd >= near))
-        if misses > 0.5 * len(rd) or ok.sum() < s.min_inliers or front[ci] > s.max_front_hidden:
+        if misses > 0.5 * len(rd) or ok.sum() < s.min_inliers or front[ci] > limit[ci]:
             continue
         if source_depths is not None:
             td = _plane_depth(plane[None, :3], plane[3:], trays)[0]
@@ -844,6 +950,7 @@ def fill_plain_segments(
     else:
         gplanes = np.zeros((0, 4))
         horizontal = np.zeros(0, bool)
+    up_cam = ref.cam_from_world.R @ np.array([0.0, 0.0, 1.0])  # world z up (DESIGN)
     ref_blur, src_blur = _blurred_colours(ref, sources)
     tol = s.color_tol / gain
     band_k = np.ones((2 * s.band_px + 1, 2 * s.band_px + 1), np.uint8)
@@ -883,6 +990,7 @@ def fill_plain_segments(
             all_rays,
             all_d,
             horizontal,
+            up_cam if s.manhattan_hypotheses > 0 else None,
         )
         if len(cands) == 0:
             continue
@@ -905,6 +1013,7 @@ def fill_plain_segments(
             depth_range,
             (ref_blur, src_blur, tol),
             s,
+            up_cam,
         )
         # a dominant plane (multi-view support) that looks right and that the sources do not see
         # through wins over a single view's triangles; candidates are ranked by how right they
