@@ -223,10 +223,9 @@ def fuse_consistent(
         mask = None if lenient is None else lenient[r]
         if mask is not None:
             need[mask[v, u]] = min(s.min_consistent, s.min_consistent_prior)
-        if s.adaptive:
-            keep = count >= np.where(need > 0, np.maximum(1, np.minimum(need, visible)), 0)
-        else:
-            keep = count >= need
+        if s.adaptive:  # as many as the neighbours that see it, at least one (a count of 0 stays 0)
+            need = np.where(need > 0, np.clip(visible, 1, need), 0)
+        keep = count >= need
         if s.mark_used:
             for sidx, idx, ui, vi in matches:
                 k = keep[idx]

@@ -116,7 +116,8 @@ class _MVSRun:
             (``prior``: with the plain segments filled).
         costs: ``depth``: per view the PatchMatch cost (H, W) float32, or None (emptied by ``fusion``).
         prior_filled: ``prior``: per view the (H, W) bool pixels whose depth a plane gave, or None
-            (fusion asks fewer agreeing views of them, ``FusionSettings.min_consistent_prior``).
+            (fusion asks fewer agreeing views of them, ``FusionSettings.min_consistent_prior``);
+            empty when fusion would not read them (that count is not below ``min_consistent``).
         pair_depths: ``depth``: (reference, depth) per task, for ``concat`` fusion.
         fused: ``fusion``: the fused cloud before cleanup.
         cloud, support: ``cleanup``: the final cloud and per-point support.
@@ -345,10 +346,12 @@ def _prior(run: _MVSRun) -> None:
         points=run.sparse_points,
         cache_dir=None if run.workspace is None else os.path.join(run.workspace, "prior_tasks"),
     )
-    run.prior_filled = [
-        None if a is None or b is None else (np.isfinite(b) & ~np.isfinite(a))
-        for a, b in zip(before, run.depths)
-    ]
+    fs = s.fusion_settings
+    if s.fusion == "consistency" and fs.min_consistent_prior < fs.min_consistent:  # else unread
+        run.prior_filled = [
+            None if a is None or b is None else (np.isfinite(b) & ~np.isfinite(a))
+            for a, b in zip(before, run.depths)
+        ]
     prior = {run.views[r].stem: rep for r, rep in reports.items()}
     run.diagnostics["planar_prior"] = {
         "dominant_planes": np.round(planes, 4).tolist(),

@@ -76,6 +76,13 @@ __all__ = [
 ]
 
 
+#: a plane is level (world z up) when its unit normal's vertical component is above this
+_LEVEL_COS = 0.99
+#: Manhattan candidates kept per segment: vertical, level; and how far apart two must be
+_MANHATTAN_KEPT = (4, 2)
+_MANHATTAN_DISTINCT_DEG = 3.0
+
+
 @dataclass(frozen=True)
 class PlanarPriorSettings:
     """Settings of the planar prior (see the module docstring).
@@ -434,16 +441,17 @@ def _manhattan_planes(X: np.ndarray, up: np.ndarray, s: PlanarPriorSettings) -> 
     inl, score = _plane_inliers(P[:, :3] @ rays.T, P[:, 3].copy(), X[:, 2].copy(), float(s.inlier_rel))
     vertical = np.arange(len(P)) < len(nv)
     depth_scale = float(np.median(X[:, 2]))
+    cos_distinct = np.cos(np.radians(_MANHATTAN_DISTINCT_DEG))
     out: list[np.ndarray] = []
-    for kind, limit in ((vertical, 4), (~vertical, 2)):
-        order = np.nonzero(kind & (score >= s.min_inliers))[0]
+    for is_vertical, limit in zip((True, False), _MANHATTAN_KEPT):
+        order = np.nonzero((vertical == is_vertical) & (score >= s.min_inliers))[0]
         order = order[np.argsort(-score[order], kind="stable")]
         kept: list[np.ndarray] = []
         for q in order:
             if len(kept) >= limit:
                 break
             pts = X[inl[q]]
-            if kind is vertical:  # the line of the points' footprints on the horizontal plane
+            if is_vertical:  # the line of the points' footprints on the horizontal plane
                 flat = pts - np.outer(pts @ up, up)
                 _, _, vt = np.linalg.svd(flat - flat.mean(axis=0), full_matrices=False)
                 n = np.cross(vt[0], up)
@@ -456,7 +464,7 @@ def _manhattan_planes(X: np.ndarray, up: np.ndarray, s: PlanarPriorSettings) -> 
             # distinct planes, not distinct inlier sets: a wall and a slanted plane through its
             # far corner and an occluder in front share half their support
             if any(
-                float(n @ k[:3]) > np.cos(np.radians(3.0)) and abs(h - k[3]) < 2 * s.inlier_rel * depth_scale
+                float(n @ k[:3]) > cos_distinct and abs(h - k[3]) < 2 * s.inlier_rel * depth_scale
                 for k in kept
             ):
                 continue
@@ -519,8 +527,8 @@ def _candidate_planes(
     X = rays * d[:, None]
     n_global = len(global_planes)
     tri = _triangle_planes(uv, X)
-    level = _manhattan_planes(X, up, s) if up is not None else np.zeros((0, 4))
-    if n_global + len(tri) + len(level) == 0:
+    manhattan = _manhattan_planes(X, up, s) if up is not None else np.zeros((0, 4))
+    if n_global + len(tri) + len(manhattan) == 0:
         return np.zeros((0, 4)), np.zeros(0, bool)
     r = seg_ray / np.linalg.norm(seg_ray)
     kept_global: list[int] = []
@@ -551,17 +559,19 @@ def _candidate_planes(
                 inl, score, order, spread, float(s.min_spread_px), int(s.max_candidates)
             )
         ]
-    kept_level: list[int] = []
-    if len(level):  # kept on their own (not thinned by shared support with triangle planes)
-        inl, score = _plane_inliers(level[:, :3] @ rays.T, level[:, 3].copy(), d, float(s.inlier_rel))
+    kept_manhattan: list[int] = []
+    if len(manhattan):  # kept on their own (not thinned by shared support with triangle planes)
+        inl, score = _plane_inliers(manhattan[:, :3] @ rays.T, manhattan[:, 3].copy(), d, float(s.inlier_rel))
         spread = _spreads(uv, inl)
-        facing = -(level[:, :3] @ r) >= cos_max
-        kept_level = [
+        facing = -(manhattan[:, :3] @ r) >= cos_max
+        kept_manhattan = [
             i
-            for i in range(len(level))
+            for i in range(len(manhattan))
             if facing[i] and score[i] >= s.min_inliers and spread[i] >= s.min_spread_px
         ]
-    P = np.concatenate([global_planes[kept_global], level[kept_level], tri[kept_tri]], axis=0).reshape(-1, 4)
+    P = np.concatenate(
+        [global_planes[kept_global], manhattan[kept_manhattan], tri[kept_tri]], axis=0
+    ).reshape(-1, 4)
     return P, np.arange(len(P)) < len(kept_global)
 
 
@@ -849,7 +859,7 @@ def _judge_candidates(
     # lies beyond its convex corners and top edge (a set-back storey, the roof behind it)
     limit = np.full(len(cands), s.max_front_hidden)
     if up is not None:
-        limit[np.abs(cands[:, :3] @ up) < 0.99] = s.max_front_hidden_wall
+        limit[np.abs(cands[:, :3] @ up) < _LEVEL_COS] = s.max_front_hidden_wall
     if source_depths is not None:
         # the see-through test samples the segment's interior: at its border a source's depth
         # edge (a few pixels off) reads as a view through the plane
@@ -946,7 +956,7 @@ def fill_plain_segments(
         nc[flip] *= -1
         hc[flip] *= -1
         gplanes = np.concatenate([nc, hc[:, None]], axis=1)
-        horizontal = np.abs(planes_world[:, 2]) > 0.99
+        horizontal = np.abs(planes_world[:, 2]) > _LEVEL_COS
     else:
         gplanes = np.zeros((0, 4))
         horizontal = np.zeros(0, bool)
@@ -990,7 +1000,7 @@ def fill_plain_segments(
             all_rays,
             all_d,
             horizontal,
-            up_cam if s.manhattan_hypotheses > 0 else None,
+            up_cam,
         )
         if len(cands) == 0:
             continue
