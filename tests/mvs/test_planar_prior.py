@@ -12,6 +12,7 @@ from skyrecon.mvs import MVSSettings, depth_tasks, run_mvs
 from skyrecon.mvs import planar_prior as pp
 from skyrecon.mvs.inputs import load_working_views
 from skyrecon.mvs.planar_prior import (
+    FilledPlanes,
     PlanarPriorSettings,
     dominant_planes,
     horizontal_planes,
@@ -61,14 +62,14 @@ def test_fallback_keeps_the_patchmatch_depth_and_says_why(monkeypatch) -> None:
     depth = np.full(views[0].shape, np.nan, np.float32)
     depth[:4, :4] = 9.0  # three support points are not enough
     cost = np.where(np.isfinite(depth), 0.1, 2.0).astype(np.float32)
-    out, rep = planar_prior_depth(views[0], views[1:3], depth, cost, (2.0, 30.0), 0.17)
+    out, rep, _ = planar_prior_depth(views[0], views[1:3], depth, cost, (2.0, 30.0), 0.17)
     assert out is depth and "fallback" in rep and "support" in rep["fallback"]
 
     def broken(*args, **kwargs):
         raise ValueError("degenerate input")
 
     monkeypatch.setattr(pp, "fill_plain_segments", broken)
-    out, rep = planar_prior_depth(views[0], views[1:3], depth, cost, (2.0, 30.0), 0.17)
+    out, rep, _ = planar_prior_depth(views[0], views[1:3], depth, cost, (2.0, 30.0), 0.17)
     assert out is depth and rep["fallback"] == "planar prior failed: degenerate input"
 
 
@@ -105,7 +106,10 @@ def test_plain_ring_completeness_improves_with_the_prior(plain_ring, tmp_path, m
     # each view's prior is kept in the workspace; a rerun reuses them all (computes none) and
     # gives the same cloud
     kept = list((tmp_path / "prior_tasks").glob("*.pkl"))
-    assert len(kept) == len(r_on.diagnostics["planar_prior"]["views"]) > 0
+    views = r_on.diagnostics["planar_prior"]["views"]  # a task per view and pass
+    # the second pass filled segments of some views with planes their neighbours found
+    assert sum(v.get("shared_planes", {}).get("filled_px", 0) for v in views.values()) > 0
+    assert len(kept) == len(views) + sum("shared_planes" in v for v in views.values()) > 0
 
     def recomputed(*args, **kwargs):  # type: ignore[no-untyped-def]
         raise AssertionError("the planar prior ran again instead of coming from the workspace")
@@ -287,3 +291,65 @@ def test_manhattan_planes_put_a_wall_through_its_two_corner_lines() -> None:
     # same input, same planes; no hypotheses, no planes
     assert np.array_equal(planes, pp._manhattan_planes(X, up, PlanarPriorSettings()))
     assert len(pp._manhattan_planes(X, up, PlanarPriorSettings(manhattan_hypotheses=0))) == 0
+
+
+def test_filled_planes_reach_the_segments_of_another_view_they_cover() -> None:
+    """A segment filled in one view is offered, as a world plane with samples of its pixels, to
+    the segments of another view that those samples land in (the second pass)."""
+    ring = make_ring(n=3, width=96, height=72, seed=1)
+    views = load_working_views(ring.views, ring.images, None)
+    a, b = views[0], views[1]
+    z0 = float(np.nanmedian(ring.depths[0]))
+    plane = np.array([0.0, 0.0, -1.0, -z0])  # view a's camera frame: fronto-parallel at z0 (n . X = h)
+    v, u = np.mgrid[20:52, 30:66]
+    u, v = u.ravel(), v.ravel()
+    fp = pp._filled_plane(a, plane, u, v, np.full(len(u), z0), 16)
+    assert fp.planes.shape == (1, 4) and fp.points.shape == (16, 3) and not fp.plane_of.any()
+    # the world plane holds its samples, which lie on view a's rays at z0
+    np.testing.assert_allclose(fp.points @ fp.planes[0, :3], fp.planes[0, 3], atol=1e-9)
+    np.testing.assert_allclose(np.linalg.norm(fp.planes[0, :3]), 1.0)
+    _, z = a.posed().project(fp.points)
+    np.testing.assert_allclose(z, z0)
+    # in view b: segment 1 where the samples land, segment 2 everywhere else
+    uv, zb = b.posed().project(fp.points)
+    H, W = b.shape
+    inside = (zb > 0) & (uv[:, 0] > -0.5) & (uv[:, 1] > -0.5) & (uv[:, 0] < W - 0.5) & (uv[:, 1] < H - 0.5)
+    assert inside.sum() >= 8
+    labels = np.full(b.shape, 2, np.int32)
+    labels[np.rint(uv[inside, 1]).astype(int), np.rint(uv[inside, 0]).astype(int)] = 1
+    hits = pp._offered_per_segment(b, fp, labels, [1, 2], min_hits=4)
+    assert hits[0].tolist() == [0] and hits[1].tolist() == []
+    assert pp._offered_per_segment(b, fp, labels, [1, 2], min_hits=int(inside.sum()) + 1)[0].tolist() == []
+    # several views' planes in one set, renumbered; none offered, none reached
+    both = FilledPlanes.concat([fp, FilledPlanes.empty(), fp])
+    assert both.plane_of.tolist() == [0] * 16 + [1] * 16 and len(both.planes) == 2
+    assert [len(h) for h in pp._offered_per_segment(b, FilledPlanes.empty(), labels, [1, 2], 1)] == [0, 0]
+
+
+def test_choose_plane_lets_a_clearly_better_own_wall_beat_a_dominant_plane() -> None:
+    """A dominant plane wins over a view's own planes when it looks about as right on the border;
+    a wall of the view's own that matches clearly more of it wins even though it hides more of
+    the band (what stands back beyond its top edge), and nothing good means no winner."""
+    s = PlanarPriorSettings()
+    up = np.array([0.0, -1.0, 0.0])  # camera frame, y down
+    wall = [0.0, 0.0, -1.0, -8.0]  # vertical, facing the camera
+    level = [0.0, -1.0, 0.0, -2.0]  # the ground 2 m below
+    cands = np.array([level, wall, wall])
+    is_global = np.array([True, False, False])
+    through = np.zeros(3)
+    front = np.array([0.08, 0.27, 0.0])
+    # the dominant plane fits 0.6 of the border, the own wall 1.0: the wall, despite its hidden band
+    win, rivals = pp._choose_plane(cands, is_global, np.array([0.6, 1.0, 0.0]), through, front, up, s)
+    assert win == 1 and np.isneginf(rivals[2])  # the third is not good (border share 0)
+    # about as right: the dominant plane
+    win, rivals = pp._choose_plane(cands, is_global, np.array([0.9, 1.0, 0.0]), through, front, up, s)
+    assert win == 0 and np.isneginf(rivals[1:]).all()
+    # the hidden share weighs fully on a level plane: with see_through_weight 10 it loses
+    flat = np.array([level, level])
+    win, _ = pp._choose_plane(
+        flat, np.zeros(2, bool), np.array([1.0, 0.6]), np.zeros(2), np.array([0.27, 0.0]), up, s
+    )
+    assert win == 1
+    # seen through, or too little of the border: no winner
+    assert pp._choose_plane(cands, is_global, np.ones(3), np.full(3, 0.5), front, up, s) is None
+    assert pp._choose_plane(cands, is_global, np.full(3, 0.4), through, front, up, s) is None

@@ -21,7 +21,7 @@ from skyrecon.io.task_cache import map_cached, task_key
 from skyrecon.mvs.frames import WorkingView
 from skyrecon.mvs.pairwise import pairwise_depth
 from skyrecon.mvs.patchmatch import PatchMatchSettings, patchmatch_depth
-from skyrecon.mvs.planar_prior import PlanarPriorSettings, planar_prior_depth
+from skyrecon.mvs.planar_prior import FilledPlanes, PlanarPriorSettings, planar_prior_depth
 from skyrecon.mvs.settings import MVSSettings
 
 __all__ = ["DepthEstimates", "TaskTimings", "estimate_depths", "apply_planar_prior"]
@@ -228,7 +228,8 @@ class PriorTask(NamedTuple):
     """One view's planar prior (:func:`skyrecon.mvs.planar_prior.fill_plain_segments`): the view
     and its sources with colour, its PatchMatch depth (H, W) metres and cost, depth range (near,
     far) metres, settings, the sparse world points (N, 3) it sees, the dominant world planes
-    (P, 4) and the sources' PatchMatch depths (H, W) metres (for the see-through test)."""
+    (P, 4), the sources' PatchMatch depths (H, W) metres (for the see-through test) and, in the
+    second pass, the planes its neighbours filled with (``offered``)."""
 
     ref: WorkingView
     sources: list[WorkingView]
@@ -240,11 +241,12 @@ class PriorTask(NamedTuple):
     points: np.ndarray | None
     planes: np.ndarray
     source_depths: list[np.ndarray | None] | None = None
+    offered: FilledPlanes | None = None
 
 
-def _prior_task(task: PriorTask) -> tuple[np.ndarray, dict[str, Any]]:
+def _prior_task(task: PriorTask) -> tuple[np.ndarray, dict[str, Any], FilledPlanes]:
     c0 = time.process_time()
-    depth, rep = planar_prior_depth(
+    depth, rep, planes = planar_prior_depth(
         task.ref,
         task.sources,
         task.depth,
@@ -255,9 +257,10 @@ def _prior_task(task: PriorTask) -> tuple[np.ndarray, dict[str, Any]]:
         task.points,
         task.planes,
         task.source_depths,
+        task.offered,
     )
     report: dict[str, Any] = {**rep, "cpu_ms": round((time.process_time() - c0) * 1e3, 1)}
-    return depth, report
+    return depth, report, planes
 
 
 def apply_planar_prior(
@@ -273,7 +276,9 @@ def apply_planar_prior(
     progress: bool = True,
     points: np.ndarray | None = None,
     cache_dir: str | None = None,
-) -> tuple[list[np.ndarray | None], dict[int, dict[str, Any]]]:
+    offered: Sequence[FilledPlanes | None] | None = None,
+    source_depths: Sequence[np.ndarray | None] | None = None,
+) -> tuple[list[np.ndarray | None], dict[int, dict[str, Any]], dict[int, FilledPlanes]]:
     """The planar prior of every view with a PatchMatch depth, fanned out on the executor.
 
     Args:
@@ -286,15 +291,22 @@ def apply_planar_prior(
         points: sparse world points (N, 3) metres.
         cache_dir: keep each view's result here and reuse those already there (a resumed run,
             as for :func:`estimate_depths`); None: no cache.
+        offered: the second pass: per view the planes its neighbours filled with (a view with
+            None or none is skipped); None: the first pass.
+        source_depths: per view the depth the see-through test reads (default ``depths``).
     Returns:
         (per view the depth with plain segments filled (unchanged where the prior fell back),
-        per view index the prior's report (``fallback`` says why it was not applied)).
+        per view index the prior's report (``fallback`` says why it was not applied) and the
+        planes it filled with).
     """
     cos_max = float(np.cos(np.radians(settings.patchmatch.max_incidence_deg)))
     tasks: list[tuple[int, PriorTask]] = []
     for r, nb in enumerate(neighbors):
         d, c, rng = depths[r], costs[r], ranges[r]
         if d is None or c is None or rng is None or not nb:
+            continue
+        offer = None if offered is None else offered[r]
+        if offered is not None and (offer is None or len(offer.planes) == 0):
             continue
         seen = _points_in_view(points, views[r])
         task = PriorTask(
@@ -307,18 +319,23 @@ def apply_planar_prior(
             cos_max,
             seen,
             planes,
-            [depths[s] for s in nb],
+            [(depths if source_depths is None else source_depths)[s] for s in nb],
+            offer,
         )
         tasks.append((r, task))
     keys = [task_key(t, "planar_prior") for _, t in tasks]
-    desc = "MVS planar prior" if progress else None
+    desc = (
+        ("MVS planar prior" if offered is None else "MVS planar prior, shared planes") if progress else None
+    )
     results, _ = map_cached(executor, _prior_task, [t for _, t in tasks], keys, cache_dir, desc=desc)
     out = list(depths)
     reports: dict[int, dict[str, Any]] = {}
-    for (r, _), (d, rep) in zip(tasks, results):
+    filled: dict[int, FilledPlanes] = {}
+    for (r, _), (d, rep, fp) in zip(tasks, results):
         out[r] = d
         reports[r] = rep
-    return out, reports
+        filled[r] = fp
+    return out, reports, filled
 
 
 def _points_in_view(points: np.ndarray | None, view: WorkingView) -> np.ndarray | None:

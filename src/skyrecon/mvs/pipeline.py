@@ -42,7 +42,7 @@ from skyrecon.mvs.frames import WorkingView
 from skyrecon.mvs.fusion import FusedCloud, fuse_concat, fuse_consistent
 from skyrecon.mvs.inputs import ImagesArg, load_working_views
 from skyrecon.mvs.mesh import mesh_from_depth_maps
-from skyrecon.mvs.planar_prior import dominant_planes, horizontal_planes
+from skyrecon.mvs.planar_prior import FilledPlanes, dominant_planes, horizontal_planes
 from skyrecon.mvs.settings import MVSSettings
 from skyrecon.mvs.sparse import depth_range_from_points, sparse_scene
 from skyrecon.mvs.topology import neighbors_from_pairs, select_neighbors, topology_pairs
@@ -333,7 +333,8 @@ def _prior(run: _MVSRun) -> None:
         [dominant_planes(pts, s.planar_prior, seed=s.seed), horizontal_planes(pts, s.planar_prior)]
     )
     before = run.depths
-    run.depths, reports = apply_planar_prior(
+    cache_dir = None if run.workspace is None else os.path.join(run.workspace, "prior_tasks")
+    run.depths, reports, filled = apply_planar_prior(
         run.views,
         s,
         run.neighbors,
@@ -344,8 +345,37 @@ def _prior(run: _MVSRun) -> None:
         run.executor,
         progress=run.progress,
         points=run.sparse_points,
-        cache_dir=None if run.workspace is None else os.path.join(run.workspace, "prior_tasks"),
+        cache_dir=cache_dir,
     )
+    if s.planar_prior.propagate and any(len(f.planes) for f in filled.values()):
+        # the second pass: each view's empty segments try the planes its neighbours filled with
+        linked = _fusion_neighbors(run)
+        offered = [
+            FilledPlanes.concat([filled[q] for q in linked[r] if q in filled]) for r in range(len(run.views))
+        ]
+        costs = [  # the filled pixels are no support (their cost is PatchMatch's)
+            None
+            if c is None or a is None or b is None
+            else np.where(np.isfinite(b) & ~np.isfinite(a), np.inf, c)
+            for a, b, c in zip(before, run.depths, run.costs)
+        ]
+        run.depths, shared, _ = apply_planar_prior(
+            run.views,
+            s,
+            run.neighbors,
+            run.ranges,
+            run.depths,
+            costs,
+            planes,
+            run.executor,
+            progress=run.progress,
+            points=run.sparse_points,
+            cache_dir=cache_dir,
+            offered=offered,
+            source_depths=before,
+        )
+        for r, rep in shared.items():
+            reports.setdefault(r, {})["shared_planes"] = rep
     fs = s.fusion_settings
     if s.fusion == "consistency" and fs.min_consistent_prior < fs.min_consistent:  # else unread
         run.prior_filled = [

@@ -39,12 +39,20 @@ beyond the support (the ground out to the image border):
    back (a set-back storey, the roof behind it), seen past it by this view.
 5. ``border``: the share of the segment's border ring (``ring_px`` wide) that looks the same in
    the sources under the plane: a wrong plane carries the border pixels onto other surfaces.
-   Dominant planes win over triangle planes; within, the score is the border share less
-   ``see_through_weight`` times the two visibility shares; a winner nearly matched by another
-   plane that differs on the border is ambiguous and left empty.
+   Dominant planes win over the view's own planes unless one of those matches clearly more of
+   the border (``dominant_margin``); within, the score is the border share less
+   ``see_through_weight`` times the two visibility shares (a wall's hidden band share weighs
+   ``wall_hidden_weight``); a winner nearly matched by another plane that differs on the
+   border is ambiguous and left empty (:func:`_choose_plane`).
 6. ``check``: every pixel's plane point is projected into the sources; its colour must agree
    with the reference (``color_tol``) in at least ``min_sources`` of the sources that see it. A
    segment where fewer than ``min_pass_fraction`` of the pixels pass is dropped whole.
+
+7. ``propagate``: a second pass offers the planes that filled a view's segments (world frame,
+   with samples of their pixels) to the segments its neighbours left empty where those samples
+   land, under the same checks (the multi-view propagation of planes of ACMMP, Xu & Tao 2020).
+   A view often sees a plain wall's two corners and fills it while its neighbours, seeing one
+   corner, find no plane; fusion keeps a wall only where three views agree on it.
 
 The multi-view geometric-consistency fusion then keeps only the points that other views'
 depth maps agree with (:mod:`skyrecon.mvs.fusion`): no texture is needed there.
@@ -56,6 +64,7 @@ view keeps its PatchMatch depth unchanged and the reason is returned (``PriorRep
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -69,6 +78,7 @@ from skyrecon.mvs.patchmatch import brightness_gain
 __all__ = [
     "PlanarPriorSettings",
     "PriorReport",
+    "FilledPlanes",
     "dominant_planes",
     "horizontal_planes",
     "fill_plain_segments",
@@ -139,6 +149,21 @@ class PlanarPriorSettings:
             filled it too (``FusionSettings.min_consistent_prior``).
         max_front_hidden_wall: as ``max_front_hidden`` for candidates that are not level (world
             z up): a wall hides what lies beyond its top edge and convex corners.
+        wall_hidden_weight: weight of the hidden band share (``max_front_hidden``) in the
+            ranking of candidates that are not level, in place of ``see_through_weight``: a
+            plain tower wall hid a quarter of its band (the roof beyond its top edge) and lost
+            to a slanted plane through a column that hid less but matched less of the border.
+        dominant_margin: a dominant plane wins over the view's own planes unless one of those
+            matches more of the border by more than this (:func:`_choose_plane`).
+        propagate: a second pass offers the planes that filled segments of a view to the
+            segments its neighbours left empty (:class:`FilledPlanes`, ACMMP's multi-view
+            propagation of planes): a plain wall that one view filled from its corners is tried
+            where the others saw too little support to find it, under the same checks, so that
+            the views agree on it in fusion.
+        propagate_samples: pixels (evenly spaced) kept per filled segment to tell which segments
+            of another view it covers.
+        propagate_min_hits: an offered plane is tried on a segment when at least this many of
+            its samples project into it.
         hidden_band: use the band-hidden test (off: only the sources' see-through test). It
             tells the plain ground from a terrace height on oblique views (a floating plane hides
             the feet of what stands on the ground); on nadir survey photos every plain roof hides
@@ -177,6 +202,11 @@ class PlanarPriorSettings:
     see_through_samples: int = 1000
     manhattan_hypotheses: int = 200
     max_front_hidden_wall: float = 0.5
+    wall_hidden_weight: float = 1.0
+    dominant_margin: float = 0.2
+    propagate: bool = True
+    propagate_samples: int = 64
+    propagate_min_hits: int = 4
 
     def __post_init__(self) -> None:
         if not (0 < self.support_cost <= 2) or self.edge_grad <= 0 or self.band_px < 1:
@@ -189,6 +219,37 @@ class PlanarPriorSettings:
             )
 
 
+class FilledPlanes(NamedTuple):
+    """The planes that filled plain segments, to offer to other views (the second pass).
+
+    Attributes:
+        planes: (K, 4) float64 world planes (n, c), n . X = c, unit n.
+        points: (M, 3) float64 world metres: samples of the pixels each plane filled.
+        plane_of: (M,) int64 index into ``planes`` of each sample.
+    """
+
+    planes: np.ndarray
+    points: np.ndarray
+    plane_of: np.ndarray
+
+    @staticmethod
+    def empty() -> FilledPlanes:
+        return FilledPlanes(np.zeros((0, 4)), np.zeros((0, 3)), np.zeros(0, np.int64))
+
+    @staticmethod
+    def concat(parts: list[FilledPlanes]) -> FilledPlanes:
+        """One set of several views' planes (indices renumbered)."""
+        parts = [p for p in parts if len(p.planes)]
+        if not parts:
+            return FilledPlanes.empty()
+        offsets = np.cumsum([0] + [len(p.planes) for p in parts[:-1]])
+        return FilledPlanes(
+            np.concatenate([p.planes for p in parts]),
+            np.concatenate([p.points for p in parts]),
+            np.concatenate([p.plane_of + o for p, o in zip(parts, offsets)]),
+        )
+
+
 @dataclass
 class PriorReport:
     """What the planar prior did in one view.
@@ -199,6 +260,8 @@ class PriorReport:
         filled_px: pixels that received a depth from a plane.
         support_px: support points (PatchMatch and sparse).
         fallback: why the prior was not applied (the PatchMatch depth is kept as it was), or "".
+        details: counts of segments set aside, by reason.
+        planes: the planes that filled segments, with samples of their pixels (world frame).
     """
 
     segments: int = 0
@@ -207,6 +270,7 @@ class PriorReport:
     support_px: int = 0
     fallback: str = ""
     details: dict[str, int] = field(default_factory=dict)
+    planes: FilledPlanes = field(default_factory=FilledPlanes.empty)
 
     def as_dict(self) -> dict[str, int | str]:
         out: dict[str, int | str] = dict(
@@ -507,6 +571,7 @@ def _candidate_planes(
     all_d: np.ndarray | None = None,
     horizontal: np.ndarray | None = None,
     up: np.ndarray | None = None,
+    own: bool = True,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Distinct supported planes (K, 4) for one segment from its band support, best supported
     first, and (K,) bool which of them are dominant (``global_planes``) planes.
@@ -522,12 +587,13 @@ def _candidate_planes(
     feet of walls) are not thinned away. A ``horizontal`` (P,) dominant plane (world z up: the
     ground, a terrace) also qualifies without contact points when every band support point lies
     on or in front of it (at most ``max_front_fraction`` beyond): the ground reaching behind all
-    that stands on it, whose feet this view does not see.
+    that stands on it, whose feet this view does not see. ``own=False``: only the dominant
+    planes (no triangle or Manhattan planes of this band).
     """
     X = rays * d[:, None]
     n_global = len(global_planes)
-    tri = _triangle_planes(uv, X)
-    manhattan = _manhattan_planes(X, up, s) if up is not None else np.zeros((0, 4))
+    tri = _triangle_planes(uv, X) if own else np.zeros((0, 4))
+    manhattan = _manhattan_planes(X, up, s) if up is not None and own else np.zeros((0, 4))
     if n_global + len(tri) + len(manhattan) == 0:
         return np.zeros((0, 4)), np.zeros(0, bool)
     r = seg_ray / np.linalg.norm(seg_ray)
@@ -892,6 +958,98 @@ def _judge_candidates(
     return fracs, through, front
 
 
+def _planes_in_camera(ref: WorkingView, planes_world: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """World planes (P, 4) (n, c), n . X = c, in ``ref``'s camera frame (n_c = R n, h = c + n_c .
+    t), facing the camera (h < 0): ((P, 4), (P,) bool level in the world (z up))."""
+    if planes_world is None or len(planes_world) == 0:
+        return np.zeros((0, 4)), np.zeros(0, bool)
+    R, t = ref.cam_from_world.R, ref.cam_from_world.t
+    nc = planes_world[:, :3] @ R.T
+    hc = planes_world[:, 3] + nc @ t
+    flip = hc > 0
+    nc[flip] *= -1
+    hc[flip] *= -1
+    return np.concatenate([nc, hc[:, None]], axis=1), np.abs(planes_world[:, 2]) > _LEVEL_COS
+
+
+def _filled_plane(
+    ref: WorkingView, plane: np.ndarray, u: np.ndarray, v: np.ndarray, d: np.ndarray, samples: int
+) -> FilledPlanes:
+    """One filled segment as a world plane (camera plane (4,) of ``ref``: n_w = R^T n_c, c = h -
+    n_c . t) with ``samples`` of its pixels (u, v) at depths d (N,) metres, evenly spaced."""
+    R, t = ref.cam_from_world.R, ref.cam_from_world.t
+    nw = R.T @ plane[:3]
+    world = np.array([*nw, float(plane[3] - plane[:3] @ t)])[None]
+    keep = np.linspace(0, len(u) - 1, min(len(u), samples)).astype(np.int64)
+    pts = _pixel_points_world(ref, u[keep], v[keep], d[keep])
+    return FilledPlanes(world, pts, np.zeros(len(pts), np.int64))
+
+
+def _offered_per_segment(
+    ref: WorkingView, offered: FilledPlanes, labels: np.ndarray, segs: list[int], min_hits: int
+) -> list[np.ndarray]:
+    """Per segment of ``segs`` (labels of the (H, W) int32 ``labels``) the indices of the offered
+    planes with at least ``min_hits`` samples projecting into it."""
+    H, W = labels.shape
+    out = [np.zeros(0, np.int64) for _ in segs]
+    if len(offered.planes) == 0:
+        return out
+    uv, z = ref.posed().project(offered.points)
+    u, v = np.rint(uv[:, 0]), np.rint(uv[:, 1])
+    ok = (z > 0) & (u >= 0) & (v >= 0) & (u < W) & (v < H)
+    lab = labels[v[ok].astype(np.int64), u[ok].astype(np.int64)]
+    which = offered.plane_of[ok]
+    index = {lbl: k for k, lbl in enumerate(segs)}
+    hits = np.zeros((len(segs), len(offered.planes)), np.int64)
+    for lbl, p in zip(lab.tolist(), which.tolist()):
+        k = index.get(lbl)
+        if k is not None:
+            hits[k, p] += 1
+    return [np.nonzero(row >= min_hits)[0] for row in hits]
+
+
+def _choose_plane(
+    cands: np.ndarray,
+    is_global: np.ndarray,
+    fracs: np.ndarray,
+    through: np.ndarray,
+    front: np.ndarray,
+    up: np.ndarray,
+    s: PlanarPriorSettings,
+) -> tuple[int, np.ndarray] | None:
+    """The winning candidate of a segment and the scores it was chosen among.
+
+    A candidate is good when at least ``min_pass_fraction`` of the segment's border ring looks
+    the same in the sources under it (``fracs`` (K,)) and the sources see through at most
+    ``max_see_through`` of its interior (``through`` (K,)). A dominant plane (``is_global``
+    (K,): multi-view support) wins over a view's own triangle and Manhattan planes unless one
+    of those looks clearly better on the border (by more than ``dominant_margin``: the wall a
+    view's corners fix beside a dominant plane that fits a few of its points). Within that
+    pool the score is the border share less ``see_through_weight`` times the see-through share
+    and the share of the band it would hide (``front`` (K,)), that last weighed by
+    ``wall_hidden_weight`` for walls (not level, ``up`` (3,) world z in the camera frame): a
+    wall hides what stands back beyond its top edge and corners, the ground nothing.
+
+    Returns:
+        (the winner's index into ``cands`` (K, 4), (K,) scores with -inf outside the pool), or
+        None when no candidate is good.
+    """
+    good = (fracs >= s.min_pass_fraction) & (through <= s.max_see_through)
+    if not good.any():
+        return None
+    dominant = good & is_global
+    pool = (
+        dominant
+        if dominant.any() and fracs[dominant].max() >= fracs[good].max() - s.dominant_margin
+        else good
+    )
+    wall = np.abs(cands[:, :3] @ up) < _LEVEL_COS
+    hidden_weight = np.where(wall, s.wall_hidden_weight, s.see_through_weight)
+    score = fracs - s.see_through_weight * through - hidden_weight * front
+    rivals = np.where(pool, score, -np.inf)
+    return int(np.argmax(rivals)), rivals
+
+
 def fill_plain_segments(
     ref: WorkingView,
     sources: list[WorkingView],
@@ -905,6 +1063,7 @@ def fill_plain_segments(
     sparse_points: np.ndarray | None = None,
     planes_world: np.ndarray | None = None,
     source_depths: list[np.ndarray | None] | None = None,
+    offered: FilledPlanes | None = None,
 ) -> tuple[np.ndarray, PriorReport]:
     """Give the plain segments of one view the depth of their best-supported plane.
 
@@ -924,9 +1083,13 @@ def fill_plain_segments(
         source_depths: per source its (H, W) depth, metres, NaN without one (PatchMatch's), or
             None: candidates a source sees through (its depth lies beyond the plane inside the
             segment) are set aside (``max_see_through``) and ranked lower.
+        offered: the second pass (``propagate``): the planes other views filled. A segment's
+            candidates are then only those of them whose samples land in it (at least
+            ``propagate_min_hits``), as dominant planes (``planes_world`` is not read); no
+            triangle or Manhattan planes of its own (they failed in the first pass).
     Returns:
-        ((H, W) bool pixels filled by a plane, PriorReport). Nothing is changed when the report
-        has a ``fallback``.
+        ((H, W) bool pixels filled by a plane, PriorReport with the planes used). Nothing is
+        changed when the report has a ``fallback``.
     """
     s = settings
     H, W = ref.shape
@@ -947,19 +1110,11 @@ def fill_plain_segments(
     if report.support_px < 3:
         report.fallback = f"only {report.support_px} support points"
         return filled, report
-    # planes in this camera's frame: n_c = R n_w, h = c + n_c . t; facing the camera (h < 0)
-    if planes_world is not None and len(planes_world):
-        R, t = ref.cam_from_world.R, ref.cam_from_world.t
-        nc = planes_world[:, :3] @ R.T
-        hc = planes_world[:, 3] + nc @ t
-        flip = hc > 0
-        nc[flip] *= -1
-        hc[flip] *= -1
-        gplanes = np.concatenate([nc, hc[:, None]], axis=1)
-        horizontal = np.abs(planes_world[:, 2]) > _LEVEL_COS
-    else:
-        gplanes = np.zeros((0, 4))
-        horizontal = np.zeros(0, bool)
+    offered_in: list[np.ndarray] = []  # per segment of ``segs``: the offered planes it may take
+    if offered is not None:
+        planes_world = offered.planes
+        offered_in = _offered_per_segment(ref, offered, labels, segs, s.propagate_min_hits)
+    gplanes, horizontal = _planes_in_camera(ref, planes_world)
     up_cam = ref.cam_from_world.R @ np.array([0.0, 0.0, 1.0])  # world z up (DESIGN)
     ref_blur, src_blur = _blurred_colours(ref, sources)
     tol = s.color_tol / gain
@@ -967,7 +1122,13 @@ def fill_plain_segments(
     rejected = 0
     dark = 0
     ambiguous = 0
-    for i in segs:
+    won: list[FilledPlanes] = []
+    for si, i in enumerate(segs):
+        seg_planes, seg_horizontal = gplanes, horizontal
+        if offered is not None:
+            if len(offered_in[si]) == 0:
+                continue
+            seg_planes, seg_horizontal = gplanes[offered_in[si]], horizontal[offered_in[si]]
         if float(blur[labels == i].mean()) * gain < s.dark_level:  # unlit background, not a surface
             dark += 1
             continue
@@ -993,14 +1154,15 @@ def fill_plain_segments(
             np.stack([uf, vf], axis=1),
             d,
             all_rays[keep],
-            gplanes,
+            seg_planes,
             centre,
             cos_max_incidence,
             s,
             all_rays,
             all_d,
-            horizontal,
+            seg_horizontal,
             up_cam,
+            own=offered is None,
         )
         if len(cands) == 0:
             continue
@@ -1025,20 +1187,11 @@ def fill_plain_segments(
             s,
             up_cam,
         )
-        # a dominant plane (multi-view support) that looks right and that the sources do not see
-        # through wins over a single view's triangles; candidates are ranked by how right they
-        # look at the border less how much of what this view and the sources measured they would
-        # hide (``see_through_weight``); a winner that another plane of the same kind, different
-        # on the border, nearly matches is ambiguous: left empty
-        good = (fracs >= s.min_pass_fraction) & (through <= s.max_see_through)
-        pool = np.nonzero(good & is_global)[0] if (good & is_global).any() else np.nonzero(good)[0]
-        if len(pool) == 0:
+        choice = _choose_plane(cands, is_global, fracs, through, front, up_cam, s)
+        if choice is None:
             rejected += 1
             continue
-        score = fracs - s.see_through_weight * (through + front)
-        win = int(pool[np.argmax(score[pool])])
-        rivals = np.full(len(cands), -np.inf)
-        rivals[pool] = score[pool]
+        win, rivals = choice
         if _ambiguous(cands, rivals, win, rrays, s):
             ambiguous += 1
             continue
@@ -1060,7 +1213,9 @@ def fill_plain_segments(
         depth[pv, pu] = pd
         filled[pv, pu] = True
         report.filled_segments += 1
+        won.append(_filled_plane(ref, plane, pu, pv, pd, s.propagate_samples))
     report.filled_px = int(filled.sum())
+    report.planes = FilledPlanes.concat(won)
     report.details = dict(
         photo_rejected_segments=rejected,
         ambiguous_segments=ambiguous,
@@ -1083,19 +1238,20 @@ def planar_prior_depth(
     sparse_points: np.ndarray | None = None,
     planes_world: np.ndarray | None = None,
     source_depths: list[np.ndarray | None] | None = None,
-) -> tuple[np.ndarray, dict[str, int | str]]:
+    offered: FilledPlanes | None = None,
+) -> tuple[np.ndarray, dict[str, int | str], FilledPlanes]:
     """One view's depth with its plain segments filled from planes (never worse than without).
 
     Args:
         ref, sources: the views (with colour for the photometric checks).
         depth: (H, W) float32 PatchMatch depth, metres, NaN where none (not modified).
         cost: (H, W) float32 PatchMatch cost.
-        depth_range, cos_max_incidence, settings, sparse_points, planes_world, source_depths:
-            see :func:`fill_plain_segments`.
+        depth_range, cos_max_incidence, settings, sparse_points, planes_world, source_depths,
+            offered: see :func:`fill_plain_segments`.
     Returns:
         ((H, W) float32 depth: a copy of ``depth`` with the filled pixels, or ``depth`` itself
         when the prior was not applied; the report (:meth:`PriorReport.as_dict`) whose
-        ``fallback`` says why not).
+        ``fallback`` says why not; the planes that filled segments, world frame).
     """
     out = np.array(depth, np.float32, copy=True)
     try:
@@ -1112,10 +1268,14 @@ def planar_prior_depth(
             sparse_points,
             planes_world,
             source_depths,
+            offered,
         )
     except (ValueError, np.linalg.LinAlgError, cv2.error) as exc:  # never worse than without it
         msg = str(exc).strip().splitlines()
-        return depth, {"fallback": f"planar prior failed: {msg[-1] if msg else type(exc).__name__}"}
+        failed: dict[str, int | str] = {
+            "fallback": f"planar prior failed: {msg[-1] if msg else type(exc).__name__}"
+        }
+        return depth, failed, FilledPlanes.empty()
     if rep.fallback:
-        return depth, rep.as_dict()
-    return out, rep.as_dict()
+        return depth, rep.as_dict(), FilledPlanes.empty()
+    return out, rep.as_dict(), rep.planes
