@@ -353,3 +353,29 @@ def test_choose_plane_lets_a_clearly_better_own_wall_beat_a_dominant_plane() -> 
     # seen through, or too little of the border: no winner
     assert pp._choose_plane(cands, is_global, np.ones(3), np.full(3, 0.5), front, up, s) is None
     assert pp._choose_plane(cands, is_global, np.full(3, 0.4), through, front, up, s) is None
+
+
+def test_a_failing_second_pass_keeps_the_first_and_says_so(plain_ring, monkeypatch) -> None:
+    """The second pass (planes shared between views) failing in every view leaves the first
+    pass's depths: the same cloud as without it, and a warning naming the views."""
+    ring = plain_ring
+    ex = get_executor("serial")
+    first_only = run_mvs(
+        ring.views,
+        ring.images,
+        MVSSettings(max_image_size=None, planar_prior=PlanarPriorSettings(propagate=False)),
+        executor=ex,
+        progress=False,
+    )
+    real = pp.fill_plain_segments
+
+    def second_fails(*args, **kwargs):  # type: ignore[no-untyped-def]
+        if args[-1] is not None:  # offered: the second pass
+            raise np.linalg.LinAlgError("singular matrix")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(pp, "fill_plain_segments", second_fails)
+    res = run_mvs(ring.views, ring.images, MVSSettings(max_image_size=None), executor=ex, progress=False)
+    np.testing.assert_array_equal(res.cloud.points, first_only.cloud.points)
+    assert any(w.startswith("planar prior's second pass failed (first pass kept) in ") for w in res.warnings)
+    assert "singular matrix" in " ".join(res.warnings)

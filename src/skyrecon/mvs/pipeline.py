@@ -10,7 +10,8 @@ Steps (each timed in ``MVSResult.timings_s``):
 4. ``depth``: PatchMatch (or pairwise rectified stereo) per view, fanned out on the executor
    (each task carries only its reference and source views);
    ``prior``: plain (textureless) segments that PatchMatch left empty take the plane their
-   surroundings support (:mod:`skyrecon.mvs.planar_prior`), per view on the executor;
+   surroundings support (:mod:`skyrecon.mvs.planar_prior`), per view on the executor; then
+   the segments still empty try the planes their neighbours filled with (a second pass);
 5. ``fusion``: geometric-consistency fusion (or plain concatenation);
 6. ``cleanup``: statistical outlier removal, normals (PCA, oriented to the cameras), optional
    voxel averaging; optional ``mesh``.
@@ -324,8 +325,10 @@ def _fusion_neighbors(run: _MVSRun) -> list[list[int]]:
 
 def _prior(run: _MVSRun) -> None:
     """Plain segments without depth take the plane their surroundings support: the dominant planes
-    of the multi-view consistent PatchMatch points (and sparse points), or a triangle plane of the
-    view's own support; views where it fails keep their PatchMatch depth (see diagnostics)."""
+    of the multi-view consistent PatchMatch points (and sparse points), or a triangle or
+    Manhattan plane of the view's own support; then (``propagate``) the segments still empty
+    try the planes the view's fusion neighbours filled with (diagnostics: ``shared_planes`` per
+    view). Views where it fails keep their depth (see diagnostics)."""
     s = run.settings
     pre = fuse_consistent(run.views, run.depths, _fusion_neighbors(run), s.fusion_settings)
     pts = np.concatenate([pre.cloud.points.astype(np.float64), run.sparse_points.reshape(-1, 3)])
@@ -387,11 +390,15 @@ def _prior(run: _MVSRun) -> None:
         "dominant_planes": np.round(planes, 4).tolist(),
         "views": prior,
     }
-    failed = [n for n, p in prior.items() if str(p.get("fallback", "")).startswith("planar prior failed")]
-    if failed:
-        run.warnings.append(
-            f"planar prior failed (PatchMatch depth kept) in {_names_of(failed)}: {prior[failed[0]]['fallback']}"
-        )
+    for second, kept in ((False, "PatchMatch depth kept"), (True, "first pass kept")):
+        why = {
+            n: str((p.get("shared_planes", {}) if second else p).get("fallback", ""))
+            for n, p in prior.items()
+        }
+        failed = [n for n, w in why.items() if w.startswith("planar prior failed")]
+        if failed:
+            which = "planar prior's second pass" if second else "planar prior"
+            run.warnings.append(f"{which} failed ({kept}) in {_names_of(failed)}: {why[failed[0]]}")
 
 
 def _fuse(run: _MVSRun) -> None:
