@@ -14,7 +14,7 @@ Scenes:
                   (the diagonal of the reference's bounding box).
                   Also at 1 % of the ring radius, and the completeness of the ground alone
                   (reference samples at z < 2 cm).
-  ring-plain-a .. ring-plain-e
+  ring-plain-a .. ring-plain-g
                   the same with ``generate_object_scene(plain=True)``: plain grey ground, plain
                   walls, one glass face (low texture, like a real city's walls and roads); other
                   seeds, ring radii, heights and fields of view. The summary checks them against
@@ -306,6 +306,8 @@ SCENES = [
     "ring-plain-c",
     "ring-plain-d",
     "ring-plain-e",
+    "ring-plain-f",
+    "ring-plain-g",
     "rock",
     "temple",
 ]
@@ -362,6 +364,9 @@ def main() -> None:
         "ring-plain-c": lambda: run_ring("ring-plain-c", 11, 12, 8.5, 4.0, 60.0, args.workers, plain=True),
         "ring-plain-d": lambda: run_ring("ring-plain-d", 12, 14, 9.0, 3.5, 55.0, args.workers, plain=True),
         "ring-plain-e": lambda: run_ring("ring-plain-e", 21, 12, 8.0, 4.5, 58.0, args.workers, plain=True),
+        # f and g were added after the prior's second pass was chosen, and run once, unchanged
+        "ring-plain-f": lambda: run_ring("ring-plain-f", 30, 12, 8.5, 4.5, 60.0, args.workers, plain=True),
+        "ring-plain-g": lambda: run_ring("ring-plain-g", 41, 14, 9.5, 3.5, 56.0, args.workers, plain=True),
         "rock": lambda: run_rock(args.workers),
         "temple": lambda: run_temple(args.workers),
     }
