@@ -323,6 +323,51 @@ def _fusion_neighbors(run: _MVSRun) -> list[list[int]]:
     return neighbors_from_pairs(checked, len(run.views))
 
 
+def _filled_by_prior(
+    before: list[np.ndarray | None], after: list[np.ndarray | None]
+) -> list[np.ndarray | None]:
+    """Per view the (H, W) bool pixels without a depth ``before`` that have one ``after``."""
+    return [
+        None if a is None or b is None else (np.isfinite(b) & ~np.isfinite(a)) for a, b in zip(before, after)
+    ]
+
+
+def _shared_planes_pass(
+    run: _MVSRun,
+    before: list[np.ndarray | None],
+    filled: dict[int, FilledPlanes],
+    cache_dir: str | None,
+) -> dict[int, dict[str, Any]]:
+    """The planar prior's second pass: each view's segments still empty try the planes its
+    fusion neighbours filled with (``filled``, per view index); ``run.depths`` are updated.
+    The pixels the first pass filled are no support (their cost is PatchMatch's), and the
+    see-through test reads the PatchMatch depths (``before``). Returns the reports per view."""
+    linked = _fusion_neighbors(run)
+    offered = [
+        FilledPlanes.concat([filled[q] for q in linked[r] if q in filled]) for r in range(len(run.views))
+    ]
+    costs = [
+        None if c is None or m is None else np.where(m, np.inf, c)
+        for c, m in zip(run.costs, _filled_by_prior(before, run.depths))
+    ]
+    run.depths, reports, _ = apply_planar_prior(
+        run.views,
+        run.settings,
+        run.neighbors,
+        run.ranges,
+        run.depths,
+        costs,
+        np.zeros((0, 4)),  # the candidates are the offered planes only
+        run.executor,
+        progress=run.progress,
+        points=run.sparse_points,
+        cache_dir=cache_dir,
+        offered=offered,
+        source_depths=before,
+    )
+    return reports
+
+
 def _prior(run: _MVSRun) -> None:
     """Plain segments without depth take the plane their surroundings support: the dominant planes
     of the multi-view consistent PatchMatch points (and sparse points), or a triangle or
@@ -351,40 +396,11 @@ def _prior(run: _MVSRun) -> None:
         cache_dir=cache_dir,
     )
     if s.planar_prior.propagate and any(len(f.planes) for f in filled.values()):
-        # the second pass: each view's empty segments try the planes its neighbours filled with
-        linked = _fusion_neighbors(run)
-        offered = [
-            FilledPlanes.concat([filled[q] for q in linked[r] if q in filled]) for r in range(len(run.views))
-        ]
-        costs = [  # the filled pixels are no support (their cost is PatchMatch's)
-            None
-            if c is None or a is None or b is None
-            else np.where(np.isfinite(b) & ~np.isfinite(a), np.inf, c)
-            for a, b, c in zip(before, run.depths, run.costs)
-        ]
-        run.depths, shared, _ = apply_planar_prior(
-            run.views,
-            s,
-            run.neighbors,
-            run.ranges,
-            run.depths,
-            costs,
-            planes,
-            run.executor,
-            progress=run.progress,
-            points=run.sparse_points,
-            cache_dir=cache_dir,
-            offered=offered,
-            source_depths=before,
-        )
-        for r, rep in shared.items():
+        for r, rep in _shared_planes_pass(run, before, filled, cache_dir).items():
             reports.setdefault(r, {})["shared_planes"] = rep
     fs = s.fusion_settings
     if s.fusion == "consistency" and fs.min_consistent_prior < fs.min_consistent:  # else unread
-        run.prior_filled = [
-            None if a is None or b is None else (np.isfinite(b) & ~np.isfinite(a))
-            for a, b in zip(before, run.depths)
-        ]
+        run.prior_filled = _filled_by_prior(before, run.depths)
     prior = {run.views[r].stem: rep for r, rep in reports.items()}
     run.diagnostics["planar_prior"] = {
         "dominant_planes": np.round(planes, 4).tolist(),
