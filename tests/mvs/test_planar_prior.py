@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from skyrecon.core import DepthMap
+from skyrecon.errors import InputError
 from skyrecon.eval.mvs_metrics import evaluate_cloud, reference_from_depth_maps
 from skyrecon.executor import get_executor
 from skyrecon.mvs import MVSSettings, depth_tasks, run_mvs
@@ -379,3 +380,18 @@ def test_a_failing_second_pass_keeps_the_first_and_says_so(plain_ring, monkeypat
     np.testing.assert_array_equal(res.cloud.points, first_only.cloud.points)
     assert any(w.startswith("planar prior's second pass failed (first pass kept) in ") for w in res.warnings)
     assert "singular matrix" in " ".join(res.warnings)
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [
+        dict(propagate_samples=0),
+        dict(propagate_min_hits=0),
+        dict(propagate_samples=8, propagate_min_hits=9),
+        dict(dominant_margin=-0.1),
+        dict(wall_hidden_weight=-1.0),
+    ],
+)
+def test_second_pass_and_ranking_settings_are_checked(bad: dict) -> None:
+    with pytest.raises(InputError, match="planar prior"):
+        PlanarPriorSettings(**bad)

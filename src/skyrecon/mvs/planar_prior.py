@@ -217,6 +217,14 @@ class PlanarPriorSettings:
             raise InputError(
                 "planar prior: need 0 < inlier_rel < 1, color_tol > 0, 0 <= min_pass_fraction <= 1"
             )
+        if (
+            self.propagate_samples < 1
+            or self.propagate_min_hits < 1
+            or self.propagate_min_hits > self.propagate_samples
+        ):
+            raise InputError("planar prior: need 1 <= propagate_min_hits <= propagate_samples")
+        if self.dominant_margin < 0 or self.wall_hidden_weight < 0:
+            raise InputError("planar prior: need dominant_margin >= 0 and wall_hidden_weight >= 0")
 
 
 class FilledPlanes(NamedTuple):
