@@ -164,3 +164,22 @@ def test_missing_cameras_and_black_images(photos, tmp_path, capsys):
         == 2
     )
     assert "blank" in _one_error_line(capsys)
+
+
+def test_prior_summary_says_what_each_pass_filled():
+    from skyrecon.cli.mvs import prior_summary
+
+    assert prior_summary({}) is None
+    assert prior_summary({"planar_prior": {"views": {}}}) is None
+    views = {
+        "a": {"filled_px": 1200, "shared_planes": {"filled_px": 300}},
+        "b": {"filled_px": 0, "fallback": "no plain segments"},
+        "c": {"filled_px": 50, "shared_planes": {"filled_px": 0}},
+    }
+    line = prior_summary({"planar_prior": {"views": views}})
+    assert line == (
+        "planar prior: plain segments took a plane in 2 of 3 views (1250 px); "
+        "planes shared between views filled 300 px more in 1"
+    )
+    del views["a"]["shared_planes"]
+    assert "shared" not in str(prior_summary({"planar_prior": {"views": views}}))

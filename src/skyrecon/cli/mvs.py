@@ -174,11 +174,32 @@ def run(args: argparse.Namespace) -> int:
             f"{len(result.cloud)} fused points from {len(result.depth_maps)} depth maps in {t.get('total', 0):.1f} s "
             f"({steps})"
         )
+        prior = prior_summary(result.diagnostics)
+        if prior:
+            info(prior)
         written = [f"fused.{args.format}", "depth/*.pfm", "mvs.json", "depth.png", "preview.png"]
         if "mesh" in paths:
             written.insert(1, "mesh.ply")
         info(f"wrote {out}/" + ", ".join(written))
     return 0
+
+
+def prior_summary(diagnostics: dict[str, Any]) -> str | None:
+    """One line on what the planar prior filled (None when it did not run): the views whose plain
+    segments took a plane and the pixels, and what the second pass (planes shared between views)
+    added."""
+    views = (diagnostics.get("planar_prior") or {}).get("views") or {}
+    if not views:
+        return None
+    first = [int(v.get("filled_px", 0)) for v in views.values()]
+    second = [int(v.get("shared_planes", {}).get("filled_px", 0)) for v in views.values()]
+    line = (
+        f"planar prior: plain segments took a plane in {sum(f > 0 for f in first)} of {len(views)} views "
+        f"({sum(first)} px)"
+    )
+    if any(second):
+        line += f"; planes shared between views filled {sum(second)} px more in {sum(n > 0 for n in second)}"
+    return line
 
 
 def _pictures(result: MVSResult, views: Sequence[PosedView], out: Path) -> None:
