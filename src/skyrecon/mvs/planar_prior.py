@@ -900,11 +900,12 @@ def _judge_candidates(
     depth_range: tuple[float, float],
     colours: tuple[np.ndarray, list[np.ndarray], float],
     s: PlanarPriorSettings,
-    up: np.ndarray | None = None,
+    wall: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The evidence on each candidate plane (K, 4) (camera frame) of one segment.
 
     Args:
+        wall: (K,) bool candidates that are not level (:func:`_walls`); None: all level.
         segment: the segment's (h, w) bool mask in its bounding box and the box's corner x0, y0.
         ring: the border ring's pixels u, v (N,) and rays (N, 3).
         band: the band support's rays (M, 3) and depths (M,) metres.
@@ -932,8 +933,8 @@ def _judge_candidates(
     # a level plane (the ground, a terrace) hides nothing that stands on it; a wall hides what
     # lies beyond its convex corners and top edge (a set-back storey, the roof behind it)
     limit = np.full(len(cands), s.max_front_hidden)
-    if up is not None:
-        limit[np.abs(cands[:, :3] @ up) < _LEVEL_COS] = s.max_front_hidden_wall
+    if wall is not None:
+        limit[wall] = s.max_front_hidden_wall
     if source_depths is not None:
         # the see-through test samples the segment's interior: at its border a source's depth
         # edge (a few pixels off) reads as a view through the plane
@@ -1005,15 +1006,19 @@ def _offered_per_segment(
     uv, z = ref.posed().project(offered.points)
     u, v = np.rint(uv[:, 0]), np.rint(uv[:, 1])
     ok = (z > 0) & (u >= 0) & (v >= 0) & (u < W) & (v < H)
-    lab = labels[v[ok].astype(np.int64), u[ok].astype(np.int64)]
-    which = offered.plane_of[ok]
-    index = {lbl: k for k, lbl in enumerate(segs)}
+    seg_of_label = np.full(int(labels.max()) + 1, -1, np.int64)  # label -> row of ``segs``
+    seg_of_label[segs] = np.arange(len(segs))
+    k = seg_of_label[labels[v[ok].astype(np.int64), u[ok].astype(np.int64)]]
     hits = np.zeros((len(segs), len(offered.planes)), np.int64)
-    for lbl, p in zip(lab.tolist(), which.tolist()):
-        k = index.get(lbl)
-        if k is not None:
-            hits[k, p] += 1
+    np.add.at(hits, (k[k >= 0], offered.plane_of[ok][k >= 0]), 1)
     return [np.nonzero(row >= min_hits)[0] for row in hits]
+
+
+def _walls(planes: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """(P,) bool: which planes (P, 4) (n, h) are not level, ``up`` (3,) the world's z in their
+    frame: walls (and slanted planes), which may hide more of their band
+    (``max_front_hidden_wall``, ``wall_hidden_weight``)."""
+    return np.abs(planes[:, :3] @ up) < _LEVEL_COS
 
 
 def _choose_plane(
@@ -1022,7 +1027,7 @@ def _choose_plane(
     fracs: np.ndarray,
     through: np.ndarray,
     front: np.ndarray,
-    up: np.ndarray,
+    wall: np.ndarray,
     s: PlanarPriorSettings,
 ) -> tuple[int, np.ndarray] | None:
     """The winning candidate of a segment and the scores it was chosen among.
@@ -1035,8 +1040,7 @@ def _choose_plane(
     view's corners fix beside a dominant plane that fits a few of its points). Within that
     pool the score is the border share less ``see_through_weight`` times the see-through share
     and the share of the band it would hide (``front`` (K,)), that last weighed by
-    ``wall_hidden_weight`` for walls (not level, ``up`` (3,) world z in the camera frame): a
-    wall hides what stands back beyond its top edge and corners, the ground nothing.
+    ``wall_hidden_weight`` for walls (``wall`` (K,) bool, :func:`_walls`): a wall hides what stands back beyond its top edge and corners, the ground nothing.
 
     Returns:
         (the winner's index into ``cands`` (K, 4), (K,) scores with -inf outside the pool), or
@@ -1051,7 +1055,6 @@ def _choose_plane(
         if dominant.any() and fracs[dominant].max() >= fracs[good].max() - s.dominant_margin
         else good
     )
-    wall = np.abs(cands[:, :3] @ up) < _LEVEL_COS
     hidden_weight = np.where(wall, s.wall_hidden_weight, s.see_through_weight)
     score = fracs - s.see_through_weight * through - hidden_weight * front
     rivals = np.where(pool, score, -np.inf)
@@ -1174,6 +1177,7 @@ def fill_plain_segments(
         )
         if len(cands) == 0:
             continue
+        wall = _walls(cands, up_cam)
         # the candidate whose segment border looks the same in the sources wins (a wrong plane
         # carries the border pixels onto other surfaces there)
         rv, ru = np.nonzero(_boundary_ring(seg, s.ring_px))
@@ -1193,9 +1197,9 @@ def fill_plain_segments(
             depth_range,
             (ref_blur, src_blur, tol),
             s,
-            up_cam,
+            wall,
         )
-        choice = _choose_plane(cands, is_global, fracs, through, front, up_cam, s)
+        choice = _choose_plane(cands, is_global, fracs, through, front, wall, s)
         if choice is None:
             rejected += 1
             continue
