@@ -12,7 +12,10 @@ Data layout (``wp`` = image width rounded up to a multiple of 32 lanes):
   and with restart columns at both image ends;
 - the upward sweep's path sums: (rows, D * wp) uint8 block-major (32-column blocks of D
   planes), saturated at 255;
-- the total cost of the row being selected: (D + 4, wp) uint16 row-major.
+- the total cost of the row being selected: (D + 4, wp) uint16 row-major;
+- the optional horizontal paths (``_horizontal_paths``): per row, uint8 x-major (column x,
+  plane order reversed) costs, left-to-right path costs and the two paths' sums, whose 32x32
+  tiles are transposed into the upward sweep's block-major sums.
 
 Plane index ``k`` means disparity ``d = dmin + k`` (``x_right = x_left - d``).
 
@@ -641,10 +644,236 @@ def _select_row(total, W, dmin, uniqueness, subpixel, lr_max_diff, sel, second, 
             disp[x] = d if ok else nan
 
 
-def band_workspace_sizes(D: int, wp: int, n: int) -> tuple[int, int, int]:
+@intrinsic
+def _ctpop32(typingctx, v):
+    """Set bits of the low 32 bits of an integer (LLVM's ctpop, which the loop vectoriser
+    turns into vector code)."""
+    if not isinstance(v, types.Integer):
+        return None
+
+    def codegen(context, builder, signature, args):
+        x = args[0]
+        if x.type.width != 32:
+            x = builder.trunc(x, _I32)
+        return builder.ctpop(x)
+
+    return types.uint32(v), codegen
+
+
+def _transpose_masks() -> list[tuple[list[int], list[int]]]:
+    """Shuffle masks of a 32x32 transpose in 5 stages (swap the off-diagonal h x h blocks of
+    every 2h x 2h block, h = 16 .. 1): rows i and i + h (i & h == 0) become
+    ``shuffle(row_i, row_ih, lo)`` and ``shuffle(row_i, row_ih, hi)``."""
+    out = []
+    for h in (16, 8, 4, 2, 1):
+        lo = [c if c & h == 0 else LANES + c - h for c in range(LANES)]
+        hi = [c + h if c & h == 0 else LANES + c for c in range(LANES)]
+        out.append((lo, hi))
+    return out
+
+
+_TRANSPOSE_MASKS = _transpose_masks()
+
+
+@intrinsic
+def _add_tile_transposed(typingctx, src, src_base, src_stride, dst, dst_base, dst_step):
+    """``dst[dst_base + j * dst_step + i] = sat8(dst[...] + src[src_base + i * src_stride + j])``
+    for i, j in 0..31: adds the transpose of a 32x32 uint8 tile with saturation at 255.
+
+    32 vector loads, 5 stages of 32 two-source shuffles (unpack instructions), 32 saturating
+    vector adds: the horizontal paths' sums (x-major) join the block-major path sums."""
+    sig = types.void(src, src_base, src_stride, dst, dst_base, dst_step)
+
+    def codegen(context, builder, signature, args):
+        src_v, sb_v, ss_v, dst_v, db_v, ds_v = args
+        t = signature.args
+        sp = _data(context, builder, t[0], src_v)
+        dp = _data(context, builder, t[3], dst_v)
+        sb, ss, db, ds = (_i64(builder, v) for v in (sb_v, ss_v, db_v, ds_v))
+        rows = [
+            _vload(builder, sp, builder.add(sb, builder.mul(ss, ir.Constant(_I64, i))), _V8)
+            for i in range(LANES)
+        ]
+        mask_ty = ir.VectorType(ir.IntType(32), LANES)
+        for h, (lo, hi) in zip((16, 8, 4, 2, 1), _TRANSPOSE_MASKS):
+            new = list(rows)
+            for i in range(LANES):
+                if i & h:
+                    continue
+                a, b = rows[i], rows[i + h]
+                new[i] = builder.shuffle_vector(a, b, ir.Constant(mask_ty, lo))
+                new[i + h] = builder.shuffle_vector(a, b, ir.Constant(mask_ty, hi))
+            rows = new
+        fnty = ir.FunctionType(_V8, [_V8, _V8])
+        sat = cgutils.get_or_insert_function(builder.module, fnty, f"llvm.uadd.sat.v{LANES}i8")
+        for j in range(LANES):
+            at = builder.add(db, builder.mul(ds, ir.Constant(_I64, j)))
+            _vstore(builder, builder.call(sat, [_vload(builder, dp, at, _V8), rows[j]]), dp, at)
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+@njit(inline="always")
+def _row_costs(cl, cr, cr_pad, dmin, oc, D, W, x, out):
+    """Matching costs of pixel ``x`` of one row in reversed plane order: ``out[r]`` is plane
+    ``k = D - 1 - r`` (disparity ``dmin + k``), ``popcount(cl[x] ^ cr[cr_pad + x - d])``, or
+    ``oc`` where ``x - d`` falls outside ``[0, W)``. Reversed, the right codes are read
+    forwards (a contiguous slice)."""
+    code = cl[x]
+    base = cr_pad + x - dmin - (D - 1)
+    seg = cr[base : base + D]
+    for r in range(D):
+        out[r] = np.uint8(_ctpop32(code ^ seg[r]))
+    xr0 = x - dmin - (D - 1)  # right column of r = 0
+    for r in range(0, min(D, max(0, -xr0))):
+        out[r] = np.uint8(oc)
+    for r in range(max(0, W - xr0), D):
+        out[r] = np.uint8(oc)
+
+
+#: the horizontal paths run in uint8: their jump penalty is capped here, so that with census
+#: costs of at most 32 every value stays below 255 (path costs <= 32 + cap, their minimum plus
+#: the jump <= 32 + 2 * cap); the default P2 (100) is below it
+H_MAX_JUMP = 111
+#: a path state's padding at both disparity ends, less P1 (so that ``pad + P1`` cannot wrap)
+_H_PAD = 255
+
+
+@njit(inline="always")
+def _horizontal_step(cost, prev, cur, D, m, pen, p1, fwd, sums, backward):
+    """One step of a horizontal path, uint8: ``cur[1 + r] = cost[r] + min(prev[1 + r],
+    prev[r] + P1, prev[2 + r] + P1, m + pen) - m`` (``prev``/``cur`` (D + 2,) with a large
+    value at both ends, ``m`` the minimum of ``prev``); returns the minimum of ``cur``.
+    Forward, the costs are also stored in ``fwd`` (D,); ``backward``, ``sums[r] =
+    min(fwd[r] + cur[1 + r], 255)``. One loop, vectorised over the planes."""
+    jump = np.uint8(m + pen)
+    nm = np.uint8(255)
+    if backward:
+        for r in range(D):
+            a = min(prev[r + 1], np.uint8(min(prev[r], prev[r + 2]) + p1))
+            v = np.uint8(cost[r] + np.uint8(min(a, jump) - m))
+            cur[r + 1] = v
+            nm = min(nm, v)
+        for r in range(D):  # a loop of its own, with a wrapping add: 3x faster than fused
+            f = fwd[r]
+            t = np.uint8(f + cur[r + 1])
+            sums[r] = t if t >= f else np.uint8(255)
+    else:
+        for r in range(D):
+            a = min(prev[r + 1], np.uint8(min(prev[r], prev[r + 2]) + p1))
+            v = np.uint8(cost[r] + np.uint8(min(a, jump) - m))
+            cur[r + 1] = v
+            fwd[r] = v
+            nm = min(nm, v)
+    return nm
+
+
+#: rows whose horizontal paths advance together (1: one at a time; 2 or 4 were no faster)
+H_ROWS = 1
+
+
+@njit(inline="always")
+def _horizontal_paths(
+    cl, cr, cr_pad, y_base, y0, nr, dmin, oc, D, W, grey, P1, P2, alpha, fwd, prev, cur, pen, mins, costs, sums,
+    s_out, s_base, row_len,
+):  # fmt: skip
+    """Add the left-to-right and right-to-left paths of the rows ``y0 .. y0 + nr - 1`` (``nr
+    <= H_ROWS``) to their block-major uint8 path sums (row y0 + q at ``s_base + q * row_len``:
+    plane k of column x at ``((x // 32) * D + k) * 32 + x % 32``, saturated at 255).
+
+    Plain Numba loops in uint8, vectorised over the planes, in reversed plane order (see
+    ``_row_costs``; the recursion is symmetric in the plane order). Per row q, all uint8:
+    ``costs[q]`` (wp * D,) its matching costs, ``fwd[q]`` (wp * D,) its left-to-right path
+    costs, ``prev[q]``/``cur[q]`` (D + 2,) path states, ``pen[q]`` (wp,) the jump penalty
+    between columns x - 1 and x, ``min(H_MAX_JUMP, max(P1 + 1, P2 / (1 + alpha * |I(x) -
+    I(x - 1)|)))``, ``mins[q]`` the path's last minimum, ``sums[q]`` (wp * D,) the two paths'
+    sum per column (x-major), added by 32x32 tile transposes. Needs P1 < H_MAX_JUMP.
+    """
+    p1 = np.uint8(P1)
+    p1p = np.float32(P1 + 1)
+    p2f = np.float32(P2)
+    al = np.float32(alpha)
+    cap = np.float32(H_MAX_JUMP)
+    pad = np.uint8(_H_PAD - P1)
+    wp = sums.shape[1] // D
+    for q in range(nr):
+        g = grey[y0 + q]
+        pq = pen[q]
+        for x in range(1, W):
+            dI = np.float32(abs(np.int32(g[x]) - np.int32(g[x - 1])))
+            pq[x] = np.uint8(min(cap, max(p1p, p2f / (np.float32(1.0) + al * dI))))
+        for a in (prev[q], cur[q]):
+            a[0] = pad
+            a[D + 1] = pad
+        c = costs[q, :D]
+        _row_costs(cl[y0 + q - y_base], cr[y0 + q - y_base], cr_pad, dmin, oc, D, W, 0, c)
+        m = np.uint8(255)
+        for r in range(D):
+            prev[q, r + 1] = c[r]
+            fwd[q, r] = c[r]
+            m = min(m, c[r])
+        mins[q] = m
+    for x in range(1, W):
+        for q in range(nr):
+            c = costs[q, x * D : (x + 1) * D]
+            _row_costs(cl[y0 + q - y_base], cr[y0 + q - y_base], cr_pad, dmin, oc, D, W, x, c)
+            mins[q] = _horizontal_step(
+                c, prev[q], cur[q], D, mins[q], pen[q, x], p1, fwd[q, x * D : (x + 1) * D], sums[q], False
+            )
+        prev, cur = cur, prev
+    x = W - 1
+    for q in range(nr):
+        c = costs[q, x * D : (x + 1) * D]
+        m = np.uint8(255)
+        for r in range(D):
+            prev[q, r + 1] = c[r]
+            m = min(m, c[r])
+            sums[q, x * D + r] = np.uint8(min(np.uint16(fwd[q, x * D + r]) + np.uint16(c[r]), 255))
+        mins[q] = m
+    for x in range(W - 2, -1, -1):
+        for q in range(nr):
+            mins[q] = _horizontal_step(
+                costs[q, x * D : (x + 1) * D],
+                prev[q],
+                cur[q],
+                D,
+                mins[q],
+                pen[q, x + 1],
+                p1,
+                fwd[q, x * D : (x + 1) * D],
+                sums[q, x * D : (x + 1) * D],
+                True,
+            )
+        prev, cur = cur, prev
+    tiles = D - D % LANES
+    for q in range(nr):
+        sq = sums[q]
+        base = s_base + q * row_len
+        for i in range(W * D, wp * D):  # padding columns add nothing
+            sq[i] = 0
+        for b in range(wp // LANES):
+            col = b * LANES * D
+            for r0 in range(0, tiles, LANES):
+                # reversed plane r0 + j is plane D - 1 - r0 - j
+                _add_tile_transposed(sq, col + r0, D, s_out, base + (b * D + D - 1 - r0) * LANES, -LANES)
+            for r in range(tiles, D):  # planes left over from whole tiles
+                o = base + (b * D + D - 1 - r) * LANES
+                for lane in range(LANES):
+                    i = o + lane
+                    v = np.int32(s_out[i]) + np.int32(sq[col + lane * D + r])
+                    s_out[i] = np.uint8(min(v, 255))
+
+
+def band_workspace_sizes(D: int, wp: int, n: int, horizontal: bool = False) -> tuple[int, int, int]:
     """Elements of the int16, uint16 and uint8 workspaces ``sgm_band`` needs for D planes,
     padded width wp and n paths per sweep."""
-    return (2 * n * (D + 2) * (wp + 2) + 2 * n * (wp + 2) + 2 * n * wp, (D + 4) * wp + 7 * wp, D * wp)
+    n16 = 2 * n * (D + 2) * (wp + 2) + 2 * n * (wp + 2) + 2 * n * wp
+    n8 = D * wp
+    if horizontal:  # per row of H_ROWS: matching costs, left-to-right path costs and path sums,
+        # two path states, penalties, minimum
+        n8 += H_ROWS * (3 * wp * D + 2 * (D + 2) + wp + 1)
+    return n16, (D + 4) * wp + 7 * wp, n8
 
 
 @njit(**_JIT)
@@ -667,6 +896,7 @@ def sgm_band(
     uniqueness,
     subpixel,
     lr_max_diff,
+    horizontal,
     S_band,
     disp,
     right_out,
@@ -699,6 +929,8 @@ def sgm_band(
         r0, r1: the band.
         margin: rows of warm-up outside the band.
         uniqueness, subpixel, lr_max_diff: see ``_select_row``.
+        horizontal: also aggregate along each row (left to right and right to left; their sum
+            joins the upward paths' in ``S_band``, see ``_horizontal_paths``).
         S_band: (r1 - r0, D * wp) uint8 scratch: the upward paths' sums saturated at 255
             (each row block-major: 32-column blocks of D planes).
         disp: (H, W) float32 output (rows r0..r1-1 are written), NaN where rejected.
@@ -717,6 +949,21 @@ def sgm_band(
     o = n_st + 2 * n * (wp + 2)
     Q = ws16[o : o + n * wp]
     M = ws16[o + n * wp : o + 2 * n * wp]
+    hr = H_ROWS if horizontal else 0  # the horizontal paths' uint8 buffers (none when off)
+    o8 = D * wp
+    h_costs = ws8[o8 : o8 + hr * wp * D].reshape((hr, wp * D))
+    o8 += hr * wp * D
+    h_fwd = ws8[o8 : o8 + hr * wp * D].reshape((hr, wp * D))
+    o8 += hr * wp * D
+    h_sums = ws8[o8 : o8 + hr * wp * D].reshape((hr, wp * D))
+    o8 += hr * wp * D
+    h_prev = ws8[o8 : o8 + hr * (D + 2)].reshape((hr, D + 2))
+    o8 += hr * (D + 2)
+    h_cur = ws8[o8 : o8 + hr * (D + 2)].reshape((hr, D + 2))
+    o8 += hr * (D + 2)
+    h_pen = ws8[o8 : o8 + hr * wp].reshape((hr, wp))
+    o8 += hr * wp
+    h_min = ws8[o8 : o8 + hr]
     st[:] = 0
     mins[:] = 0
     for a in range(2):
@@ -773,6 +1020,34 @@ def sgm_band(
             sel,
         )
         par = 1 - par
+    if horizontal:
+        for y0 in range(r0, r1, H_ROWS):
+            _horizontal_paths(
+                cl,
+                cr,
+                cr_pad,
+                y_base,
+                y0,
+                min(H_ROWS, r1 - y0),
+                dmin,
+                oc,
+                D,
+                W,
+                grey,
+                P1,
+                P2,
+                alpha,
+                h_fwd,
+                h_prev,
+                h_cur,
+                h_pen,
+                h_min,
+                h_costs,
+                h_sums,
+                band_flat,
+                (y0 - r0) * row_len,
+                row_len,
+            )
     # downward sweep: total = its paths + S_band, winner-takes-all on the fly
     ystart = max(0, r0 - margin)
     par = 0
