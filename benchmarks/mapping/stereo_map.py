@@ -10,17 +10,18 @@ memory by ``render_stereo``. The summary gives the worst case over the seeds of 
 Methods (same frames, same voxel size 0.5 m, same maximum range --max-range, one process):
   skyrecon        exactly what ``skyrecon map SEQUENCE --voxel-size 0.5`` runs on the sequence:
                   :class:`skyrecon.mapping.StereoMapper` (default settings: the ``skyrecon``
-                  matcher, measured pixels on texture only, plain segments bounded by one
-                  measured plane filled with it unless the matcher's own values inside disagree,
-                  the matcher's other values as hits where 3 frames agree next to a found
-                  surface, obstacles only within the rig's trusted range, projective
-                  integration of the full 640x480 depth with each surface taken a fifth of a
-                  voxel nearer the camera).
+                  matcher with the horizontal paths, measured pixels on texture only, plain
+                  segments bounded by one measured plane filled with it unless the matcher's own
+                  values inside disagree, the matcher's other values as hits where 3 frames
+                  agree next to a found surface, obstacles only within the rig's trusted range,
+                  projective integration of the full 640x480 depth with each surface taken a
+                  fifth of a voxel nearer the camera, and the flat ground: guesses that agree
+                  with the ground level learnt over the flight become hits half a voxel under
+                  it, up to the map's range, :mod:`skyrecon.mapping.ground_level`).
   skyrecon-before (--baseline-settings) the same without the texture rule, the plane fill and
                   the multi-frame guesses: ``skyrecon map`` before issue #13.
-  flat-ground     (--flat-ground) skyrecon with the ground level on (``skyrecon map --flat-ground``,
-                  :mod:`skyrecon.mapping.ground_level`): guesses that agree with the ground
-                  level learnt over the flight become hits on the ground plane.
+  no-flat-ground  (--no-flat-ground) skyrecon without the ground level (``skyrecon map
+                  --no-flat-ground``).
   LABEL           (--variant LABEL:NAME=VALUE,...) skyrecon with other settings.
   octomap+sgbm    ``create_matcher("opencv-sgbm")`` (cv2.StereoSGBM, 5x5 blocks, 3-way, LR check
                   1 px, uniqueness 10, speckle filter 100 px / 2), depth from every valid disparity,
@@ -69,7 +70,7 @@ Usage:
   .venv/bin/python benchmarks/mapping/stereo_map.py
   .venv/bin/python benchmarks/mapping/stereo_map.py --frames 20 --seed 3
   .venv/bin/python benchmarks/mapping/stereo_map.py --plain --baseline-settings
-  .venv/bin/python benchmarks/mapping/stereo_map.py --plain-seeds 3 7 11 5 13 --flat-ground
+  .venv/bin/python benchmarks/mapping/stereo_map.py --plain-seeds 3 7 11 5 13 --no-flat-ground
 Writes benchmarks/mapping/results_stereo.json.
 """
 
@@ -90,7 +91,6 @@ sys.path.insert(0, str(ROOT / "src"))
 
 from skyrecon.io.atomic import write_text_atomic  # noqa: E402
 from skyrecon.mapping import OccupancyMap, StereoMapper, StereoMapSettings  # noqa: E402
-from skyrecon.mapping.ground_level import GroundSettings  # noqa: E402
 from skyrecon.sim import default_rig, flight_poses, generate_city, render_stereo  # noqa: E402
 from skyrecon.stereo import create_matcher, disparity_to_depth  # noqa: E402
 
@@ -369,9 +369,9 @@ def main() -> None:
         help="also run skyrecon with these overrides, e.g. range2.5:max_depth_error_voxels=2.5",
     )
     ap.add_argument(
-        "--flat-ground",
+        "--no-flat-ground",
         action="store_true",
-        help="also run skyrecon with the ground level on (skyrecon map --flat-ground) as 'flat-ground'",
+        help="also run skyrecon without the ground level (skyrecon map --no-flat-ground) as 'no-flat-ground'",
     )
     ap.add_argument("--frames", type=int, default=40)
     ap.add_argument("--width", type=int, default=640)
@@ -394,8 +394,8 @@ def main() -> None:
         variants[label] = dict(parse_setting(t) for t in spec.split(",") if t)
     if args.baseline_settings:
         variants["skyrecon-before"] = {"min_texture": None, "plane_fill": False, "guess_min_frames": 0}
-    if args.flat_ground:
-        variants["flat-ground"] = {"ground": GroundSettings()}
+    if args.no_flat_ground:
+        variants["no-flat-ground"] = {"ground": None}
     textured_seeds = list(args.textured_seeds) or [args.seed]
     cases = ([] if args.no_textured else [(s, False) for s in textured_seeds]) + [
         (s, True) for s in plain_seeds

@@ -64,6 +64,13 @@ def test_only_guesses_that_agree_with_the_ground_plane_are_ground():
     assert not on[:20].any()
     assert on[30:].all()
     np.testing.assert_allclose(out[on], exact[on], rtol=0.05)  # the plane's depth, not the guess's
+    # every third pixel alone (what the frame support reads) is the same
+    np.testing.assert_array_equal(ground.ground_depth(guess, CAM, pose, FB, step=3), out[::3, ::3])
+    # half a metre under the level: the same pixels, deeper along the same rays
+    deeper = ground.ground_depth(guess, CAM, pose, FB, below_m=0.5)
+    drop = pose.t[2] - ground.z_m
+    np.testing.assert_allclose(deeper[on], out[on] * (drop + 0.5) / drop, rtol=1e-5)
+    assert np.array_equal(np.isfinite(deeper), on)
     # above the camera, or before any depth: nothing
     assert GroundLevel().ground_depth(guess, CAM, pose, FB) is None
     high = GroundLevel(GroundSettings(min_points=100))
@@ -93,8 +100,10 @@ def test_ground_hits_reach_the_map_as_hits_only():
 
 
 def test_settings():
-    assert StereoMapSettings().ground is None  # off by default (see StereoMapSettings)
-    assert StereoMapSettings().with_overrides(ground=GroundSettings()).ground is not None
+    assert StereoMapSettings().ground == GroundSettings()  # on by default (see StereoMapSettings)
+    assert StereoMapSettings().with_overrides(ground=None).ground is None
+    with pytest.raises(InputError):
+        GroundSettings(below_voxels=2.0)
     with pytest.raises(InputError):
         GroundSettings(min_down_cos=0.0)
     with pytest.raises(InputError):

@@ -55,13 +55,17 @@ def test_stereo_map_is_accurate_and_stops_at_the_trusted_range(flight):
     # precision: occupied voxels overlap the true geometry (ground included)
     precision = np.mean(city.distance(centres, include_ground=True) <= HALF_DIAGONAL)
     assert precision > 0.85, precision
-    # no obstacle beyond the trusted range (plus the band of voxels a surface point may mark behind it)
+    # no obstacle beyond the trusted range (plus the band of voxels a surface point may mark
+    # behind it) but the ground's hits, under the ground level (GroundSettings.beyond_trusted)
     band = mapper.map.config.grazing_cap_voxels * VOXEL + HALF_DIAGONAL
-    assert _nearest_camera_m(centres, poses).max() <= mapper.hit_range_m + band
+    above = centres[:, 2] > 0.0
+    assert _nearest_camera_m(centres[above], poses).max() <= mapper.hit_range_m + band
+    ground = centres[~above]
+    assert len(ground) > 100 and np.all(ground[:, 2] == -0.25)
     # without the range limit the same frames put thousands of (noisier) obstacles farther away
     loose = _map(flight, max_depth_error_m=100.0)
     far = loose.map.occupied_centers()
-    far = far[_nearest_camera_m(far, poses) > mapper.hit_range_m + band]
+    far = far[(_nearest_camera_m(far, poses) > mapper.hit_range_m + band) & (far[:, 2] > 0.0)]
     assert len(far) > 1000
     assert np.mean(city.distance(far, include_ground=True) <= HALF_DIAGONAL) < precision - 0.1
     summary = mapper.timings.summary()
@@ -135,21 +139,22 @@ def test_settings_overrides_reach_the_perception_rules():
 
 
 def test_command_line_flat_ground_learns_the_ground_level(flight, tmp_path):
-    """``skyrecon map --flat-ground`` is the mapper with the ground level on: the level is the
-    city's ground (z = 0), and the ground adds no free space (its hits are tested in
-    test_ground_level)."""
-    from skyrecon.mapping.ground_level import GroundSettings
-
+    """``skyrecon map`` learns the ground level by default (``--no-flat-ground`` turns it
+    off): the level is the city's ground (z = 0), and the ground adds no free space (its hits
+    are tested in test_ground_level)."""
     _, rig, poses, frames = flight
     seq = tmp_path / "seq"
     write_sequence(seq, rig, ((f.left, f.right) for f in frames), poses)
     out = tmp_path / "map"
-    args = ["map", str(seq), "--out", str(out), "--voxel-size", str(VOXEL), "--quiet", "--flat-ground"]
+    args = ["map", str(seq), "--out", str(out), "--voxel-size", str(VOXEL), "--quiet"]
     assert main(args) == 0
     cli = load_map(out)
-    lib = _map(flight, ground=GroundSettings())
+    lib = _map(flight)
     assert lib.ground is not None and lib.ground.z_m == pytest.approx(0.0, abs=0.3)
-    plain = _map(flight).map
+    plain = _map(flight, ground=None).map
+    assert main([*args[:3], str(tmp_path / "off"), *args[4:], "--no-flat-ground"]) == 0
+    off = {tuple(v) for v in load_map(tmp_path / "off").occupied_voxels().tolist()}
+    assert len(off ^ {tuple(v) for v in plain.occupied_voxels().tolist()}) <= 0.01 * len(off)
     a = {tuple(v) for v in cli.occupied_voxels().tolist()}
     b = {tuple(v) for v in lib.map.occupied_voxels().tolist()}
     assert len(a ^ b) <= 0.01 * len(b)

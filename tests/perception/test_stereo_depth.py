@@ -36,7 +36,9 @@ def test_mapping_preset_keeps_measured_pixels_away_from_discontinuities(pair):
     stage = StereoDepth(rig, PerceptionSettings.mapping(min_texture=None, plane_fill=False))
     frame = stage.compute(f.left, f.right)
     # the rule of StereoMapper before the layer existed
-    result = create_matcher("skyrecon", 128, uniqueness=0.05).compute(f.left, f.right)
+    result = create_matcher("skyrecon", 128, **PerceptionSettings.mapping().matcher_kwargs()).compute(
+        f.left, f.right
+    )
     keep = result.measured & ~disparity_discontinuities(result.disparity, 1.0)
     expected = disparity_to_depth(np.where(keep, result.disparity, np.float32(np.nan)), rig)
     np.testing.assert_array_equal(frame.depth_m, expected)
@@ -50,7 +52,9 @@ def test_mapping_preset_keeps_measured_pixels_away_from_discontinuities(pair):
 def test_mapping_preset_keeps_textured_measurements_and_plane_supported_segments(pair):
     rig, f = pair
     frame = StereoDepth(rig, PerceptionSettings.mapping()).compute(f.left, f.right)
-    result = create_matcher("skyrecon", 128, uniqueness=0.05).compute(f.left, f.right)
+    result = create_matcher("skyrecon", 128, **PerceptionSettings.mapping().matcher_kwargs()).compute(
+        f.left, f.right
+    )
     matchable, edges = texture_masks(f.left, 0.5)
     measured = result.measured & matchable
     edge = disparity_discontinuities(result.disparity, 1.0)
@@ -108,7 +112,7 @@ def test_hit_range_of_the_presets(pair):
 
 def test_matcher_settings_and_reuse(pair):
     rig, _ = pair
-    assert PerceptionSettings.mapping().matcher_kwargs() == {"uniqueness": 0.05}
+    assert PerceptionSettings.mapping().matcher_kwargs() == {"uniqueness": 0.05, "horizontal_paths": True}
     assert PerceptionSettings.mapping(method="opencv-sgbm").matcher_kwargs() == {}
     assert PerceptionSettings.flight().matcher_kwargs() == {}
     matcher = create_matcher("skyrecon-fast", 64)

@@ -140,9 +140,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--method", default="skyrecon", help="stereo matcher (default skyrecon)")
     p.add_argument(
         "--flat-ground",
-        action="store_true",
+        action=argparse.BooleanOptionalAction,
+        default=True,
         help="plain streets on flat terrain: learn the ground level over the flight and mark the ground "
-        "where the matcher's guesses agree with it (hits only, never free space)",
+        "where the matcher's guesses agree with it (hits only, never free space); on by default, "
+        "--no-flat-ground for steep or stepped terrain",
     )
     p.add_argument(
         "--max-disparity", type=positive_int, default=128, help="stereo search range, pixels (default 128)"
@@ -461,6 +463,10 @@ def _check_and_write(
             f"at {args.voxel_size} m in {seconds:.1f} s"
             + (f" ({summary['frames_per_s']:.1f} frames/s)" if "frames_per_s" in summary else "")
         )
+        if summary.get("ground_level_m") is not None:
+            info(
+                f"flat ground: level at z = {summary['ground_level_m']:.2f} m; plain streets marked just under it"
+            )
         if range_hint is not None:
             hint = f"; {range_hint}" if args.voxel_size < _COARSE_VOXEL_M else ""
             info(
@@ -515,6 +521,7 @@ def _map_sequence(
         )
         occ, timings = built.map, built.timings
         trusted_m: float | None = built.hit_range_m
+        ground_z = built.ground.z_m if built.ground is not None else None
         range_hint = _range_hint(settings, seq.rig) if built.hit_range_m < args.max_range else None
     else:
         assert isinstance(seq.sequence, StereoSequence)
@@ -536,7 +543,7 @@ def _map_sequence(
             on_frame=observer,
         )
         occ, timings = built_d.map, built_d.timings
-        trusted_m, range_hint = None, None
+        trusted_m, range_hint, ground_z = None, None, None
     summary_ckpt = {"resumed_from_frame": first, "checkpoints_written": ckpt.saves}
     summary = timings.summary()
     summary.pop("frames", None)
@@ -548,6 +555,8 @@ def _map_sequence(
     }
     if trusted_m is not None:
         summary["trusted_range_m"] = round(trusted_m, 2)
+        # the flat ground (see --flat-ground): the level learnt, None when none was found or it is off
+        summary["ground_level_m"] = None if ground_z is None else round(float(ground_z), 3)
     if odometry_summary is not None:
         summary["poses_from"] = "odometry"
         summary["odometry"] = odometry_summary

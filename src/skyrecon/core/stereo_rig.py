@@ -122,11 +122,12 @@ class StereoRig:
             ``d + doffs <= 0``.
         """
         self._require_rectified()
-        d = np.asarray(disparity_px, dtype=np.float64) + self.doffs_px
+        d = np.asarray(disparity_px, dtype=np.float32) + np.float32(self.doffs_px)  # float32 throughout
+        bad = ~(d > 0)
         with np.errstate(divide="ignore", invalid="ignore"):
-            depth = self.left.fx * self.baseline_m / d
-        depth[~(d > 0)] = np.nan
-        return depth.astype(np.float32)
+            depth = np.divide(np.float32(self.left.fx * self.baseline_m), d, out=d)
+        depth[bad] = np.nan
+        return depth
 
     def depth_to_disparity(self, depth_m: np.ndarray) -> np.ndarray:
         """Inverse of :meth:`disparity_to_depth`: (H, W) metres -> (H, W) float32 pixels."""

@@ -75,7 +75,11 @@ class FrameSupport:
         self._frames = np.zeros(0, np.int32)  # frames that hit each
 
     def add(
-        self, guess_depth_m: np.ndarray, intrinsics: Intrinsics, world_from_cam: Rigid3 | np.ndarray
+        self,
+        guess_depth_m: np.ndarray,
+        intrinsics: Intrinsics,
+        world_from_cam: Rigid3 | np.ndarray,
+        strided: bool = False,
     ) -> int:
         """Count one frame's guesses and add the supported ones to the map as hits.
 
@@ -83,15 +87,18 @@ class FrameSupport:
             guess_depth_m: (H, W) float32 guessed depth, metres along the optical axis, NaN none.
             intrinsics: the depth camera.
             world_from_cam: its pose.
+            strided: ``guess_depth_m`` holds only the pixels ``[::pixel_step, ::pixel_step]``.
         Returns:
             The number of voxels that got a hit.
         """
         pose = as_world_from_cam(world_from_cam)
-        d = np.asarray(guess_depth_m)[:: self.step, :: self.step]
-        dirs, _ = camera_rays(intrinsics, self.step)
-        ok = np.isfinite(d) & (d > 0)
+        d = np.asarray(guess_depth_m)
+        if not strided:
+            d = d[:: self.step, :: self.step]
+        dirs, lengths = camera_rays(intrinsics, self.step)
+        with np.errstate(invalid="ignore"):
+            ok = (d > 0) & (d * lengths <= self.max_range_m)  # NaN: False
         pc = dirs[ok] * d[ok, None]
-        pc = pc[np.linalg.norm(pc, axis=1) <= self.max_range_m]
         if len(pc) == 0:
             return 0
         vox = np.floor(pose.apply(pc) / self.map.voxel_size).astype(np.int64)

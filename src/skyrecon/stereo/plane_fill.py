@@ -459,11 +459,27 @@ def _refuse_against_guesses(
     """Refuse (in ``ok``, as :func:`_photo_check` does) the segments where more than half of the
     finite ``guess`` values (H, W) on the pixels their plane would paint (see
     :func:`_paint_planes`) differ from the plane by more than ``max_gap_px`` pixels."""
-    r, c = np.nonzero((labels > 0) & ok[labels] & np.isfinite(guess))
-    lab = labels[r, c]
-    plane = coef[lab, 0] * c + coef[lab, 1] * r + coef[lab, 2]
-    painted = plane > 0.0
-    far = painted & (np.abs(plane - guess[r, c]) > max_gap_px)
-    n_all = np.bincount(lab[painted], minlength=len(ok))
-    n_far = np.bincount(lab[far], minlength=len(ok))
+    n_all = np.zeros(len(ok), np.int64)
+    n_far = np.zeros(len(ok), np.int64)
+    _count_against_guesses(guess, labels, coef, ok, float(max_gap_px), n_all, n_far)
     ok &= ~(2 * n_far > n_all)
+
+
+@njit(cache=True)
+def _count_against_guesses(guess, labels, coef, ok, max_gap_px, n_all, n_far):
+    """Per segment still ``ok``: its painted pixels with a finite guess (``n_all``) and those
+    whose guess is more than ``max_gap_px`` from the plane (``n_far``); one pass."""
+    H, W = labels.shape
+    for r in range(H):
+        for c in range(W):
+            lab = labels[r, c]
+            if lab <= 0 or not ok[lab]:
+                continue
+            g = guess[r, c]
+            if not np.isfinite(g):
+                continue
+            plane = coef[lab, 0] * c + coef[lab, 1] * r + coef[lab, 2]
+            if plane > 0.0:
+                n_all[lab] += 1
+                if abs(plane - g) > max_gap_px:
+                    n_far[lab] += 1
