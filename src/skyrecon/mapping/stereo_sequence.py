@@ -6,9 +6,9 @@ the map), as a library stage. Stereo depth comes from the perception layer
 rules by default). Per frame:
 
 1. disparity of the rectified pair with a stereo matcher (full-resolution ``skyrecon`` with a
-   uniqueness test and the horizontal aggregation paths by default: a camera looking down at
-   plain streets needs them, see :class:`skyrecon.stereo.SkyreconSettings`), kept between
-   frames;
+   uniqueness test and the horizontal aggregation paths, without the colour-guided fill, by
+   default: a camera looking down at plain streets needs the horizontal paths, see
+   :class:`skyrecon.stereo.SkyreconSettings`), kept between frames;
 2. only *measured* disparities are used: pixels the matcher filled by interpolation are
    guesses, and pixels at a disparity discontinuity (their 3x3 neighbourhood spans more than
    ``max_disparity_step_px``) are dropped, because smoothing puts them in the air between the

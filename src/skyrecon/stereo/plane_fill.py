@@ -407,7 +407,10 @@ def plane_supported_fill(
     if n <= 1:
         return out, accepted
     trusted = _trusted(d, m, np.float32(max_step_px))
-    pu, pv, pd, pl = _border_pairs(d, trusted, labels, int(radius_px) + int(seal_px))
+    reach = int(radius_px) + int(seal_px)
+    # only trusted pixels with a segment within reach have pairs: the rest skip the window scan
+    near = cv2.dilate((labels > 0).view(np.uint8), np.ones((2 * reach + 1, 2 * reach + 1), np.uint8))
+    pu, pv, pd, pl = _border_pairs(d, trusted & near.view(np.bool_), labels, reach)
     H, W = d.shape
     x0, y0, w, h = (stats[:, i] for i in range(4))
     reach = int(seal_px) + 1  # the seal keeps segments a few pixels off a measured border pixel
