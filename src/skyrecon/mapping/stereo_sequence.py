@@ -101,8 +101,8 @@ class StereoMapSettings:
             where two frames agree (:mod:`skyrecon.mapping.ground_level`): plain streets and
             squares on flat terrain. On by default (``skyrecon map --no-flat-ground`` turns it
             off; None here). It was off while the matcher's guesses over plain streets were
-            1.3 px off (no horizontal paths) and the level was often missing: on the plain
-            cities of the stereo map benchmark the default map then held 0-29 % of the street
+            1.3 px off (no horizontal paths) and the level was often missing: on plain seeds 1,
+            3 and 4 of the stereo map benchmark the default map then held 0-29 % of the street
             voxels observed within 20 m, and now 16-89 %. What it risks: a level found too
             high puts a layer of hits just above the street, never above the guesses' own
             agreement with that level (a wrong level finds few guesses that agree).

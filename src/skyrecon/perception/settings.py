@@ -145,8 +145,8 @@ class PerceptionSettings:
     @classmethod
     def mapping(cls, **overrides: Any) -> PerceptionSettings:
         """What ``skyrecon map`` uses: full-resolution ``skyrecon`` matcher with a uniqueness
-        test and the horizontal paths (no colour-guided fill), measured pixels away from discontinuities and on texture (grey-level deviation
-        >= 1 over 7x7), plain segments bounded by one measured plane filled with it
+        test and the horizontal paths (no colour-guided fill), measured pixels away from
+        discontinuities and on texture (grey-level deviation >= 1 over 7x7), plain segments bounded by one measured plane filled with it
         (``plane_fill``), sky dropped, obstacles within the trusted range of 2 voxels of depth
         error. Keyword overrides on top."""
         return replace(cls(min_texture=0.5, plane_fill=True, guesses=True), **overrides)
