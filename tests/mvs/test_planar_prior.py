@@ -342,18 +342,17 @@ def test_choose_plane_lets_a_clearly_better_own_wall_beat_a_dominant_plane() -> 
     front = np.array([0.08, 0.27, 0.0])
     # the dominant plane fits 0.6 of the border, the own wall 1.0: the wall, despite its hidden band
     win, rivals = pp._choose_plane(
-        cands, is_global, np.array([0.6, 1.0, 0.0]), through, front, pp._walls(cands, up), s
+        is_global, np.array([0.6, 1.0, 0.0]), through, front, pp._walls(cands, up), s
     )
     assert win == 1 and np.isneginf(rivals[2])  # the third is not good (border share 0)
     # about as right: the dominant plane
     win, rivals = pp._choose_plane(
-        cands, is_global, np.array([0.9, 1.0, 0.0]), through, front, pp._walls(cands, up), s
+        is_global, np.array([0.9, 1.0, 0.0]), through, front, pp._walls(cands, up), s
     )
     assert win == 0 and np.isneginf(rivals[1:]).all()
     # the hidden share weighs fully on a level plane: with see_through_weight 10 it loses
     flat = np.array([level, level])
     win, _ = pp._choose_plane(
-        flat,
         np.zeros(2, bool),
         np.array([1.0, 0.6]),
         np.zeros(2),
@@ -363,13 +362,8 @@ def test_choose_plane_lets_a_clearly_better_own_wall_beat_a_dominant_plane() -> 
     )
     assert win == 1
     # seen through, or too little of the border: no winner
-    assert (
-        pp._choose_plane(cands, is_global, np.ones(3), np.full(3, 0.5), front, pp._walls(cands, up), s)
-        is None
-    )
-    assert (
-        pp._choose_plane(cands, is_global, np.full(3, 0.4), through, front, pp._walls(cands, up), s) is None
-    )
+    assert pp._choose_plane(is_global, np.ones(3), np.full(3, 0.5), front, pp._walls(cands, up), s) is None
+    assert pp._choose_plane(is_global, np.full(3, 0.4), through, front, pp._walls(cands, up), s) is None
 
 
 def test_a_failing_second_pass_keeps_the_first_and_says_so(plain_ring, monkeypatch) -> None:

@@ -15,17 +15,16 @@ from tests.stereo.conftest import random_texture, warp_pair
 def _run_rows(cl, cr, cr_pad, dmin, oc, D, W, grey, P1, P2, alpha, s_out, row_len):
     """All rows of the little images through ``_horizontal_paths`` with fresh buffers."""
     wp = s_out.shape[0] // (grey.shape[0] * D)
-    fwd = np.zeros((1, wp * D), np.uint8)
-    costs = np.zeros((1, wp * D), np.uint8)
-    sums = np.zeros((1, wp * D), np.uint8)
-    prev = np.zeros((1, D + 2), np.uint8)
-    cur = np.zeros((1, D + 2), np.uint8)
-    pen = np.zeros((1, wp), np.uint8)
-    mins = np.zeros(1, np.uint8)
+    fwd = np.zeros(wp * D, np.uint8)
+    costs = np.zeros(wp * D, np.uint8)
+    sums = np.zeros(wp * D, np.uint8)
+    prev = np.zeros(D + 2, np.uint8)
+    cur = np.zeros(D + 2, np.uint8)
+    pen = np.zeros(wp, np.uint8)
     for y in range(grey.shape[0]):
         K._horizontal_paths(
-            cl, cr, cr_pad, 0, y, 1, dmin, oc, D, W, grey, P1, P2, alpha, fwd, prev, cur, pen, mins, costs, sums,
-            s_out, y * row_len, row_len,
+            cl[y], cr[y], cr_pad, dmin, oc, D, W, grey[y], P1, P2, alpha, fwd, prev, cur, pen, costs, sums,
+            s_out, y * row_len,
         )  # fmt: skip
 
 

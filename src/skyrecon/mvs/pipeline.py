@@ -334,15 +334,16 @@ def _filled_by_prior(
 
 def _shared_planes_pass(
     run: _MVSRun,
+    linked: list[list[int]],
     before: list[np.ndarray | None],
     filled: dict[int, FilledPlanes],
     cache_dir: str | None,
 ) -> dict[int, dict[str, Any]]:
     """The planar prior's second pass: each view's segments still empty try the planes its
-    fusion neighbours filled with (``filled``, per view index); ``run.depths`` are updated.
-    The pixels the first pass filled are no support (their cost is PatchMatch's), and the
-    see-through test reads the PatchMatch depths (``before``). Returns the reports per view."""
-    linked = _fusion_neighbors(run)
+    fusion neighbours (``linked``, :func:`_fusion_neighbors`) filled with (``filled``, per view
+    index); ``run.depths`` are updated. The pixels the first pass filled are no support (their
+    cost is PatchMatch's), and the see-through test reads the PatchMatch depths (``before``).
+    Returns the reports per view."""
     offered = [
         FilledPlanes.concat([filled[q] for q in linked[r] if q in filled]) for r in range(len(run.views))
     ]
@@ -375,7 +376,8 @@ def _prior(run: _MVSRun) -> None:
     try the planes the view's fusion neighbours filled with (diagnostics: ``shared_planes`` per
     view). Views where it fails keep their depth (see diagnostics)."""
     s = run.settings
-    pre = fuse_consistent(run.views, run.depths, _fusion_neighbors(run), s.fusion_settings)
+    linked = _fusion_neighbors(run)
+    pre = fuse_consistent(run.views, run.depths, linked, s.fusion_settings)
     pts = np.concatenate([pre.cloud.points.astype(np.float64), run.sparse_points.reshape(-1, 3)])
     planes = np.concatenate(
         [dominant_planes(pts, s.planar_prior, seed=s.seed), horizontal_planes(pts, s.planar_prior)]
@@ -396,7 +398,7 @@ def _prior(run: _MVSRun) -> None:
         cache_dir=cache_dir,
     )
     if s.planar_prior.propagate and any(len(f.planes) for f in filled.values()):
-        for r, rep in _shared_planes_pass(run, before, filled, cache_dir).items():
+        for r, rep in _shared_planes_pass(run, linked, before, filled, cache_dir).items():
             reports.setdefault(r, {})["shared_planes"] = rep
     fs = s.fusion_settings
     if s.fusion == "consistency" and fs.min_consistent_prior < fs.min_consistent:  # else unread

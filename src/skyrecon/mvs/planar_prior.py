@@ -1022,7 +1022,6 @@ def _walls(planes: np.ndarray, up: np.ndarray) -> np.ndarray:
 
 
 def _choose_plane(
-    cands: np.ndarray,
     is_global: np.ndarray,
     fracs: np.ndarray,
     through: np.ndarray,
@@ -1040,10 +1039,11 @@ def _choose_plane(
     view's corners fix beside a dominant plane that fits a few of its points). Within that
     pool the score is the border share less ``see_through_weight`` times the see-through share
     and the share of the band it would hide (``front`` (K,)), that last weighed by
-    ``wall_hidden_weight`` for walls (``wall`` (K,) bool, :func:`_walls`): a wall hides what stands back beyond its top edge and corners, the ground nothing.
+    ``wall_hidden_weight`` for walls (``wall`` (K,) bool, :func:`_walls`): a wall hides what
+    stands back beyond its top edge and corners, the ground nothing.
 
     Returns:
-        (the winner's index into ``cands`` (K, 4), (K,) scores with -inf outside the pool), or
+        (the winner's index among the K candidates, (K,) scores with -inf outside the pool), or
         None when no candidate is good.
     """
     good = (fracs >= s.min_pass_fraction) & (through <= s.max_see_through)
@@ -1199,7 +1199,7 @@ def fill_plain_segments(
             s,
             wall,
         )
-        choice = _choose_plane(cands, is_global, fracs, through, front, wall, s)
+        choice = _choose_plane(is_global, fracs, through, front, wall, s)
         if choice is None:
             rejected += 1
             continue

@@ -769,26 +769,32 @@ def _horizontal_step(cost, prev, cur, D, m, pen, p1, fwd, sums, backward):
     return nm
 
 
-#: rows whose horizontal paths advance together (1: one at a time; 2 or 4 were no faster)
-H_ROWS = 1
+@njit(inline="always")
+def _path_start(cost, state, D):
+    """A horizontal path starting at a row's end: ``state[1 + r] = cost[r]``; returns the
+    minimum."""
+    m = np.uint8(255)
+    for r in range(D):
+        state[r + 1] = cost[r]
+        m = min(m, cost[r])
+    return m
 
 
 @njit(inline="always")
 def _horizontal_paths(
-    cl, cr, cr_pad, y_base, y0, nr, dmin, oc, D, W, grey, P1, P2, alpha, fwd, prev, cur, pen, mins, costs, sums,
-    s_out, s_base, row_len,
+    cl, cr, cr_pad, dmin, oc, D, W, grey, P1, P2, alpha, fwd, prev, cur, pen, costs, sums, s_out, s_base
 ):  # fmt: skip
-    """Add the left-to-right and right-to-left paths of the rows ``y0 .. y0 + nr - 1`` (``nr
-    <= H_ROWS``) to their block-major uint8 path sums (row y0 + q at ``s_base + q * row_len``:
-    plane k of column x at ``((x // 32) * D + k) * 32 + x % 32``, saturated at 255).
+    """Add the left-to-right and right-to-left paths of one row to its block-major uint8 path
+    sums ``s_out`` (plane k of column x at ``s_base + ((x // 32) * D + k) * 32 + x % 32``,
+    saturated at 255).
 
     Plain Numba loops in uint8, vectorised over the planes, in reversed plane order (see
-    ``_row_costs``; the recursion is symmetric in the plane order). Per row q, all uint8:
-    ``costs[q]`` (wp * D,) its matching costs, ``fwd[q]`` (wp * D,) its left-to-right path
-    costs, ``prev[q]``/``cur[q]`` (D + 2,) path states, ``pen[q]`` (wp,) the jump penalty
-    between columns x - 1 and x, ``min(H_MAX_JUMP, max(P1 + 1, P2 / (1 + alpha * |I(x) -
-    I(x - 1)|)))``, ``mins[q]`` the path's last minimum, ``sums[q]`` (wp * D,) the two paths'
-    sum per column (x-major), added by 32x32 tile transposes. Needs P1 < H_MAX_JUMP.
+    ``_row_costs``; the recursion is symmetric in the plane order). All uint8: ``cl``, ``cr``
+    and ``grey`` the row's census codes and grey levels, ``costs`` (wp * D,) its matching costs
+    (x-major), ``fwd`` (wp * D,) its left-to-right path costs, ``prev``/``cur`` (D + 2,) path
+    states, ``pen`` (wp,) the jump penalty between columns x - 1 and x, ``min(H_MAX_JUMP,
+    max(P1 + 1, P2 / (1 + alpha * |I(x) - I(x - 1)|)))``, ``sums`` (wp * D,) the two paths' sum
+    per column (x-major), added by 32x32 tile transposes. Needs P1 < H_MAX_JUMP.
     """
     p1 = np.uint8(P1)
     p1p = np.float32(P1 + 1)
@@ -796,73 +802,50 @@ def _horizontal_paths(
     al = np.float32(alpha)
     cap = np.float32(H_MAX_JUMP)
     pad = np.uint8(_H_PAD - P1)
-    wp = sums.shape[1] // D
-    for q in range(nr):
-        g = grey[y0 + q]
-        pq = pen[q]
-        for x in range(1, W):
-            dI = np.float32(abs(np.int32(g[x]) - np.int32(g[x - 1])))
-            pq[x] = np.uint8(min(cap, max(p1p, p2f / (np.float32(1.0) + al * dI))))
-        for a in (prev[q], cur[q]):
-            a[0] = pad
-            a[D + 1] = pad
-        c = costs[q, :D]
-        _row_costs(cl[y0 + q - y_base], cr[y0 + q - y_base], cr_pad, dmin, oc, D, W, 0, c)
-        m = np.uint8(255)
-        for r in range(D):
-            prev[q, r + 1] = c[r]
-            fwd[q, r] = c[r]
-            m = min(m, c[r])
-        mins[q] = m
+    wp = len(sums) // D
     for x in range(1, W):
-        for q in range(nr):
-            c = costs[q, x * D : (x + 1) * D]
-            _row_costs(cl[y0 + q - y_base], cr[y0 + q - y_base], cr_pad, dmin, oc, D, W, x, c)
-            mins[q] = _horizontal_step(
-                c, prev[q], cur[q], D, mins[q], pen[q, x], p1, fwd[q, x * D : (x + 1) * D], sums[q], False
-            )
+        dI = np.float32(abs(np.int32(grey[x]) - np.int32(grey[x - 1])))
+        pen[x] = np.uint8(min(cap, max(p1p, p2f / (np.float32(1.0) + al * dI))))
+    for a in (prev, cur):
+        a[0] = pad
+        a[D + 1] = pad
+    m = np.uint8(0)  # the path's last minimum
+    for x in range(W):
+        c = costs[x * D : (x + 1) * D]
+        f = fwd[x * D : (x + 1) * D]
+        _row_costs(cl, cr, cr_pad, dmin, oc, D, W, x, c)
+        if x == 0:
+            m = _path_start(c, prev, D)
+            for r in range(D):
+                f[r] = c[r]
+            continue
+        m = _horizontal_step(c, prev, cur, D, m, pen[x], p1, f, sums, False)
         prev, cur = cur, prev
-    x = W - 1
-    for q in range(nr):
-        c = costs[q, x * D : (x + 1) * D]
-        m = np.uint8(255)
-        for r in range(D):
-            prev[q, r + 1] = c[r]
-            m = min(m, c[r])
-            sums[q, x * D + r] = np.uint8(min(np.uint16(fwd[q, x * D + r]) + np.uint16(c[r]), 255))
-        mins[q] = m
-    for x in range(W - 2, -1, -1):
-        for q in range(nr):
-            mins[q] = _horizontal_step(
-                costs[q, x * D : (x + 1) * D],
-                prev[q],
-                cur[q],
-                D,
-                mins[q],
-                pen[q, x + 1],
-                p1,
-                fwd[q, x * D : (x + 1) * D],
-                sums[q, x * D : (x + 1) * D],
-                True,
-            )
+    for x in range(W - 1, -1, -1):
+        c = costs[x * D : (x + 1) * D]
+        f = fwd[x * D : (x + 1) * D]
+        h = sums[x * D : (x + 1) * D]
+        if x == W - 1:
+            m = _path_start(c, prev, D)
+            for r in range(D):
+                h[r] = np.uint8(min(np.uint16(f[r]) + np.uint16(c[r]), 255))
+            continue
+        m = _horizontal_step(c, prev, cur, D, m, pen[x + 1], p1, f, h, True)
         prev, cur = cur, prev
+    for i in range(W * D, wp * D):  # padding columns add nothing
+        sums[i] = 0
     tiles = D - D % LANES
-    for q in range(nr):
-        sq = sums[q]
-        base = s_base + q * row_len
-        for i in range(W * D, wp * D):  # padding columns add nothing
-            sq[i] = 0
-        for b in range(wp // LANES):
-            col = b * LANES * D
-            for r0 in range(0, tiles, LANES):
-                # reversed plane r0 + j is plane D - 1 - r0 - j
-                _add_tile_transposed(sq, col + r0, D, s_out, base + (b * D + D - 1 - r0) * LANES, -LANES)
-            for r in range(tiles, D):  # planes left over from whole tiles
-                o = base + (b * D + D - 1 - r) * LANES
-                for lane in range(LANES):
-                    i = o + lane
-                    v = np.int32(s_out[i]) + np.int32(sq[col + lane * D + r])
-                    s_out[i] = np.uint8(min(v, 255))
+    for b in range(wp // LANES):
+        col = b * LANES * D
+        for r0 in range(0, tiles, LANES):
+            # reversed plane r0 + j is plane D - 1 - r0 - j
+            _add_tile_transposed(sums, col + r0, D, s_out, s_base + (b * D + D - 1 - r0) * LANES, -LANES)
+        for r in range(tiles, D):  # planes left over from whole tiles
+            o = s_base + (b * D + D - 1 - r) * LANES
+            for lane in range(LANES):
+                i = o + lane
+                v = np.int32(s_out[i]) + np.int32(sums[col + lane * D + r])
+                s_out[i] = np.uint8(min(v, 255))
 
 
 def band_workspace_sizes(D: int, wp: int, n: int, horizontal: bool = False) -> tuple[int, int, int]:
@@ -870,9 +853,9 @@ def band_workspace_sizes(D: int, wp: int, n: int, horizontal: bool = False) -> t
     padded width wp and n paths per sweep."""
     n16 = 2 * n * (D + 2) * (wp + 2) + 2 * n * (wp + 2) + 2 * n * wp
     n8 = D * wp
-    if horizontal:  # per row of H_ROWS: matching costs, left-to-right path costs and path sums,
-        # two path states, penalties, minimum
-        n8 += H_ROWS * (3 * wp * D + 2 * (D + 2) + wp + 1)
+    if horizontal:  # one row's matching costs, left-to-right path costs, path sums; two path
+        # states; penalties
+        n8 += 3 * wp * D + 2 * (D + 2) + wp
     return n16, (D + 4) * wp + 7 * wp, n8
 
 
@@ -949,21 +932,16 @@ def sgm_band(
     o = n_st + 2 * n * (wp + 2)
     Q = ws16[o : o + n * wp]
     M = ws16[o + n * wp : o + 2 * n * wp]
-    hr = H_ROWS if horizontal else 0  # the horizontal paths' uint8 buffers (none when off)
+    hs = wp * D if horizontal else 0  # the horizontal paths' uint8 buffers (none when off)
+    hd = D + 2 if horizontal else 0
     o8 = D * wp
-    h_costs = ws8[o8 : o8 + hr * wp * D].reshape((hr, wp * D))
-    o8 += hr * wp * D
-    h_fwd = ws8[o8 : o8 + hr * wp * D].reshape((hr, wp * D))
-    o8 += hr * wp * D
-    h_sums = ws8[o8 : o8 + hr * wp * D].reshape((hr, wp * D))
-    o8 += hr * wp * D
-    h_prev = ws8[o8 : o8 + hr * (D + 2)].reshape((hr, D + 2))
-    o8 += hr * (D + 2)
-    h_cur = ws8[o8 : o8 + hr * (D + 2)].reshape((hr, D + 2))
-    o8 += hr * (D + 2)
-    h_pen = ws8[o8 : o8 + hr * wp].reshape((hr, wp))
-    o8 += hr * wp
-    h_min = ws8[o8 : o8 + hr]
+    h_costs = ws8[o8 : o8 + hs]
+    h_fwd = ws8[o8 + hs : o8 + 2 * hs]
+    h_sums = ws8[o8 + 2 * hs : o8 + 3 * hs]
+    o8 += 3 * hs
+    h_prev = ws8[o8 : o8 + hd]
+    h_cur = ws8[o8 + hd : o8 + 2 * hd]
+    h_pen = ws8[o8 + 2 * hd : o8 + 2 * hd + (wp if horizontal else 0)]
     st[:] = 0
     mins[:] = 0
     for a in range(2):
@@ -1021,19 +999,16 @@ def sgm_band(
         )
         par = 1 - par
     if horizontal:
-        for y0 in range(r0, r1, H_ROWS):
+        for y in range(r0, r1):
             _horizontal_paths(
-                cl,
-                cr,
+                cl[y - y_base],
+                cr[y - y_base],
                 cr_pad,
-                y_base,
-                y0,
-                min(H_ROWS, r1 - y0),
                 dmin,
                 oc,
                 D,
                 W,
-                grey,
+                grey[y],
                 P1,
                 P2,
                 alpha,
@@ -1041,12 +1016,10 @@ def sgm_band(
                 h_prev,
                 h_cur,
                 h_pen,
-                h_min,
                 h_costs,
                 h_sums,
                 band_flat,
-                (y0 - r0) * row_len,
-                row_len,
+                (y - r0) * row_len,
             )
     # downward sweep: total = its paths + S_band, winner-takes-all on the fly
     ystart = max(0, r0 - margin)
