@@ -342,3 +342,11 @@ class BlockGrid:
             raise ValueError("duplicate block coordinates")
         g.data[ids] = np.asarray(data, dtype=np.float32).reshape(len(coords), -1)
         return g
+
+
+def warm_kernels() -> None:
+    """Compile (or load) the table growth kernel (``skyrecon warmup``): a map that outgrows its
+    block table rehashes it (loading a map of a wider flight), which the warmup's tiny maps
+    never do."""
+    grid = BlockGrid(2, 0.0, capacity=16)
+    grid.reserve(4 * grid.tkeys.shape[0])
