@@ -5,6 +5,7 @@ command runs as a subprocess (``python -m skyrecon``, this checkout) three ways:
 
   cold          an empty ``NUMBA_CACHE_DIR`` of its own: every kernel compiled (a fresh install)
   warm          the same command again, same cache: everything loaded from the cache
+                (every run writes to a fresh --out: nothing but the cache is reused)
   after warmup  ``skyrecon warmup`` once into another empty cache dir, then the command's first run
                 (what a user sees after ``make demo`` / ``make test``, which run the warmup)
 
@@ -31,6 +32,7 @@ Writes benchmarks/cold_start/results.json.
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import os
 import resource
@@ -99,6 +101,16 @@ def make_inputs(work: Path) -> dict[str, list[str]]:
     }
 
 
+_RUN_INDEX = itertools.count()
+
+
+def _fresh_out(work: Path, name: str) -> list[str]:
+    """``--out`` to a directory no earlier run wrote: every run starts from nothing but the Numba
+    cache. (``sfm`` keeps its features and pair matches in ``OUT/workspace`` and reuses them; a
+    warm run into the cold run's directory skipped that work and looked 1.2 s faster.)"""
+    return ["--out", str(work / "out" / f"{name}-{next(_RUN_INDEX)}")]
+
+
 def measure(work: Path, commands: dict[str, list[str]], repeat: int, jobs: int) -> dict:
     """Cold, warm and after-warmup seconds (wall and CPU) per command, and the warmup's own seconds.
 
@@ -109,10 +121,9 @@ def measure(work: Path, commands: dict[str, list[str]], repeat: int, jobs: int) 
     warm_runs: dict[str, list[tuple[float, float]]] = {}
     for name, argv in commands.items():
         cache = work / f"cache-cold-{name}"
-        out = ["--out", str(work / "out" / name)]
-        cold, cold_cpu = skyrecon(argv + out, cache)
+        cold, cold_cpu = skyrecon(argv + _fresh_out(work, name), cache)
         rows[name] = {"cold_s": cold, "cold_cpu_s": cold_cpu, "cold_compiled": compiled_files(cache)}
-        warm_runs[name] = [skyrecon(argv + out, cache) for _ in range(repeat)]
+        warm_runs[name] = [skyrecon(argv + _fresh_out(work, name), cache) for _ in range(repeat)]
         print(
             f"  {name}: cold {cold:.1f} s ({rows[name]['cold_compiled']} kernels), warm", end="", flush=True
         )
@@ -124,10 +135,9 @@ def measure(work: Path, commands: dict[str, list[str]], repeat: int, jobs: int) 
     print(f"  second warmup: {again_s:.1f} s", flush=True)
     for name, argv in commands.items():
         before = compiled_files(installed)
-        out = ["--out", str(work / "out" / f"{name}-installed")]
-        first, first_cpu = skyrecon(argv + out, installed)
+        first, first_cpu = skyrecon(argv + _fresh_out(work, name), installed)
         compiled = compiled_files(installed) - before
-        warm_runs[name] += [skyrecon(argv + out, installed) for _ in range(repeat)]
+        warm_runs[name] += [skyrecon(argv + _fresh_out(work, name), installed) for _ in range(repeat)]
         warm, warm_cpu = min(w for w, _ in warm_runs[name]), min(c for _, c in warm_runs[name])
         rows[name].update(
             after_warmup_s=first,
