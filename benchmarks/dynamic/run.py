@@ -11,8 +11,9 @@ geometry at the TRUE time. Prints per mission and in total:
   trail (occupied share of the observed voxels the movers swept until 2 s before the end),
   the time for a vacated voxel to be freed, the time for the new tower to be in the map after
   it came within the trusted stereo range, the time for the gone stack's voxels to be freed
-  after the cameras first saw through them, and the loop's p50 / p99 latency (ms, rendering
-  excluded).
+  after the cameras first saw through them (a hit stops a voxel's clock until the next miss;
+  late voxels a mover passed through are left out and counted apart, as vacated space: see
+  skyrecon.mission.world_monitor), and the loop's p50 / p99 latency (ms, rendering excluded).
 
 Baseline (the first wave, ``--baseline``): the same missions with mover tracking off, so the
 movers go into the map like buildings. It prints the ratios tracking / no tracking.
@@ -87,6 +88,7 @@ def mission_row(folder: Path) -> dict | None:
         "removed_delay_p95_s": removed[0].get("free_delay_s_p95") if removed else None,
         "removed_late_voxels": removed[0].get("freed_after_2s_voxels") if removed else None,
         "removed_touched_voxels": removed[0].get("touched_voxels") if removed else None,
+        "removed_mover_swept_voxels": removed[0].get("mover_swept_voxels") if removed else None,
         "replan_reasons": doc.get("replan_reasons") or {},
         "loop_ms_p50": doc.get("loop_ms_p50"),
         "loop_ms_p99": doc.get("loop_ms_p99"),
@@ -113,6 +115,7 @@ def totals(rows: list[dict]) -> dict:
     gone95 = [r["removed_delay_p95_s"] for r in rows if r.get("removed_delay_p95_s") is not None]
     late = sum(r.get("removed_late_voxels") or 0 for r in rows)
     touched = sum(r.get("removed_touched_voxels") or 0 for r in rows)
+    swept = sum(r.get("removed_mover_swept_voxels") or 0 for r in rows)
     p99 = [r["loop_ms_p99"] for r in rows if r["loop_ms_p99"] is not None]
     p50 = [r["loop_ms_p50"] for r in rows if r["loop_ms_p50"] is not None]
     cm = [r["min_clearance_moving_m"] for r in rows if r["min_clearance_moving_m"] is not None]
@@ -153,6 +156,7 @@ def totals(rows: list[dict]) -> dict:
         "removed_freed_s_p95_worst": max(gone95) if gone95 else None,
         "removed_voxels_freed_after_2s": late,
         "removed_voxels_touched": touched,
+        "removed_voxels_left_out_mover_swept": swept,
         "loop_ms_p50_median": float(np.median(p50)) if p50 else None,
         "loop_ms_p99_worst": max(p99) if p99 else None,
         "loop_ms_p99_median": float(np.median(p99)) if p99 else None,

@@ -99,7 +99,8 @@ def test_surface_pull_takes_the_surface_nearer_the_sensor():
 def test_a_stale_prior_belief_is_freed_by_its_first_miss():
     """``stale_log_odds``: voxels seeded with yesterday's "occupied" (exactly that value) are
     freed by the first miss of today's measurements, by depth (whole octants carved free and
-    voxels tested one by one) and by rays; a voxel hit first is confirmed and takes misses as
+    voxels tested one by one) and by rays; a voxel hit first takes ``logit(prob_hit)`` as an
+    unknown one would (today's first measurement replaces yesterday's belief) and then misses as
     usual; with the setting off, the same miss only lowers it."""
     stale = 1.0
     box = np.full((40, 8, 8), np.nan, np.float32)  # x 0..20 m, y, z -2..2 m at 0.5 m
@@ -116,16 +117,35 @@ def test_a_stale_prior_belief_is_freed_by_its_first_miss():
     assert np.all(on.state_at(probes) == FREE)
     assert off.log_odds_at(probes) == pytest.approx([stale + l_miss] * 3, abs=1e-6)
     assert np.all(off.state_at(probes) == OCCUPIED)
-    # rays: a voxel hit first (confirmed) is not freed by one miss; an untouched one is
+    # rays: a voxel hit first starts from a fresh hit, not from yesterday's belief; one miss
+    # does not free it, three do (as for a voxel first seen today); an untouched one is freed
     origin_ray = np.array([0.25, 0.25, 0.25])
     rays = OccupancyMap.from_dense_log_odds(box, origin, MapConfig(voxel_size_m=0.5, stale_log_odds=stale))
     hit, seen_through = np.array([[6.25, 0.25, 0.25]]), np.array([[4.25, 0.25, 0.25]])
     rays.integrate_points(hit, origin_ray)  # seen through the nearer voxel, hit at 6.25
     assert rays.log_odds_at(seen_through)[0] == pytest.approx(l_miss, abs=1e-6)
+    assert rays.log_odds_at(hit)[0] == pytest.approx(logit(0.7), abs=1e-6)
     rays.integrate_points(np.array([[12.25, 0.25, 0.25]]), origin_ray)  # now through both
-    assert rays.log_odds_at(hit)[0] == pytest.approx(stale + logit(0.7) + l_miss, abs=1e-5)
+    assert rays.log_odds_at(hit)[0] == pytest.approx(logit(0.7) + l_miss, abs=1e-5)
     assert rays.state_at(hit)[0] == OCCUPIED
     assert rays.log_odds_at(seen_through)[0] == pytest.approx(2 * l_miss, abs=1e-6)
+    for _ in range(2):
+        rays.integrate_points(np.array([[12.25, 0.25, 0.25]]), origin_ray)
+    assert rays.state_at(hit)[0] == FREE
+    # depth integration and add_hits: a stale voxel hit takes logit(prob_hit); a voxel hit before
+    # adds to what it holds
+    depth_map = OccupancyMap.from_dense_log_odds(
+        box, origin, MapConfig(voxel_size_m=0.5, stale_log_odds=stale)
+    )
+    depth_map.integrate_depth(wall_depth(9.0), CAM, POSE)
+    wall_voxel = np.array([[9.25, 0.25, 0.25]])
+    assert depth_map.log_odds_at(wall_voxel)[0] == pytest.approx(logit(0.7), abs=1e-6)
+    added = OccupancyMap.from_dense_log_odds(box, origin, MapConfig(voxel_size_m=0.5, stale_log_odds=stale))
+    added.add_hits(np.array([[10, 0, 0]]))  # the voxel at x 5..5.5, y 0..0.5 (index from origin 0)
+    hit_twice = np.array([[5.25, 0.25, 0.25]])
+    assert added.log_odds_at(hit_twice)[0] == pytest.approx(logit(0.7), abs=1e-6)
+    added.add_hits(np.array([[10, 0, 0]]))
+    assert added.log_odds_at(hit_twice)[0] == pytest.approx(2 * logit(0.7), abs=1e-5)
     with pytest.raises(InputError, match="stale_log_odds"):
         MapConfig(stale_log_odds=float("inf"))
 

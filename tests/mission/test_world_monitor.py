@@ -1,4 +1,5 @@
-"""The simulator's judge of changes since the prior map: when an added obstacle is in the map."""
+"""The simulator's judge of changes since the prior map: when an added obstacle is in the map,
+and how soon a removed one's voxels are freed after the cameras saw through them."""
 
 from __future__ import annotations
 
@@ -6,6 +7,8 @@ from types import SimpleNamespace
 
 import numpy as np
 
+from skyrecon.mapping import MapConfig
+from skyrecon.mission.prior import PRIOR_OCCUPIED_LOG_ODDS
 from skyrecon.mission.world_monitor import MAPPED_VOXELS, MIN_VISIBLE_PX, WorldMonitor
 
 BOX = np.array([10.0, -2.0, 0.0, 14.0, 2.0, 20.0])  # a scaffold the prior map lacks
@@ -43,3 +46,83 @@ def test_an_added_obstacle_reports_its_delay_and_the_time_it_was_in_view():
     assert row["in_range_s"] == 1.0 and row["mapped_s"] == 3.2
     assert row["delay_s"] == 2.2
     assert row["in_view_s"] == 0.3
+
+
+class _Timeline:
+    """Stands in for the drone's map: each voxel's log-odds follows its own list of (time s,
+    log-odds) steps, starting at the prior's belief."""
+
+    def __init__(self, voxels: np.ndarray, steps: dict[int, list[tuple[float, float]]], v: float):
+        self.config = MapConfig(voxel_size_m=v)
+        self.keys = [tuple(k) for k in voxels]
+        self.steps = steps
+        self.v = v
+        self.t = 0.0
+
+    def log_odds_at(self, points: np.ndarray) -> np.ndarray:
+        out = np.full(len(points), PRIOR_OCCUPIED_LOG_ODDS, np.float32)
+        for i, p in enumerate(points):
+            k = self.keys.index(tuple(np.floor(p / self.v).astype(np.int64)))
+            for t, lo in self.steps.get(k, []):
+                if self.t >= t - 1e-9:
+                    out[i] = lo
+        return out
+
+
+def _removed_stack_monitor() -> tuple[WorldMonitor, _Timeline]:
+    """A monitor of a removed box of four voxels whose log-odds follow the steps below, flown
+    for 4 s at 10 Hz (the steps: see the next test's docstring)."""
+    box = np.array([0.0, 0.0, 0.0, 2.0, 0.5, 0.5])  # four voxels along x
+    city = SimpleNamespace(boxes=np.zeros((0, 6)))
+    change = SimpleNamespace(kind="removed", name="container stack", box=box)
+    mon = WorldMonitor(SimpleNamespace(movers=None, city=city, changes=[change]), 0.5, 17.0)
+    vox = mon.changes[0].voxels
+    assert len(vox) == 4
+    l_hit, l_miss = (float(x) for x in MapConfig().log_odds[:2])
+    order = [int(np.flatnonzero(vox[:, 0] == i)[0]) for i in range(4)]
+    steps = {
+        order[0]: [(1.0, l_miss)],
+        order[1]: [(1.0, PRIOR_OCCUPIED_LOG_ODDS + l_miss), (1.5, PRIOR_OCCUPIED_LOG_ODDS + 3 * l_miss)],
+        order[2]: [
+            (1.0, l_hit),
+            (1.2, l_hit + l_miss),
+            (1.4, 2 * l_hit + l_miss),
+            (2.0, 2 * l_hit + 2 * l_miss),
+            (2.6, 2 * l_hit + 5 * l_miss),
+        ],
+        order[3]: [(1.0, l_hit), (2.0, 2 * l_hit)],
+    }
+    occ = _Timeline(vox, steps, 0.5)
+    blank = np.zeros((48, 64), np.int32)
+    for k in range(40):
+        occ.t = 0.1 * k
+        mon.observe(occ.t, np.zeros(3), blank, None, [], occ, None)
+    return mon, occ
+
+
+def test_a_removed_obstacle_s_clock_runs_from_the_first_miss_and_a_hit_stops_it():
+    """Voxel 0: seen through at 1.0 s, free at once (0 s). Voxel 1: a miss at 1.0 s, free at
+    1.5 s (0.5 s). Voxel 2: hit at 1.0 s (a fresh hit, as today's first measurement of a stale
+    voxel), a miss at 1.2 s starts its clock, a second hit at 1.4 s stops it, the next miss at
+    2.0 s starts it again, free at 2.6 s: 0.6 s. Voxel 3 is only ever hit: never touched."""
+    mon, occ = _removed_stack_monitor()
+    row = mon.summary(occ, 4.0, None)["changes_seen"][0]
+    assert row["touched_voxels"] == 3 and row["freed_voxels"] == 3
+    assert row["free_delay_s_median"] == 0.5
+    assert row["free_delay_s_max"] == 0.6
+    assert row["freed_after_2s_voxels"] == 0 and row["mover_swept_voxels"] == 0
+
+
+def test_late_voxels_a_mover_passed_through_are_left_out_of_the_removed_obstacle():
+    """A mover crossing voxel 2 at 1.3 s (the hits) makes it vacated space: left out, counted."""
+    mon, occ = _removed_stack_monitor()
+    centre = (mon.changes[0].voxels[mon.changes[0].voxels[:, 0] == 2][0] + 0.5) * 0.5
+
+    def mover_distance(points, times):
+        near = np.abs(np.asarray(times) - 1.3) < 0.1
+        return np.where(near & (np.linalg.norm(points - centre, axis=1) < 0.1), -0.1, np.inf)
+
+    mon.scene = SimpleNamespace(movers=["a drone"], mover_distance=mover_distance)
+    row = mon.summary(occ, 4.0, None)["changes_seen"][0]
+    assert row["mover_swept_voxels"] == 1
+    assert row["free_delay_s_max"] == 0.5

@@ -542,6 +542,16 @@ def _miss(old, l_miss, c_lo, stale):
 
 
 @njit(cache=True)
+def _hit(old, l_hit, c_hi, stale):
+    """A voxel's log-odds after a hit: ``old + l_hit`` clamped at ``c_hi``; an unknown voxel
+    (NaN), or one still at the ``stale`` prior value, starts from 0 as if never measured: this
+    flight's first measurement of a voxel replaces an earlier flight's belief, hit or miss."""
+    if old != old or old == stale:
+        return min(l_hit, c_hi)
+    return min(old + l_hit, c_hi)
+
+
+@njit(cache=True)
 def _carve_range(blk, B, x0, x1, y0, y1, z0, z1, l_miss, c_lo, c_hi, thr, stale):
     """Miss every voxel of the local box [x0, x1) x [y0, y1) x [z0, z1) (see :func:`_miss`).
 
@@ -607,7 +617,7 @@ def _voxels(
                 if use_hm and hm[q]:
                     old = blk[q]
                     nh += 1
-                    new = min(old + l_hit, c_hi) if old == old else min(l_hit, c_hi)
+                    new = _hit(old, l_hit, c_hi, stale)
                     ch |= _change(old, new, thr)
                     blk[q] = new
                     continue
@@ -639,7 +649,7 @@ def _voxels(
                     new = _miss(old, l_miss, c_lo, stale)
                 elif abs(sd) <= plane[iv, iu, 5]:
                     nh += 1
-                    new = min(old + l_hit, c_hi) if old == old else min(l_hit, c_hi)
+                    new = _hit(old, l_hit, c_hi, stale)
                 else:
                     continue  # behind the surface, or no valid depth (NaN compares False)
                 ch |= _change(old, new, thr)

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from skyrecon.mapping._projective import _add, _change, _miss
+from skyrecon.mapping._projective import _change, _hit, _miss
 from skyrecon.mapping.blocks import EMPTY, table_find
 
 
@@ -153,7 +153,7 @@ def apply_flags(data, sat, pool_ids, free, hits, lodds):
                 continue
             old = blk[q]
             if hits[j, q]:
-                new = _add(old, l_hit, c_lo, c_hi)
+                new = _hit(old, l_hit, c_hi, stale)
                 counts[j, 1] += 1
                 sat[pool_ids[j]] = 0
             else:

@@ -45,9 +45,11 @@ class MapConfig:
         stale_log_odds: a voxel holding exactly this log-odds, a belief seeded from an earlier
             flight that no measurement of this one has touched yet (see
             :mod:`skyrecon.mission.prior`), takes ``logit(prob_miss)`` at its first miss, as an
-            unknown voxel would: one look through yesterday's obstacle disproves it. Hits add
-            to it as usual (a voxel once hit is no longer at this value). None (default): no
-            such voxel; every miss adds ``logit(prob_miss)``.
+            unknown voxel would: one look through yesterday's obstacle disproves it; and at
+            its first hit ``logit(prob_hit)``, also as an unknown voxel would (this flight's
+            first measurement replaces the earlier belief; a stray hit, a mover passing
+            through yesterday's obstacle, no longer confirms it for several misses). After
+            that, hits and misses add as usual. None (default): no such voxel.
     """
 
     voxel_size_m: float = 0.2

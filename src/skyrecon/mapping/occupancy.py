@@ -523,8 +523,10 @@ class OccupancyMap:
         ids, flat = self._slots(vox)
         data = self.grid.data
         before = data[ids, flat]
-        l_hit, lo_max = self._lodds[0], self._lodds[3]
-        after = np.minimum(np.nan_to_num(before, nan=0.0) + l_hit, lo_max).astype(np.float32)
+        l_hit, lo_max, stale = self._lodds[0], self._lodds[3], self._lodds[5]
+        # an unknown voxel, or one still at an earlier flight's stale belief, starts from 0
+        start = np.where(np.isnan(before) | (before == stale), np.float32(0.0), before)
+        after = np.minimum(start + l_hit, lo_max).astype(np.float32)
         data[ids, flat] = after
         self._mark_written(ids, before, after)
         return int(len(vox))

@@ -8,11 +8,14 @@ the drone's map with *weak* beliefs:
 * a prior-occupied voxel gets log-odds :data:`PRIOR_OCCUPIED_LOG_ODDS` (occupied, so the planner
   avoids it from the first cycle), and the first miss of this flight's cameras frees it
   (:attr:`~skyrecon.mapping.MapConfig.stale_log_odds`: one look through yesterday's obstacle
-  disproves it; a voxel hit first is confirmed and takes misses as usual). Until session 31 it
-  took three misses (two were tried and freed the worst voxel no sooner): in 150 dynamic
-  missions the removed stacks' worst voxel was freed 5-14 s after its first miss, because the
-  slow ones are seen through once, at the top edge of a camera pitched down, then not again
-  until the drone is past them;
+  disproves it). Until session 31 that took three misses (two were tried and freed the worst
+  voxel no sooner): in 150 dynamic missions the removed stacks' worst voxel was freed 5-14 s
+  after its first miss, because the slow ones are seen through once, at the top edge of a
+  camera pitched down, then not again until the drone is past them. Its first hit, likewise,
+  gives it the log-odds of a first hit, as if the prior had not known it: a stray match, or a
+  mover passing through yesterday's obstacle, used to confirm it for five misses (session 36:
+  on dynamic seed 107 the removed stack's two slowest voxels, 5-6 m from any building, were
+  such voxels);
 * a prior-free voxel gets :data:`PRIOR_FREE_LOG_ODDS` (free, so the planner plans through it,
   but one hit of its own cameras makes it occupied);
 * unknown stays unknown.

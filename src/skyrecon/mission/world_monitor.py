@@ -17,10 +17,14 @@ the drone believed with the simulator's truth:
   holds :data:`MAPPED_VOXELS` occupied voxels inside it (``delay_s``), and how much of that time
   it was in view, showing :data:`MIN_VISIBLE_PX` pixels within the range (``in_view_s``: a
   drone that turns away after a first glimpse cannot map it until it looks again); for a
-  removed one, per voxel the time from its first miss (the cameras saw through it) to free
-  (median, p95, max, and how many voxels took over 2 s: the top of a stack seen through once at
-  the top edge of a camera pitched down, then out of view until the drone is past it, is freed
-  only when seen again).
+  removed one, per voxel the time from its first measurement (its log-odds leaves the prior's:
+  a miss, the cameras saw through it; a hit stops the clock until the next miss) to free
+  (median, p95, max, how many voxels took over 2 s, and for up to 10 of those their centre,
+  distance to today's city and delay: the top of a stack seen through once at the top edge of a
+  camera pitched down, then out of view until the drone is past it, is freed only when seen
+  again). A voxel freed late that a mover came within one voxel of is left out
+  (``mover_swept_voxels``): the space a mover passed through is judged by the mover figures
+  (phantom trails, vacated voxels).
 
 Positions are compared in the drone's estimated world (``est_from_true`` maps the truth
 there), so a drifting pose does not count against perception.
@@ -86,6 +90,7 @@ class _Change:
     in_view_s: float = 0.0  # time in view between t_in_range and t_mapped
     touched: dict[tuple, float] = field(default_factory=dict)
     freed: dict[tuple, float] = field(default_factory=dict)
+    last_log_odds: np.ndarray | None = None  # (M,) the voxels' log-odds at the last cycle
 
 
 class WorldMonitor:
@@ -232,14 +237,44 @@ class WorldMonitor:
                         if int(np.count_nonzero(lo >= 0.0)) >= MAPPED_VOXELS:
                             ch.t_mapped = t
             else:
-                with np.errstate(invalid="ignore"):
-                    touched = np.flatnonzero(lo < PRIOR_OCCUPIED_LOG_ODDS - 1e-3)
-                    free = lo < 0.0
-                for k in touched:
-                    key = tuple(vox[k])
-                    ch.touched.setdefault(key, t)
-                    if free[k] and key not in ch.freed:
-                        ch.freed[key] = t
+                self._removed(ch, t, lo, occ_map)
+
+    def _removed(self, ch: _Change, t: float, lo: np.ndarray, occ_map: OccupancyMap) -> None:
+        """A removed obstacle's voxels (log-odds ``lo`` (M,) now): a voxel's clock starts at its
+        first miss (the cameras saw through it) and stops when it is free; a hit before it is
+        free (a mover passing, a stray match) stops the clock until the next miss."""
+        last = ch.last_log_odds
+        if last is None:
+            last = np.full(len(lo), PRIOR_OCCUPIED_LOG_ODDS, np.float32)
+        l_hit = np.float32(occ_map.config.log_odds[0])
+        with np.errstate(invalid="ignore"):
+            # a hit raises the log-odds, or restarts a voxel still at the prior's belief
+            hit = (lo > last + 1e-6) | ((last == np.float32(PRIOR_OCCUPIED_LOG_ODDS)) & (lo == l_hit))
+            miss = ~hit & (lo < last - 1e-6)
+            free = lo < 0.0
+        ch.last_log_odds = lo.astype(np.float32)
+        for k in np.flatnonzero((hit | miss | free) & ~np.isnan(lo)):
+            key = tuple(ch.voxels[k])
+            if key in ch.freed:
+                continue
+            if hit[k]:
+                ch.touched.pop(key, None)
+                continue
+            ch.touched.setdefault(key, t)
+            if free[k]:
+                ch.freed[key] = t
+
+    def _mover_swept(self, keys: list[tuple], end_time_s: float) -> set[tuple]:
+        """Of the voxels ``keys`` (integer indices), those a mover came within one voxel of
+        (sampled every 0.05 s until ``end_time_s``): the space a mover passed through is judged
+        as vacated space (phantom trails, vacated voxels), not as the removed obstacle's."""
+        if not keys or self.scene is None or not self.scene.movers or end_time_s <= 0:
+            return set()
+        centres = (np.array(keys, np.float64) + 0.5) * self.v
+        ts = np.arange(0.0, end_time_s, 0.05)
+        pts = np.repeat(centres, len(ts), axis=0)
+        d = self.scene.mover_distance(pts, np.tile(ts, len(keys))).reshape(len(keys), len(ts))
+        return {k for k, near in zip(keys, np.any(d <= self.v, axis=1)) if near}
 
     def summary(self, occ_map: OccupancyMap, end_time_s: float, est_from_true: Rigid3 | None) -> dict:
         """The figures for ``mission.json`` (see the module docstring)."""
@@ -312,13 +347,25 @@ class WorldMonitor:
                 )
                 row["in_view_s"] = round(ch.in_view_s, 3) if ch.t_mapped is not None else None
             else:
-                delays = [ch.freed[k] - ch.touched[k] for k in ch.freed]
+                swept = self._mover_swept([k for k in ch.freed if ch.freed[k] > ch.touched[k]], end_time_s)
+                delays = [ch.freed[k] - ch.touched[k] for k in ch.freed if k not in swept]
                 row["touched_voxels"] = len(ch.touched)
                 row["freed_voxels"] = len(ch.freed)
+                row["mover_swept_voxels"] = len(swept)
                 row["free_delay_s_median"] = round(float(np.median(delays)), 3) if delays else None
                 row["free_delay_s_p95"] = round(float(np.percentile(delays, 95)), 3) if delays else None
                 row["free_delay_s_max"] = round(float(np.max(delays)), 3) if delays else None
                 row["freed_after_2s_voxels"] = int(sum(d > 2.0 + 1e-6 for d in delays))
+                late = [k for k in ch.freed if ch.freed[k] - ch.touched[k] > 2.0 + 1e-6 and k not in swept][
+                    :10
+                ]
+                if late:  # where they lie: centre, metres from today's city (ground included), delay
+                    centres = (np.array(late, np.float64) + 0.5) * self.v
+                    dist = self.static.distance(centres, include_ground=True)
+                    row["freed_after_2s_detail"] = [
+                        [*np.round(c, 2).tolist(), round(float(d), 2), round(ch.freed[k] - ch.touched[k], 2)]
+                        for k, c, d in zip(late, centres, dist)
+                    ]
             changes.append(row)
         out["changes_seen"] = changes
         return out
