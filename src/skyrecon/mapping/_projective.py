@@ -520,18 +520,6 @@ def _change(old, new, thr):
 
 
 @njit(cache=True)
-def _add(l, delta, lo, hi):
-    if l != l:
-        l = np.float32(0.0)
-    l = l + delta
-    if l < lo:
-        l = lo
-    if l > hi:
-        l = hi
-    return l
-
-
-@njit(cache=True)
 def _miss(old, l_miss, c_lo, stale):
     """A voxel's log-odds after a miss: ``old + l_miss`` clamped at ``c_lo``; an unknown voxel
     (NaN), or one still at the ``stale`` prior value (NaN: none, see
