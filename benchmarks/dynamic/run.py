@@ -54,6 +54,7 @@ sys.path.insert(0, str(ROOT / "src"))
 
 import numpy as np  # noqa: E402
 
+from skyrecon.cli.main import install_sigterm  # noqa: E402
 from skyrecon.executor import ProcessExecutor  # noqa: E402
 from skyrecon.io.atomic import write_text_atomic  # noqa: E402
 from skyrecon.mission import MissionConfig  # noqa: E402
@@ -185,6 +186,7 @@ def fmt(v, nd=2) -> str:
 
 
 def main() -> int:
+    install_sigterm()  # kill PID stops the missions' worker processes too
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seeds", type=int, default=50)
     ap.add_argument("--first-seed", type=int, default=100, help="first seed (default 100: not the demo's)")

@@ -36,6 +36,7 @@ sys.path.insert(0, str(ROOT / "src"))
 
 import numpy as np  # noqa: E402
 
+from skyrecon.cli.main import install_sigterm  # noqa: E402
 from skyrecon.executor import ProcessExecutor  # noqa: E402
 from skyrecon.io.atomic import write_text_atomic  # noqa: E402
 from skyrecon.mission import MissionConfig  # noqa: E402
@@ -83,6 +84,7 @@ def totals(docs: list[dict]) -> dict:
 
 
 def main() -> int:
+    install_sigterm()  # kill PID stops the missions' worker processes too
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seeds", type=int, default=100)
     ap.add_argument("--first-seed", type=int, default=200)

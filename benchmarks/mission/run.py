@@ -37,6 +37,7 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "src"))
 
 
+from skyrecon.cli.main import install_sigterm  # noqa: E402
 from skyrecon.executor import ProcessExecutor  # noqa: E402
 from skyrecon.io.atomic import write_text_atomic  # noqa: E402
 from skyrecon.mission import MissionConfig  # noqa: E402
@@ -65,6 +66,7 @@ def row_from_folder(folder: Path) -> dict | None:
 
 
 def main() -> int:
+    install_sigterm()  # kill PID stops the missions' worker processes too
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seeds", type=int, default=20, help="number of seeds (default 20)")
     ap.add_argument("--first-seed", type=int, default=0)

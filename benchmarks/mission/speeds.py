@@ -41,6 +41,7 @@ sys.path.insert(0, str(ROOT / "src"))
 
 import numpy as np  # noqa: E402
 
+from skyrecon.cli.main import install_sigterm  # noqa: E402
 from skyrecon.executor import ProcessExecutor  # noqa: E402
 from skyrecon.io.atomic import write_text_atomic  # noqa: E402
 from skyrecon.mission import MissionConfig  # noqa: E402
@@ -92,6 +93,7 @@ def _summary(speed: float, rows: list[dict], margin: float) -> dict:
 
 
 def main() -> int:
+    install_sigterm()  # kill PID stops the missions' worker processes too
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--speeds", type=float, nargs="+", default=[6.0, 10.0, 12.0, 15.0])
     ap.add_argument("--seeds", type=int, default=20)

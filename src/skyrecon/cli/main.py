@@ -69,8 +69,11 @@ def _on_sigterm(signum, frame) -> None:
     raise Terminated()
 
 
-def _install_sigterm() -> object:
-    """Turn SIGTERM into :class:`Terminated` (main thread only); returns the previous handler."""
+def install_sigterm() -> object:
+    """Turn SIGTERM into :class:`Terminated` (main thread only), so that ``kill PID`` runs the same
+    clean-up as Ctrl-C (a process pool's workers stopped, partial outputs removed); returns the
+    previous handler. The command line installs it; scripts that run pools (the benchmarks)
+    call it first thing."""
     try:
         return signal.signal(signal.SIGTERM, _on_sigterm)
     except ValueError:  # not the main thread (e.g. called from a worker thread): leave it
@@ -102,7 +105,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in argv
     quiet_resource_tracker()
-    previous = _install_sigterm()
+    previous = install_sigterm()
     try:
         return _main(argv, debug)
     finally:
