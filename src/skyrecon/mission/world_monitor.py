@@ -88,9 +88,11 @@ class _Change:
     t_in_range: float | None = None
     t_mapped: float | None = None
     in_view_s: float = 0.0  # time in view between t_in_range and t_mapped
-    touched: dict[tuple, float] = field(default_factory=dict)
-    freed: dict[tuple, float] = field(default_factory=dict)
-    last_log_odds: np.ndarray | None = None  # (M,) the voxels' log-odds at the last cycle
+    # removed obstacles, per voxel (M,): the time its clock started and the time it was freed
+    # (NaN: not yet), and its log-odds at the last cycle
+    touched_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    freed_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    last_log_odds: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
 
 
 class WorldMonitor:
@@ -243,9 +245,11 @@ class WorldMonitor:
         """A removed obstacle's voxels (log-odds ``lo`` (M,) now): a voxel's clock starts at its
         first miss (the cameras saw through it) and stops when it is free; a hit before it is
         free (a mover passing, a stray match) stops the clock until the next miss."""
+        if len(ch.last_log_odds) != len(lo):  # the first cycle: every voxel at the prior's belief
+            ch.last_log_odds = np.full(len(lo), PRIOR_OCCUPIED_LOG_ODDS, np.float32)
+            ch.touched_s = np.full(len(lo), np.nan)
+            ch.freed_s = np.full(len(lo), np.nan)
         last = ch.last_log_odds
-        if last is None:
-            last = np.full(len(lo), PRIOR_OCCUPIED_LOG_ODDS, np.float32)
         l_hit = np.float32(occ_map.config.log_odds[0])
         with np.errstate(invalid="ignore"):
             # a hit raises the log-odds, or restarts a voxel still at the prior's belief
@@ -253,28 +257,23 @@ class WorldMonitor:
             miss = ~hit & (lo < last - 1e-6)
             free = lo < 0.0
         ch.last_log_odds = lo.astype(np.float32)
-        for k in np.flatnonzero((hit | miss | free) & ~np.isnan(lo)):
-            key = tuple(ch.voxels[k])
-            if key in ch.freed:
-                continue
-            if hit[k]:
-                ch.touched.pop(key, None)
-                continue
-            ch.touched.setdefault(key, t)
-            if free[k]:
-                ch.freed[key] = t
+        open_ = np.isnan(ch.freed_s)
+        ch.touched_s[hit & open_] = np.nan
+        measured = open_ & ~hit & (miss | free)
+        ch.touched_s[measured & np.isnan(ch.touched_s)] = t
+        ch.freed_s[measured & free] = t
 
-    def _mover_swept(self, keys: list[tuple], end_time_s: float) -> set[tuple]:
-        """Of the voxels ``keys`` (integer indices), those a mover came within one voxel of
-        (sampled every 0.05 s until ``end_time_s``): the space a mover passed through is judged
-        as vacated space (phantom trails, vacated voxels), not as the removed obstacle's."""
-        if not keys or self.scene is None or not self.scene.movers or end_time_s <= 0:
-            return set()
-        centres = (np.array(keys, np.float64) + 0.5) * self.v
+    def _mover_swept(self, voxels: np.ndarray, end_time_s: float) -> np.ndarray:
+        """(K,) bool: which of the voxels (K, 3) (integer indices) a mover came within one voxel
+        of (sampled every 0.05 s until ``end_time_s``): the space a mover passed through is
+        judged as vacated space (phantom trails, vacated voxels), not as the removed obstacle's."""
+        if len(voxels) == 0 or self.scene is None or not self.scene.movers or end_time_s <= 0:
+            return np.zeros(len(voxels), bool)
+        centres = (np.asarray(voxels, np.float64) + 0.5) * self.v
         ts = np.arange(0.0, end_time_s, 0.05)
         pts = np.repeat(centres, len(ts), axis=0)
-        d = self.scene.mover_distance(pts, np.tile(ts, len(keys))).reshape(len(keys), len(ts))
-        return {k for k, near in zip(keys, np.any(d <= self.v, axis=1)) if near}
+        d = self.scene.mover_distance(pts, np.tile(ts, len(voxels))).reshape(len(voxels), len(ts))
+        return np.any(d <= self.v, axis=1)
 
     def summary(self, occ_map: OccupancyMap, end_time_s: float, est_from_true: Rigid3 | None) -> dict:
         """The figures for ``mission.json`` (see the module docstring)."""
@@ -347,24 +346,26 @@ class WorldMonitor:
                 )
                 row["in_view_s"] = round(ch.in_view_s, 3) if ch.t_mapped is not None else None
             else:
-                swept = self._mover_swept([k for k in ch.freed if ch.freed[k] > ch.touched[k]], end_time_s)
-                delays = [ch.freed[k] - ch.touched[k] for k in ch.freed if k not in swept]
-                row["touched_voxels"] = len(ch.touched)
-                row["freed_voxels"] = len(ch.freed)
-                row["mover_swept_voxels"] = len(swept)
-                row["free_delay_s_median"] = round(float(np.median(delays)), 3) if delays else None
-                row["free_delay_s_p95"] = round(float(np.percentile(delays, 95)), 3) if delays else None
-                row["free_delay_s_max"] = round(float(np.max(delays)), 3) if delays else None
-                row["freed_after_2s_voxels"] = int(sum(d > 2.0 + 1e-6 for d in delays))
-                late = [k for k in ch.freed if ch.freed[k] - ch.touched[k] > 2.0 + 1e-6 and k not in swept][
-                    :10
-                ]
-                if late:  # where they lie: centre, metres from today's city (ground included), delay
-                    centres = (np.array(late, np.float64) + 0.5) * self.v
+                freed = np.flatnonzero(~np.isnan(ch.freed_s))
+                freed = freed[np.argsort(ch.freed_s[freed], kind="stable")]  # in the order freed
+                delay = ch.freed_s[freed] - ch.touched_s[freed]
+                swept = self._mover_swept(ch.voxels[freed[delay > 0]], end_time_s)
+                judged = ~np.isin(freed, freed[delay > 0][swept])
+                delays = delay[judged]
+                row["touched_voxels"] = int(np.count_nonzero(~np.isnan(ch.touched_s)))
+                row["freed_voxels"] = len(freed)
+                row["mover_swept_voxels"] = int(np.count_nonzero(swept))
+                row["free_delay_s_median"] = round(float(np.median(delays)), 3) if len(delays) else None
+                row["free_delay_s_p95"] = round(float(np.percentile(delays, 95)), 3) if len(delays) else None
+                row["free_delay_s_max"] = round(float(np.max(delays)), 3) if len(delays) else None
+                late = judged & (delay > 2.0 + 1e-6)
+                row["freed_after_2s_voxels"] = int(np.count_nonzero(late))
+                if late.any():  # where they lie (up to 10): centre, metres from today's city, delay
+                    centres = (ch.voxels[freed[late][:10]] + 0.5) * self.v
                     dist = self.static.distance(centres, include_ground=True)
                     row["freed_after_2s_detail"] = [
-                        [*np.round(c, 2).tolist(), round(float(d), 2), round(ch.freed[k] - ch.touched[k], 2)]
-                        for k, c, d in zip(late, centres, dist)
+                        [*np.round(c, 2).tolist(), round(float(d), 2), round(float(x), 2)]
+                        for c, d, x in zip(centres, dist, delay[late][:10])
                     ]
             changes.append(row)
         out["changes_seen"] = changes
