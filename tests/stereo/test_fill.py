@@ -109,3 +109,84 @@ def test_guided_fill_same_result_on_one_or_two_threads(monkeypatch):
     one = m._guided_fill(fixed, filled, guide, 32.0, 1, 1).copy()
     two = m._guided_fill(fixed, filled, guide, 32.0, 1, 2).copy()
     np.testing.assert_array_equal(one, two)
+
+
+def _reference_fill_row(row, invalid, unit, lo, span, max_slope, rounded):
+    """The row fill written plainly (every pixel of the span visited): the reference of
+    ``_kernels._fill_rows``, which visits only the valid ones."""
+    W = len(row)
+    ok = [not (v != v or v == invalid) for v in row]
+    out = np.array(row, copy=True)
+    x = 0
+    while x < W:
+        if ok[x]:
+            x += 1
+            continue
+        x0 = x
+        while x < W and not ok[x]:
+            x += 1
+        has_a, has_b = x0 > 0, x < W
+        if not (has_a or has_b):
+            out[x0:x] = invalid
+            continue
+        a = np.float32(row[x0 - 1]) if has_a else np.float32(0)
+        b = np.float32(row[x]) if has_b else np.float32(0)
+        side, bx, base = (-1, x0 - 1, a) if has_a and (not has_b or a <= b) else (1, x, b)
+        lim = max(a, b) if has_a and has_b else np.float32(np.inf)
+        sx = sy = sxx = sxy = np.float32(0)
+        cnt, slope, icpt = 0, np.float32(0), base
+        for j in range(span):
+            xx = bx + side * j
+            if xx < 0 or xx >= W:
+                break
+            if not ok[xx]:
+                continue
+            fv = np.float32(row[xx])
+            if abs(fv - base) > (np.float32(2.0) + np.float32(0.25) * j) * np.float32(unit):
+                break
+            fj = np.float32(j)
+            sx, sy, sxx, sxy, cnt = sx + fj, sy + fv, sxx + fj * fj, sxy + fj * fv, cnt + 1
+        if cnt >= span // 2:
+            den = cnt * sxx - sx * sx
+            if den > 0:
+                sl = (cnt * sxy - sx * sy) / den
+                icpt = (sy - sl * sx) / cnt
+                slope = min(max(-sl, -np.float32(max_slope)), np.float32(max_slope))
+        for xx in range(x0, x):
+            f = min(max(icpt + slope * np.float32(abs(xx - bx)), np.float32(lo)), lim)
+            out[xx] = np.floor(f + np.float32(0.5)) if rounded else f
+    return out
+
+
+def test_row_fill_matches_the_plain_reference():
+    """Random rows of slanted segments with holes of every length (isolated pixels, long
+    runs, runs at the row ends, rows with no valid pixel): the compacted kernel fills exactly
+    like the plain loop (exactly in fixed point, to rounding in float)."""
+    rng = np.random.default_rng(7)
+    H, W = 40, 200
+    x = np.arange(W, dtype=np.float32)
+    d = np.empty((H, W), np.float32)
+    for y in range(H):
+        cut = rng.integers(20, W - 20)
+        d[y] = np.where(x < cut, 10 + rng.uniform(-0.2, 0.2) * x, 30 + rng.uniform(-0.1, 0.1) * x)
+    d += rng.normal(0, 0.3, d.shape).astype(np.float32)
+    holes = rng.random((H, W)) < 0.35
+    for y in rng.integers(0, H, 12):  # long runs
+        a = rng.integers(0, W - 30)
+        holes[y, a : a + rng.integers(5, 60)] = True
+    holes[3] = True  # a row without any valid pixel
+    d[holes] = np.nan
+    fixed = np.where(np.isfinite(d), np.rint(d * 32), K.INVALID16).astype(np.int16)
+    out = np.empty_like(fixed)
+    K.fill_background_fixed(fixed, out, 0, H, 32.0, 0.0, 48, K.FILL_MAX_SLOPE)
+    ref = np.stack(
+        [_reference_fill_row(r, np.int16(K.INVALID16), 32.0, 0.0, 48, K.FILL_MAX_SLOPE, True) for r in fixed]
+    )
+    np.testing.assert_array_equal(out, ref)
+    outf = np.empty_like(d)
+    K.fill_background(d, outf, 0, H, np.float32(1.0), 48, np.float32(K.FILL_MAX_SLOPE))
+    reff = np.stack(
+        [_reference_fill_row(r, np.float32(np.nan), 1.0, 1.0, 48, K.FILL_MAX_SLOPE, False) for r in d]
+    )
+    # float32 in the kernel, NumPy scalars here: the same sums, rounded alike to a few ulps
+    np.testing.assert_allclose(outf, reff, rtol=1e-5)

@@ -119,8 +119,69 @@ def test_single_thread_matches_multi_thread(slanted_pair):
     left, right, _ = slanted_pair
     d1 = create_matcher("skyrecon", 32, threads=1).compute(left, right).disparity
     d2 = create_matcher("skyrecon", 32, threads=2, band_margin=16).compute(left, right).disparity
-    # bands start their upward paths a margin away: almost every pixel agrees
+    # the two bands hand their paths across; speckles are removed per band: almost every pixel
     assert np.mean(np.abs(d1 - d2) < 0.05) > 0.98
+    d4 = create_matcher("skyrecon", 32, threads=4, band_margin=16).compute(left, right).disparity
+    # two pairs of bands, a warm-up margin between the pairs
+    assert np.mean(np.abs(d1 - d4) < 0.05) > 0.98
+
+
+@pytest.mark.parametrize("kw", [{}, {"paths": 6}, {"horizontal_paths": True}, {"fast": True}])
+def test_paired_bands_aggregate_exactly_like_one_band(sim_frame, kw):
+    """Two bands of rows handing their SGM path states across their common edge (``sgm_band``
+    phases 1 and 2) compute what one band does: the raw matches (no speckle removal, fill or
+    median, which work per band) agree exactly, up to the saturation of the stored sums."""
+    raw = dict(kw, fill=False, speckle_size=0, median=0)
+    d1 = create_matcher("skyrecon", 64, threads=1, **raw).compute(sim_frame.left, sim_frame.right)
+    d2 = create_matcher("skyrecon", 64, threads=2, **raw).compute(sim_frame.left, sim_frame.right)
+    same = (d1.disparity == d2.disparity) | (np.isnan(d1.disparity) & np.isnan(d2.disparity))
+    assert same.mean() > 0.9995
+    if not kw:  # two paths a sweep: their sums never saturate
+        assert same.all()
+
+
+def test_band_pairs_stay_within_a_wave():
+    from skyrecon.stereo.sgm import _band_pairs
+
+    def pairs(parts, threads):
+        return sorted((i, up) for i, (_, up, _) in _band_pairs(parts, threads).items())
+
+    assert pairs(2, 2) == [(0, True), (1, False)]
+    assert pairs(5, 2) == [(0, True), (1, False), (2, True), (3, False)]  # band 4 alone
+    assert pairs(4, 3) == [(0, True), (1, False)]  # bands 2 and 3 run in different waves
+    assert pairs(4, 1) == []
+    p = _band_pairs(2, 2)
+    assert p[0][0] is p[1][0] and p[1][2] == 0  # one barrier; the lower band knows the upper
+
+
+def test_a_failing_band_does_not_leave_its_pair_waiting(sim_frame, monkeypatch):
+    import threading
+
+    from skyrecon.stereo import sgm
+
+    real = sgm.K.sgm_band
+
+    def failing(*args):
+        if args[-3] == 1 and not args[-2]:  # phase 1 of the lower band
+            raise RuntimeError("boom")
+        return real(*args)
+
+    pair = (sim_frame.left, sim_frame.right)
+    m = create_matcher("skyrecon", 32, threads=2)
+    assert m.compute(*pair).diagnostics["bands"] == 2
+    monkeypatch.setattr(sgm.K, "sgm_band", failing)
+    errors: list[BaseException] = []
+
+    def run():
+        try:
+            m.compute(*pair)
+        except BaseException as e:  # noqa: BLE001 - collected for the assertion
+            errors.append(e)
+
+    t = threading.Thread(target=run, daemon=True)
+    t.start()
+    t.join(30)
+    assert not t.is_alive() and errors  # the error, not a hang on the pair's barrier
 
 
 def test_settings_object_and_overrides(slanted_pair):

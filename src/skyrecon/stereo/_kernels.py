@@ -859,6 +859,12 @@ def band_workspace_sizes(D: int, wp: int, n: int, horizontal: bool = False) -> t
     return n16, (D + 4) * wp + 7 * wp, n8
 
 
+def handoff_size(D: int, wp: int, n: int) -> int:
+    """Elements of the int16 path state ``sgm_band`` hands from one band to the next (phases 1
+    and 2): the states and minima of the n paths of one sweep at one row."""
+    return n * (D + 2) * (wp + 2) + n * (wp + 2)
+
+
 @njit(**_JIT)
 def sgm_band(
     cl,
@@ -875,7 +881,8 @@ def sgm_band(
     up_offsets,
     r0,
     r1,
-    margin,
+    margin_top,
+    margin_bottom,
     uniqueness,
     subpixel,
     lr_max_diff,
@@ -886,15 +893,27 @@ def sgm_band(
     ws16,
     wsu16,
     ws8,
+    phase,
+    mirror,
+    hand,
 ):
     """Semi-global matching of the image rows [r0, r1): aggregation, selection, LR check.
 
-    Two sweeps over the band: upward from row ``min(H, r1 + margin) - 1`` storing the sum
-    of the upward paths in ``S_band``; then downward from row ``max(0, r0 - margin)``,
-    adding the downward paths and selecting the disparity of each row as soon as it is
-    complete. Paths start at the image border or ``margin`` rows outside the band, so
-    bands run independently on separate threads. Matching costs (Hamming distances of the
-    census codes) are computed on the fly.
+    Two sweeps over the band. The *storing* sweep (upward, or downward when ``mirror``) runs
+    over the band and its margin on the far side, storing the sum of its paths in ``S_band``;
+    the *selecting* sweep (the other direction) then adds its own paths and selects the
+    disparity of each row as soon as it is complete. Paths start at the image border or
+    ``margin_top`` / ``margin_bottom`` rows outside the band (warm-up), so bands run
+    independently on separate threads.
+
+    Two neighbouring bands can instead hand their path states across their common edge, so
+    that neither needs a margin there and both compute exactly what one band over both would
+    (up to the saturation of the stored sums at 255): the upper band mirrored, the lower one
+    not, each first runs ``phase`` 1 (its storing sweep, which writes the paths' state at its
+    last row to ``hand``), then, once the other band's phase 1 is done, ``phase`` 2 with the
+    other band's ``hand``: its selecting sweep starts from that state at the common edge.
+    ``phase`` 0 runs both sweeps at once (``hand`` unused). Matching costs (Hamming
+    distances of the census codes) are computed on the fly.
 
     Args:
         cl: (rows, wp) uint32 left census codes of the image rows ``y_base ..``, ``wp`` = W
@@ -910,16 +929,20 @@ def sgm_band(
         offsets: tuple of column offsets of the downward paths' predecessors on the row above
             (0 vertical, -1/+1 diagonals); ``up_offsets`` the same for the upward paths.
         r0, r1: the band.
-        margin: rows of warm-up outside the band.
+        margin_top, margin_bottom: rows of warm-up above and below the band.
         uniqueness, subpixel, lr_max_diff: see ``_select_row``.
         horizontal: also aggregate along each row (left to right and right to left; their sum
-            joins the upward paths' in ``S_band``, see ``_horizontal_paths``).
-        S_band: (r1 - r0, D * wp) uint8 scratch: the upward paths' sums saturated at 255
-            (each row block-major: 32-column blocks of D planes).
+            joins the storing sweep's in ``S_band``, see ``_horizontal_paths``).
+        S_band: (r1 - r0, D * wp) uint8 scratch: the storing sweep's sums saturated at 255
+            (each row block-major: 32-column blocks of D planes); kept from phase 1 to 2.
         disp: (H, W) float32 output (rows r0..r1-1 are written), NaN where rejected.
         right_out: (H, W) int32 integer right-view disparities (rows r0..r1-1).
         ws16, wsu16, ws8: preallocated int16 / uint16 / uint8 workspaces of at least
             :func:`band_workspace_sizes` elements (reused across frames).
+        phase: 0 both sweeps; 1 the storing sweep (and the horizontal paths); 2 the selecting
+            sweep, from ``hand``.
+        mirror: store downward and select upward (the upper band of a pair).
+        hand: (handoff_size,) int16: written by phase 1, read by phase 2 (empty for phase 0).
     """
     H, W = grey.shape
     wp = cl.shape[1]
@@ -927,7 +950,8 @@ def sgm_band(
     n = len(offsets)
     P1 = np.int16(P1)
     n_st = 2 * n * (D + 2) * (wp + 2)
-    st = ws16[:n_st].reshape((2, n * (D + 2) * (wp + 2)))
+    n_state = n * (D + 2) * (wp + 2)
+    st = ws16[:n_st].reshape((2, n_state))
     mins = ws16[n_st : n_st + 2 * n * (wp + 2)].reshape((2, n * (wp + 2)))
     o = n_st + 2 * n * (wp + 2)
     Q = ws16[o : o + n * wp]
@@ -961,46 +985,18 @@ def sgm_band(
     oc = np.int64(out_of_image_cost)
     band_flat = S_band.reshape(-1)
     row_len = D * wp
+    # the storing sweep's paths, rows and direction; the selecting sweep's are the others
+    store_offsets = offsets if mirror else up_offsets
+    select_offsets = up_offsets if mirror else offsets
+    store_step = 1 if mirror else -1
 
-    # upward sweep: the sum of its paths goes to S_band (block-major rows)
-    ystart = min(H, r1 + margin) - 1
-    par = 0
-    for y in range(ystart, r0 - 1, -1):
-        inside = y < r1
-        _sweep_row(
-            cl[y - y_base],
-            cr[y - y_base],
-            cr_pad,
-            dmin,
-            oc,
-            D,
-            W,
-            grey[y],
-            grey[min(y + 1, H - 1)],
-            P1,
-            P2,
-            alpha,
-            up_offsets,
-            st[par],
-            st[1 - par],
-            mins[par],
-            mins[1 - par],
-            Q,
-            M,
-            y == ystart,
-            band_flat if inside else scratch8,
-            (y - r0) * row_len if inside else 0,
-            True,
-            scratch8,
-            0,
-            True,
-            False,
-            sel,
-        )
-        par = 1 - par
-    if horizontal:
-        for y in range(r0, r1):
-            _horizontal_paths(
+    if phase != 2:  # the storing sweep: the sum of its paths goes to S_band (block-major rows)
+        ystart = max(0, r0 - margin_top) if mirror else min(H, r1 + margin_bottom) - 1
+        yend = r1 if mirror else r0 - 1
+        par = 0
+        for y in range(ystart, yend, store_step):
+            inside = y >= r0 and y < r1
+            _sweep_row(
                 cl[y - y_base],
                 cr[y - y_base],
                 cr_pad,
@@ -1009,23 +1005,67 @@ def sgm_band(
                 D,
                 W,
                 grey[y],
+                grey[min(max(y - store_step, 0), H - 1)],
                 P1,
                 P2,
                 alpha,
-                h_fwd,
-                h_prev,
-                h_cur,
-                h_pen,
-                h_costs,
-                h_sums,
-                band_flat,
-                (y - r0) * row_len,
+                store_offsets,
+                st[par],
+                st[1 - par],
+                mins[par],
+                mins[1 - par],
+                Q,
+                M,
+                y == ystart,
+                band_flat if inside else scratch8,
+                (y - r0) * row_len if inside else 0,
+                True,
+                scratch8,
+                0,
+                True,
+                False,
+                sel,
             )
-    # downward sweep: total = its paths + S_band, winner-takes-all on the fly
-    ystart = max(0, r0 - margin)
+            par = 1 - par
+        if horizontal:
+            for y in range(r0, r1):
+                _horizontal_paths(
+                    cl[y - y_base],
+                    cr[y - y_base],
+                    cr_pad,
+                    dmin,
+                    oc,
+                    D,
+                    W,
+                    grey[y],
+                    P1,
+                    P2,
+                    alpha,
+                    h_fwd,
+                    h_prev,
+                    h_cur,
+                    h_pen,
+                    h_costs,
+                    h_sums,
+                    band_flat,
+                    (y - r0) * row_len,
+                )
+        if phase == 1:  # the paths' state at the band's last row, for the next band
+            hand[:n_state] = st[par]
+            hand[n_state : n_state + n * (wp + 2)] = mins[par]
+            return
+    # the selecting sweep: total = its paths + S_band, winner-takes-all on the fly
+    select_step = -store_step
+    if phase == 2:  # continue the other band's paths across the common edge
+        ystart = r1 - 1 if mirror else r0
+        st[0] = hand[:n_state]
+        mins[0] = hand[n_state : n_state + n * (wp + 2)]
+    else:
+        ystart = min(H, r1 + margin_bottom) - 1 if mirror else max(0, r0 - margin_top)
+    yend = r0 - 1 if mirror else r1
     par = 0
-    for y in range(ystart, r1):
-        inside = y >= r0
+    for y in range(ystart, yend, select_step):
+        inside = y >= r0 and y < r1
         _sweep_row(
             cl[y - y_base],
             cr[y - y_base],
@@ -1035,18 +1075,18 @@ def sgm_band(
             D,
             W,
             grey[y],
-            grey[max(y - 1, 0)],
+            grey[min(max(y - select_step, 0), H - 1)],
             P1,
             P2,
             alpha,
-            offsets,
+            select_offsets,
             st[par],
             st[1 - par],
             mins[par],
             mins[1 - par],
             Q,
             M,
-            y == ystart,
+            phase != 2 and y == ystart,
             total.reshape(-1),
             2 * wp,
             False,
@@ -1126,15 +1166,27 @@ def _fill_rows(disp, out, y0, y1, invalid, unit, lo, span, max_slope, rounded):
     Rows without any valid pixel stay invalid.
     """
     W = disp.shape[1]
+    # the row's valid pixels, compacted (column, value): a line fit visits only those
+    pos = np.empty(W, np.int64)
+    val = np.empty(W, np.float32)
     for y in range(y0, y1):
         src = disp[y]
         dst = out[y]
+        nv = 0
+        for x in range(W):
+            v = src[x]
+            if v == v and v != invalid:
+                pos[nv] = x
+                val[nv] = np.float32(v)
+                nv += 1
         x = 0
+        k = 0  # valid pixels before column x
         while x < W:
             v = src[x]
             if v == v and v != invalid:
                 dst[x] = v
                 x += 1
+                k += 1
                 continue
             x0 = x
             while x < W and not (src[x] == src[x] and src[x] != invalid):
@@ -1148,22 +1200,19 @@ def _fill_rows(disp, out, y0, y1, invalid, unit, lo, span, max_slope, rounded):
             a = np.float32(src[x0 - 1]) if has_a else np.float32(0.0)
             b = np.float32(src[x]) if has_b else np.float32(0.0)
             if has_a and (not has_b or a <= b):
-                side, bx, base = -1, x0 - 1, a
+                side, bx, base, kk = -1, x0 - 1, a, k - 1
             else:
-                side, bx, base = 1, x, b
+                side, bx, base, kk = 1, x, b, k
             lim = max(a, b) if (has_a and has_b) else np.float32(np.inf)
             slope = np.float32(0.0)
             icpt = base
             sx = sy = sxx = sxy = np.float32(0.0)
             cnt = 0
-            for j in range(span):
-                xx = bx + side * j
-                if xx < 0 or xx >= W:
+            while kk >= 0 and kk < nv:
+                j = (pos[kk] - bx) * side
+                if j >= span:
                     break
-                vv = src[xx]
-                if not (vv == vv and vv != invalid):
-                    continue
-                fv = np.float32(vv)
+                fv = val[kk]
                 if abs(fv - base) > (np.float32(2.0) + np.float32(0.25) * j) * unit:
                     break
                 fj = np.float32(j)
@@ -1172,6 +1221,7 @@ def _fill_rows(disp, out, y0, y1, invalid, unit, lo, span, max_slope, rounded):
                 sxx += fj * fj
                 sxy += fj * fv
                 cnt += 1
+                kk += side
             if cnt >= span // 2:
                 den = cnt * sxx - sx * sx
                 if den > 0:

@@ -18,8 +18,10 @@ Pipeline (grey images, see :func:`~skyrecon.stereo.base.prepare_pair`):
    synthetic street views) they change the error little either way (bad-1 of Cones 9.5 ->
    10.0 %, flying pairs 12.6 -> 11.8 %) and cost about 60 % more time at full resolution, so
    the default leaves them off; the stereo mapper turns them on. The image is split into
-   bands of rows processed on separate threads (paths start ``band_margin`` rows outside
-   each band);
+   bands of rows processed on separate threads, two by two: the bands of a pair hand their
+   paths' state across their common edge (each first runs one sweep, then the other sweep
+   from where its partner's ended), so a pair aggregates exactly what one band would; pairs
+   (more than two threads) start their paths ``band_margin`` rows outside;
 4. winner-takes-all with equiangular (or parabola) sub-pixel refinement, optional
    uniqueness test, left-right consistency check;
 5. speckle removal, occlusion-aware filling (invalid runs of a row continue the surface of
@@ -69,7 +71,9 @@ _GUIDE_GATE = 3.0
 _GUIDE_SIGMA = 20.0
 _GUIDE_DECAY = 0.02
 _GUIDE_STEPS = 100
-_GUIDE_TARGETS_PER_THREAD = 16384
+#: the guided fill's directions go to several threads from this many targets per thread (a
+#: FlyingThings-style pair with 20000 targets: 15.7 -> 14.3 ms on 2 cores; from 1024 no faster)
+_GUIDE_TARGETS_PER_THREAD = 4096
 
 
 #: edge-aware P2 reduction (``SkyreconSettings.p2_edge_alpha``) at full and at half resolution
@@ -129,7 +133,8 @@ class SkyreconSettings:
             weighted median, never nearer than the row fill); None: on unless ``fast``.
             Needs a disparity range that fits 16-bit fixed point (all but huge ranges).
         median: median filter size after filling: 0 (off), 3 or 5.
-        band_margin: warm-up rows outside each thread's band of rows.
+        band_margin: warm-up rows outside each pair of bands of rows (a band's paths start
+            that far outside it where it does not continue its partner's).
         threads: worker threads; None uses every core this process may run on.
     """
 
@@ -257,6 +262,23 @@ def _run_all(tasks: list[Callable[[], Any]], max_workers: int | None = None) -> 
 
 def _bands(n_rows: int, parts: int) -> list[tuple[int, int]]:
     return [(n_rows * i // parts, n_rows * (i + 1) // parts) for i in range(parts)]
+
+
+def _band_pairs(parts: int, nthreads: int) -> dict[int, tuple[threading.Barrier, bool, int]]:
+    """Which bands of rows hand their SGM paths across their common edge (``sgm_band``'s
+    phases 1 and 2, exact there, no warm-up margin): bands 2j and 2j + 1 of each wave of
+    ``nthreads`` bands that :func:`_run_all` runs at once (both halves must run together, as
+    each waits for the other). Per band: (the pair's barrier, whether it is the upper band,
+    the index of the upper band)."""
+    out: dict[int, tuple[threading.Barrier, bool, int]] = {}
+    if nthreads < 2:
+        return out
+    for w in range(0, parts, nthreads):
+        for i in range(w, min(w + nthreads, parts) - 1, 2):
+            barrier = threading.Barrier(2)
+            out[i] = (barrier, True, i)
+            out[i + 1] = (barrier, False, i)
+    return out
 
 
 # --------------------------------------------------------------------------------------------
@@ -404,7 +426,9 @@ class SkyreconMatcher:
         """Disparity of an 8-bit grey pair: (disparity, measured mask).
 
         The image is split into bands of rows, one per thread; each band task runs the census
-        transform (its rows and margins), the semi-global matching, the conversion to int16
+        transform (its rows and margins), the semi-global matching (the two bands of a pair
+        meet halfway: see :func:`_band_pairs` and ``_kernels.sgm_band``; on a 2-core machine
+        there are no margins and the aggregation does not depend on the split), the conversion to int16
         fixed point (1/32 px for ranges under 1000 px, so that OpenCV's SIMD filters apply),
         speckle removal and row-wise filling of its rows. The median filter and the
         conversion back to float run on the whole image afterwards.
@@ -446,25 +470,36 @@ class SkyreconMatcher:
         slots: queue.SimpleQueue[int] = queue.SimpleQueue()
         for k in range(min(nthreads, parts)):
             slots.put(k)
+        pairs = _band_pairs(parts, nthreads)
+        hand_n = K.handoff_size(D, wp, len(self._offsets))
+        no_hand = np.zeros(0, np.int16)
 
         def band_task(i: int, a: int, b: int) -> None:
             # buffers belong to a worker slot (one per concurrent task), so extra bands reuse them
             tid = slots.get()
             try:
                 run_band(i, a, b, tid)
+            except BaseException:
+                if i in pairs:
+                    pairs[i][0].abort()  # the other band of the pair must not wait for ever
+                raise
             finally:
                 slots.put(tid)
 
         def run_band(i: int, a: int, b: int, tid: int) -> None:
             t0 = time.perf_counter()
-            lo, hi = max(0, a - margin), min(H, b + margin)
+            pair = pairs.get(i)
+            upper = pair is not None and pair[1]  # the upper band of a pair (mirrored)
+            top = 0 if pair is not None and not upper else margin
+            bottom = 0 if upper else margin
+            lo, hi = max(0, a - top), min(H, b + bottom)
             cl = self._buf(f"cl@{tid}", (max_rows + 2 * margin, wp), np.uint32)[: hi - lo]
             cr = self._buf(f"cr@{tid}", (max_rows + 2 * margin, cr_width), np.uint32)[: hi - lo]
             K.census_transform(pl, rh, rw, chk, cl, 0, lo, hi, lo)
             K.census_transform(pr, rh, rw, chk, cr, cr_pad, lo, hi, lo)
             t1 = time.perf_counter()
             S = self._buf(f"S@{tid}", (max_rows, D * wp), np.uint8)[: b - a]
-            K.sgm_band(
+            args = (
                 cl,
                 cr,
                 cr_pad,
@@ -479,7 +514,8 @@ class SkyreconMatcher:
                 self._up_offsets,
                 int(a),
                 int(b),
-                margin,
+                top,
+                bottom,
                 float(s.uniqueness),
                 _SUBPIXEL[s.subpixel],
                 float(s.lr_check),
@@ -491,6 +527,16 @@ class SkyreconMatcher:
                 self._buf(f"wu16@{tid}", (nu16,), np.uint16),
                 self._buf(f"w8@{tid}", (n8,), np.uint8),
             )
+            if pair is None:
+                K.sgm_band(*args, 0, False, no_hand)
+            else:  # store, hand the state at the common edge over, select from the other's
+                barrier, _, first = pair
+                mine = self._buf(f"hand{i}", (hand_n,), np.int16)
+                K.sgm_band(*args, 1, upper, mine)
+                barrier.wait()
+                K.sgm_band(
+                    *args, 2, upper, self._buf(f"hand{i + 1 if upper else first}", (hand_n,), np.int16)
+                )
             t2 = time.perf_counter()
             if fs is not None:
                 K.to_fixed(disp, np.float32(fs), fixed, a, b)
@@ -557,8 +603,8 @@ class SkyreconMatcher:
         nd = len(K.GUIDE_DY)
         cv = np.empty((nd, targets.size), np.float32)
         cw = np.empty((nd, targets.size), np.float32)
-        # threads only pay off for many targets (handing work to the pool costs more than a
-        # few thousand targets under load)
+        # threads only pay off for enough targets (handing work to the pool costs about as
+        # much as a thousand targets)
         parts = max(1, min(nthreads, nd, targets.size // _GUIDE_TARGETS_PER_THREAD))
         args = (fs, _GUIDE_SIGMA, _GUIDE_DECAY * scale, _GUIDE_STEPS // scale)
         tasks: list[Callable[[], Any]] = [
