@@ -13,7 +13,8 @@ geometry at the TRUE time. Prints per mission and in total:
   it came within the trusted stereo range, the time for the gone stack's voxels to be freed
   after the cameras first saw through them (a hit stops a voxel's clock until the next miss;
   late voxels a mover passed through are left out and counted apart, as vacated space: see
-  skyrecon.mission.world_monitor), and the loop's p50 / p99 latency (ms, rendering excluded).
+  skyrecon.mission.world_monitor; the same clock counting only the cycles a voxel was in view
+  is in the totals beside it), and the loop's p50 / p99 latency (ms, rendering excluded).
 
 Baseline (the first wave, ``--baseline``): the same missions with mover tracking off, so the
 movers go into the map like buildings. It prints the ratios tracking / no tracking.
@@ -88,6 +89,8 @@ def mission_row(folder: Path) -> dict | None:
         "removed_delay_s": removed[0].get("free_delay_s_max") if removed else None,
         "removed_delay_p95_s": removed[0].get("free_delay_s_p95") if removed else None,
         "removed_late_voxels": removed[0].get("freed_after_2s_voxels") if removed else None,
+        "removed_in_view_s": removed[0].get("free_in_view_s_max") if removed else None,
+        "removed_late_in_view_voxels": removed[0].get("freed_after_2s_in_view_voxels") if removed else None,
         "removed_touched_voxels": removed[0].get("touched_voxels") if removed else None,
         "removed_mover_swept_voxels": removed[0].get("mover_swept_voxels") if removed else None,
         "replan_reasons": doc.get("replan_reasons") or {},
@@ -115,6 +118,8 @@ def totals(rows: list[dict]) -> dict:
     gone = [r["removed_delay_s"] for r in rows if r["removed_delay_s"] is not None]
     gone95 = [r["removed_delay_p95_s"] for r in rows if r.get("removed_delay_p95_s") is not None]
     late = sum(r.get("removed_late_voxels") or 0 for r in rows)
+    gone_view = [r["removed_in_view_s"] for r in rows if r.get("removed_in_view_s") is not None]
+    late_view = sum(r.get("removed_late_in_view_voxels") or 0 for r in rows)
     touched = sum(r.get("removed_touched_voxels") or 0 for r in rows)
     swept = sum(r.get("removed_mover_swept_voxels") or 0 for r in rows)
     p99 = [r["loop_ms_p99"] for r in rows if r["loop_ms_p99"] is not None]
@@ -156,6 +161,8 @@ def totals(rows: list[dict]) -> dict:
         "removed_seen_in": len(gone),
         "removed_freed_s_p95_worst": max(gone95) if gone95 else None,
         "removed_voxels_freed_after_2s": late,
+        "removed_freed_in_view_s_worst": max(gone_view) if gone_view else None,
+        "removed_voxels_freed_after_2s_in_view": late_view,
         "removed_voxels_touched": touched,
         "removed_voxels_left_out_mover_swept": swept,
         "loop_ms_p50_median": float(np.median(p50)) if p50 else None,

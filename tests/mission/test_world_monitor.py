@@ -126,3 +126,51 @@ def test_late_voxels_a_mover_passed_through_are_left_out_of_the_removed_obstacle
     row = mon.summary(occ, 4.0, None)["changes_seen"][0]
     assert row["mover_swept_voxels"] == 1
     assert row["free_delay_s_max"] == 0.5
+
+
+def test_a_removed_obstacle_s_clock_in_view_counts_only_the_cycles_it_was_seen():
+    """The same four voxels, seen by a camera looking at them only until 1.2 s and again from
+    2.4 s (a wall hides them from 1.3 to 2.3 s; the rendered depth there is nearer): voxel 2's
+    clock runs 1.0-1.4 s (reset by a hit) and 2.0-2.6 s, in view at 1.1, 1.2, 2.4, 2.5 and 2.6 s
+    of them: 0.3 s of its 0.6 s. Voxel 1 (1.0-1.5 s): 0.2 s. Voxel 0 (freed at once): 0 s."""
+    from skyrecon.core import Intrinsics, Rigid3
+
+    box = np.array([0.0, 0.0, 0.0, 2.0, 0.5, 0.5])
+    city = SimpleNamespace(boxes=np.zeros((0, 6)))
+    change = SimpleNamespace(kind="removed", name="container stack", box=box)
+    mon = WorldMonitor(SimpleNamespace(movers=None, city=city, changes=[change]), 0.5, 17.0)
+    vox = mon.changes[0].voxels
+    l_hit, l_miss = (float(x) for x in MapConfig().log_odds[:2])
+    order = [int(np.flatnonzero(vox[:, 0] == i)[0]) for i in range(4)]
+    steps = {
+        order[0]: [(1.0, l_miss)],
+        order[1]: [(1.0, PRIOR_OCCUPIED_LOG_ODDS + l_miss), (1.5, PRIOR_OCCUPIED_LOG_ODDS + 3 * l_miss)],
+        order[2]: [
+            (1.0, l_hit),
+            (1.2, l_hit + l_miss),
+            (1.4, 2 * l_hit + l_miss),
+            (2.0, 2 * l_hit + 2 * l_miss),
+            (2.6, 2 * l_hit + 5 * l_miss),
+        ],
+    }
+    occ = _Timeline(vox, steps, 0.5)
+    # a camera 10 m in front of the voxels (at y = -10 looking along +y), all in its image
+    R = np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]])  # camera x = world x, y = -z, z = y
+    cam_from_world = Rigid3(R, -R @ np.array([1.0, -10.0, 0.25]))
+    intr = Intrinsics.from_fov(64, 48, 90.0)
+    open_view = SimpleNamespace(
+        cam_from_world=cam_from_world, intrinsics=intr, depth_m=np.full((48, 64), np.nan)
+    )
+    wall = SimpleNamespace(cam_from_world=cam_from_world, intrinsics=intr, depth_m=np.full((48, 64), 5.0))
+    blank = np.zeros((48, 64), np.int32)
+    for k in range(40):
+        occ.t = 0.1 * k
+        hidden = 1.3 - 1e-9 <= occ.t <= 2.3 + 1e-9
+        mon.observe(occ.t, np.zeros(3), blank, None, [], occ, None, wall if hidden else open_view)
+    ch = mon.changes[0]
+    assert ch.freed_seen_s[order[0]] == 0.0
+    assert abs(ch.freed_seen_s[order[1]] - 0.2) < 1e-9
+    assert abs(ch.freed_seen_s[order[2]] - 0.3) < 1e-9
+    row = mon.summary(occ, 4.0, None)["changes_seen"][0]
+    assert row["free_delay_s_max"] == 0.6 and row["free_in_view_s_max"] == 0.3
+    assert row["freed_after_2s_in_view_voxels"] == 0

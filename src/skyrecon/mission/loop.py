@@ -844,6 +844,7 @@ def _fly(
                 tracker.tracks if tracker is not None else [],
                 nav.map,
                 None if truth else est_from_world,
+                frame.left_result,
             )
         if depth is not None and delivery.left is not None:
             keeper.offer(cycle, delivery.left, depth.disparity, replanned)

@@ -24,7 +24,9 @@ the drone believed with the simulator's truth:
   camera pitched down, then out of view until the drone is past it, is freed only when seen
   again). A voxel freed late that a mover came within one voxel of is left out
   (``mover_swept_voxels``): the space a mover passed through is judged by the mover figures
-  (phantom trails, vacated voxels).
+  (phantom trails, vacated voxels). The same clock counting only the cycles the voxel was in
+  view (inside the left image, within the trusted range, not behind today's city) is given
+  beside it (``free_in_view_s_*``): what the cameras could have freed.
 
 Positions are compared in the drone's estimated world (``est_from_true`` maps the truth
 there), so a drifting pose does not count against perception.
@@ -65,6 +67,11 @@ def _recall(sightings: list[tuple[float, bool]], within_m: float) -> float | Non
     return round(sum(near) / len(near), 4) if near else None
 
 
+def _r(x: float, nd: int = 2) -> float | None:
+    """``round(x, nd)``, None for NaN (JSON)."""
+    return None if x != x else round(float(x), nd)
+
+
 def _voxels_of_boxes(boxes: np.ndarray, v: float) -> np.ndarray:
     """(M, 3) int64 voxels whose centres lie inside any of the boxes (K, 6)."""
     out = []
@@ -93,6 +100,10 @@ class _Change:
     touched_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
     freed_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
     last_log_odds: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
+    # per voxel (M,): seconds in view while its clock ran (reset with the clock), and (NaN: not
+    # measured) those seconds when it was freed
+    seen_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    freed_seen_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
 class WorldMonitor:
@@ -157,9 +168,12 @@ class WorldMonitor:
         tracks: list,
         occ_map: OccupancyMap,
         est_from_true: Rigid3 | None,
+        view=None,
     ) -> None:
         """One cycle: the true camera position (3,), the left image's object ids (H, W) of the
-        rendered ``snapshot``, the tracker's tracks (estimated world) and the drone's map."""
+        rendered ``snapshot``, the tracker's tracks (estimated world) and the drone's map;
+        ``view``, the left image's render (:class:`skyrecon.sim.RenderResult`: true pose,
+        intrinsics and depth), tells which voxels of a removed obstacle were in view."""
         t = float(time_s)
         self.times.append(t)
         to_est = (lambda p: p) if est_from_true is None else (lambda p: est_from_true.apply(p))  # noqa: E731
@@ -186,7 +200,7 @@ class WorldMonitor:
                     self.errors.append(err)
                 self.sightings.append((d, err is not None))
             self._vacated(t, occ_map, to_est)
-        self._changes(t, cam_position, object_id, occ_map, to_est)
+        self._changes(t, cam_position, object_id, occ_map, to_est, view)
 
     def _vacated(self, t: float, occ_map: OccupancyMap, to_est) -> None:
         """Voxels the map holds occupied inside a mover now; once the mover leaves, time to free."""
@@ -217,7 +231,25 @@ class WorldMonitor:
                 self.vacate_delays.append(t - t_left)
                 del self.vacate_pending[key]
 
-    def _changes(self, t, cam_position, object_id, occ_map: OccupancyMap, to_est) -> None:
+    def _in_view(self, voxels: np.ndarray, view) -> np.ndarray:
+        """(M,) bool: which voxels' centres (true world) the rendered ``view`` shows: inside
+        the image, within the trusted range and not behind today's city (its depth there at
+        most a voxel nearer). All False without a view."""
+        if view is None or len(voxels) == 0:
+            return np.zeros(len(voxels), bool)
+        pc = view.cam_from_world.apply((voxels + 0.5) * self.v)
+        uv = view.intrinsics.project(pc)
+        H, W = view.depth_m.shape
+        with np.errstate(invalid="ignore"):
+            inside = (uv[:, 0] >= 0) & (uv[:, 0] < W) & (uv[:, 1] >= 0) & (uv[:, 1] < H)
+        inside &= np.linalg.norm(pc, axis=1) <= self.range_m
+        out = np.zeros(len(voxels), bool)
+        k = np.flatnonzero(inside)
+        d = view.depth_m[uv[k, 1].astype(np.int64), uv[k, 0].astype(np.int64)]
+        out[k] = ~(d < pc[k, 2] - self.v)  # sky (NaN) hides nothing
+        return out
+
+    def _changes(self, t, cam_position, object_id, occ_map: OccupancyMap, to_est, view=None) -> None:
         dt = t - self.times[-2] if len(self.times) > 1 else 0.0
         for ch in self.changes:
             vox = ch.voxels
@@ -239,16 +271,28 @@ class WorldMonitor:
                         if int(np.count_nonzero(lo >= 0.0)) >= MAPPED_VOXELS:
                             ch.t_mapped = t
             else:
-                self._removed(ch, t, lo, occ_map)
+                self._removed(ch, t, lo, occ_map, dt, None if view is None else self._in_view(vox, view))
 
-    def _removed(self, ch: _Change, t: float, lo: np.ndarray, occ_map: OccupancyMap) -> None:
+    def _removed(
+        self,
+        ch: _Change,
+        t: float,
+        lo: np.ndarray,
+        occ_map: OccupancyMap,
+        dt: float = 0.0,
+        in_view: np.ndarray | None = None,
+    ) -> None:
         """A removed obstacle's voxels (log-odds ``lo`` (M,) now): a voxel's clock starts at its
         first miss (the cameras saw through it) and stops when it is free; a hit before it is
-        free (a mover passing, a stray match) stops the clock until the next miss."""
+        free (a mover passing, a stray match) stops the clock until the next miss. With
+        ``in_view`` (M,) bool (this cycle), the clock's time in view is kept too: the last
+        cycle's ``dt`` seconds count when the voxel is in view now."""
         if len(ch.last_log_odds) != len(lo):  # the first cycle: every voxel at the prior's belief
             ch.last_log_odds = np.full(len(lo), PRIOR_OCCUPIED_LOG_ODDS, np.float32)
             ch.touched_s = np.full(len(lo), np.nan)
             ch.freed_s = np.full(len(lo), np.nan)
+            ch.seen_s = np.zeros(len(lo))
+            ch.freed_seen_s = np.full(len(lo), np.nan)
         last = ch.last_log_odds
         l_hit = np.float32(occ_map.config.log_odds[0])
         with np.errstate(invalid="ignore"):
@@ -258,10 +302,16 @@ class WorldMonitor:
             free = lo < 0.0
         ch.last_log_odds = lo.astype(np.float32)
         open_ = np.isnan(ch.freed_s)
+        running = open_ & ~np.isnan(ch.touched_s)
+        if in_view is not None:  # in view over the last cycle, as for an added obstacle
+            ch.seen_s[running & in_view] += dt
         ch.touched_s[hit & open_] = np.nan
+        ch.seen_s[hit & open_] = 0.0
         measured = open_ & ~hit & (miss | free)
         ch.touched_s[measured & np.isnan(ch.touched_s)] = t
         ch.freed_s[measured & free] = t
+        if in_view is not None:
+            ch.freed_seen_s[measured & free] = ch.seen_s[measured & free]
 
     def _mover_swept(self, voxels: np.ndarray, end_time_s: float) -> np.ndarray:
         """(K,) bool: which of the voxels (K, 3) (integer indices) a mover came within one voxel
@@ -360,12 +410,19 @@ class WorldMonitor:
                 row["free_delay_s_max"] = round(float(np.max(delays)), 3) if len(delays) else None
                 late = judged & (delay > 2.0 + 1e-6)
                 row["freed_after_2s_voxels"] = int(np.count_nonzero(late))
-                if late.any():  # where they lie (up to 10): centre, metres from today's city, delay
+                seen = ch.freed_seen_s[freed] if len(ch.freed_seen_s) else np.full(len(freed), np.nan)
+                if judged.any() and not np.isnan(seen[judged]).all():
+                    # the same clock counting only the time the voxel was in view
+                    row["free_in_view_s_p95"] = round(float(np.nanpercentile(seen[judged], 95)), 3)
+                    row["free_in_view_s_max"] = round(float(np.nanmax(seen[judged])), 3)
+                    row["freed_after_2s_in_view_voxels"] = int(np.count_nonzero(seen[judged] > 2.0 + 1e-6))
+                if late.any():  # where they lie (up to 10): centre, metres from today's city, delay,
+                    # seconds of it in view
                     centres = (ch.voxels[freed[late][:10]] + 0.5) * self.v
                     dist = self.static.distance(centres, include_ground=True)
                     row["freed_after_2s_detail"] = [
-                        [*np.round(c, 2).tolist(), round(float(d), 2), round(float(x), 2)]
-                        for c, d, x in zip(centres, dist, delay[late][:10])
+                        [*np.round(c, 2).tolist(), round(float(d), 2), round(float(x), 2), _r(y)]
+                        for c, d, x, y in zip(centres, dist, delay[late][:10], seen[late][:10])
                     ]
             changes.append(row)
         out["changes_seen"] = changes
