@@ -121,7 +121,7 @@ def totals(rows: list[dict]) -> dict:
     gone_view = [r["removed_in_view_s"] for r in rows if r.get("removed_in_view_s") is not None]
     late_view = sum(r.get("removed_late_in_view_voxels") or 0 for r in rows)
     touched = sum(r.get("removed_touched_voxels") or 0 for r in rows)
-    swept = sum(r.get("removed_mover_swept_voxels") or 0 for r in rows)
+    mover_swept = sum(r.get("removed_mover_swept_voxels") or 0 for r in rows)
     p99 = [r["loop_ms_p99"] for r in rows if r["loop_ms_p99"] is not None]
     p50 = [r["loop_ms_p50"] for r in rows if r["loop_ms_p50"] is not None]
     cm = [r["min_clearance_moving_m"] for r in rows if r["min_clearance_moving_m"] is not None]
@@ -164,7 +164,7 @@ def totals(rows: list[dict]) -> dict:
         "removed_freed_in_view_s_worst": max(gone_view) if gone_view else None,
         "removed_voxels_freed_after_2s_in_view": late_view,
         "removed_voxels_touched": touched,
-        "removed_voxels_left_out_mover_swept": swept,
+        "removed_voxels_left_out_mover_swept": mover_swept,
         "loop_ms_p50_median": float(np.median(p50)) if p50 else None,
         "loop_ms_p99_worst": max(p99) if p99 else None,
         "loop_ms_p99_median": float(np.median(p99)) if p99 else None,
