@@ -69,9 +69,10 @@ class _Timeline:
         return out
 
 
-def _removed_stack_monitor() -> tuple[WorldMonitor, _Timeline]:
+def _removed_stack_monitor(view=None) -> tuple[WorldMonitor, _Timeline]:
     """A monitor of a removed box of four voxels whose log-odds follow the steps below, flown
-    for 4 s at 10 Hz (the steps: see the next test's docstring)."""
+    for 4 s at 10 Hz (the steps: see the next test's docstring); ``view(t)``, if given, is the
+    render the monitor gets at t."""
     box = np.array([0.0, 0.0, 0.0, 2.0, 0.5, 0.5])  # four voxels along x
     city = SimpleNamespace(boxes=np.zeros((0, 6)))
     change = SimpleNamespace(kind="removed", name="container stack", box=box)
@@ -96,7 +97,7 @@ def _removed_stack_monitor() -> tuple[WorldMonitor, _Timeline]:
     blank = np.zeros((48, 64), np.int32)
     for k in range(40):
         occ.t = 0.1 * k
-        mon.observe(occ.t, np.zeros(3), blank, None, [], occ, None)
+        mon.observe(occ.t, np.zeros(3), blank, None, [], occ, None, None if view is None else view(occ.t))
     return mon, occ
 
 
@@ -135,39 +136,17 @@ def test_a_removed_obstacle_s_clock_in_view_counts_only_the_cycles_it_was_seen()
     of them: 0.3 s of its 0.6 s. Voxel 1 (1.0-1.5 s): 0.2 s. Voxel 0 (freed at once): 0 s."""
     from skyrecon.core import Intrinsics, Rigid3
 
-    box = np.array([0.0, 0.0, 0.0, 2.0, 0.5, 0.5])
-    city = SimpleNamespace(boxes=np.zeros((0, 6)))
-    change = SimpleNamespace(kind="removed", name="container stack", box=box)
-    mon = WorldMonitor(SimpleNamespace(movers=None, city=city, changes=[change]), 0.5, 17.0)
-    vox = mon.changes[0].voxels
-    l_hit, l_miss = (float(x) for x in MapConfig().log_odds[:2])
-    order = [int(np.flatnonzero(vox[:, 0] == i)[0]) for i in range(4)]
-    steps = {
-        order[0]: [(1.0, l_miss)],
-        order[1]: [(1.0, PRIOR_OCCUPIED_LOG_ODDS + l_miss), (1.5, PRIOR_OCCUPIED_LOG_ODDS + 3 * l_miss)],
-        order[2]: [
-            (1.0, l_hit),
-            (1.2, l_hit + l_miss),
-            (1.4, 2 * l_hit + l_miss),
-            (2.0, 2 * l_hit + 2 * l_miss),
-            (2.6, 2 * l_hit + 5 * l_miss),
-        ],
-    }
-    occ = _Timeline(vox, steps, 0.5)
     # a camera 10 m in front of the voxels (at y = -10 looking along +y), all in its image
     R = np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]])  # camera x = world x, y = -z, z = y
-    cam_from_world = Rigid3(R, -R @ np.array([1.0, -10.0, 0.25]))
-    intr = Intrinsics.from_fov(64, 48, 90.0)
-    open_view = SimpleNamespace(
-        cam_from_world=cam_from_world, intrinsics=intr, depth_m=np.full((48, 64), np.nan)
+    pose = dict(
+        cam_from_world=Rigid3(R, -R @ np.array([1.0, -10.0, 0.25])),
+        intrinsics=Intrinsics.from_fov(64, 48, 90.0),
     )
-    wall = SimpleNamespace(cam_from_world=cam_from_world, intrinsics=intr, depth_m=np.full((48, 64), 5.0))
-    blank = np.zeros((48, 64), np.int32)
-    for k in range(40):
-        occ.t = 0.1 * k
-        hidden = 1.3 - 1e-9 <= occ.t <= 2.3 + 1e-9
-        mon.observe(occ.t, np.zeros(3), blank, None, [], occ, None, wall if hidden else open_view)
+    open_view = SimpleNamespace(depth_m=np.full((48, 64), np.nan), **pose)
+    wall = SimpleNamespace(depth_m=np.full((48, 64), 5.0), **pose)
+    mon, occ = _removed_stack_monitor(lambda t: wall if 1.3 - 1e-9 <= t <= 2.3 + 1e-9 else open_view)
     ch = mon.changes[0]
+    order = [int(np.flatnonzero(ch.voxels[:, 0] == i)[0]) for i in range(4)]
     assert ch.freed_seen_s[order[0]] == 0.0
     assert abs(ch.freed_seen_s[order[1]] - 0.2) < 1e-9
     assert abs(ch.freed_seen_s[order[2]] - 0.3) < 1e-9
