@@ -190,3 +190,32 @@ def test_row_fill_matches_the_plain_reference():
     )
     # float32 in the kernel, NumPy scalars here: the same sums, rounded alike to a few ulps
     np.testing.assert_allclose(outf, reff, rtol=1e-5)
+
+
+def test_the_post_processing_split_over_threads_changes_nothing():
+    """The median filter and the guided fill's first and last steps on bands of rows in
+    parallel: the same output as on one thread."""
+    import cv2
+
+    from skyrecon.stereo.sgm import _median_blur
+
+    rng = np.random.default_rng(3)
+    img = rng.integers(-2000, 2000, (400, 400)).astype(np.int16)  # two bands of 65536+ pixels
+    np.testing.assert_array_equal(_median_blur(img, 5, 2), cv2.medianBlur(img, 5))
+    np.testing.assert_array_equal(_median_blur(img, 3, 4), cv2.medianBlur(img, 3))
+    # occluded strips between foreground blocks, tiled over a map big enough for threads
+    s = 32
+    fixed = np.full((400, 400), 5 * s, np.int16)
+    guide = np.full((400, 400, 1), 100, np.uint8)
+    for y0 in range(10, 390, 40):
+        for x0 in range(10, 390, 60):
+            fixed[y0 : y0 + 20, x0 : x0 + 20] = 40 * s
+            fixed[y0 : y0 + 20, x0 + 40 : x0 + 55] = 45 * s
+            fixed[y0 : y0 + 20, x0 + 20 : x0 + 40] = K.INVALID16
+            guide[y0 : y0 + 20, x0 : x0 + 20] = 200
+    filled = np.empty_like(fixed)
+    K.fill_background_fixed(fixed, filled, 0, 400, float(s), 0.0, 48, K.FILL_MAX_SLOPE)
+    one = SkyreconMatcher(64)._guided_fill(fixed, filled, guide, 32.0, 1, 1).copy()
+    two = SkyreconMatcher(64)._guided_fill(fixed, filled, guide, 32.0, 1, 2)
+    np.testing.assert_array_equal(one, two)
+    assert np.mean(one[10:30, 30:50] == 5 * s) > 0.9  # the strips took the background

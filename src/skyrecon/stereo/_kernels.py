@@ -1285,7 +1285,7 @@ GUIDE_DX = np.array([1, -1, 0, 0, 1, -1, 1, -1], np.int64)
 
 
 @njit(**_JIT)
-def guided_fill_targets(measured, row_filled, out, unit, gate, rowptr):
+def guided_fill_targets(measured, row_filled, out, unit, gate, rowptr, y0, y1):
     """First step of the guided fill: ``out`` = the measured map with the row fill in its
     holes; finds the invalid pixels whose row neighbours (the nearest valid pixels left and
     right) differ by more than ``gate`` pixels (a depth edge).
@@ -1299,19 +1299,22 @@ def guided_fill_targets(measured, row_filled, out, unit, gate, rowptr):
         out: (H, W) int16 result.
         unit: fixed-point value of one pixel of disparity; gate: pixels.
         rowptr: (H + 1,) int64 result: the computed targets of row y are
-            ``rowptr[y] .. rowptr[y + 1] - 1``.
+            ``rowptr[y] .. rowptr[y + 1] - 1``; written for rows ``y0 .. y1 - 1`` counting
+            from 0 at row y0 (threads take disjoint ranges of rows; the caller offsets the
+            later ranges and sets ``rowptr[H]``).
+        y0, y1: the rows done.
     Returns:
-        ((G,) int64 flat indices of the computed targets, ascending;
+        ((G,) int64 flat indices of the computed targets of the rows, ascending;
         (G2,) int64 flat indices of the other targets).
     """
     H, W = measured.shape
     gate_f = np.float32(gate * unit)
     right_v = np.empty(W, np.int16)
-    idx = np.empty(H * W, np.int64)
-    odd = np.empty(H * W, np.int64)
+    idx = np.empty((y1 - y0) * W, np.int64)
+    odd = np.empty((y1 - y0) * W, np.int64)
     G = 0
     G2 = 0
-    for y in range(H):
+    for y in range(y0, y1):
         rowptr[y] = G
         src = measured[y]
         rf = row_filled[y]
@@ -1338,7 +1341,6 @@ def guided_fill_targets(measured, row_filled, out, unit, gate, rowptr):
                 else:
                     odd[G2] = y * W + x
                     G2 += 1
-    rowptr[H] = G
     return idx[:G].copy(), odd[:G2].copy()
 
 

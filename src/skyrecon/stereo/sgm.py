@@ -74,6 +74,9 @@ _GUIDE_STEPS = 100
 #: the guided fill's directions go to several threads from this many targets per thread (a
 #: FlyingThings-style pair with 20000 targets: 15.7 -> 14.3 ms on 2 cores; from 1024 no faster)
 _GUIDE_TARGETS_PER_THREAD = 4096
+#: the guided fill's search for targets and its last step go to several threads from this many
+#: pixels per thread
+_GUIDE_PIXELS_PER_THREAD = 1 << 16
 
 
 #: edge-aware P2 reduction (``SkyreconSettings.p2_edge_alpha``) at full and at half resolution
@@ -262,6 +265,24 @@ def _run_all(tasks: list[Callable[[], Any]], max_workers: int | None = None) -> 
 
 def _bands(n_rows: int, parts: int) -> list[tuple[int, int]]:
     return [(n_rows * i // parts, n_rows * (i + 1) // parts) for i in range(parts)]
+
+
+def _median_blur(image: np.ndarray, ksize: int, nthreads: int) -> np.ndarray:
+    """``cv2.medianBlur`` (which runs on one thread) of an (H, W) image on bands of rows in
+    parallel, each with ``ksize // 2`` rows of its neighbours: the same result."""
+    H = image.shape[0]
+    parts = max(1, min(nthreads, image.size // _GUIDE_PIXELS_PER_THREAD, H // ksize))
+    if parts == 1:
+        return cv2.medianBlur(image, ksize)
+    out = np.empty_like(image)
+    r = ksize // 2
+
+    def band(a: int, b: int) -> None:
+        lo, hi = max(0, a - r), min(H, b + r)
+        out[a:b] = cv2.medianBlur(image[lo:hi], ksize)[a - lo : b - lo]
+
+    _run_all([partial(band, a, b) for a, b in _bands(H, parts)])
+    return out
 
 
 def _band_pairs(parts: int, nthreads: int) -> dict[int, tuple[threading.Barrier, bool, int]]:
@@ -579,7 +600,7 @@ class SkyreconMatcher:
                 K.fill_background_fixed(t, t2, 0, t.shape[0], *fill_args)
                 result = np.ascontiguousarray(t2.T)
             if s.median > 1:
-                result = cv2.medianBlur(result, int(s.median))
+                result = _median_blur(result, int(s.median), nthreads)
         keep = np.empty((0, 0), np.int16) if (s.fill or result is fixed) else fixed
         out = np.empty((H, W), np.float32)
         K.from_fixed(result, keep, np.float32(1.0 / fs), out, 0, H)
@@ -597,7 +618,20 @@ class SkyreconMatcher:
         H, W = fixed.shape
         out = self._buf("guided", (H, W), np.int16)
         rowptr = self._buf("rowptr", (H + 1,), np.int64)
-        targets, others = K.guided_fill_targets(fixed, filled, out, fs, _GUIDE_GATE / scale, rowptr)
+        rows = _bands(H, max(1, min(nthreads, H * W // _GUIDE_PIXELS_PER_THREAD)))
+        found: list[tuple[np.ndarray, np.ndarray]] = [(np.zeros(0, np.int64),) * 2] * len(rows)
+
+        def find(i: int, a: int, b: int) -> None:
+            found[i] = K.guided_fill_targets(fixed, filled, out, fs, _GUIDE_GATE / scale, rowptr, a, b)
+
+        _run_all([partial(find, i, a, b) for i, (a, b) in enumerate(rows)])
+        offset = 0  # each range's row pointers count from its start
+        for (a, b), (t, _) in zip(rows, found):
+            rowptr[a:b] += offset
+            offset += t.size
+        rowptr[H] = offset
+        targets = np.concatenate([t for t, _ in found])
+        others = np.concatenate([o for _, o in found])
         if targets.size == 0:
             return out
         nd = len(K.GUIDE_DY)
@@ -630,7 +664,9 @@ class SkyreconMatcher:
         done = self._buf("guided_done", (H, W), np.uint8)
         done[:] = 0
         done.reshape(-1)[targets] = 1
-        K.guided_fill_spread(others, done, out)
+        # each other target reads only computed pixels and writes only itself: any split works
+        spread = _bands(others.size, len(rows))
+        _run_all([partial(K.guided_fill_spread, others[a:b], done, out) for a, b in spread])
         return out
 
     def compute(self, left: np.ndarray, right: np.ndarray) -> DisparityResult:
