@@ -147,9 +147,9 @@ def test_a_removed_obstacle_s_clock_in_view_counts_only_the_cycles_it_was_seen()
     mon, occ = _removed_stack_monitor(lambda t: wall if 1.3 - 1e-9 <= t <= 2.3 + 1e-9 else open_view)
     ch = mon.changes[0]
     order = [int(np.flatnonzero(ch.voxels[:, 0] == i)[0]) for i in range(4)]
-    assert ch.freed_seen_s[order[0]] == 0.0
-    assert abs(ch.freed_seen_s[order[1]] - 0.2) < 1e-9
-    assert abs(ch.freed_seen_s[order[2]] - 0.3) < 1e-9
+    assert ch.seen_s[order[0]] == 0.0
+    assert abs(ch.seen_s[order[1]] - 0.2) < 1e-9
+    assert abs(ch.seen_s[order[2]] - 0.3) < 1e-9
     row = mon.summary(occ, 4.0, None)["changes_seen"][0]
     assert row["free_delay_s_max"] == 0.6 and row["free_in_view_s_max"] == 0.3
     assert row["freed_after_2s_in_view_voxels"] == 0

@@ -152,6 +152,7 @@ def test_band_pairs_stay_within_a_wave():
     assert pairs(4, 1) == []
     p = _band_pairs(2, 2)
     assert p[0][0] is p[1][0] and p[1][2] == 0  # one barrier; the lower band knows the upper
+    assert p[0][2] == 1  # and the upper the lower
 
 
 def test_a_failing_band_does_not_leave_its_pair_waiting(sim_frame, monkeypatch):

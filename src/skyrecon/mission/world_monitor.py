@@ -100,10 +100,10 @@ class _Change:
     touched_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
     freed_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
     last_log_odds: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
-    # per voxel (M,): seconds in view while its clock ran (reset with the clock), and (NaN: not
-    # measured) those seconds when it was freed
+    # per voxel (M,): seconds in view while its clock ran (reset with the clock, kept once
+    # freed); whether the monitor was given views to tell
     seen_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    freed_seen_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    viewed: bool = False
 
 
 class WorldMonitor:
@@ -292,7 +292,6 @@ class WorldMonitor:
             ch.touched_s = np.full(len(lo), np.nan)
             ch.freed_s = np.full(len(lo), np.nan)
             ch.seen_s = np.zeros(len(lo))
-            ch.freed_seen_s = np.full(len(lo), np.nan)
         last = ch.last_log_odds
         l_hit = np.float32(occ_map.config.log_odds[0])
         with np.errstate(invalid="ignore"):
@@ -305,13 +304,12 @@ class WorldMonitor:
         running = open_ & ~np.isnan(ch.touched_s)
         if in_view is not None:  # in view over the last cycle, as for an added obstacle
             ch.seen_s[running & in_view] += dt
+            ch.viewed = True
         ch.touched_s[hit & open_] = np.nan
         ch.seen_s[hit & open_] = 0.0
         measured = open_ & ~hit & (miss | free)
         ch.touched_s[measured & np.isnan(ch.touched_s)] = t
         ch.freed_s[measured & free] = t
-        if in_view is not None:
-            ch.freed_seen_s[measured & free] = ch.seen_s[measured & free]
 
     def _mover_swept(self, voxels: np.ndarray, end_time_s: float) -> np.ndarray:
         """(K,) bool: which of the voxels (K, 3) (integer indices) a mover came within one voxel
@@ -410,11 +408,11 @@ class WorldMonitor:
                 row["free_delay_s_max"] = round(float(np.max(delays)), 3) if len(delays) else None
                 late = judged & (delay > 2.0 + 1e-6)
                 row["freed_after_2s_voxels"] = int(np.count_nonzero(late))
-                seen = ch.freed_seen_s[freed] if len(ch.freed_seen_s) else np.full(len(freed), np.nan)
-                if judged.any() and not np.isnan(seen[judged]).all():
+                seen = ch.seen_s[freed] if ch.viewed else np.full(len(freed), np.nan)
+                if judged.any() and ch.viewed:
                     # the same clock counting only the time the voxel was in view
-                    row["free_in_view_s_p95"] = round(float(np.nanpercentile(seen[judged], 95)), 3)
-                    row["free_in_view_s_max"] = round(float(np.nanmax(seen[judged])), 3)
+                    row["free_in_view_s_p95"] = round(float(np.percentile(seen[judged], 95)), 3)
+                    row["free_in_view_s_max"] = round(float(np.max(seen[judged])), 3)
                     row["freed_after_2s_in_view_voxels"] = int(np.count_nonzero(seen[judged] > 2.0 + 1e-6))
                 if late.any():  # where they lie (up to 10): centre, metres from today's city, delay,
                     # seconds of it in view

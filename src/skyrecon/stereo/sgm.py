@@ -74,9 +74,9 @@ _GUIDE_STEPS = 100
 #: the guided fill's directions go to several threads from this many targets per thread (a
 #: FlyingThings-style pair with 20000 targets: 15.7 -> 14.3 ms on 2 cores; from 1024 no faster)
 _GUIDE_TARGETS_PER_THREAD = 4096
-#: the guided fill's search for targets and its last step go to several threads from this many
-#: pixels per thread
-_GUIDE_PIXELS_PER_THREAD = 1 << 16
+#: whole-image post-processing steps (the guided fill's search for targets and its last step,
+#: the median filter) go to several threads from this many pixels per thread
+_POST_PIXELS_PER_THREAD = 1 << 16
 
 
 #: edge-aware P2 reduction (``SkyreconSettings.p2_edge_alpha``) at full and at half resolution
@@ -271,7 +271,7 @@ def _median_blur(image: np.ndarray, ksize: int, nthreads: int) -> np.ndarray:
     """``cv2.medianBlur`` (which runs on one thread) of an (H, W) image on bands of rows in
     parallel, each with ``ksize // 2`` rows of its neighbours: the same result."""
     H = image.shape[0]
-    parts = max(1, min(nthreads, image.size // _GUIDE_PIXELS_PER_THREAD, H // ksize))
+    parts = max(1, min(nthreads, image.size // _POST_PIXELS_PER_THREAD, H // ksize))
     if parts == 1:
         return cv2.medianBlur(image, ksize)
     out = np.empty_like(image)
@@ -290,14 +290,14 @@ def _band_pairs(parts: int, nthreads: int) -> dict[int, tuple[threading.Barrier,
     phases 1 and 2, exact there, no warm-up margin): bands 2j and 2j + 1 of each wave of
     ``nthreads`` bands that :func:`_run_all` runs at once (both halves must run together, as
     each waits for the other). Per band: (the pair's barrier, whether it is the upper band,
-    the index of the upper band)."""
+    the index of the other band)."""
     out: dict[int, tuple[threading.Barrier, bool, int]] = {}
     if nthreads < 2:
         return out
     for w in range(0, parts, nthreads):
         for i in range(w, min(w + nthreads, parts) - 1, 2):
             barrier = threading.Barrier(2)
-            out[i] = (barrier, True, i)
+            out[i] = (barrier, True, i + 1)
             out[i + 1] = (barrier, False, i)
     return out
 
@@ -551,13 +551,10 @@ class SkyreconMatcher:
             if pair is None:
                 K.sgm_band(*args, 0, False, no_hand)
             else:  # store, hand the state at the common edge over, select from the other's
-                barrier, _, first = pair
-                mine = self._buf(f"hand{i}", (hand_n,), np.int16)
-                K.sgm_band(*args, 1, upper, mine)
+                barrier, _, other = pair
+                K.sgm_band(*args, 1, upper, self._buf(f"hand{i}", (hand_n,), np.int16))
                 barrier.wait()
-                K.sgm_band(
-                    *args, 2, upper, self._buf(f"hand{i + 1 if upper else first}", (hand_n,), np.int16)
-                )
+                K.sgm_band(*args, 2, upper, self._buf(f"hand{other}", (hand_n,), np.int16))
             t2 = time.perf_counter()
             if fs is not None:
                 K.to_fixed(disp, np.float32(fs), fixed, a, b)
@@ -618,7 +615,7 @@ class SkyreconMatcher:
         H, W = fixed.shape
         out = self._buf("guided", (H, W), np.int16)
         rowptr = self._buf("rowptr", (H + 1,), np.int64)
-        rows = _bands(H, max(1, min(nthreads, H * W // _GUIDE_PIXELS_PER_THREAD)))
+        rows = _bands(H, max(1, min(nthreads, H * W // _POST_PIXELS_PER_THREAD)))
         found: list[tuple[np.ndarray, np.ndarray]] = [(np.zeros(0, np.int64),) * 2] * len(rows)
 
         def find(i: int, a: int, b: int) -> None:
