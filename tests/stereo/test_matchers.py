@@ -140,6 +140,22 @@ def test_paired_bands_aggregate_exactly_like_one_band(sim_frame, kw):
         assert same.all()
 
 
+@pytest.mark.parametrize("P2", [100, 224])  # the default; the largest that fits 8 bits (31-bit census)
+def test_path_states_in_8_bits_match_16_bits(sim_frame, monkeypatch, P2):
+    """Path states are stored in 8 bits when they fit (a state is at most the matching cost
+    plus the jump penalty above its predecessor's minimum): the disparities are exactly those
+    of 16-bit states, up to the largest penalty that fits."""
+    from skyrecon.stereo import sgm
+
+    assert K.states_fit_uint8(31, 5, P2)
+    assert not K.states_fit_uint8(31, 5, P2 + 1) or P2 < 224
+    assert not K.states_fit_uint8(32, 5, 224) and not K.states_fit_uint8(31, 230, 200)
+    d8 = create_matcher("skyrecon", 64, P2=P2).compute(sim_frame.left, sim_frame.right)
+    monkeypatch.setattr(sgm.K, "states_fit_uint8", lambda *a: False)
+    d16 = create_matcher("skyrecon", 64, P2=P2).compute(sim_frame.left, sim_frame.right)
+    np.testing.assert_array_equal(d8.disparity, d16.disparity)
+
+
 def test_band_pairs_stay_within_a_wave():
     from skyrecon.stereo.sgm import _band_pairs
 

@@ -140,9 +140,9 @@ def _sweep_block(
     Output, plane k of this block at ``s_out[s_base + k * s_ks + lane]``:
         without ``select``, the sum of the paths (uint16, or uint8 saturated at 255); with
         ``select``, that sum plus the other sweep's ``other[o_base + k * o_ks + lane]`` (uint8
-        or uint16), into a uint16 ``s_out``, and the winner-takes-all state of the
-        total goes to ``sel_out`` (4, wp) uint16 at column x0: minimum, its plane (lowest on
-        ties), and the totals at the planes before and after it (0xFFFF at the ends).
+        or uint16), into a uint16 ``s_out`` (0xFFFF in the lanes of columns ``>= W``), and
+        the winner-takes-all state of the total goes to rows 0 and 1 of ``sel_out`` (4, wp)
+        uint16 at column x0: the minimum and its plane (lowest on ties).
     """
     if not isinstance(offsets, types.UniTuple):
         return None
@@ -206,6 +206,13 @@ def _sweep_block(
         crp = _data(context, builder, t[1], cr_v)
         pp = _data(context, builder, t[8], sp_v)
         cu = _data(context, builder, t[9], sc_v)
+        st_u8 = t[8].dtype == types.uint8  # path states stored in 8 bits (computed in 16)
+
+        def st_load(idx):
+            if st_u8:
+                return builder.zext(_vload(builder, pp, idx, _V8), _V16)
+            return _vload(builder, pp, idx, _V16)
+
         qp = _data(context, builder, t[11], q_v)
         mp = _data(context, builder, t[12], m_v)
         mnp = _data(context, builder, t[13], mn_v)
@@ -249,8 +256,8 @@ def _sweep_block(
             a = cgutils.alloca_once(builder, _V16)
             b = cgutils.alloca_once(builder, _V16)
             m = cgutils.alloca_once(builder, _V16)
-            builder.store(_vload(builder, pp, bp, _V16), a)
-            builder.store(_vload(builder, pp, builder.add(bp, ks), _V16), b)
+            builder.store(st_load(bp), a)
+            builder.store(st_load(builder.add(bp, ks)), b)
             builder.store(ir.Constant(_V16, [BIG] * LANES), m)
             am_s.append(a)
             ac_s.append(b)
@@ -268,13 +275,16 @@ def _sweep_block(
             for p in range(n):
                 am = builder.load(am_s[p])
                 ac = builder.load(ac_s[p])
-                ap = _vload(
-                    builder, pp, builder.add(base_prev[p], builder.mul(builder.add(k, two), ks)), _V16
-                )
+                ap = st_load(builder.add(base_prev[p], builder.mul(builder.add(k, two), ks)))
                 tt = builder.add(_smin(builder, am, ap), p1)
                 tt = _smin(builder, _smin(builder, ac, tt), Qs[p])
                 v = builder.sub(builder.add(c, tt), Ms[p])
-                _vstore(builder, v, cu, builder.add(base_cur[p], builder.mul(builder.add(k, one), ks)))
+                _vstore(
+                    builder,
+                    builder.trunc(v, _V8) if st_u8 else v,
+                    cu,
+                    builder.add(base_cur[p], builder.mul(builder.add(k, one), ks)),
+                )
                 builder.store(_smin(builder, builder.load(mn_s[p]), v), mn_s[p])
                 builder.store(ac, am_s[p])
                 builder.store(ap, ac_s[p])
@@ -284,9 +294,10 @@ def _sweep_block(
         selb = builder.icmp_signed("!=", sel_v, ir.Constant(sel_v.type, 0))
         with builder.if_else(selb) as (then, otherwise):
             with then:
-                slots = [cgutils.alloca_once(builder, _V16) for _ in range(5)]  # best arg cm1 cp1 tprev
-                for sl, init in zip(slots, (MAXV, ir.Constant(_V16, [0] * LANES), MAXV, MAXV, MAXV)):
-                    builder.store(init, sl)
+                best_s = cgutils.alloca_once(builder, _V16)
+                arg_s = cgutils.alloca_once(builder, _V16)
+                builder.store(MAXV, best_s)
+                builder.store(ir.Constant(_V16, [0] * LANES), arg_s)
                 with cgutils.for_range(builder, D) as loop:
                     k = loop.index
                     oidx = builder.add(o_base, builder.mul(k, o_ks))
@@ -295,24 +306,19 @@ def _sweep_block(
                     else:
                         oval = _vload(builder, otp, oidx, _V16)
                     tot = builder.add(path_step(k), oval)
-                    _vstore(builder, tot, sop, builder.add(s_base, builder.mul(k, s_ks)))
-                    kv = _splat(builder, builder.trunc(k, _I16), _V16)
-                    km1 = _splat(builder, builder.trunc(builder.sub(k, one), _I16), _V16)
-                    best = builder.load(slots[0])
-                    arg = builder.load(slots[1])
-                    lt = builder.icmp_unsigned("<", tot, best)
-                    isnext = builder.icmp_signed("==", arg, km1)
-                    builder.store(builder.select(isnext, tot, builder.load(slots[3])), slots[3])
-                    builder.store(
-                        builder.select(lt, builder.load(slots[4]), builder.load(slots[2])), slots[2]
+                    # columns beyond the image hold 0xFFFF: the right view's search skips them
+                    _vstore(
+                        builder,
+                        builder.select(in_img, tot, MAXV),
+                        sop,
+                        builder.add(s_base, builder.mul(k, s_ks)),
                     )
-                    builder.store(builder.select(lt, tot, best), slots[0])
-                    builder.store(builder.select(lt, kv, arg), slots[1])
-                    builder.store(tot, slots[4])
-                last = _splat(builder, builder.trunc(builder.sub(D, one), _I16), _V16)
-                arg = builder.load(slots[1])
-                cp1 = builder.select(builder.icmp_signed("==", arg, last), MAXV, builder.load(slots[3]))
-                for i, val in enumerate((builder.load(slots[0]), arg, builder.load(slots[2]), cp1)):
+                    best = builder.load(best_s)
+                    lt = builder.icmp_unsigned("<", tot, best)
+                    builder.store(builder.select(lt, tot, best), best_s)
+                    kv = _splat(builder, builder.trunc(k, _I16), _V16)
+                    builder.store(builder.select(lt, kv, builder.load(arg_s)), arg_s)
+                for i, val in enumerate((builder.load(best_s), builder.load(arg_s))):
                     _vstore(builder, val, selp, builder.add(builder.mul(ir.Constant(_I64, i), wp), x0))
             with otherwise:
                 with cgutils.for_range(builder, D) as loop:
@@ -332,7 +338,8 @@ def _sweep_block(
 @intrinsic
 def _select_block_second(typingctx, Sa, base, wp, D, x0, arg, second):
     """For the 32 columns ``x0 ..``: the minimum of ``Sa`` over planes not adjacent to ``arg``
-    (the uniqueness test's runner-up). Element (k, x) at ``base + k * wp + x``."""
+    (the uniqueness test's runner-up). Element (k, x) at ``base + k * wp + x`` (``wp``: the
+    row stride)."""
     sig = types.void(Sa, base, wp, D, x0, arg, second)
 
     def codegen(context, builder, signature, args):
@@ -365,48 +372,41 @@ def _select_block_second(typingctx, Sa, base, wp, D, x0, arg, second):
 
 
 @intrinsic
-def _select_block_right(typingctx, Sa, base, wp, D, xr0, dmin, W, rbest, rarg):
+def _select_block_right(typingctx, Sa, base, ts, D, xr0, dmin, rbest, rarg):
     """Right-view winner-takes-all for the right pixels ``xr0 .. xr0 + 31`` of one row.
 
     The right pixel xr sees, on plane k, the left pixel ``x = xr + dmin + k``, whose cost
-    ``Sa`` holds at ``base + k * wp + x`` (a diagonal of the (k, x) buffer); planes where x falls outside
-    ``0 .. W - 1`` are skipped. The buffers need ``2 * wp`` elements of slack on each side.
-    Writes ``rbest`` and ``rarg`` (0xFFFF when no plane is valid) at ``xr0 ..``.
+    ``Sa`` holds at ``base + k * ts + x`` (a diagonal of the (k, x) buffer of row stride ts).
+    Planes where x falls outside the image must read 0xFFFF there (the buffer's padding: see
+    ``total_stride``). Writes ``rbest`` and ``rarg`` (0xFFFF when no plane is valid) at
+    ``xr0 ..``.
     """
-    sig = types.void(Sa, base, wp, D, xr0, dmin, W, rbest, rarg)
+    sig = types.void(Sa, base, ts, D, xr0, dmin, rbest, rarg)
 
     def codegen(context, builder, signature, args):
-        (a_v, base_v, wp_v, d_v, xr0_v, dmin_v, w_v, rb_v, ra_v) = args
+        (a_v, base_v, ts_v, d_v, xr0_v, dmin_v, rb_v, ra_v) = args
         t = signature.args
         ap = _data(context, builder, t[0], a_v)
-        rbp = _data(context, builder, t[7], rb_v)
-        rap = _data(context, builder, t[8], ra_v)
-        wp = _i64(builder, wp_v)
+        rbp = _data(context, builder, t[6], rb_v)
+        rap = _data(context, builder, t[7], ra_v)
+        ts = _i64(builder, ts_v)
         D = _i64(builder, d_v)
         xr0 = _i64(builder, xr0_v)
         x_first = builder.add(xr0, _i64(builder, dmin_v))  # left x of lane 0 on plane 0
         base = builder.add(_i64(builder, base_v), x_first)
-        step = builder.add(wp, ir.Constant(_I64, 1))
+        step = builder.add(ts, ir.Constant(_I64, 1))
         MAXV = ir.Constant(_V16, [0xFFFF] * LANES)
-        lanes = ir.Constant(_V16, list(range(LANES)))
-        x0v = builder.add(_splat(builder, builder.trunc(x_first, _I16), _V16), lanes)
-        Wv = _splat(builder, builder.trunc(_i64(builder, w_v), _I16), _V16)
-        zero = ir.Constant(_V16, [0] * LANES)
         best_s = cgutils.alloca_once(builder, _V16)
         arg_s = cgutils.alloca_once(builder, _V16)
         builder.store(MAXV, best_s)
         builder.store(MAXV, arg_s)
         with cgutils.for_range(builder, D) as loop:
             k = loop.index
-            idx = builder.add(base, builder.mul(k, step))
-            tt = _vload(builder, ap, idx, _V16)
-            kv = _splat(builder, builder.trunc(k, _I16), _V16)
-            xv = builder.add(x0v, kv)
-            ok = builder.and_(builder.icmp_signed(">=", xv, zero), builder.icmp_signed("<", xv, Wv))
-            tt = builder.select(ok, tt, MAXV)
+            tt = _vload(builder, ap, builder.add(base, builder.mul(k, step)), _V16)
             best = builder.load(best_s)
             lt = builder.icmp_unsigned("<", tt, best)
             builder.store(builder.select(lt, tt, best), best_s)
+            kv = _splat(builder, builder.trunc(k, _I16), _V16)
             builder.store(builder.select(lt, kv, builder.load(arg_s)), arg_s)
         _vstore(builder, builder.load(best_s), rbp, xr0)
         _vstore(builder, builder.load(arg_s), rap, xr0)
@@ -490,7 +490,7 @@ def _sweep_row(
     restart,
     s_out,
     s_base,
-    block_major,
+    s_stride,
     other,
     o_base,
     o_block_major,
@@ -505,7 +505,9 @@ def _sweep_row(
     ``W`` is the real image width, ``wp`` (the length of ``cl``) the padded one. The jump
     penalty is ``max(P1 + 1, P2 / (1 + alpha * |I(p) - I(p - r)|))``. A flat cost-sum buffer
     is either block-major (block b, plane k, lane at ``base + (b * D + k) * 32 + lane``) or
-    row-major (plane k, column x at ``base + k * wp + x``).
+    row-major (plane k, column x at ``base + k * stride + x``): ``s_stride`` 0 makes ``s_out``
+    block-major, a positive one row-major with that stride (``other`` is block-major when
+    ``o_block_major``, else row-major with stride ``wp``).
     """
     wp = cl.shape[0]
     n = len(offsets)
@@ -544,10 +546,10 @@ def _sweep_row(
             for x in range(xb, wp):
                 qrow[x] = np.int16(mrow[x] + np.int16(P2))
     for x0 in range(0, wp, LANES):
-        if block_major:
+        if s_stride == 0:
             sb, sks = s_base + x0 * D, LANES
         else:
-            sb, sks = s_base + x0, wp
+            sb, sks = s_base + x0, s_stride
         if o_block_major:
             ob, oks = o_base + x0 * D, LANES
         else:
@@ -592,28 +594,43 @@ def _sweep_row(
 
 
 @njit(inline="always")
+def total_stride(wp: int, dmin: int, dmax: int) -> int:
+    """Row stride of the selecting sweep's (D + 4, stride) uint16 total-cost buffer: ``wp``
+    plus padding of 0xFFFF wide enough that every read of the right view's diagonal search
+    (left columns ``dmin - 1 .. wp - 2 + dmax``) outside ``0 .. wp - 1`` falls in padding."""
+    extra = max(dmax, -dmin, 0)
+    return wp + -(-extra // LANES) * LANES
+
+
+@njit(inline="always")
 def _select_row(total, W, dmin, uniqueness, subpixel, lr_max_diff, sel, second, rbest, rarg, disp, right):
     """Finish the disparity selection of one row: right view, uniqueness, sub-pixel, LR check.
 
     Args:
-        total: (D + 4, wp) uint16 total costs with plane k in row k + 2 (two rows of slack on
-            each side for the right view's diagonal reads).
-        sel: (4, wp) uint16 left winner-takes-all state from the sweep (best, arg, cm1, cp1).
+        total: (D + 4, ts) uint16 total costs with plane k in row k + 2 (two rows of 0xFFFF
+            on each side) and 0xFFFF in the columns from ``W`` (ts: :func:`total_stride`).
+        sel: (4, wp) uint16 left winner-takes-all state from the sweep (best, arg); rows 2 and
+            3 receive the totals at the planes before and after the best (0xFFFF at the ends).
         second, rbest, rarg: (wp,) uint16 scratch.
         disp: (W,) float32 output, NaN where rejected; right: (W,) int32 right disparities.
     """
     D = total.shape[0] - 4
-    wp = total.shape[1]
+    ts = total.shape[1]
+    wp = sel.shape[1]
     tf = total.reshape(-1)
     best = sel[0]
     arg = sel[1]
     cm1 = sel[2]
     cp1 = sel[3]
+    for x in range(W):  # the neighbouring planes' totals (rows arg + 1 and arg + 3)
+        i = (np.int64(arg[x]) + 1) * ts + x
+        cm1[x] = tf[i]
+        cp1[x] = tf[i + 2 * ts]
     want_second = uniqueness > 0.0
     for x0 in range(0, wp, LANES):
-        _select_block_right(tf, 2 * wp, wp, D, x0, dmin, W, rbest, rarg)
+        _select_block_right(tf, 2 * ts, ts, D, x0, dmin, rbest, rarg)
         if want_second:
-            _select_block_second(tf, 2 * wp, wp, D, x0, arg, second)
+            _select_block_second(tf, 2 * ts, ts, D, x0, arg, second)
     for xr in range(W):
         r = np.int32(rarg[xr])
         right[xr] = r + dmin if r != 0xFFFF else INVALID_RIGHT
@@ -848,15 +865,27 @@ def _horizontal_paths(
                 s_out[i] = np.uint8(min(v, 255))
 
 
-def band_workspace_sizes(D: int, wp: int, n: int, horizontal: bool = False) -> tuple[int, int, int]:
-    """Elements of the int16, uint16 and uint8 workspaces ``sgm_band`` needs for D planes,
-    padded width wp and n paths per sweep."""
-    n16 = 2 * n * (D + 2) * (wp + 2) + 2 * n * (wp + 2) + 2 * n * wp
+def band_workspace_sizes(
+    D: int, wp: int, n: int, horizontal: bool = False, dmin: int = 0
+) -> tuple[int, int, int, int]:
+    """Elements of the path-state, int16, uint16 and uint8 workspaces ``sgm_band`` needs for D
+    planes from ``dmin``, padded width wp and n paths per sweep."""
+    n_state = 2 * n * (D + 2) * (wp + 2)
+    n16 = 2 * n * (wp + 2) + 2 * n * wp
     n8 = D * wp
     if horizontal:  # one row's matching costs, left-to-right path costs, path sums; two path
         # states; penalties
         n8 += 3 * wp * D + 2 * (D + 2) + wp
-    return n16, (D + 4) * wp + 7 * wp, n8
+    return n_state, n16, (D + 4) * total_stride.py_func(wp, dmin, dmin + D) + 7 * wp, n8
+
+
+def states_fit_uint8(max_cost: int, P1: int, P2: float) -> bool:
+    """Whether the path states of ``sgm_band`` fit 8 bits: a state is at most the matching cost
+    plus the jump penalty above its predecessor's minimum (``max_cost + max(P1 + 1, P2)``).
+    Stored in 8 bits, the states of a 192-plane row of 1248 pixels (two rows, two paths) take
+    1 MB instead of 2 and stay in a 2 MB L2 cache: KITTI at 192 disparities 75 -> 36 ms of
+    aggregation per band (identical disparities)."""
+    return max_cost + max(P1 + 1, int(np.ceil(P2))) <= 255
 
 
 def handoff_size(D: int, wp: int, n: int) -> int:
@@ -893,6 +922,7 @@ def sgm_band(
     ws16,
     wsu16,
     ws8,
+    ws_state,
     phase,
     mirror,
     hand,
@@ -939,6 +969,8 @@ def sgm_band(
         right_out: (H, W) int32 integer right-view disparities (rows r0..r1-1).
         ws16, wsu16, ws8: preallocated int16 / uint16 / uint8 workspaces of at least
             :func:`band_workspace_sizes` elements (reused across frames).
+        ws_state: the path states' workspace (as many elements): uint8 when
+            :func:`states_fit_uint8` (half the memory traffic of the sweeps), else int16.
         phase: 0 both sweeps; 1 the storing sweep (and the horizontal paths); 2 the selecting
             sweep, from ``hand``.
         mirror: store downward and select upward (the upper band of a pair).
@@ -951,9 +983,10 @@ def sgm_band(
     P1 = np.int16(P1)
     n_st = 2 * n * (D + 2) * (wp + 2)
     n_state = n * (D + 2) * (wp + 2)
-    st = ws16[:n_st].reshape((2, n_state))
-    mins = ws16[n_st : n_st + 2 * n * (wp + 2)].reshape((2, n * (wp + 2)))
-    o = n_st + 2 * n * (wp + 2)
+    st = ws_state[:n_st].reshape((2, n_state))
+    big = min(np.iinfo(ws_state.dtype).max, BIG)
+    mins = ws16[: 2 * n * (wp + 2)].reshape((2, n * (wp + 2)))
+    o = 2 * n * (wp + 2)
     Q = ws16[o : o + n * wp]
     M = ws16[o + n * wp : o + 2 * n * wp]
     hs = wp * D if horizontal else 0  # the horizontal paths' uint8 buffers (none when off)
@@ -972,11 +1005,12 @@ def sgm_band(
         for p in range(n):
             base = p * (D + 2) * (wp + 2)
             for x in range(wp + 2):
-                st[a, base + x] = BIG
-                st[a, base + (D + 1) * (wp + 2) + x] = BIG
-    nt = (D + 4) * wp
-    total = wsu16[:nt].reshape((D + 4, wp))
-    total[:] = 0
+                st[a, base + x] = big
+                st[a, base + (D + 1) * (wp + 2) + x] = big
+    ts = total_stride(wp, dmin, dmin + D)
+    nt = (D + 4) * ts
+    total = wsu16[:nt].reshape((D + 4, ts))
+    total[:] = 0xFFFF
     sel = wsu16[nt : nt + 4 * wp].reshape((4, wp))
     second = wsu16[nt + 4 * wp : nt + 5 * wp]
     rbest = wsu16[nt + 5 * wp : nt + 6 * wp]
@@ -1019,7 +1053,7 @@ def sgm_band(
                 y == ystart,
                 band_flat if inside else scratch8,
                 (y - r0) * row_len if inside else 0,
-                True,
+                0,
                 scratch8,
                 0,
                 True,
@@ -1088,8 +1122,8 @@ def sgm_band(
             M,
             phase != 2 and y == ystart,
             total.reshape(-1),
-            2 * wp,
-            False,
+            2 * ts,
+            ts,
             band_flat if inside else scratch8,
             (y - r0) * row_len if inside else 0,
             True,

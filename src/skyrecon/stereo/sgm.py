@@ -8,7 +8,10 @@ Pipeline (grey images, see :func:`~skyrecon.stereo.base.prepare_pair`):
    matches falling outside the right image get a neutral cost so that smoothness decides;
 3. semi-global aggregation along 2, 4 (default: down, down-right and their opposites) or 6
    paths (plus the other diagonal pair), with the jump penalty P2 lowered at intensity
-   edges; these advance row by row, so one step is a vector operation over all columns.
+   edges; these advance row by row, so one step is a vector operation over all columns,
+   and the paths' states are stored in 8 bits when they fit (with the default penalties: the
+   two rows of states of a wide image with many disparities then stay in the L2 cache, which
+   halved the aggregation time on KITTI at 192 disparities).
    Optionally (``horizontal_paths``) also left-to-right and right-to-left along each row,
    for a camera looking down at plain ground: there the costs tie at every disparity, the
    paths coming down the image carry the disparity of what lies beyond the street (far
@@ -486,7 +489,12 @@ class SkyreconMatcher:
         span = int(s.fill_span) // scale
         fill_args = (float(fs or 1.0), float(dmin * (fs or 1.0)), span, K.FILL_MAX_SLOPE)
         task_ms: list[dict[str, float]] = [{} for _ in bands]
-        n16, nu16, n8 = K.band_workspace_sizes(D, wp, len(self._offsets), bool(s.horizontal_paths))
+        n_state, n16, nu16, n8 = K.band_workspace_sizes(
+            D, wp, len(self._offsets), bool(s.horizontal_paths), dmin
+        )
+        state_dtype = (
+            np.uint8 if K.states_fit_uint8(max(s.census_bits, self._ooi_cost), s.P1, s.P2) else np.int16
+        )
 
         slots: queue.SimpleQueue[int] = queue.SimpleQueue()
         for k in range(min(nthreads, parts)):
@@ -547,6 +555,7 @@ class SkyreconMatcher:
                 self._buf(f"w16@{tid}", (n16,), np.int16),
                 self._buf(f"wu16@{tid}", (nu16,), np.uint16),
                 self._buf(f"w8@{tid}", (n8,), np.uint8),
+                self._buf(f"state@{tid}", (n_state,), state_dtype),
             )
             if pair is None:
                 K.sgm_band(*args, 0, False, no_hand)
