@@ -1,5 +1,6 @@
 """Matchers on synthetic pairs with exact disparity: accuracy, interface, reuse."""
 
+import cv2
 import numpy as np
 import pytest
 
@@ -13,7 +14,7 @@ from skyrecon.stereo import (
     create_matcher,
 )
 from skyrecon.stereo import _kernels as K
-from tests.stereo.conftest import warp_pair
+from tests.stereo.conftest import random_texture, warp_pair
 
 INNER = (slice(8, -8), slice(40, -8))  # away from the borders and the left band without matches
 
@@ -278,3 +279,23 @@ def test_opencv_bm_prefilters(prefilter, slanted_pair):
     )
     r = m.compute(left, right)
     assert np.nanmedian(np.abs(r.disparity[INNER] - d[INNER])) < 0.5
+
+
+def test_left_band_restart_keeps_a_striped_surfaces_alias_out():
+    """A striped plane at 40 px disparity, plain noise texture from column 150 on: left of
+    column 40 its match lies outside the right image and its pixels take an alias of the
+    stripes (inside the right image). With the rightward diagonal paths restarted at the
+    largest disparity, as at the border, the alias no longer spreads into the matched part."""
+    H, W, d, pad = 160, 240, 40.0, 80
+    yy, xx = np.mgrid[0:H, 0 : W + 2 * pad].astype(np.float32)
+    stripes = 128 + 60 * np.sin(2 * np.pi * (xx * np.cos(0.2) + yy * np.sin(0.2)) / 18.0)
+    texture = np.where(xx < 150 + pad - d, stripes, random_texture(H, W + 2 * pad, 3)).astype(np.float32)
+    xs = np.arange(W, dtype=np.float32)[None, :].repeat(H, 0)
+    ys = np.arange(H, dtype=np.float32)[:, None].repeat(W, 1)
+    views = [cv2.remap(texture, xs - s + pad, ys, cv2.INTER_CUBIC) for s in (d, 0.0)]
+    left, right = (np.clip(v, 0, 255).round().astype(np.uint8) for v in views)
+    right_part = {}
+    for restart in (False, True):
+        disp = create_matcher("skyrecon", 48, left_band_restart=restart).compute(left, right).disparity
+        right_part[restart] = float((np.abs(disp[:, 48:150] - d) <= 1).mean())
+    assert right_part[True] > 0.97 and right_part[False] < 0.85

@@ -488,6 +488,7 @@ def _sweep_row(
     Q,
     M,
     restart,
+    left_start,
     s_out,
     s_base,
     s_stride,
@@ -502,6 +503,8 @@ def _sweep_row(
     State layout ``st[path, k + 1, x + 1]`` (flattened): disparity rows 0 and D + 1 hold BIG;
     column 0 and the columns after the last pixel hold zeros with minimum 0, which restarts
     a diagonal at the image border. ``restart`` starts every path on this row (L = C).
+    The paths whose predecessor lies to the left (offset -1) also restart at pixel
+    ``left_start`` (0: only at the border), as if the image began there.
     ``W`` is the real image width, ``wp`` (the length of ``cl``) the padded one. The jump
     penalty is ``max(P1 + 1, P2 / (1 + alpha * |I(p) - I(p - r)|))``. A flat cost-sum buffer
     is either block-major (block b, plane k, lane at ``base + (b * D + k) * 32 + lane``) or
@@ -591,6 +594,15 @@ def _sweep_row(
             for k in range(1, D + 1):
                 for x in range(W + 1, wp + 2):
                     z[k * (wp + 2) + x] = 0
+    # paths coming from the left restart at pixel left_start (its predecessor, pixel
+    # left_start - 1, sits in column left_start)
+    if 0 < left_start < W:
+        for p in range(n):
+            if offsets[p] < 0:
+                min_cur[p * (wp + 2) + left_start] = 0
+                z = st_cur[p * ps : (p + 1) * ps]
+                for k in range(1, D + 1):
+                    z[k * (wp + 2) + left_start] = 0
 
 
 @njit(inline="always")
@@ -923,6 +935,7 @@ def sgm_band(
     wsu16,
     ws8,
     ws_state,
+    left_start,
     phase,
     mirror,
     hand,
@@ -971,6 +984,8 @@ def sgm_band(
             :func:`band_workspace_sizes` elements (reused across frames).
         ws_state: the path states' workspace (as many elements): uint8 when
             :func:`states_fit_uint8` (half the memory traffic of the sweeps), else int16.
+        left_start: the diagonal paths coming from the left restart at this column, as at
+            the image border (0: only there); see ``SkyreconSettings.left_band_restart``.
         phase: 0 both sweeps; 1 the storing sweep (and the horizontal paths); 2 the selecting
             sweep, from ``hand``.
         mirror: store downward and select upward (the upper band of a pair).
@@ -1051,6 +1066,7 @@ def sgm_band(
                 Q,
                 M,
                 y == ystart,
+                left_start,
                 band_flat if inside else scratch8,
                 (y - r0) * row_len if inside else 0,
                 0,
@@ -1121,6 +1137,7 @@ def sgm_band(
             Q,
             M,
             phase != 2 and y == ystart,
+            left_start,
             total.reshape(-1),
             2 * ts,
             ts,
