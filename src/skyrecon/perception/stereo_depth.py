@@ -260,8 +260,10 @@ class StereoDepth:
         s = self.settings
         measured = result.measured
         textured = None
+        grey_left = None  # converted once for the texture masks and the plane fill
         if s.min_texture is not None:
-            matchable, textured = texture_masks(left, s.min_texture, s.texture_window_px)
+            grey_left = to_grey(np.asarray(left))
+            matchable, textured = texture_masks(grey_left, s.min_texture, s.texture_window_px)
             measured = measured & matchable
         keep = result.valid if s.use_filled else measured
         edge = None
@@ -275,7 +277,7 @@ class StereoDepth:
                 disp,
                 measured,
                 boundary=textured,
-                left=to_grey(np.asarray(left)),
+                left=grey_left if grey_left is not None else to_grey(np.asarray(left)),
                 right=to_grey(np.asarray(right)),
                 tolerance_px=s.plane_tolerance_px,
                 min_inlier_fraction=s.plane_min_inlier_fraction,
@@ -286,12 +288,19 @@ class StereoDepth:
             keep = keep | accepted
             plane = float(accepted.mean())
         k = self.stride
+        disp_k = disp[::k, ::k]
+        all_depth = self._depth(disp_k, False)  # one conversion for the kept pixels and the guesses
+        nan = np.float32(np.nan)
         guess = None
         if s.guesses:
             # the matcher's other values (filled, or smoothed over plain surfaces): not depth edges
             g = result.valid & ~keep if edge is None else result.valid & ~keep & ~edge
-            guess = self._depth(np.where(g, disp, np.float32(np.nan))[::k, ::k], False)
-        depth = self._depth(np.where(keep, disp, np.float32(np.nan))[::k, ::k], s.sky_is_free)
+            guess = np.where(g[::k, ::k], all_depth, nan)
+        keep_k = keep[::k, ::k]
+        depth = np.where(keep_k, all_depth, nan)
+        if s.sky_is_free:
+            with np.errstate(invalid="ignore"):
+                depth[keep_k & np.isfinite(disp_k) & (disp_k + self.rig.doffs_px <= 0)] = np.inf
         fine = None if self._fine is None else self._fine_depth(left, right, result.disparity)
         ms = 1e3 * (time.perf_counter() - t0)
         return DepthFrame(
