@@ -56,7 +56,7 @@ def _occluded_strip() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     guide[20:40, :30] = 200
     guide[20:40, 50:] = 200
     filled = np.empty_like(fixed)
-    K.fill_background_fixed(fixed, filled, 0, H, float(s), 0.0, 48, K.FILL_MAX_SLOPE)
+    K.fill_background_fixed(fixed, filled, 0, H, float(s), 0.0, 48, K.FILL_MAX_SLOPE, K.FILL_NEARER_LEFT_PX)
     return fixed, filled, guide
 
 
@@ -111,7 +111,7 @@ def test_guided_fill_same_result_on_one_or_two_threads(monkeypatch):
     np.testing.assert_array_equal(one, two)
 
 
-def _reference_fill_row(row, invalid, unit, lo, span, max_slope, rounded):
+def _reference_fill_row(row, invalid, unit, lo, span, max_slope, rounded, nearer_left_px):
     """The row fill written plainly (every pixel of the span visited): the reference of
     ``_kernels._fill_rows``, which visits only the valid ones."""
     W = len(row)
@@ -131,7 +131,8 @@ def _reference_fill_row(row, invalid, unit, lo, span, max_slope, rounded):
             continue
         a = np.float32(row[x0 - 1]) if has_a else np.float32(0)
         b = np.float32(row[x]) if has_b else np.float32(0)
-        side, bx, base = (-1, x0 - 1, a) if has_a and (not has_b or a <= b) else (1, x, b)
+        left = has_a and (not has_b or a <= b or a > b + nearer_left_px * unit)
+        side, bx, base = (-1, x0 - 1, a) if left else (1, x, b)
         lim = max(a, b) if has_a and has_b else np.float32(np.inf)
         sx = sy = sxx = sxy = np.float32(0)
         cnt, slope, icpt = 0, np.float32(0), base
@@ -178,15 +179,19 @@ def test_row_fill_matches_the_plain_reference():
     d[holes] = np.nan
     fixed = np.where(np.isfinite(d), np.rint(d * 32), K.INVALID16).astype(np.int16)
     out = np.empty_like(fixed)
-    K.fill_background_fixed(fixed, out, 0, H, 32.0, 0.0, 48, K.FILL_MAX_SLOPE)
+    rule = K.FILL_NEARER_LEFT_PX
+    K.fill_background_fixed(fixed, out, 0, H, 32.0, 0.0, 48, K.FILL_MAX_SLOPE, rule)
     ref = np.stack(
-        [_reference_fill_row(r, np.int16(K.INVALID16), 32.0, 0.0, 48, K.FILL_MAX_SLOPE, True) for r in fixed]
+        [
+            _reference_fill_row(r, np.int16(K.INVALID16), 32.0, 0.0, 48, K.FILL_MAX_SLOPE, True, rule)
+            for r in fixed
+        ]
     )
     np.testing.assert_array_equal(out, ref)
     outf = np.empty_like(d)
-    K.fill_background(d, outf, 0, H, np.float32(1.0), 48, np.float32(K.FILL_MAX_SLOPE))
+    K.fill_background(d, outf, 0, H, np.float32(1.0), 48, np.float32(K.FILL_MAX_SLOPE), np.float32(rule))
     reff = np.stack(
-        [_reference_fill_row(r, np.float32(np.nan), 1.0, 1.0, 48, K.FILL_MAX_SLOPE, False) for r in d]
+        [_reference_fill_row(r, np.float32(np.nan), 1.0, 1.0, 48, K.FILL_MAX_SLOPE, False, rule) for r in d]
     )
     # float32 in the kernel, NumPy scalars here: the same sums, rounded alike to a few ulps
     np.testing.assert_allclose(outf, reff, rtol=1e-5)
@@ -214,8 +219,23 @@ def test_the_post_processing_split_over_threads_changes_nothing():
             fixed[y0 : y0 + 20, x0 + 20 : x0 + 40] = K.INVALID16
             guide[y0 : y0 + 20, x0 : x0 + 20] = 200
     filled = np.empty_like(fixed)
-    K.fill_background_fixed(fixed, filled, 0, 400, float(s), 0.0, 48, K.FILL_MAX_SLOPE)
+    K.fill_background_fixed(fixed, filled, 0, 400, float(s), 0.0, 48, K.FILL_MAX_SLOPE, K.FILL_NEARER_LEFT_PX)
     one = SkyreconMatcher(64)._guided_fill(fixed, filled, guide, 32.0, 1, 1).copy()
     two = SkyreconMatcher(64)._guided_fill(fixed, filled, guide, 32.0, 1, 2)
     np.testing.assert_array_equal(one, two)
     assert np.mean(one[10:30, 30:50] == 5 * s) > 0.9  # the strips took the background
+
+
+def test_a_run_with_the_nearer_side_on_its_left_takes_that_side():
+    """Left of a nearer surface an invalid run is an occlusion of the background (farther
+    side); right of it no occlusion of the left view lies, so the run continues the nearer
+    left side (unless the rule is off: inf, as for the column fill)."""
+    s = 32
+    row = np.full((2, 60), K.INVALID16, np.int16)
+    row[0, :20], row[0, 40:] = 10 * s, 30 * s  # farther on the left: an occlusion
+    row[1, :20], row[1, 40:] = 30 * s, 10 * s  # nearer on the left: no occlusion
+    out = np.empty_like(row)
+    K.fill_background_fixed(row, out, 0, 2, float(s), 0.0, 0, K.FILL_MAX_SLOPE, K.FILL_NEARER_LEFT_PX)
+    assert np.all(out[0, 20:40] == 10 * s) and np.all(out[1, 20:40] == 30 * s)
+    K.fill_background_fixed(row, out, 0, 2, float(s), 0.0, 0, K.FILL_MAX_SLOPE, np.inf)
+    assert np.all(out[0, 20:40] == 10 * s) and np.all(out[1, 20:40] == 10 * s)

@@ -1199,14 +1199,23 @@ def from_fixed(fixed, keep, inv_scale, out, y0, y1):
 
 FILL_SPAN = 48  # pixels of a row's valid side used to fit the line a fill continues
 FILL_MAX_SLOPE = 0.3  # steepest continued slope, pixels of disparity per pixel
+#: a row's invalid run whose left side is nearer than its right side by more than this
+#: (pixels of disparity) takes the left side (see _fill_rows): on the benchmark pairs this
+#: lowered the error of KITTI 0.300 -> 0.279 (192 disparities 0.205 -> 0.179) and of the
+#: FlyingThings-style pairs by up to 0.04 of OpenCV's (flying-3 0.597 -> 0.559), Cones equal
+FILL_NEARER_LEFT_PX = 1.0
 
 
 @njit(inline="always")
-def _fill_rows(disp, out, y0, y1, invalid, unit, lo, span, max_slope, rounded):
+def _fill_rows(disp, out, y0, y1, invalid, unit, lo, span, max_slope, rounded, nearer_left_px):
     """Fill the invalid runs of rows ``y0 .. y1 - 1`` of ``disp`` into ``out`` (same dtype).
 
     A run takes the surface of its farther (smaller) bounding value, continued into the run:
-    occlusions belong to the background, and the background is often slanted. The line is a
+    occlusions belong to the background, and the background is often slanted. But in the
+    left view an occlusion lies left of a nearer surface: a run whose left side is nearer
+    than its right side by more than ``nearer_left_px`` pixels is no occlusion (a mismatch
+    at the far edge of a nearer surface, or inside it) and takes its left side (inf: never;
+    rows of a left view use FILL_NEARER_LEFT_PX). The line is a
     least-squares fit to the valid pixels among the ``span`` pixels beyond the run on that
     side (stopping at the first value farther than ``2 + j / 4`` px from the bounding one,
     j pixels away; at least ``span // 2`` pixels needed, else the bounding value is kept),
@@ -1250,7 +1259,7 @@ def _fill_rows(disp, out, y0, y1, invalid, unit, lo, span, max_slope, rounded):
                 continue
             a = np.float32(src[x0 - 1]) if has_a else np.float32(0.0)
             b = np.float32(src[x]) if has_b else np.float32(0.0)
-            if has_a and (not has_b or a <= b):
+            if has_a and (not has_b or a <= b or a > b + nearer_left_px * unit):
                 side, bx, base, kk = -1, x0 - 1, a, k - 1
             else:
                 side, bx, base, kk = 1, x, b, k
@@ -1285,7 +1294,7 @@ def _fill_rows(disp, out, y0, y1, invalid, unit, lo, span, max_slope, rounded):
 
 
 @njit(**_JIT)
-def fill_background_fixed(disp, out, y0, y1, unit, lo, span, max_slope):
+def fill_background_fixed(disp, out, y0, y1, unit, lo, span, max_slope, nearer_left_px):
     """:func:`_fill_rows` on an int16 fixed-point map (INVALID16 invalid, ``unit`` = scale,
     ``lo`` the smallest fill value in fixed point)."""
     _fill_rows(
@@ -1299,11 +1308,12 @@ def fill_background_fixed(disp, out, y0, y1, unit, lo, span, max_slope):
         span,
         np.float32(max_slope),
         True,
+        np.float32(nearer_left_px),
     )
 
 
 @njit(**_JIT)
-def fill_background(disp, out, y0, y1, lo, span, max_slope):
+def fill_background(disp, out, y0, y1, lo, span, max_slope, nearer_left_px):
     """:func:`_fill_rows` on a float32 map (NaN invalid, ``lo`` the smallest fill value)."""
     _fill_rows(
         disp,
@@ -1316,6 +1326,7 @@ def fill_background(disp, out, y0, y1, lo, span, max_slope):
         span,
         np.float32(max_slope),
         False,
+        np.float32(nearer_left_px),
     )
 
 

@@ -346,7 +346,8 @@ def fill_invalid(disparity: np.ndarray, threads: int = 1, span: int = K.FILL_SPA
     """Fill NaN pixels from their row neighbours, continuing the farther (smaller) side.
 
     Invalid runs next to a depth edge are occlusions of the background, so the farther side
-    is the better guess; its surface is continued into the run along a line fitted to up to
+    is the better guess (unless the nearer side is on the left, where no occlusion of the left
+    view lies: then the left side, see ``_kernels._fill_rows``); its surface is continued into the run along a line fitted to up to
     ``span`` valid pixels beyond it (slanted backgrounds), never rising above the nearer
     side nor falling below the smallest valid disparity (see ``_kernels._fill_rows``). Rows
     with no valid pixel are then filled the same way along columns.
@@ -367,11 +368,12 @@ def fill_invalid(disparity: np.ndarray, threads: int = 1, span: int = K.FILL_SPA
     H = disp.shape[0]
     parts = max(1, min(threads, H // 64))
     fill = partial(K.fill_background, lo=lo, span=int(span), max_slope=K.FILL_MAX_SLOPE)
-    _run_all([partial(fill, disp, out, a, b) for a, b in _bands(H, parts)])
-    if np.isnan(out).any():
+    rows = partial(fill, nearer_left_px=K.FILL_NEARER_LEFT_PX)
+    _run_all([partial(rows, disp, out, a, b) for a, b in _bands(H, parts)])
+    if np.isnan(out).any():  # along columns: no left view, always the farther side
         t = np.ascontiguousarray(out.T)
         t2 = np.empty_like(t)
-        fill(t, t2, 0, t.shape[0])
+        fill(t, t2, 0, t.shape[0], nearer_left_px=np.inf)
         out = np.ascontiguousarray(t2.T)
     return out
 
@@ -497,6 +499,7 @@ class SkyreconMatcher:
         do_fill = fs is not None and (s.fill or s.median > 1)
         span = int(s.fill_span) // scale
         fill_args = (float(fs or 1.0), float(dmin * (fs or 1.0)), span, K.FILL_MAX_SLOPE)
+        row_rule = K.FILL_NEARER_LEFT_PX  # along columns (transposed) there is no left view
         task_ms: list[dict[str, float]] = [{} for _ in bands]
         n_state, n16, nu16, n8 = K.band_workspace_sizes(
             D, wp, len(self._offsets), bool(s.horizontal_paths), dmin
@@ -581,7 +584,7 @@ class SkyreconMatcher:
                 if speckle > 0:
                     cv2.filterSpeckles(fixed[a:b], K.INVALID16, speckle, speckle_step)
                 if do_fill:
-                    K.fill_background_fixed(fixed, filled, a, b, *fill_args)
+                    K.fill_background_fixed(fixed, filled, a, b, *fill_args, row_rule)
             t3 = time.perf_counter()
             task_ms[i].update(census=(t1 - t0) * 1e3, sgm=(t2 - t1) * 1e3, post=(t3 - t2) * 1e3)
 
@@ -614,7 +617,7 @@ class SkyreconMatcher:
             if (result == K.INVALID16).any():  # rows without any match: fill along columns
                 t = np.ascontiguousarray(result.T)
                 t2 = np.empty_like(t)
-                K.fill_background_fixed(t, t2, 0, t.shape[0], *fill_args)
+                K.fill_background_fixed(t, t2, 0, t.shape[0], *fill_args, np.inf)
                 result = np.ascontiguousarray(t2.T)
             if s.median > 1:
                 result = _median_blur(result, int(s.median), nthreads)
@@ -754,7 +757,9 @@ class SkyreconMatcher:
             fixed[:, :4] = 320
             fixed[:, 12:] = 64
             filled = np.empty_like(fixed)
-            K.fill_background_fixed(fixed, filled, 0, 8, 32.0, 0.0, 8, K.FILL_MAX_SLOPE)
+            K.fill_background_fixed(
+                fixed, filled, 0, 8, 32.0, 0.0, 8, K.FILL_MAX_SLOPE, K.FILL_NEARER_LEFT_PX
+            )
             m._guided_fill(fixed, filled, np.zeros((8, 16, 1), np.uint8), 32.0, 1, 1)
 
 
