@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from skyrecon.stereo import _kernels as K
 from skyrecon.stereo.sgm import SkyreconMatcher, fill_invalid
@@ -239,3 +240,14 @@ def test_a_run_with_the_nearer_side_on_its_left_takes_that_side():
     assert np.all(out[0, 20:40] == 10 * s) and np.all(out[1, 20:40] == 30 * s)
     K.fill_background_fixed(row, out, 0, 2, float(s), 0.0, 0, K.FILL_MAX_SLOPE, np.inf)
     assert np.all(out[0, 20:40] == 10 * s) and np.all(out[1, 20:40] == 10 * s)
+
+
+def test_the_nearer_left_rule_is_off_for_the_fast_matcher():
+    from skyrecon.errors import InputError
+    from skyrecon.stereo.sgm import SkyreconSettings
+
+    assert SkyreconSettings().nearer_left_px == K.FILL_NEARER_LEFT_PX
+    assert SkyreconSettings(fast=True).nearer_left_px == np.inf
+    assert SkyreconSettings(fast=True, fill_nearer_left_px=2.0).nearer_left_px == 2.0
+    with pytest.raises(InputError, match="fill_nearer_left_px"):
+        SkyreconSettings(fill_nearer_left_px=-1.0)

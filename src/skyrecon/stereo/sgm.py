@@ -138,6 +138,13 @@ class SkyreconSettings:
             directions, weighted by colour likeness in the left image and distance (a
             weighted median, never nearer than the row fill); None: on unless ``fast``.
             Needs a disparity range that fits 16-bit fixed point (all but huge ranges).
+        fill_nearer_left_px: an invalid run of a row whose left side is nearer than its right
+            side by more than this (pixels) continues its left side rather than the farther one
+            (in the left view an occlusion lies left of a nearer surface, so such a run is a
+            mismatch at the far edge of a nearer surface or inside it); inf: always the farther
+            side. None: 1 px (``_kernels.FILL_NEARER_LEFT_PX``), or inf when ``fast``: the
+            flight loop's matcher keeps the farther side (flown on dynamic seeds 420-439 with
+            the rule, one mission saw a mover that was not there for 30 s and returned).
         median: median filter size after filling: 0 (off), 3 or 5.
         band_margin: warm-up rows outside each pair of bands of rows (a band's paths start
             that far outside it where it does not continue its partner's).
@@ -168,6 +175,7 @@ class SkyreconSettings:
     speckle_range: float = 2.0
     fill: bool = True
     fill_span: int = K.FILL_SPAN
+    fill_nearer_left_px: float | None = None
     guided_fill: bool | None = None
     median: int = 5
     band_margin: int = 32
@@ -180,6 +188,13 @@ class SkyreconSettings:
         if self.p2_edge_alpha is not None:
             return float(self.p2_edge_alpha)
         return FAST_EDGE_ALPHA if self.fast else DEFAULT_EDGE_ALPHA
+
+    @property
+    def nearer_left_px(self) -> float:
+        """The row fill's nearer-left rule in use (``fill_nearer_left_px`` resolved; inf: off)."""
+        if self.fill_nearer_left_px is not None:
+            return float(self.fill_nearer_left_px)
+        return float("inf") if self.fast else K.FILL_NEARER_LEFT_PX
 
     @property
     def census_checker(self) -> bool:
@@ -224,6 +239,10 @@ class SkyreconSettings:
             raise InputError("settings speckle_size and speckle_range must be >= 0")
         if self.median not in (0, 1, 3, 5):
             raise InputError(f"setting median must be 0, 3 or 5, got {self.median!r}")
+        if self.fill_nearer_left_px is not None and not self.fill_nearer_left_px >= 0:
+            raise InputError(
+                f"setting fill_nearer_left_px must be >= 0 (inf: off), got {self.fill_nearer_left_px}"
+            )
         if self.fill_span < 0:
             raise InputError(f"setting fill_span must be >= 0, got {self.fill_span}")
         if self.band_margin < 0:
@@ -342,7 +361,12 @@ def remove_speckles(disparity: np.ndarray, max_size: int, max_step_px: float) ->
     return disparity
 
 
-def fill_invalid(disparity: np.ndarray, threads: int = 1, span: int = K.FILL_SPAN) -> np.ndarray:
+def fill_invalid(
+    disparity: np.ndarray,
+    threads: int = 1,
+    span: int = K.FILL_SPAN,
+    nearer_left_px: float = K.FILL_NEARER_LEFT_PX,
+) -> np.ndarray:
     """Fill NaN pixels from their row neighbours, continuing the farther (smaller) side.
 
     Invalid runs next to a depth edge are occlusions of the background, so the farther side
@@ -356,6 +380,8 @@ def fill_invalid(disparity: np.ndarray, threads: int = 1, span: int = K.FILL_SPA
         disparity: (H, W) float32, NaN invalid.
         threads: worker threads.
         span: pixels fitted beyond a run (0: constant fill with the farther neighbour).
+        nearer_left_px: a run whose left side is nearer by more than this takes the left side
+            (inf: always the farther side).
     Returns:
         (H, W) float32 filled copy (NaN only if the whole map is invalid).
     """
@@ -368,7 +394,7 @@ def fill_invalid(disparity: np.ndarray, threads: int = 1, span: int = K.FILL_SPA
     H = disp.shape[0]
     parts = max(1, min(threads, H // 64))
     fill = partial(K.fill_background, lo=lo, span=int(span), max_slope=K.FILL_MAX_SLOPE)
-    rows = partial(fill, nearer_left_px=K.FILL_NEARER_LEFT_PX)
+    rows = partial(fill, nearer_left_px=nearer_left_px)
     _run_all([partial(rows, disp, out, a, b) for a, b in _bands(H, parts)])
     if np.isnan(out).any():  # along columns: no left view, always the farther side
         t = np.ascontiguousarray(out.T)
@@ -499,7 +525,7 @@ class SkyreconMatcher:
         do_fill = fs is not None and (s.fill or s.median > 1)
         span = int(s.fill_span) // scale
         fill_args = (float(fs or 1.0), float(dmin * (fs or 1.0)), span, K.FILL_MAX_SLOPE)
-        row_rule = K.FILL_NEARER_LEFT_PX  # along columns (transposed) there is no left view
+        row_rule = s.nearer_left_px  # along columns (transposed) there is no left view
         task_ms: list[dict[str, float]] = [{} for _ in bands]
         n_state, n16, nu16, n8 = K.band_workspace_sizes(
             D, wp, len(self._offsets), bool(s.horizontal_paths), dmin
@@ -600,7 +626,7 @@ class SkyreconMatcher:
             measured = np.isfinite(work)
             out = work
             if (s.fill or s.median > 1) and measured.any():
-                f = fill_invalid(work, nthreads, span)
+                f = fill_invalid(work, nthreads, span, s.nearer_left_px)
                 if s.median > 1:
                     f = cv2.medianBlur(f, int(s.median))
                 out = f if s.fill else np.where(measured, f, np.float32(np.nan))
