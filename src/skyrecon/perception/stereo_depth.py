@@ -288,19 +288,15 @@ class StereoDepth:
             keep = keep | accepted
             plane = float(accepted.mean())
         k = self.stride
-        disp_k = disp[::k, ::k]
-        all_depth = self._depth(disp_k, False)  # one conversion for the kept pixels and the guesses
+        # one conversion for the kept pixels and the guesses (+inf: sky, only ever kept)
+        all_depth = self._depth(disp[::k, ::k], s.sky_is_free)
         nan = np.float32(np.nan)
         guess = None
         if s.guesses:
             # the matcher's other values (filled, or smoothed over plain surfaces): not depth edges
             g = result.valid & ~keep if edge is None else result.valid & ~keep & ~edge
-            guess = np.where(g[::k, ::k], all_depth, nan)
-        keep_k = keep[::k, ::k]
-        depth = np.where(keep_k, all_depth, nan)
-        if s.sky_is_free:
-            with np.errstate(invalid="ignore"):
-                depth[keep_k & np.isfinite(disp_k) & (disp_k + self.rig.doffs_px <= 0)] = np.inf
+            guess = np.where(g[::k, ::k] & np.isfinite(all_depth), all_depth, nan)
+        depth = np.where(keep[::k, ::k], all_depth, nan)
         fine = None if self._fine is None else self._fine_depth(left, right, result.disparity)
         ms = 1e3 * (time.perf_counter() - t0)
         return DepthFrame(

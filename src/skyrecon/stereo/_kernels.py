@@ -336,21 +336,20 @@ def _sweep_block(
 
 
 @intrinsic
-def _select_block_second(typingctx, Sa, base, wp, D, x0, arg, second):
+def _select_block_second(typingctx, Sa, base, ts, D, x0, arg, second):
     """For the 32 columns ``x0 ..``: the minimum of ``Sa`` over planes not adjacent to ``arg``
-    (the uniqueness test's runner-up). Element (k, x) at ``base + k * wp + x`` (``wp``: the
-    row stride)."""
-    sig = types.void(Sa, base, wp, D, x0, arg, second)
+    (the uniqueness test's runner-up). Element (k, x) at ``base + k * ts + x``."""
+    sig = types.void(Sa, base, ts, D, x0, arg, second)
 
     def codegen(context, builder, signature, args):
-        (a_v, base_v, wp_v, d_v, x0_v, arg_v, sec_v) = args
+        (a_v, base_v, ts_v, d_v, x0_v, arg_v, sec_v) = args
         t = signature.args
         ap = _data(context, builder, t[0], a_v)
         argp = _data(context, builder, t[5], arg_v)
         secp = _data(context, builder, t[6], sec_v)
         x0 = _i64(builder, x0_v)
         base = builder.add(_i64(builder, base_v), x0)
-        wp = _i64(builder, wp_v)
+        ts = _i64(builder, ts_v)
         MAXV = ir.Constant(_V16, [0xFFFF] * LANES)
         one = _splat(builder, ir.Constant(_I16, 1), _V16)
         arg = _vload(builder, argp, x0, _V16)
@@ -358,7 +357,7 @@ def _select_block_second(typingctx, Sa, base, wp, D, x0, arg, second):
         builder.store(MAXV, sec)
         with cgutils.for_range(builder, _i64(builder, d_v)) as loop:
             k = loop.index
-            idx = builder.add(base, builder.mul(k, wp))
+            idx = builder.add(base, builder.mul(k, ts))
             tt = _vload(builder, ap, idx, _V16)
             dist = builder.sub(_splat(builder, builder.trunc(k, _I16), _V16), arg)
             far = builder.or_(

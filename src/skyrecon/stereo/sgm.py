@@ -460,6 +460,8 @@ class SkyreconMatcher:
         self._up_offsets = tuple(-o for o in self._offsets)
         self._guided = bool(s.guided_fill if s.guided_fill is not None else not s.fast)
         self._ooi_cost = int(s.out_of_image_cost if s.out_of_image_cost is not None else s.census_bits // 3)
+        fits8 = K.states_fit_uint8(max(s.census_bits, self._ooi_cost), s.P1, s.P2)
+        self._state_dtype = np.uint8 if fits8 else np.int16  # SGM path states
 
     # ----- buffers -------------------------------------------------------------------------
     def _buf(self, key: str, shape: tuple[int, ...], dtype) -> np.ndarray:
@@ -525,15 +527,11 @@ class SkyreconMatcher:
         do_fill = fs is not None and (s.fill or s.median > 1)
         span = int(s.fill_span) // scale
         fill_args = (float(fs or 1.0), float(dmin * (fs or 1.0)), span, K.FILL_MAX_SLOPE)
-        row_rule = s.nearer_left_px  # along columns (transposed) there is no left view
         task_ms: list[dict[str, float]] = [{} for _ in bands]
         n_state, n16, nu16, n8 = K.band_workspace_sizes(
             D, wp, len(self._offsets), bool(s.horizontal_paths), dmin
         )
         left_start = max(0, dmax) if s.left_band_restart else 0
-        state_dtype = (
-            np.uint8 if K.states_fit_uint8(max(s.census_bits, self._ooi_cost), s.P1, s.P2) else np.int16
-        )
 
         slots: queue.SimpleQueue[int] = queue.SimpleQueue()
         for k in range(min(nthreads, parts)):
@@ -594,7 +592,7 @@ class SkyreconMatcher:
                 self._buf(f"w16@{tid}", (n16,), np.int16),
                 self._buf(f"wu16@{tid}", (nu16,), np.uint16),
                 self._buf(f"w8@{tid}", (n8,), np.uint8),
-                self._buf(f"state@{tid}", (n_state,), state_dtype),
+                self._buf(f"state@{tid}", (n_state,), self._state_dtype),
                 left_start,
             )
             if pair is None:
@@ -610,7 +608,7 @@ class SkyreconMatcher:
                 if speckle > 0:
                     cv2.filterSpeckles(fixed[a:b], K.INVALID16, speckle, speckle_step)
                 if do_fill:
-                    K.fill_background_fixed(fixed, filled, a, b, *fill_args, row_rule)
+                    K.fill_background_fixed(fixed, filled, a, b, *fill_args, s.nearer_left_px)
             t3 = time.perf_counter()
             task_ms[i].update(census=(t1 - t0) * 1e3, sgm=(t2 - t1) * 1e3, post=(t3 - t2) * 1e3)
 
@@ -641,6 +639,7 @@ class SkyreconMatcher:
             if guide is not None:
                 result = self._guided_fill(fixed, filled, guide, fs, scale, nthreads)
             if (result == K.INVALID16).any():  # rows without any match: fill along columns
+                # (no left view along a column: always the farther side)
                 t = np.ascontiguousarray(result.T)
                 t2 = np.empty_like(t)
                 K.fill_background_fixed(t, t2, 0, t.shape[0], *fill_args, np.inf)
