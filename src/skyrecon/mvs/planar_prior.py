@@ -57,6 +57,23 @@ beyond the support (the ground out to the image border):
 The multi-view geometric-consistency fusion then keeps only the points that other views'
 depth maps agree with (:mod:`skyrecon.mvs.fusion`): no texture is needed there.
 
+Known limits (``benchmarks/mvs/diagnose_ring.py`` shows them per view; plain rings reach F
+0.84-0.88 at 1 % of the ring radius, recall 0.72-0.80 at precision 0.93-1.0): about half of the
+free-standing plain walls and most of the plinth's side faces are missing from the cloud. On
+ring-plain-e (seed 21), views facing a plain wall fill it with a *wrong* plane that fusion then
+rejects: (a) the candidates on the true wall plane are set aside by the hidden-band rule (64-84 %
+of a free-standing wall's band support is the background beyond its silhouette, above the
+``max_front_hidden_wall`` of 0.5); (b) a wall face shares one segment with the plain ledge or
+plinth beside it (no intensity edge between them), so no single plane fits and sources "see
+through" the true wall plane where the segment leaves the wall (42 % of its interior samples);
+(c) what wins is a plane behind the wall, often the ground plane qualifying without contact
+points: a uniform face looks the same in the nearby sources under any plane behind it, and
+a plane behind the true surface is not caught by the visibility tests. Relaxing the
+hidden-band rule for walls (0.9, weight 0), refusing contact-less level planes, or reading only
+confident source depths (cost <= 0.15 or 0.3) in the see-through test moved ring-plain-e and -d
+by -0.02 to +0.006 in F: what is missing is a per-face split of such segments and a wall
+hypothesis from the silhouette edges that several views agree on.
+
 Bad input: whatever goes wrong (no support, degenerate triangulations, no plane that fits) the
 view keeps its PatchMatch depth unchanged and the reason is returned (``PriorReport.fallback``).
 """
