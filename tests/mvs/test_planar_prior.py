@@ -294,6 +294,62 @@ def test_manhattan_planes_put_a_wall_through_its_two_corner_lines() -> None:
     assert len(pp._manhattan_planes(X, up, PlanarPriorSettings(manhattan_hypotheses=0))) == 0
 
 
+def test_manhattan_refits_take_the_neighbouring_face_out_of_a_wall() -> None:
+    """A wall's corner and foot lines, with points of the face around its corner within a few
+    centimetres of its depth there: the first fit includes them and tilts; the refits, closer,
+    drop them and keep the wall within a quarter of a degree."""
+    rng = np.random.default_rng(5)
+    pitch = np.radians(25.0)
+    up = np.array([0.0, -np.cos(pitch), -np.sin(pitch)])
+    normal = np.array([0.0, np.sin(pitch), -np.cos(pitch)])
+    h = -7.4
+    side = np.cross(up, normal)
+    base = h * normal
+
+    def pts(offset: np.ndarray, along: np.ndarray, t: np.ndarray) -> np.ndarray:
+        p = base[None] + offset[None] + t[:, None] * along[None]
+        return p + rng.normal(0.0, 0.005, p.shape)
+
+    left = pts(-1.2 * side, up, rng.uniform(-1, 1, 80))
+    right = pts(1.2 * side, up, rng.uniform(-1, 1, 80))
+    foot = pts(-up, side, rng.uniform(-1.2, 1.2, 80))
+    # the face around the right corner runs away from the camera (-normal); its first 15 cm
+    around = pts(1.2 * side, -normal, rng.uniform(0.0, 0.15, 120))
+    around += rng.uniform(-1, 1, (len(around), 1)) * up[None]  # at every height of the corner
+    X = np.concatenate([left, right, foot, around])
+
+    def tilt(s: PlanarPriorSettings) -> float:
+        planes = pp._manhattan_planes(X, up, s)
+        angle = np.degrees(np.arccos(np.clip(np.abs(planes[:, :3] @ normal), -1, 1)))
+        near = np.abs(np.abs(planes[:, 3]) - abs(h)) < 0.1
+        return float(angle[near].min())
+
+    assert tilt(PlanarPriorSettings()) < 0.25
+    assert tilt(PlanarPriorSettings(manhattan_refits=0)) > tilt(PlanarPriorSettings())
+
+
+def test_a_dominant_wall_with_little_band_support_loses_its_precedence() -> None:
+    """A dominant wall (a set-back storey above a plain wall) that fits little of the band loses
+    its precedence to the view's own wall through the corners, which carries most of it; with
+    enough support, or without support figures, it keeps it; a dominant level plane (the ground,
+    seen without contact points) keeps it whatever its support."""
+    s = PlanarPriorSettings()
+    up = np.array([0.0, -1.0, 0.0])
+    wall, storey, level = [0.0, 0.0, -1.0, -8.0], [0.0, 0.0, -1.0, -8.4], [0.0, -1.0, 0.0, -2.0]
+    cands = np.array([storey, wall])
+    walls = pp._walls(cands, up)
+    is_global = np.array([True, False])
+    fracs, zero = np.array([0.9, 1.0]), np.zeros(2)
+    assert pp._choose_plane(is_global, fracs, zero, zero, walls, s)[0] == 0  # about as right
+    assert pp._choose_plane(is_global, fracs, zero, zero, walls, s, np.array([0.1, 0.6]))[0] == 1
+    assert pp._choose_plane(is_global, fracs, zero, zero, walls, s, np.array([0.4, 0.6]))[0] == 0
+    off = PlanarPriorSettings(dominant_wall_min_support=0.0)
+    assert pp._choose_plane(is_global, fracs, zero, zero, walls, off, np.array([0.1, 0.6]))[0] == 0
+    cands = np.array([level, wall])
+    walls = pp._walls(cands, up)
+    assert pp._choose_plane(is_global, fracs, zero, zero, walls, s, np.array([0.0, 0.6]))[0] == 0
+
+
 def test_filled_planes_reach_the_segments_of_another_view_they_cover() -> None:
     """A segment filled in one view is offered, as a world plane with samples of its pixels, to
     the segments of another view that those samples land in (the second pass)."""
@@ -400,6 +456,9 @@ def test_a_failing_second_pass_keeps_the_first_and_says_so(plain_ring, monkeypat
         dict(propagate_samples=8, propagate_min_hits=9),
         dict(dominant_margin=-0.1),
         dict(wall_hidden_weight=-1.0),
+        dict(dominant_wall_min_support=-0.5),
+        dict(manhattan_refits=-1),
+        dict(manhattan_refit_rel=0.0),
     ],
 )
 def test_second_pass_and_ranking_settings_are_checked(bad: dict) -> None:
