@@ -42,16 +42,23 @@ GREEN, RED, GREY = (0, 180, 0), (255, 0, 0), (40, 40, 40)
 DEPTH_TOL = 0.01  # relative depth error counted right in the depth pictures
 
 
-def depth_error_picture(image: np.ndarray, depth: np.ndarray, true_depth: np.ndarray) -> np.ndarray:
-    """(H, 2W, 3) uint8: the image beside its depth's classes (green right, red wrong, grey none)."""
+def depth_classes(depth: np.ndarray, true_depth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """((h, w) bool with a depth, (h, w) bool within ``DEPTH_TOL`` of the truth) of a depth map
+    (h, w) metres, NaN none, against the rendered true depth (any size, resized to it)."""
     h, w = depth.shape
     truth = cv2.resize(true_depth, (w, h), interpolation=cv2.INTER_NEAREST)
     with np.errstate(invalid="ignore", divide="ignore"):
-        right = np.abs(depth - truth) <= DEPTH_TOL * truth
+        return np.isfinite(depth), np.abs(depth - truth) <= DEPTH_TOL * truth
+
+
+def depth_error_picture(image: np.ndarray, valid: np.ndarray, right: np.ndarray) -> np.ndarray:
+    """(h, 2w, 3) uint8: the image beside the depth's classes (:func:`depth_classes`): green
+    right, red wrong, grey none."""
+    h, w = valid.shape
     out = np.empty((h, w, 3), np.uint8)
     out[:] = GREY
-    out[np.isfinite(depth)] = RED
-    out[np.isfinite(depth) & right] = GREEN
+    out[valid] = RED
+    out[valid & right] = GREEN
     return np.hstack([cv2.resize(np.ascontiguousarray(image), (w, h)), out])
 
 
@@ -130,10 +137,9 @@ def main() -> None:
     for view, image, truth in zip(views, images, truths):
         stem = Path(view.name).stem
         depth = res.depth_maps[stem].depth_m
-        tile = depth_error_picture(image, depth, truth.depth_m)
-        tiles.append(tile)
-        valid = np.isfinite(depth)
-        wrong = (tile[:, depth.shape[1] :] == RED).all(axis=2)
+        valid, right = depth_classes(depth, truth.depth_m)
+        tiles.append(depth_error_picture(image, valid, right))
+        wrong = valid & ~right
         rep = prior.get(stem, {})
         what = (
             rep.get("fallback") or f"{rep.get('filled_segments', 0)}/{rep.get('segments', 0)} segments filled"

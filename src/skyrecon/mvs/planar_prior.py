@@ -549,7 +549,8 @@ def _manhattan_planes(X: np.ndarray, up: np.ndarray, s: PlanarPriorSettings) -> 
     flip = P[:, 3] > 0
     P[flip] *= -1
     rays = X / X[:, 2:3]
-    inl, score = _plane_inliers(P[:, :3] @ rays.T, P[:, 3].copy(), X[:, 2].copy(), float(s.inlier_rel))
+    depth = X[:, 2].copy()
+    inl, score = _plane_inliers(P[:, :3] @ rays.T, P[:, 3].copy(), depth, float(s.inlier_rel))
     vertical = np.arange(len(P)) < len(nv)
     depth_scale = float(np.median(X[:, 2]))
     cos_distinct = np.cos(np.radians(_MANHATTAN_DISTINCT_DEG))
@@ -579,7 +580,7 @@ def _manhattan_planes(X: np.ndarray, up: np.ndarray, s: PlanarPriorSettings) -> 
                 # refit to the points on the fitted plane, closer: a random pair's inliers
                 # include points of a neighbouring face near their common edge
                 on, count = _plane_inliers(
-                    (n @ rays.T)[None], np.array([h]), X[:, 2].copy(), float(s.manhattan_refit_rel)
+                    (n @ rays.T)[None], np.array([h]), depth, float(s.manhattan_refit_rel)
                 )
                 if count[0] < 3:
                     break
@@ -952,7 +953,7 @@ def _judge_candidates(
     colours: tuple[np.ndarray, list[np.ndarray], float],
     s: PlanarPriorSettings,
     wall: np.ndarray | None = None,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The evidence on each candidate plane (K, 4) (camera frame) of one segment.
 
     Args:
@@ -965,7 +966,8 @@ def _judge_candidates(
     Returns:
         ((K,) share of the ring that looks the same in the sources, 0 for a candidate set aside;
         (K,) share of the interior samples a source sees through; (K,) share of the band support
-        beyond the plane).
+        beyond the plane; (K,) share of the band support on the plane, within ``inlier_rel``
+        of its depth, as :func:`_plane_inliers` counts it).
     """
     seg, bx0, by0 = segment
     ru, rv, rrays = ring
@@ -975,11 +977,12 @@ def _judge_candidates(
     fracs = np.zeros(len(cands))
     through = np.zeros(len(cands))
     front = np.zeros(len(cands))
-    if s.hidden_band:
-        # the share of the band support each plane would hide (this view measured it beyond the
-        # plane: the segment cannot lie there unless it ends at its border)
-        bd = _plane_depth(cands[:, :3], cands[:, 3], all_rays)
-        with np.errstate(invalid="ignore"):
+    bd = _plane_depth(cands[:, :3], cands[:, 3], all_rays)  # (K, M) depth of each band ray on each plane
+    with np.errstate(invalid="ignore"):
+        on_plane = np.count_nonzero(np.abs(bd - all_d) <= s.inlier_rel * all_d, axis=1) / len(all_d)
+        if s.hidden_band:
+            # the share of the band support each plane would hide (this view measured it beyond
+            # the plane: the segment cannot lie there unless it ends at its border)
             front = np.count_nonzero(all_d > bd * (1.0 + s.see_through_margin), axis=1) / len(all_d)
     # a level plane (the ground, a terrace) hides nothing that stands on it; a wall hides what
     # lies beyond its convex corners and top edge (a set-back storey, the roof behind it)
@@ -1015,7 +1018,7 @@ def _judge_candidates(
         fracs[ci] = _photo_check(
             ref, sources, ru[ok], rv[ok], rd[ok], ref_blur, src_blur, tol, s.min_sources
         ).mean()
-    return fracs, through, front
+    return fracs, through, front, on_plane
 
 
 def _planes_in_camera(ref: WorkingView, planes_world: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
@@ -1250,7 +1253,7 @@ def fill_plain_segments(
             rv, ru = rv[keep], ru[keep]
         ru, rv = ru + bx0, rv + by0
         rrays = _rays(ref, ru.astype(np.float64), rv.astype(np.float64))
-        fracs, through, front = _judge_candidates(
+        fracs, through, front, on_plane = _judge_candidates(
             ref,
             sources,
             source_depths,
@@ -1263,11 +1266,7 @@ def fill_plain_segments(
             s,
             wall,
         )
-        # each candidate's share of the band support (every band point, the same for all)
-        _, on_plane = _plane_inliers(
-            cands[:, :3] @ all_rays.T, cands[:, 3].copy(), all_d, float(s.inlier_rel)
-        )
-        choice = _choose_plane(is_global, fracs, through, front, wall, s, on_plane / len(all_d))
+        choice = _choose_plane(is_global, fracs, through, front, wall, s, on_plane)
         if choice is None:
             rejected += 1
             continue

@@ -394,8 +394,7 @@ def fill_invalid(
     H = disp.shape[0]
     parts = max(1, min(threads, H // 64))
     fill = partial(K.fill_background, lo=lo, span=int(span), max_slope=K.FILL_MAX_SLOPE)
-    rows = partial(fill, nearer_left_px=nearer_left_px)
-    _run_all([partial(rows, disp, out, a, b) for a, b in _bands(H, parts)])
+    _run_all([partial(fill, disp, out, a, b, nearer_left_px=nearer_left_px) for a, b in _bands(H, parts)])
     if np.isnan(out).any():  # along columns: no left view, always the farther side
         t = np.ascontiguousarray(out.T)
         t2 = np.empty_like(t)
