@@ -188,3 +188,51 @@ def test_the_range_hint_scales_with_the_voxel(flight):
     assert "--voxel-size 0.5 trusts depth to 19.6 m" in _range_hint(fine, rig)  # range ~ sqrt(voxel)
     assert "fly closer" in _range_hint(StereoMapSettings(voxel_size_m=0.5, max_range_m=40.0), rig)
     assert "larger --max-depth-error" in _range_hint(fine.with_overrides(max_depth_error_m=0.2), rig)
+
+
+def _same_map(a, b) -> bool:
+    return np.array_equal(a.grid.block_coords, b.grid.block_coords) and np.array_equal(
+        a.grid.blocks, b.grid.blocks, equal_nan=True
+    )
+
+
+def test_overlapped_integration_builds_the_same_map_and_times_every_frame(flight):
+    _, rig, poses, frames = flight
+    overlapped = StereoMapper(rig, voxel_size_m=VOXEL, overlap=True)
+    inline = StereoMapper(rig, voxel_size_m=VOXEL, matcher=overlapped.matcher, overlap=False)
+    for f, p in zip(frames, poses):
+        late = overlapped.add_frame(f.left, f.right, p)
+        now = inline.add_frame(f.left, f.right, p)
+        assert late.stats is None and now.stats is not None
+        np.testing.assert_array_equal(late.depth_m, now.depth_m)
+    # the last frame is still waiting: reading the map integrates it
+    assert overlapped._pending is not None
+    assert _same_map(overlapped.map, inline.map) and overlapped._pending is None
+    assert overlapped.ground is not None and overlapped.ground.z_m == inline.ground.z_m
+    assert len(overlapped.timings.depth_s) == len(overlapped.timings.integrate_s) == len(frames)
+    # a checkpoint's state holds every frame added, and a restored mapper carries on from it
+    state = overlapped.resume_state()
+    assert state[0] is overlapped.map
+
+
+def test_overlapped_integration_hands_its_errors_to_the_caller(flight, monkeypatch):
+    _, rig, poses, frames = flight
+    mapper = StereoMapper(rig, voxel_size_m=VOXEL, overlap=True)
+    f = frames[0]
+    with pytest.raises(InputError, match="world_from_cam"):  # a bad pose is refused at once
+        mapper.add_frame(f.left, f.right, poses[0].inverse())
+    mapper.add_frame(f.left, f.right, poses[0])  # waits to be integrated
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("update failed")
+
+    monkeypatch.setattr(mapper._map, "integrate_depth", broken)
+    with pytest.raises(RuntimeError, match="update failed"):  # the background update's error
+        mapper.add_frame(frames[1].left, frames[1].right, poses[1])
+    # a frame whose images are refused still has the waiting frame integrated
+    monkeypatch.undo()
+    mapper = StereoMapper(rig, voxel_size_m=VOXEL, overlap=True)
+    mapper.add_frame(f.left, f.right, poses[0])
+    with pytest.raises(InputError):
+        mapper.add_frame(f.left[:10], f.right, poses[1])
+    assert mapper._pending is None and len(mapper.map.occupied_centers()) > 100

@@ -516,7 +516,10 @@ def _map_sequence(
             poses,
             mapper=mapper,
             first_frame=first,
-            after_frame=lambda done, m: ckpt.save(done, m.resume_state()) if done < n else None,
+            # the state waits for the frame being integrated (StereoMapper.overlap): only when due
+            after_frame=lambda done, m: (
+                ckpt.save(done, m.resume_state()) if done < n and ckpt.due() else None
+            ),
             on_frame=observer,
         )
         occ, timings = built.map, built.timings

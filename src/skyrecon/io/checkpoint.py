@@ -76,11 +76,15 @@ class Checkpoint:
             return None
         return int(doc["done"]), doc["state"]
 
+    def due(self) -> bool:
+        """Whether :meth:`save` would write now (``every_s`` has passed since the last save):
+        for a state that costs something to get (e.g. one that waits for work in flight)."""
+        return time.monotonic() - self._last_save >= self.every_s
+
     def save(self, done: int, state: Any, force: bool = False) -> bool:
         """Write ``state`` after ``done`` items if ``every_s`` has passed since the last save (or
         ``force``); returns whether it wrote."""
-        now = time.monotonic()
-        if not force and now - self._last_save < self.every_s:
+        if not force and not self.due():
             return False
         doc = {"format": FORMAT, "version": VERSION, "key": self.key, "done": int(done), "state": state}
         write_bytes_atomic(self.path, pickle.dumps(doc, protocol=pickle.HIGHEST_PROTOCOL))

@@ -30,7 +30,7 @@ CHANGED_STATE, CHANGED_OCCUPIED = 1, 2
 _NEG_INF = np.float32(-np.inf)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _slope(depth, r, c, dr, dc, d, jump):
     """One-sided depth difference towards the smoother valid neighbour along (dr, dc); NaN if none."""
     H, W = depth.shape
@@ -49,7 +49,7 @@ def _slope(depth, r, c, dr, dc, d, jump):
     return best
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _range_plane(plane, lo, hi, r, c, zmax):
     """Free up to depth ``zmax`` (the maximum range along this pixel's ray), no hits."""
     plane[r, c, 0] = 0.0
@@ -62,7 +62,7 @@ def _range_plane(plane, lo, hi, r, c, zmax):
     hi[r, c] = zmax
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _prepare_row(
     r, depth, dirs, ray_norm, R_wc, fx, fy, min_range, max_range, half, worst, eps, cap, plane, lo, hi
 ):
@@ -126,7 +126,7 @@ def _prepare_row(
             hi[r, c] = (o + Hh) / (d - g) if d > g else np.inf
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, nogil=True, parallel=True)
 def prepare_depth(depth, dirs, ray_norm, R_wc, fx, fy, min_range, max_range, voxel, eps, cap):
     """Per-pixel surface planes that decide the fate of the voxels projecting onto each pixel.
 
@@ -172,7 +172,7 @@ def prepare_depth(depth, dirs, ray_norm, R_wc, fx, fy, min_range, max_range, vox
     return plane, lo, hi
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _endpoints_row(
     r,
     depth,
@@ -232,7 +232,7 @@ def _endpoints_row(
         octflag[loc, ((lx // h) << 2) | ((ly // h) << 1) | (lz // h)] = 1
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, nogil=True, parallel=True)
 def mark_endpoints(
     depth,
     dirs,
@@ -281,7 +281,7 @@ def mark_endpoints(
         )
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def build_pyramid(lo0, hi0):
     """Min/max pyramid: level k pools 2^k x 2^k pixels. Returns flat (mins, maxs, offsets, heights, widths)."""
     H, W = lo0.shape
@@ -329,7 +329,7 @@ def build_pyramid(lo0, hi0):
     return mn, mx, offs, hs_a, ws_a
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _pyr_query(mn, mx, offs, ws, u0, u1, v0, v1):
     s = max(u1 - u0 + 1, v1 - v0 + 1)
     k = 0
@@ -346,7 +346,7 @@ def _pyr_query(mn, mx, offs, ws, u0, u1, v0, v1):
     return a, b
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _classify(px, py, pz, corners, cam, planes, pyr_mn, pyr_mx, offs, ws, simple):
     """Class (SKIP, FREE or PARTIAL) of a world-axis-aligned cube centred at (px, py, pz)
     (camera frame) whose corners are ``(px, py, pz) + corners[i]`` ((8, 3) camera frame)."""
@@ -412,7 +412,7 @@ def _classify(px, py, pz, corners, cam, planes, pyr_mn, pyr_mx, offs, ws, simple
     return PARTIAL
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def cube_corners(R, half):
     """(8, 3) camera-frame offsets of the corners of a world-axis-aligned cube of half edge ``half``."""
     out = np.empty((8, 3), np.float64)
@@ -425,7 +425,7 @@ def cube_corners(R, half):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _classify_super(s, out, s_lo, s_n, bedge, R, t, cam, planes, pyr_mn, pyr_mx, offs, ws, simple, cb, cs):
     """Row ``s`` of :func:`classify_blocks`."""
     sedge = SUPER * bedge
@@ -458,7 +458,7 @@ def _classify_super(s, out, s_lo, s_n, bedge, R, t, cam, planes, pyr_mn, pyr_mx,
                 )
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, nogil=True, parallel=True)
 def classify_blocks(s_lo, s_n, B, voxel, R, t, cam, planes, pyr_mn, pyr_mx, offs, ws, simple):
     """Classify every block of the superblock box ``[s_lo, s_lo + s_n)`` against the frame.
 
@@ -481,7 +481,7 @@ def classify_blocks(s_lo, s_n, B, voxel, R, t, cam, planes, pyr_mn, pyr_mx, offs
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def collect_blocks(cls, s_lo, s_n):
     """Block coordinates (M, 3) int32 and classes (M,) int8 of the non-skipped blocks."""
     n = 0
@@ -506,7 +506,7 @@ def collect_blocks(cls, s_lo, s_n):
     return coords, kinds
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _change(old, new, thr):
     """Change code of one voxel update: ``CHANGED_STATE`` (unknown / free / occupied) plus
     ``CHANGED_OCCUPIED`` when the voxel entered or left the occupied state; 0 for none."""
@@ -519,7 +519,7 @@ def _change(old, new, thr):
     return 0
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _miss(old, l_miss, c_lo, stale):
     """A voxel's log-odds after a miss: ``old + l_miss`` clamped at ``c_lo``; an unknown voxel
     (NaN), or one still at the ``stale`` prior value (NaN: none, see
@@ -529,7 +529,7 @@ def _miss(old, l_miss, c_lo, stale):
     return max(old + l_miss, c_lo)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _hit(old, l_hit, c_hi, stale):
     """A voxel's log-odds after a hit: ``old + l_hit`` clamped at ``c_hi``; an unknown voxel
     (NaN), or one still at the ``stale`` prior value, starts from 0 as if never measured: this
@@ -539,7 +539,7 @@ def _hit(old, l_hit, c_hi, stale):
     return min(old + l_hit, c_hi)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _carve_range(blk, B, x0, x1, y0, y1, z0, z1, l_miss, c_lo, c_hi, thr, stale):
     """Miss every voxel of the local box [x0, x1) x [y0, y1) x [z0, z1) (see :func:`_miss`).
 
@@ -560,7 +560,7 @@ def _carve_range(blk, B, x0, x1, y0, y1, z0, z1, l_miss, c_lo, c_hi, thr, stale)
     return ch, sat
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _voxels(
     blk, hm, B, x0, x1, y0, y1, z0, z1, px, py, pz, R, voxel, cam, dist, plane, lodds, counts, j, order
 ):
@@ -647,7 +647,7 @@ def _voxels(
     return ch, nh > 0
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _all_at(blk, B, x0, y0, z0, h, value):
     """Whether every voxel of the local box [x0, x0 + h) x ... holds ``value``."""
     for lx in range(x0, x0 + h):
@@ -659,7 +659,7 @@ def _all_at(blk, B, x0, y0, z0, h, value):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _update_block(
     j,
     data,
@@ -779,7 +779,7 @@ def _update_block(
     return ch
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _loop_order(R):
     """World axes ordered so that the last one moves most along the camera's x axis (image rows)
     and the middle one most along its y axis: consecutive voxels then read nearby pixels."""
@@ -799,7 +799,7 @@ def _loop_order(R):
     return out
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, nogil=True, parallel=True)
 def update_blocks(
     data,
     sat,

@@ -15,7 +15,7 @@ from skyrecon.mapping._projective import _change, _hit, _miss
 from skyrecon.mapping.blocks import EMPTY, table_find
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _traverse(o, e, buf):
     """Voxels (in ``buf`` (L, 3) int64) crossed by the segment o -> e, both in voxel units. Returns count."""
     ix = int(np.floor(o[0]))
@@ -64,7 +64,7 @@ def _traverse(o, e, buf):
     return n
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def collect_ray_blocks(origin, ends, B, max_steps):
     """Block coordinates (K, 3) int32 crossed by the rays origin -> ends[i] (voxel units), consecutive duplicates removed."""
     cap = 1024
@@ -97,7 +97,7 @@ def collect_ray_blocks(origin, ends, B, max_steps):
     return out[:n]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def mark_rays(tkeys, tvals, local_of_pool, n_local, origin, ends, is_hit, B, max_steps):
     """Free / hit flags (n_local, B^3) uint8 for one scan. ``is_hit`` (N,) uint8: the end voxel is a hit."""
     free = np.zeros((n_local, B * B * B), np.uint8)
@@ -133,7 +133,7 @@ def mark_rays(tkeys, tvals, local_of_pool, n_local, origin, ends, is_hit, B, max
     return free, hits
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def apply_flags(data, sat, pool_ids, free, hits, lodds):
     """Apply hit (wins) / miss flags to blocks ``pool_ids``; returns changed (M,) uint8 (change
     codes, see :func:`skyrecon.mapping._projective.update_blocks`) and counts (M, 2).

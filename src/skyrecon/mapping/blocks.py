@@ -20,7 +20,7 @@ EMPTY = np.int32(np.iinfo(np.int32).min)  # marks an empty hash slot in the key 
 _MAX_LOAD = 0.5  # hash table load factor limit
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _slot(x, y, z, mask):
     h = (
         (np.int64(x) * np.int64(73856093))
@@ -30,7 +30,7 @@ def _slot(x, y, z, mask):
     return h & mask
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def table_find(tkeys, tvals, x, y, z):
     """Pool index of block (x, y, z), or -1 when absent. ``tkeys`` (C, 3) int32, ``tvals`` (C,) int32."""
     mask = tkeys.shape[0] - 1
@@ -44,7 +44,7 @@ def table_find(tkeys, tvals, x, y, z):
         h = (h + 1) & mask
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _table_put(tkeys, tvals, x, y, z, value):
     mask = tkeys.shape[0] - 1
     h = _slot(x, y, z, mask)
@@ -56,7 +56,7 @@ def _table_put(tkeys, tvals, x, y, z, value):
     tvals[h] = value
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def find_many(tkeys, tvals, queries):
     """(M,) int32 pool indices of the (M, 3) int32 block coordinates ``queries`` (-1: absent)."""
     out = np.empty(queries.shape[0], np.int32)
@@ -65,7 +65,7 @@ def find_many(tkeys, tvals, queries):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def insert_many(tkeys, tvals, coords, count, limit, queries, out, start):
     """Find or insert blocks ``queries[start:]`` (M, 3) int32, writing pool indices to ``out``.
 
@@ -105,7 +105,7 @@ def insert_many(tkeys, tvals, coords, count, limit, queries, out, start):
     return queries.shape[0], count
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _rehash(coords, count, capacity):
     tkeys = np.full((capacity, 3), EMPTY, np.int32)
     tvals = np.full(capacity, -1, np.int32)
@@ -114,7 +114,7 @@ def _rehash(coords, count, capacity):
     return tkeys, tvals
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def gather_dense(tkeys, tvals, data, B, lo, shape, fill):
     """Copy voxels of the box ``[lo, lo + shape)`` (voxel indices) into a dense (X, Y, Z) float32 array.
 
@@ -154,7 +154,7 @@ def gather_dense(tkeys, tvals, data, B, lo, shape, fill):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def scatter_dense(ids, coords, data, B, lo, dense):
     """Write the dense (X, Y, Z) box starting at voxel ``lo`` into the blocks ``ids`` (pool indices).
 
@@ -178,7 +178,7 @@ def scatter_dense(ids, coords, data, B, lo, dense):
                     data[k, base + lz] = dense[gx, gy, gz]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _lookup_one(tkeys, tvals, data, B, vx, vy, vz, fill):
     bx = vx // B
     by = vy // B
@@ -189,7 +189,7 @@ def _lookup_one(tkeys, tvals, data, B, vx, vy, vz, fill):
     return data[k, ((vx - bx * B) * B + (vy - by * B)) * B + (vz - bz * B)]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def lookup_voxels(tkeys, tvals, data, B, voxels, fill):
     """Values (N,) float32 of the voxels with indices ``voxels`` (N, 3) int64; ``fill`` where absent."""
     out = np.empty(voxels.shape[0], np.float32)

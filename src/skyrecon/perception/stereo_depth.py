@@ -21,6 +21,7 @@ float32 metres along the left optical axis, NaN where not measured.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
@@ -252,11 +253,21 @@ class StereoDepth:
                 warmup()
         return self._matcher
 
-    def compute(self, left: np.ndarray, right: np.ndarray) -> DepthFrame:
-        """Depth of one rectified pair, each (H, W, 3) uint8 RGB (or (H, W) grey)."""
+    def compute(
+        self, left: np.ndarray, right: np.ndarray, after_match: Callable[[], object] | None = None
+    ) -> DepthFrame:
+        """Depth of one rectified pair, each (H, W, 3) uint8 RGB (or (H, W) grey).
+
+        ``after_match``, if given, is called once the matcher is done and before the rest (the
+        texture masks, the plane fill and the conversion to depth, single-threaded): the
+        moment to start other work on another thread without slowing the matcher, which uses
+        every core (:class:`skyrecon.mapping.StereoMapper` integrates the previous frame then).
+        """
         t0 = time.perf_counter()
         self.rig.left.check_image(np.asarray(left), "left image")
         result = self.matcher.compute(left, right)
+        if after_match is not None:
+            after_match()
         s = self.settings
         measured = result.measured
         textured = None

@@ -32,7 +32,7 @@ from numba import njit
 from skyrecon.errors import InputError
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _trusted(disparity, measured, max_step):  # pragma: no cover - compiled
     """(H, W) bool: measured pixels whose measured 3x3 neighbours span <= max_step pixels."""
     H, W = disparity.shape
@@ -53,7 +53,7 @@ def _trusted(disparity, measured, max_step):  # pragma: no cover - compiled
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _border_pairs(disparity, trusted, labels, radius):  # pragma: no cover - compiled
     """The (pixel, segment) pairs: each trusted pixel with the segments (at most 4) within
     ``radius`` pixels of it; returns (u, v, d, label) arrays of the pairs."""
@@ -91,7 +91,7 @@ def _border_pairs(disparity, trusted, labels, radius):  # pragma: no cover - com
     return pu[:npair], pv[:npair], pd[:npair], pl[:npair]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _solve_plane(S, Bv, lab, min_spread, span_u, span_v, max_slope, coef):  # pragma: no cover - compiled
     """Least-squares plane of segment ``lab`` from its sums into ``coef[lab]``; False when its
     support is not spread in two directions (smallest std of (u, v) along any direction below
@@ -124,7 +124,7 @@ def _solve_plane(S, Bv, lab, min_spread, span_u, span_v, max_slope, coef):  # pr
     return abs(coef[lab, 0]) <= max_slope
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _ransac_planes(
     pu, pv, pd, pl, n, tolerance, tolerance_rel, min_support, trials, max_eval
 ):  # pragma: no cover
@@ -177,7 +177,7 @@ def _ransac_planes(
     return coef, found
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _segment_planes(
     pu,
     pv,
@@ -250,7 +250,7 @@ def _segment_planes(
     return coef, ok
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _photo_check(labels, ok, coef, left, right, max_diff, max_bad, min_count):  # pragma: no cover
     """Refuse (in ``ok``) the planes that do not map their segment onto the right image.
 
@@ -298,7 +298,7 @@ def _photo_check(labels, ok, coef, left, right, max_diff, max_bad, min_count):  
             ok[lab] = False
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _paint_planes(labels, coef, ok, out, accepted):  # pragma: no cover - compiled
     H, W = labels.shape
     for r in range(H):
@@ -468,7 +468,7 @@ def _refuse_against_guesses(
     ok &= ~(2 * n_far > n_all)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _count_against_guesses(guess, labels, coef, ok, max_gap_px, n_all, n_far):
     """Per segment still ``ok``: its painted pixels with a finite guess (``n_all``) and those
     whose guess is more than ``max_gap_px`` from the plane (``n_far``); one pass."""
