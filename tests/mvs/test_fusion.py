@@ -7,17 +7,22 @@ import numpy as np
 from skyrecon.core import Intrinsics, Rigid3
 from skyrecon.mvs import FusionSettings, fuse_concat, fuse_consistent
 from skyrecon.mvs.frames import WorkingView
+from skyrecon.mvs.fusion import _depth_slack_px
 
 W, H = 80, 60
 
 
-def plane_views(n: int = 4) -> tuple[list[WorkingView], list[np.ndarray]]:
-    """``n`` cameras 5 m above the plane z = 0 looking down at it; exact depth maps."""
+def plane_views(
+    n: int = 4, radius_m: float = 1.0, size: tuple[int, int] = (W, H)
+) -> tuple[list[WorkingView], list[np.ndarray]]:
+    """``n`` cameras 5 m above the plane z = 0, ``radius_m`` from its origin, looking at it;
+    exact (h, w) depth maps of ``size`` (w, h)."""
+    W, H = size
     intr = Intrinsics.from_fov(W, H, 50.0)
     views, depths = [], []
     for k in range(n):
         a = 2 * np.pi * k / n
-        eye = np.array([1.0 * np.cos(a), 1.0 * np.sin(a), 5.0])
+        eye = np.array([radius_m * np.cos(a), radius_m * np.sin(a), 5.0])
         pose = Rigid3.look_at(eye, [0.0, 0.0, 0.0], up_world=(0.0, 1.0, 0.0))
         rays = intr.ray_directions().reshape(-1, 3)  # camera frame, z = 1
         R_wc = pose.inverse().R
@@ -128,3 +133,30 @@ def test_planar_prior_pixels_need_fewer_agreeing_views() -> None:
     # only for the pixels the prior filled
     unfilled = [np.zeros((H, W), bool), np.zeros((H, W), bool), None, None]
     assert len(fuse_consistent(views, patch, all_neighbors(4), lenient, unfilled).cloud) == 0
+
+
+def test_planes_of_two_views_a_little_apart_agree_within_the_depth_tolerance() -> None:
+    """Two views fill the same plain surface with planes a fraction of a degree apart: their
+    depths agree within the depth tolerance, but the points come back more than a pixel away.
+    Plane against plane, the reprojection check allows what the depth tolerance lets through
+    (max_reproj_px_prior); measured pixels keep the 1 px check."""
+    w, h = 320, 240
+    views, depths = plane_views(4, radius_m=4.0, size=(w, h))  # 40 degrees apart, like a ring
+    tilted = [d.copy() for d in depths]
+    rows = np.arange(h, dtype=np.float32)[:, None]
+    for k in (1, 3):  # a slight tilt in two of the views: up to 0.6 % of the depth
+        tilted[k] = tilted[k] * (1.0 + 0.006 * (rows - h / 2) / (h / 2))
+    planes = [np.ones((h, w), bool)] * 4
+    nb = all_neighbors(4)
+    strict = FusionSettings(min_consistent=2, adaptive=False, max_reproj_px_prior=None)
+    sliding = FusionSettings(min_consistent=2, adaptive=False)
+    n_strict = len(fuse_consistent(views, tilted, nb, strict, planes).cloud)
+    n_sliding = len(fuse_consistent(views, tilted, nb, sliding, planes).cloud)
+    assert n_sliding > n_strict + 0.1 * w * h
+    # without the prior's masks (measured pixels), or a plane against a measured pixel: 1 px
+    assert len(fuse_consistent(views, tilted, nb, sliding).cloud) == n_strict
+    half = [planes[0], planes[1], None, None]
+    assert len(fuse_consistent(views, tilted, nb, sliding, half).cloud) < n_sliding
+    # the slack is what a depth change of max_rel_depth_diff moves a point by, within the bounds
+    slack = _depth_slack_px(views[0], views[2], np.array([[0.0, 0.0, 6.0], [0.5, 0.3, 6.2]]), sliding)
+    assert np.all(slack > sliding.max_reproj_px) and np.all(slack <= sliding.max_reproj_px_prior)

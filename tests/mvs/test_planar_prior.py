@@ -464,3 +464,27 @@ def test_a_failing_second_pass_keeps_the_first_and_says_so(plain_ring, monkeypat
 def test_second_pass_and_ranking_settings_are_checked(bad: dict) -> None:
     with pytest.raises(InputError, match="planar prior"):
         PlanarPriorSettings(**bad)
+
+
+def test_a_supported_raised_top_may_hide_what_lies_lower_around_it() -> None:
+    """A plinth top (a level plane most of the band lies on) hides the band points seen past its
+    edges (the lower ground): that is neither held against it nor sets it aside, so it beats a
+    plane a little lower that hides less but has hardly any band point on it; a level plane
+    with little support keeps the strict rule."""
+    s = PlanarPriorSettings()
+    up = np.array([0.0, -1.0, 0.0])
+    top, lower = [0.0, -1.0, 0.0, -5.6], [0.0, -1.0, 0.0, -5.7]
+    cands = np.array([top, lower])
+    walls = pp._walls(cands, up)
+    assert not walls.any()
+    is_global = np.array([True, True])
+    fracs, zero = np.array([1.0, 0.96]), np.zeros(2)
+    front = np.array([0.2, 0.01])  # the share of the band each would hide
+    support = np.array([0.72, 0.16])
+    assert pp._choose_plane(is_global, fracs, zero, front, walls, s, support)[0] == 0
+    never = PlanarPriorSettings(level_top_min_support=1.5)
+    assert pp._choose_plane(is_global, fracs, zero, front, walls, never, support)[0] == 1
+    assert pp._choose_plane(is_global, fracs, zero, front, walls, s, np.array([0.3, 0.16]))[0] == 1
+    # which candidates count as raised tops: level, and enough of the band on them
+    tops = pp._level_tops(np.array([False, False, True]), np.array([0.6, 0.2, 0.9]), s)
+    assert tops.tolist() == [True, False, False]

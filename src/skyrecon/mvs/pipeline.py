@@ -401,7 +401,7 @@ def _prior(run: _MVSRun) -> None:
         for r, rep in _shared_planes_pass(run, linked, before, filled, cache_dir).items():
             reports.setdefault(r, {})["shared_planes"] = rep
     fs = s.fusion_settings
-    if s.fusion == "consistency" and fs.min_consistent_prior < fs.min_consistent:  # else unread
+    if s.fusion == "consistency" and fs.checks_prior_apart:  # else unread
         run.prior_filled = _filled_by_prior(before, run.depths)
     prior = {run.views[r].stem: rep for r, rep in reports.items()}
     run.diagnostics["planar_prior"] = {

@@ -58,19 +58,25 @@ The multi-view geometric-consistency fusion then keeps only the points that othe
 depth maps agree with (:mod:`skyrecon.mvs.fusion`): no texture is needed there.
 
 Known limits (``benchmarks/mvs/diagnose_ring.py`` shows them per view): the plain rings of
-``benchmarks/mvs`` reach F 0.85-0.91 at 1 % of the ring radius (target 0.9), recall 0.74-0.83 at
-precision 0.93-1.0; what is missing is mostly free-standing plain walls (about half of them on
-ring-plain-e) and the plinths' side faces. Each plain face is a segment of its own (the
-intensity edges separate them); what fails is its plane: (a) the dominant planes hold the
-textured faces and seldom a plain wall, whose consistent points are only its outline; (b) the
-view's own walls through its corner and contact lines can still be a degree or more off (a
-vertical corner line fixes a vertical plane only up to a rotation about it); (c) a level
-dominant plane may take a wall's segment (three views of ring-plain-e): a uniform face looks the same in the nearby sources under any plane behind it, and a plane behind
-the true surface is caught by no visibility test. Tried and left (ring-plain-e and -d, F within
--0.03 to +0.006): relaxing the hidden-band rule for walls, refusing level planes without contact
-points or with contacts along one line, reading only confident source depths in the see-through
-test, and twelve dominant planes; vertical planes by RANSAC on the consistent points were
-looked at and not tried (the textured faces come first there too).
+``benchmarks/mvs`` reach F 0.86-0.90 at 1 % of the ring radius (target 0.9), recall 0.76-0.83 at
+precision 0.93-1.0. (a) The views' own walls through a wall's corner and contact lines can be a
+degree or more off (a vertical corner line fixes a vertical plane only up to a rotation about
+it); fusion now lets two plane-filled pixels agree within what its depth tolerance allows
+(``FusionSettings.max_reproj_px_prior``), which brought back most walls the 1 px check
+refused, but a wall a view fits too far off stays out. (b) A plain plinth top and the plain
+ground behind it meet without an intensity edge (same grey, same light) and are one segment,
+which takes one plane: the ground's (the plinth top missing, ring-plain-f: a fifth of its
+misses) or the plinth's, carried over the ground (ring-plain-b: precision 0.93; views whose
+ground band holds no ground contact point and the plinth's edge). Splitting such a segment
+between the level planes of its band, each pixel to the plane of its nearest band point, was
+tried: the boundary it draws is not the plinth's hidden back edge, and the roofs' back edges
+seen against the ground split it too (plain rings worst F 0.864 -> 0.860, ring-plain-a
+precision 1.0 -> 0.97); left out. (c) A level dominant plane may take a wall's segment (a
+uniform face looks the same in the nearby sources under any plane behind it, and a plane behind
+the true surface is caught by no visibility test). Also tried and left (ring-plain-e and -d, F
+within -0.03 to +0.006): relaxing the hidden-band rule for walls, refusing level planes without
+contact points or with contacts along one line, reading only confident source depths in the
+see-through test, and twelve dominant planes.
 
 Bad input: whatever goes wrong (no support, degenerate triangulations, no plane that fits) the
 view keeps its PatchMatch depth unchanged and the reason is returned (``PriorReport.fallback``).
@@ -177,6 +183,14 @@ class PlanarPriorSettings:
             below, the plain rings' F at 1 % of the radius: worst 0.840 -> 0.848, mean 0.856
             -> 0.866 (ring-plain-a 0.877 -> 0.906, c 0.865 -> 0.854); the textured rings, rock
             and temple within 0.001.
+        level_top_min_support: a level candidate with at least this share of the segment's
+            band support on it (within ``inlier_rel``) is a raised top (a plinth, a terrace, a
+            flat roof): it may hide as much of the band as a wall (``max_front_hidden_wall``)
+            and that share is not held against it in the ranking, because what it hides is the
+            lower surfaces around it that the view sees past its convex edges (a plane a little
+            lower hides less and won the plinth tops of the plain rings). A level plane floating
+            in front of the true surface (a terrace height over the ground) has few band points
+            on it and keeps the strict rule. Above 1: never.
         manhattan_refits: the Manhattan planes are refitted this many times more to the band
             points within ``manhattan_refit_rel`` of the depth of the last fit (the first fit's
             inliers, within ``inlier_rel``, include points of the neighbouring face near a
@@ -232,6 +246,7 @@ class PlanarPriorSettings:
     wall_hidden_weight: float = 1.0
     dominant_margin: float = 0.2
     dominant_wall_min_support: float = 0.5
+    level_top_min_support: float = 0.5
     manhattan_refits: int = 2
     manhattan_refit_rel: float = 0.005
     propagate: bool = True
@@ -984,9 +999,11 @@ def _judge_candidates(
             # the share of the band support each plane would hide (this view measured it beyond
             # the plane: the segment cannot lie there unless it ends at its border)
             front = np.count_nonzero(all_d > bd * (1.0 + s.see_through_margin), axis=1) / len(all_d)
-    # a level plane (the ground, a terrace) hides nothing that stands on it; a wall hides what
-    # lies beyond its convex corners and top edge (a set-back storey, the roof behind it)
+    # a level plane (the ground) hides nothing that stands on it; a wall hides what lies beyond
+    # its convex corners and top edge (a set-back storey, the roof behind it), and so does a
+    # raised level top that the band supports (what lies lower around it)
     limit = np.full(len(cands), s.max_front_hidden)
+    limit[_level_tops(wall, on_plane, s)] = s.max_front_hidden_wall
     if wall is not None:
         limit[wall] = s.max_front_hidden_wall
     if source_depths is not None:
@@ -1075,6 +1092,14 @@ def _walls(planes: np.ndarray, up: np.ndarray) -> np.ndarray:
     return np.abs(planes[:, :3] @ up) < _LEVEL_COS
 
 
+def _level_tops(wall: np.ndarray | None, on_plane: np.ndarray, s: PlanarPriorSettings) -> np.ndarray:
+    """(K,) bool: the level candidates (``wall`` (K,) bool False, None: all level) with at least
+    ``level_top_min_support`` of the band support on them (``on_plane`` (K,)): raised tops, past
+    whose edges this view sees the lower surfaces around them."""
+    tops = on_plane >= s.level_top_min_support
+    return tops if wall is None else tops & ~wall
+
+
 def _choose_plane(
     is_global: np.ndarray,
     fracs: np.ndarray,
@@ -1123,6 +1148,8 @@ def _choose_plane(
         else good
     )
     hidden_weight = np.where(wall, s.wall_hidden_weight, s.see_through_weight)
+    if support is not None:  # what a supported raised top hides lies lower, past its edges
+        hidden_weight[_level_tops(wall, support, s)] = 0.0
     score = fracs - s.see_through_weight * through - hidden_weight * front
     rivals = np.where(pool, score, -np.inf)
     return int(np.argmax(rivals)), rivals
