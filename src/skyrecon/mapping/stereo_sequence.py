@@ -182,10 +182,10 @@ class StereoMapper:
         map: the :class:`OccupancyMap` being built (range = :meth:`StereoMapSettings.hit_range_m`),
             with every frame added so far (reading it waits for a frame still being integrated).
         stereo: the :class:`StereoDepth` stage.
-        support: the :class:`FrameSupport` of the guesses, or None.
-        ground: the :class:`GroundLevel` learnt so far, or None; ground_support: the
-            :class:`FrameSupport` of the ground pixels, or None (both as up to date as ``map``).
+        ground: the :class:`GroundLevel` learnt so far, or None (as up to date as ``map``).
         timings: per-frame wall times.
+    The :class:`FrameSupport` of the guesses and of the ground pixels are in
+    :meth:`resume_state`.
     """
 
     def __init__(
@@ -240,19 +240,9 @@ class StereoMapper:
         return self._map
 
     @property
-    def support(self) -> FrameSupport | None:
-        self.flush()
-        return self._support
-
-    @property
     def ground(self) -> GroundLevel | None:
         self.flush()
         return self._ground
-
-    @property
-    def ground_support(self) -> FrameSupport | None:
-        self.flush()
-        return self._ground_support
 
     def resume_state(self) -> ResumeState:
         """What a checkpoint must hold to resume this mapper: the map, the guesses' support
