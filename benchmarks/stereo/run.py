@@ -28,6 +28,13 @@ not be seen by the right camera, gives flying-3 0.56 -> 0.49x (flying-10 0.94 ->
 same) but flying-1, 2, 4-8 and Cones 0.001-0.017 worse (a surface ending in the band takes its
 neighbour's continuation): left out.
 
+Flying-6 and flying-10 (session 40) have a large background striped along the rows (periods of
+44 and 18.5 px): both matchers take an alias (d + period) on much of it, we more often (66 % and
+98 % of its pixels against OpenCV's 34 % and 60 %; bad-1 1.06x and 0.94x of OpenCV's). The
+only evidence for the true disparity is the left band, where the alias falls outside the right
+image, and the objects in front cut the paths that would carry it; the horizontal paths and
+no left-band restart each help a little (0.56 / 0.63 of the background wrong).
+
 This is a plain script: it prints a table and never fails for being slow.
 """
 
@@ -110,7 +117,7 @@ def load_pairs(use_sim: bool) -> list[tuple[str, np.ndarray, np.ndarray, np.ndar
                 f = render_stereo(city, rig, street_view_pose(city, seed))
                 gt = f.disparity_left_px
                 pairs.append((f"city-plain-{seed}", f.left, f.right, gt, round16(np.nanmax(gt)), "bad1"))
-            for seed in (1, 2, 3):
+            for seed in (1, 2, 3, 6, 10):  # 6 and 10: a striped background (see above)
                 left, right, gt = render_flying_pair(seed)
                 pairs.append((f"flying-{seed}", left, right, gt, round16(np.nanmax(gt)), "bad1"))
     return pairs
