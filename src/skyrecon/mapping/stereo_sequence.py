@@ -54,9 +54,9 @@ Frames and units: images (H, W, 3) uint8 RGB of a rectified rig; poses ``world_f
 
 from __future__ import annotations
 
-import threading
 import time
 from collections.abc import Callable, Iterable, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
@@ -73,8 +73,7 @@ from skyrecon.mapping.inputs import as_world_from_cam
 from skyrecon.mapping.occupancy import IntegrationStats, OccupancyMap
 from skyrecon.perception import DepthFrame, PerceptionSettings, StereoDepth
 from skyrecon.stereo import Matcher
-from skyrecon.stereo.sgm import available_cores
-from skyrecon.threads import kernel_threads
+from skyrecon.threads import available_cores, kernel_threads
 
 _PERCEPTION_FIELDS = frozenset(f.name for f in fields(PerceptionSettings))
 
@@ -233,6 +232,7 @@ class StereoMapper:
         self.timings = FrameTimings()
         self.overlap = available_cores() > 1 if overlap is None else bool(overlap)
         self._pending: tuple[DepthFrame, Rigid3] | None = None  # depth not yet in the map
+        self._updater: ThreadPoolExecutor | None = None  # the thread that updates the map (overlap)
 
     @property
     def map(self) -> OccupancyMap:
@@ -298,14 +298,21 @@ class StereoMapper:
         """
         t0 = time.perf_counter()
         pose = as_world_from_cam(world_from_left)  # checked now: its frame is integrated later
-        job = _Background(self._integrate, *self._pending) if self._pending is not None else None
-        self._pending = None
+        waiting, self._pending = self._pending, None
+        update: list[Future[IntegrationStats]] = []
+
+        def start_update() -> None:  # once the matcher is done
+            if waiting is not None:
+                update.append(self._update_thread().submit(self._integrate_on_one_thread, *waiting))
+
         try:
-            frame = self.stereo.compute(left, right, after_match=job.start if job is not None else None)
+            frame = self.stereo.compute(left, right, after_match=start_update)
         finally:
             t1 = time.perf_counter()
-            if job is not None:
-                job.finish()  # re-raises what the update raised
+            if update:
+                update[0].result()  # re-raises what the update raised
+            elif waiting is not None:  # the matcher failed: update here
+                self._integrate(*waiting)
         stats = None
         if self.overlap:
             self._pending = (frame, pose)
@@ -315,6 +322,17 @@ class StereoMapper:
         self.timings.depth_s.append(t1 - t0)
         self.timings.integrate_s.append(t2 - t1)
         return StereoFrameResult(frame.depth_m, stats, t1 - t0, t2 - t1, frame.disparity)
+
+    def _update_thread(self) -> ThreadPoolExecutor:
+        if self._updater is None:
+            self._updater = ThreadPoolExecutor(max_workers=1, thread_name_prefix="skyrecon-map-update")
+        return self._updater
+
+    def _integrate_on_one_thread(self, frame: DepthFrame, world_from_left: Rigid3) -> IntegrationStats:
+        """:meth:`_integrate` with its Numba kernels on one thread (the other cores are the
+        caller's, finishing the next frame's depth)."""
+        with kernel_threads(1):
+            return self._integrate(frame, world_from_left)
 
     def _integrate(self, frame: DepthFrame, world_from_left: Rigid3) -> IntegrationStats:
         """The map update of one frame's depth: hits and misses, the guesses' support, the
@@ -336,36 +354,6 @@ class StereoMapper:
                 if on_ground is not None:
                     self._ground_support.add(on_ground, intr, world_from_left, strided=True)
         return stats
-
-
-class _Background:
-    """One call run on a thread of its own (its Numba kernels on one thread, leaving the other
-    cores to the caller) once :meth:`start` is called; :meth:`finish` waits for it (or runs it
-    here when it was never started) and re-raises what it raised."""
-
-    def __init__(self, fn: Callable[..., object], *args: Any):
-        self._fn, self._args = fn, args
-        self._error: BaseException | None = None
-        self._thread: threading.Thread | None = None
-
-    def start(self) -> None:
-        self._thread = threading.Thread(target=self._run, name="skyrecon-map-update", daemon=True)
-        self._thread.start()
-
-    def _run(self) -> None:
-        try:
-            with kernel_threads(1):
-                self._fn(*self._args)
-        except BaseException as exc:  # handed to the caller by finish()
-            self._error = exc
-
-    def finish(self) -> None:
-        if self._thread is None:
-            self._fn(*self._args)
-            return
-        self._thread.join()
-        if self._error is not None:
-            raise self._error
 
 
 def map_stereo_sequence(

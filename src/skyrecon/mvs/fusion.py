@@ -80,13 +80,15 @@ class FusionSettings:
     max_reproj_px_prior: float | None = 3.0
 
     @property
+    def relaxes_prior_reproj(self) -> bool:
+        """Whether plane-filled pixels may come back farther than ``max_reproj_px``."""
+        return self.max_reproj_px_prior is not None and self.max_reproj_px_prior > self.max_reproj_px
+
+    @property
     def checks_prior_apart(self) -> bool:
         """Whether the pixels a planar prior filled are checked by rules of their own (the
         fusion then needs their masks, ``lenient`` of :func:`fuse_consistent`)."""
-        reproj = self.max_reproj_px_prior
-        return self.min_consistent_prior < self.min_consistent or (
-            reproj is not None and reproj != self.max_reproj_px
-        )
+        return self.min_consistent_prior < self.min_consistent or self.relaxes_prior_reproj
 
     def __post_init__(self) -> None:
         if self.min_consistent < 0 or self.min_consistent_prior < 0:
@@ -216,11 +218,7 @@ def fuse_consistent(
         matches: list[tuple[int, np.ndarray, np.ndarray, np.ndarray]] = []
         mask = None if lenient is None else lenient[r]
         # the pixels a plane filled may be off by what the depth tolerance lets through
-        sliding = (
-            np.zeros(len(X), bool)
-            if mask is None or s.max_reproj_px_prior is None
-            else mask[v, u] & (s.max_reproj_px_prior > s.max_reproj_px)
-        )
+        sliding = mask[v, u] if mask is not None and s.relaxes_prior_reproj else None
         for sidx in neighbors[r]:
             ds = depths[sidx]
             if ds is None or sidx == r:
@@ -245,12 +243,13 @@ def fuse_consistent(
             xc = np.stack([(ui - intr.cx) / intr.fx * dval, (vi - intr.cy) / intr.fy * dval, dval], axis=1)
             Xs = views[sidx].cam_from_world.inverse().apply(xc)
             ur, vr, zr = _project(views[r], Xs)
-            reproj = np.full(len(idx), s.max_reproj_px)
-            # plane against plane: both pixels filled by the prior
-            src_mask = None if lenient is None else lenient[sidx]
-            slide = sliding[idx] & src_mask[vi, ui] if src_mask is not None else np.zeros(len(idx), bool)
-            if slide.any():
-                reproj[slide] = _depth_slack_px(views[r], views[sidx], xc[slide], s)
+            reproj: float | np.ndarray = s.max_reproj_px
+            src_mask = None if sliding is None or lenient is None else lenient[sidx]
+            if sliding is not None and src_mask is not None:
+                slide = sliding[idx] & src_mask[vi, ui]  # plane against plane
+                if slide.any():
+                    reproj = np.full(len(idx), s.max_reproj_px)
+                    reproj[slide] = _depth_slack_px(views[r], views[sidx], xc[slide], s)
             with np.errstate(invalid="ignore"):
                 ok = (zr > 0) & (np.hypot(ur - u[idx], vr - v[idx]) <= reproj)
             idx, ui, vi, Xs = idx[ok], ui[ok], vi[ok], Xs[ok]
@@ -298,8 +297,7 @@ def _depth_slack_px(ref: WorkingView, src: WorkingView, xc: np.ndarray, s: Fusio
     u1, v1, _ = _project(ref, world_from_src.apply(xc * (1.0 + s.max_rel_depth_diff)))
     with np.errstate(invalid="ignore"):
         slack = np.nan_to_num(np.hypot(u1 - u0, v1 - v0), nan=0.0)
-    hi = s.max_reproj_px if s.max_reproj_px_prior is None else s.max_reproj_px_prior
-    return np.clip(slack, s.max_reproj_px, hi)
+    return np.clip(slack, s.max_reproj_px, s.max_reproj_px_prior or s.max_reproj_px)
 
 
 def fuse_concat(views: list[WorkingView], depths: list[tuple[int, np.ndarray]]) -> FusedCloud:

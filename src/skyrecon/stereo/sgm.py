@@ -40,7 +40,6 @@ once per machine (``cache=True``) for one set of argument types.
 
 from __future__ import annotations
 
-import os
 import queue
 import threading
 import time
@@ -63,6 +62,7 @@ from skyrecon.stereo.base import (
     register_matcher,
     settings_from_kwargs,
 )
+from skyrecon.threads import available_cores
 
 _PATH_OFFSETS = {2: (0,), 4: (0, -1), 6: (0, -1, 1)}
 _MAX_BAND_BYTES = 256 << 20  # cost buffer of the bands in flight at once (one per thread)
@@ -260,14 +260,6 @@ FAST_SETTINGS = SkyreconSettings(fast=True)
 # --------------------------------------------------------------------------------------------
 _POOL: ThreadPoolExecutor | None = None
 _POOL_LOCK = threading.Lock()
-
-
-def available_cores() -> int:
-    """Cores this process may run on."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # pragma: no cover - not Linux
-        return max(1, os.cpu_count() or 1)
 
 
 def _pool() -> ThreadPoolExecutor:
