@@ -488,3 +488,53 @@ def test_a_supported_raised_top_may_hide_what_lies_lower_around_it() -> None:
     # which candidates count as raised tops: level, and enough of the band on them
     tops = pp._level_tops(np.array([False, False, True]), np.array([0.6, 0.2, 0.9]), s)
     assert tops.tolist() == [True, False, False]
+
+
+def test_a_level_plane_behind_a_plain_plinth_face_yields_to_the_face() -> None:
+    """A camera 2 m above the ground looks level at a plinth's plain front face (z = 10 m, 0.5 m
+    high, rows 48-51). The ground plane behind the face goes on *under* the plinth's top edge
+    right above the segment, and the plinth top carried out past its edge stands *over* the
+    ground right below it: both meet the band as an overhang; the face itself does not. The
+    ground, winning as a dominant plane, yields to the well supported face; without enough
+    support on the face, or without the shares, it keeps the segment."""
+    from types import SimpleNamespace
+
+    from skyrecon.core.intrinsics import Intrinsics
+
+    view = SimpleNamespace(intrinsics=Intrinsics(fx=100.0, fy=100.0, cx=32.0, cy=32.0, width=64, height=80))
+    up = np.array([0.0, -1.0, 0.0])  # camera y down
+    seg = np.zeros((80, 64), bool)
+    seg[48:52, 10:50] = True
+    cols = np.arange(12, 48)
+    top_v, foot_v = np.array([45, 46]), np.array([53, 54])  # the plinth top, the ground in front
+    vv = np.r_[np.repeat(top_v, len(cols)), np.repeat(foot_v, len(cols))]
+    uu = np.tile(cols, 4)
+    depth = np.where(vv < 48, 150.0 / (vv - 32.0), 200.0 / (vv - 32.0))  # y = 1.5 m and 2 m
+    below = pp._segment_beside_band(view, (seg, 0, 0), uu, vv, up, 7, -1)
+    above = pp._segment_beside_band(view, (seg, 0, 0), uu, vv, up, 7, 1)
+    assert set(vv[below[0]]) == {45, 46} and set(vv[above[0]]) == {53, 54}
+    np.testing.assert_allclose(below[1][:, 1], (48 - 32) / 100.0)  # the segment's first row below
+    ground, face, top = [0.0, -1.0, 0.0, -2.0], [0.0, 0.0, -1.0, -10.0], [0.0, -1.0, 0.0, -1.5]
+    cands = np.array([ground, face, top])
+    shares = pp._overhang_shares(cands, depth, below, above, 0.02)
+    np.testing.assert_allclose(shares, [0.5, 0.0, 0.5])
+    s = PlanarPriorSettings()
+    walls = pp._walls(cands, up)
+    is_global = np.array([True, False, True])
+    fracs, zero = np.array([0.92, 1.0, 0.9]), np.zeros(3)
+    support = np.array([0.45, 0.84, 0.5])
+    assert pp._choose_plane(is_global, fracs, zero, zero, walls, s, support)[0] == 0
+    win, rivals = pp._choose_plane(is_global, fracs, zero, zero, walls, s, support, shares)
+    assert win == 1 and np.isneginf(rivals[[0, 2]]).all()
+    weak = np.array([0.45, 0.3, 0.5])
+    assert pp._choose_plane(is_global, fracs, zero, zero, walls, s, weak, shares)[0] == 0
+    # a camera looking straight down has no image "up" at its principal point
+    nadir = pp._segment_beside_band(
+        view, (seg, 0, 0), np.array([32]), np.array([32]), np.array([0, 0, -1.0]), 7, -1
+    )
+    assert len(nadir[0]) == 0
+
+
+def test_overhang_settings_are_checked() -> None:
+    with pytest.raises(InputError, match="max_overhang"):
+        PlanarPriorSettings(max_overhang=-0.1)

@@ -44,6 +44,10 @@ beyond the support (the ground out to the image border):
    ``see_through_weight`` times the two visibility shares (a wall's hidden band share weighs
    ``wall_hidden_weight``); a winner nearly matched by another plane that differs on the
    border is ambiguous and left empty (:func:`_choose_plane`).
+   Nothing in a city overhangs the ground: a level winner that would go on *under* a nearer
+   edge right above the segment (the ground behind a plain plinth face, below the plinth's top
+   edge) or stand out *over* band points right below it (a top carried past its edge) yields to
+   a well supported wall that does neither (``max_overhang``, :func:`_overhang_shares`).
 6. ``check``: every pixel's plane point is projected into the sources; its colour must agree
    with the reference (``color_tol``) in at least ``min_sources`` of the sources that see it. A
    segment where fewer than ``min_pass_fraction`` of the pixels pass is dropped whole.
@@ -73,7 +77,16 @@ tried: the boundary it draws is not the plinth's hidden back edge, and the roofs
 seen against the ground split it too (plain rings worst F 0.864 -> 0.860, ring-plain-a
 precision 1.0 -> 0.97); left out. (c) A level dominant plane may take a wall's segment (a
 uniform face looks the same in the nearby sources under any plane behind it, and a plane behind
-the true surface is caught by no visibility test). Also tried and left (ring-plain-e and -d, F
+the true surface is caught by no visibility test); the overhang rule gives the segment back to
+the wall only where the view's own wall is a well supported candidate. Applied to every
+candidate (not only level winners) it lost more than it gained: the plain ground merged with a
+plain roof of the same grey goes on under the top storey's edge (ring-plain-b F 0.866 -> 0.44
+with the ground set aside), and PatchMatch points along a wall's top edge up to 6 % too near
+put the right wall over the limit (ring-plain-d 0.864 -> 0.851 when walls yielded too). On
+ring-plain-d the plinth faces have no candidate wall at all: their only support is the top
+edge, one horizontal line, which the spread test refuses; letting a vertical plane through such
+a line count (its spread along the plane's horizontal) gave d +0.002, b +0.004, g +0.013 but e
+-0.009 (more walls, more segments left ambiguous): left out. Also tried and left (ring-plain-e and -d, F
 within -0.03 to +0.006): relaxing the hidden-band rule for walls, refusing level planes without
 contact points or with contacts along one line, reading only confident source depths in the
 see-through test, and twelve dominant planes.
@@ -191,6 +204,18 @@ class PlanarPriorSettings:
             lower hides less and won the plinth tops of the plain rings). A level plane floating
             in front of the true surface (a terrace height over the ground) has few band points
             on it and keeps the strict rule. Above 1: never.
+        max_overhang, overhang_rival_max, overhang_rival_support: a level winner (the ground, a
+            terrace) that would meet more than ``max_overhang`` of the band support as an
+            overhang (:func:`_overhang_shares`: the segment going on *under* a nearer edge right
+            above it, or standing out *over* band points right below it) yields to the best
+            good wall that meets at most ``overhang_rival_max`` of it so, with at least
+            ``overhang_rival_support`` of the band support on it. A plain plinth's front face
+            took the ground plane behind it (a dominant plane, its precedence kept on a border
+            that looks the same under any plane) in most views of ring-plain-e although its own
+            wall through its top edge and foot was a candidate: ring-plain-e's F at 1 % of the
+            radius 0.863 -> 0.885, g 0.901 -> 0.915, the other rings within 0.002. Only with
+            ``hidden_band`` (oblique views; off for ``skyrecon survey``'s nadir photos, where it
+            was not measured).
         manhattan_refits: the Manhattan planes are refitted this many times more to the band
             points within ``manhattan_refit_rel`` of the depth of the last fit (the first fit's
             inliers, within ``inlier_rel``, include points of the neighbouring face near a
@@ -247,6 +272,9 @@ class PlanarPriorSettings:
     dominant_margin: float = 0.2
     dominant_wall_min_support: float = 0.5
     level_top_min_support: float = 0.5
+    max_overhang: float = 0.05
+    overhang_rival_max: float = 0.02
+    overhang_rival_support: float = 0.5
     manhattan_refits: int = 2
     manhattan_refit_rel: float = 0.005
     propagate: bool = True
@@ -268,6 +296,10 @@ class PlanarPriorSettings:
             or self.propagate_min_hits > self.propagate_samples
         ):
             raise InputError("planar prior: need 1 <= propagate_min_hits <= propagate_samples")
+        if min(self.max_overhang, self.overhang_rival_max, self.overhang_rival_support) < 0:
+            raise InputError(
+                "planar prior: need max_overhang, overhang_rival_max and overhang_rival_support >= 0"
+            )
         if self.dominant_margin < 0 or self.wall_hidden_weight < 0:
             raise InputError("planar prior: need dominant_margin >= 0 and wall_hidden_weight >= 0")
         if (
@@ -803,6 +835,85 @@ def _boundary_ring(seg: np.ndarray, width: int) -> np.ndarray:
     return seg & (inner == 0)
 
 
+def _segment_beside_band(
+    ref: WorkingView,
+    segment: tuple[np.ndarray, int, int],
+    uu: np.ndarray,
+    vv: np.ndarray,
+    up: np.ndarray,
+    steps: int,
+    side: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The band support points with the segment right below (``side`` -1) or right above (+1)
+    them in the image, and the segment pixel there.
+
+    "Above" is the image direction of world up at the band pixel: the way its image moves when
+    the point is lifted, ``(fx (up_x - x up_z), fy (up_y - y up_z))`` for the normalised pixel
+    (x, y) (a vertical edge of the world runs along it). The first segment pixel along it within
+    ``steps`` pixels is taken; a pixel whose ray runs along ``up`` has no such direction.
+
+    Args:
+        segment: the segment's (h, w) bool mask in its bounding box and the box's corner x0, y0.
+        uu, vv: (M,) int pixel coordinates of the band support points in that box.
+        up: (3,) world z (up) in the camera frame.
+    Returns:
+        ((N,) indices into the M band points, (N, 3) camera rays (x, y, 1) of the segment
+        pixels beside them).
+    """
+    seg, bx0, by0 = segment
+    k = ref.intrinsics
+    x = (uu + bx0 - k.cx) / k.fx
+    y = (vv + by0 - k.cy) / k.fy
+    du, dv = k.fx * (up[0] - x * up[2]), k.fy * (up[1] - y * up[2])
+    norm = np.hypot(du, dv)
+    has_up = norm > 1e-9 * max(k.fx, k.fy)
+    norm[~has_up] = 1.0
+    du, dv = side * du / norm, side * dv / norm
+    h, w = seg.shape
+    found = np.zeros(len(uu), bool)
+    su, sv = np.zeros(len(uu), np.int64), np.zeros(len(uu), np.int64)
+    for step in range(1, steps + 1):
+        cu = np.rint(uu + step * du).astype(np.int64)
+        cv_ = np.rint(vv + step * dv).astype(np.int64)
+        look = has_up & ~found & (cu >= 0) & (cv_ >= 0) & (cu < w) & (cv_ < h)
+        hit = np.zeros(len(uu), bool)
+        hit[look] = seg[cv_[look], cu[look]]
+        found |= hit
+        su[hit], sv[hit] = cu[hit], cv_[hit]
+    idx = np.nonzero(found)[0]
+    return idx, _rays(ref, (su[idx] + bx0).astype(np.float64), (sv[idx] + by0).astype(np.float64))
+
+
+def _overhang_shares(
+    cands: np.ndarray,
+    band_d: np.ndarray,
+    below: tuple[np.ndarray, np.ndarray],
+    above: tuple[np.ndarray, np.ndarray],
+    margin: float,
+) -> np.ndarray:
+    """(K,) share of the band support that each candidate plane (K, 4) would meet as an
+    overhang: a band point with the segment right below it that lies nearer, by more than
+    ``margin`` of the depth, than the plane at that segment pixel (the segment would go on under
+    it), or one with the segment right above it that lies farther than the plane there (the
+    segment would stand out over it, a ledge). Standing things (walls on the ground, a plinth,
+    a column) meet what lies below their edges; a wrong plane behind a plain face, or one
+    carried out past a top's edge, does not.
+
+    Args:
+        band_d: (M,) depths of the band support points, metres.
+        below, above: :func:`_segment_beside_band` with ``side`` -1 and +1.
+    """
+    n_band = max(len(band_d), 1)
+    count = np.zeros(len(cands))
+    for (idx, rays), sign in ((below, -1.0), (above, 1.0)):
+        if len(idx) == 0:
+            continue
+        plane_d = _plane_depth(cands[:, :3], cands[:, 3], rays)  # (K, N)
+        with np.errstate(invalid="ignore"):
+            count += np.count_nonzero(sign * (band_d[idx] - plane_d) > margin * plane_d, axis=1)
+    return count / n_band
+
+
 def _pixel_points_world(ref: WorkingView, u: np.ndarray, v: np.ndarray, d: np.ndarray) -> np.ndarray:
     """(N, 3) world points, metres, of pixels (u, v) of ``ref`` at depths d (N,) metres."""
     return ref.cam_from_world.inverse().apply(
@@ -1108,6 +1219,7 @@ def _choose_plane(
     wall: np.ndarray,
     s: PlanarPriorSettings,
     support: np.ndarray | None = None,
+    overhang: np.ndarray | None = None,
 ) -> tuple[int, np.ndarray] | None:
     """The winning candidate of a segment and the scores it was chosen among.
 
@@ -1128,6 +1240,11 @@ def _choose_plane(
     dominant plane (its few consistent points are its outline); the dominant wall nearest it
     is often a textured face set back from it (a storey above) that fits its top edge, while
     the view's own wall through its corner and contact lines carries most of the band.
+
+    With ``overhang`` (K,) too (:func:`_overhang_shares`), a level winner meeting more than
+    ``max_overhang`` of the band as an overhang yields to the best good wall that meets at
+    most ``overhang_rival_max`` of it so and has ``overhang_rival_support`` of the band on it
+    (the ground behind a plain plinth face against the face itself).
 
     Returns:
         (the winner's index among the K candidates, (K,) scores with -inf outside the pool), or
@@ -1152,7 +1269,13 @@ def _choose_plane(
         hidden_weight[_level_tops(wall, support, s)] = 0.0
     score = fracs - s.see_through_weight * through - hidden_weight * front
     rivals = np.where(pool, score, -np.inf)
-    return int(np.argmax(rivals)), rivals
+    win = int(np.argmax(rivals))
+    if overhang is not None and support is not None and not wall[win] and overhang[win] > s.max_overhang:
+        sound = good & wall & (overhang <= s.overhang_rival_max) & (support >= s.overhang_rival_support)
+        if sound.any():
+            rivals = np.where(sound, score, -np.inf)
+            win = int(np.argmax(rivals))
+    return win, rivals
 
 
 def fill_plain_segments(
@@ -1293,7 +1416,14 @@ def fill_plain_segments(
             s,
             wall,
         )
-        choice = _choose_plane(is_global, fracs, through, front, wall, s, on_plane)
+        overhang = None
+        if s.hidden_band:
+            beside = [
+                _segment_beside_band(ref, (seg, bx0, by0), uu, vv, up_cam, s.band_px + 1, side)
+                for side in (-1, 1)
+            ]
+            overhang = _overhang_shares(cands, all_d, beside[0], beside[1], s.see_through_margin)
+        choice = _choose_plane(is_global, fracs, through, front, wall, s, on_plane, overhang)
         if choice is None:
             rejected += 1
             continue
