@@ -62,8 +62,8 @@ The multi-view geometric-consistency fusion then keeps only the points that othe
 depth maps agree with (:mod:`skyrecon.mvs.fusion`): no texture is needed there.
 
 Known limits (``benchmarks/mvs/diagnose_ring.py`` shows them per view): the plain rings of
-``benchmarks/mvs`` reach F 0.86-0.90 at 1 % of the ring radius (target 0.9), recall 0.76-0.83 at
-precision 0.93-1.0. (a) The views' own walls through a wall's corner and contact lines can be a
+``benchmarks/mvs`` reach F 0.86-0.92 at 1 % of the ring radius (target 0.9: a and g pass),
+recall 0.76-0.84 at precision 0.93-1.0. (a) The views' own walls through a wall's corner and contact lines can be a
 degree or more off (a vertical corner line fixes a vertical plane only up to a rotation about
 it); fusion now lets two plane-filled pixels agree within what its depth tolerance allows
 (``FusionSettings.max_reproj_px_prior``), which brought back most walls the 1 px check
