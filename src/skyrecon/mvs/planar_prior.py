@@ -1416,14 +1416,15 @@ def fill_plain_segments(
             s,
             wall,
         )
-        overhang = None
-        if s.hidden_band:
+        choice = _choose_plane(is_global, fracs, through, front, wall, s, on_plane)
+        if choice is not None and s.hidden_band and not wall[choice[0]]:
+            # only a level winner may yield for an overhang: the shares are computed for it
             beside = [
                 _segment_beside_band(ref, (seg, bx0, by0), uu, vv, up_cam, s.band_px + 1, side)
                 for side in (-1, 1)
             ]
             overhang = _overhang_shares(cands, all_d, beside[0], beside[1], s.see_through_margin)
-        choice = _choose_plane(is_global, fracs, through, front, wall, s, on_plane, overhang)
+            choice = _choose_plane(is_global, fracs, through, front, wall, s, on_plane, overhang)
         if choice is None:
             rejected += 1
             continue
