@@ -86,7 +86,8 @@ put the right wall over the limit (ring-plain-d 0.864 -> 0.851 when walls yielde
 ring-plain-d the plinth faces have no candidate wall at all: their only support is the top
 edge, one horizontal line, which the spread test refuses; letting a vertical plane through such
 a line count (its spread along the plane's horizontal) gave d +0.002, b +0.004, g +0.013 but e
--0.009 (more walls, more segments left ambiguous): left out. Also tried and left (ring-plain-e and -d, F
+-0.009 (more walls, more segments left ambiguous), and the same figures when only segments
+without any other wall candidate get them: left out. Also tried and left (ring-plain-e and -d, F
 within -0.03 to +0.006): relaxing the hidden-band rule for walls, refusing level planes without
 contact points or with contacts along one line, reading only confident source depths in the
 see-through test, and twelve dominant planes.
