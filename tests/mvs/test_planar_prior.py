@@ -510,8 +510,7 @@ def test_a_level_plane_behind_a_plain_plinth_face_yields_to_the_face() -> None:
     vv = np.r_[np.repeat(top_v, len(cols)), np.repeat(foot_v, len(cols))]
     uu = np.tile(cols, 4)
     depth = np.where(vv < 48, 150.0 / (vv - 32.0), 200.0 / (vv - 32.0))  # y = 1.5 m and 2 m
-    below = pp._segment_beside_band(view, (seg, 0, 0), uu, vv, up, 7, -1)
-    above = pp._segment_beside_band(view, (seg, 0, 0), uu, vv, up, 7, 1)
+    below, above = pp._segment_beside_band(view, (seg, 0, 0), uu, vv, up, 7)
     assert set(vv[below[0]]) == {45, 46} and set(vv[above[0]]) == {53, 54}
     np.testing.assert_allclose(below[1][:, 1], (48 - 32) / 100.0)  # the segment's first row below
     ground, face, top = [0.0, -1.0, 0.0, -2.0], [0.0, 0.0, -1.0, -10.0], [0.0, -1.0, 0.0, -1.5]
@@ -529,8 +528,8 @@ def test_a_level_plane_behind_a_plain_plinth_face_yields_to_the_face() -> None:
     weak = np.array([0.45, 0.3, 0.5])
     assert pp._choose_plane(is_global, fracs, zero, zero, walls, s, weak, shares)[0] == 0
     # a camera looking straight down has no image "up" at its principal point
-    nadir = pp._segment_beside_band(
-        view, (seg, 0, 0), np.array([32]), np.array([32]), np.array([0, 0, -1.0]), 7, -1
+    nadir, _ = pp._segment_beside_band(
+        view, (seg, 0, 0), np.array([32]), np.array([32]), np.array([0, 0, -1.0]), 7
     )
     assert len(nadir[0]) == 0
 

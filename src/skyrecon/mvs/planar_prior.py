@@ -843,23 +843,23 @@ def _segment_beside_band(
     vv: np.ndarray,
     up: np.ndarray,
     steps: int,
-    side: int,
-) -> tuple[np.ndarray, np.ndarray]:
-    """The band support points with the segment right below (``side`` -1) or right above (+1)
-    them in the image, and the segment pixel there.
+) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
+    """The band support points with the segment right below them in the image, and those with
+    the segment right above them, each with the segment pixel there.
 
     "Above" is the image direction of world up at the band pixel: the way its image moves when
     the point is lifted, ``(fx (up_x - x up_z), fy (up_y - y up_z))`` for the normalised pixel
-    (x, y) (a vertical edge of the world runs along it). The first segment pixel along it within
-    ``steps`` pixels is taken; a pixel whose ray runs along ``up`` has no such direction.
+    (x, y) (a vertical edge of the world runs along it). The first segment pixel along it (or
+    against it, below) within ``steps`` pixels is taken; a pixel whose ray runs along ``up`` has
+    no such direction.
 
     Args:
         segment: the segment's (h, w) bool mask in its bounding box and the box's corner x0, y0.
         uu, vv: (M,) int pixel coordinates of the band support points in that box.
         up: (3,) world z (up) in the camera frame.
     Returns:
-        ((N,) indices into the M band points, (N, 3) camera rays (x, y, 1) of the segment
-        pixels beside them).
+        (below, above), each ((N,) indices into the M band points, (N, 3) camera rays (x, y, 1)
+        of the segment pixels beside them).
     """
     seg, bx0, by0 = segment
     k = ref.intrinsics
@@ -869,20 +869,23 @@ def _segment_beside_band(
     norm = np.hypot(du, dv)
     has_up = norm > 1e-9 * max(k.fx, k.fy)
     norm[~has_up] = 1.0
-    du, dv = side * du / norm, side * dv / norm
+    du, dv = du / norm, dv / norm
     h, w = seg.shape
-    found = np.zeros(len(uu), bool)
-    su, sv = np.zeros(len(uu), np.int64), np.zeros(len(uu), np.int64)
-    for step in range(1, steps + 1):
-        cu = np.rint(uu + step * du).astype(np.int64)
-        cv_ = np.rint(vv + step * dv).astype(np.int64)
-        look = has_up & ~found & (cu >= 0) & (cv_ >= 0) & (cu < w) & (cv_ < h)
-        hit = np.zeros(len(uu), bool)
-        hit[look] = seg[cv_[look], cu[look]]
-        found |= hit
-        su[hit], sv[hit] = cu[hit], cv_[hit]
-    idx = np.nonzero(found)[0]
-    return idx, _rays(ref, (su[idx] + bx0).astype(np.float64), (sv[idx] + by0).astype(np.float64))
+    out = []
+    for side in (-1, 1):
+        found = np.zeros(len(uu), bool)
+        su, sv = np.zeros(len(uu), np.int64), np.zeros(len(uu), np.int64)
+        for step in range(side, side * (steps + 1), side):
+            cu = np.rint(uu + step * du).astype(np.int64)
+            cv_ = np.rint(vv + step * dv).astype(np.int64)
+            look = has_up & ~found & (cu >= 0) & (cv_ >= 0) & (cu < w) & (cv_ < h)
+            hit = np.zeros(len(uu), bool)
+            hit[look] = seg[cv_[look], cu[look]]
+            found |= hit
+            su[hit], sv[hit] = cu[hit], cv_[hit]
+        idx = np.nonzero(found)[0]
+        out.append((idx, _rays(ref, (su[idx] + bx0).astype(np.float64), (sv[idx] + by0).astype(np.float64))))
+    return out[0], out[1]
 
 
 def _overhang_shares(
@@ -902,7 +905,7 @@ def _overhang_shares(
 
     Args:
         band_d: (M,) depths of the band support points, metres.
-        below, above: :func:`_segment_beside_band` with ``side`` -1 and +1.
+        below, above: :func:`_segment_beside_band`.
     """
     n_band = max(len(band_d), 1)
     count = np.zeros(len(cands))
@@ -1420,11 +1423,8 @@ def fill_plain_segments(
         choice = _choose_plane(is_global, fracs, through, front, wall, s, on_plane)
         if choice is not None and s.hidden_band and not wall[choice[0]]:
             # only a level winner may yield for an overhang: the shares are computed for it
-            beside = [
-                _segment_beside_band(ref, (seg, bx0, by0), uu, vv, up_cam, s.band_px + 1, side)
-                for side in (-1, 1)
-            ]
-            overhang = _overhang_shares(cands, all_d, beside[0], beside[1], s.see_through_margin)
+            below, above = _segment_beside_band(ref, (seg, bx0, by0), uu, vv, up_cam, s.band_px + 1)
+            overhang = _overhang_shares(cands, all_d, below, above, s.see_through_margin)
             choice = _choose_plane(is_global, fracs, through, front, wall, s, on_plane, overhang)
         if choice is None:
             rejected += 1
