@@ -112,7 +112,7 @@ def test_hit_range_of_the_presets(pair):
 
 def test_matcher_settings_and_reuse(pair):
     rig, _ = pair
-    kwargs = {"uniqueness": 0.05, "horizontal_paths": True, "guided_fill": False}
+    kwargs = {"uniqueness": 0.05, "paths": 4, "horizontal_paths": True, "guided_fill": False}
     assert PerceptionSettings.mapping().matcher_kwargs() == kwargs
     assert PerceptionSettings.mapping(method="opencv-sgbm").matcher_kwargs() == {}
     assert PerceptionSettings.flight().matcher_kwargs() == {}

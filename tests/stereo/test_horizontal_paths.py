@@ -108,8 +108,8 @@ def test_horizontal_paths_find_a_plain_ground(seed):
     inner = (slice(40, -10), slice(40, -10))  # the ground
     strips = (np.arange(200) % 50) < 16  # near the strips both find it
     err = {}
-    for on in (False, True):
-        r = create_matcher("skyrecon", 32, horizontal_paths=on).compute(left, right)
+    for on in (False, True):  # four other paths, as in the stereo mapper
+        r = create_matcher("skyrecon", 32, paths=4, horizontal_paths=on).compute(left, right)
         e = np.abs(r.disparity - d)[inner][:, ~strips[inner[1]]]
         err[on] = float(np.nanmedian(e))
     assert err[True] < 0.5 * err[False], err

@@ -27,12 +27,14 @@ class PerceptionSettings:
         method: stereo matcher name (see :func:`skyrecon.stereo.available_matchers`).
         max_disparity: disparity search range, pixels.
         matcher_settings: settings of the matcher (see :func:`skyrecon.stereo.create_matcher`);
-            None: ``{"uniqueness": 0.05, "horizontal_paths": True, "guided_fill": False}`` for
-            the skyrecon matchers (a drone's camera looks down at plain streets, see
+            None: ``{"uniqueness": 0.05, "paths": 4, "horizontal_paths": True, "guided_fill":
+            False}`` for the skyrecon matchers (a drone's camera looks down at plain streets, see
             :class:`skyrecon.stereo.SkyreconSettings`; the colour-guided fill only refines
             filled pixels, which the map takes as guesses: on the stereo map benchmark's
-            flights the maps were the same without it, 2-3 ms a frame sooner), nothing for the
-            others.
+            flights the maps were the same without it, 2-3 ms a frame sooner; the matcher's
+            third pair of diagonal paths, its default for single pairs since session 42, is
+            left off here: the map's figures and its time budget were measured without it),
+            nothing for the others.
         use_filled: also keep pixels the matcher filled by interpolation (off: they are
             guesses, not measurements, and could carve free space through a textureless wall).
         max_disparity_step_px: drop pixels whose 3x3 neighbourhood spans more disparity than
@@ -177,7 +179,7 @@ class PerceptionSettings:
             return dict(self.matcher_settings)
         if self.method not in _SKYRECON_MATCHERS:
             return {}
-        return {"uniqueness": 0.05, "horizontal_paths": True, "guided_fill": False}
+        return {"uniqueness": 0.05, "paths": 4, "horizontal_paths": True, "guided_fill": False}
 
     def hit_range_m(self, rig: StereoRig, voxel_size_m: float, max_range_m: float) -> float:
         """Range up to which measurements may mark obstacles, metres: ``max_range_m`` limited

@@ -6,9 +6,9 @@ Pipeline (grey images, see :func:`~skyrecon.stereo.base.prepare_pair`):
    robust to gain, bias and vignetting differences between the two cameras;
 2. matching cost = Hamming distance of census codes, computed on the fly row by row;
    matches falling outside the right image get a neutral cost so that smoothness decides;
-3. semi-global aggregation along 2, 4 (default: down, down-right and their opposites) or 6
-   paths (plus the other diagonal pair), with the jump penalty P2 lowered at intensity
-   edges; these advance row by row, so one step is a vector operation over all columns,
+3. semi-global aggregation along 2, 4 (down, down-right and their opposites; the fast
+   setting) or 6 paths (plus the other diagonal pair; the default), with the jump penalty P2
+   lowered at intensity edges; these advance row by row, so one step is a vector operation over all columns,
    and the paths' states are stored in 8 bits when they fit (with the default penalties: the
    two rows of states of a wide image with many disparities then stay in the L2 cache, which
    halved the aggregation time on KITTI at 192 disparities).
@@ -98,7 +98,14 @@ class SkyreconSettings:
             sampled in a checkerboard pattern (a sparse census, 31 bits for the default 9x7);
             at most 32 bits are used.
         paths: aggregation paths: 2 (vertical), 4 (+ the top-left/bottom-right diagonal) or
-            6 (+ both diagonals).
+            6 (+ both diagonals); None: 6 at full resolution, 4 when ``fast``. The third pair
+            of paths (down-left and up-right) carries a surface's disparity past what cuts the
+            other two: over 20 FlyingThings-style pairs (``skyrecon.sim.flying`` seeds 1-20)
+            the error above half of OpenCV SGBM's went from 6 pairs (seeds 3, 4, 6, 10, 14, 16)
+            to 3 (6, 10, 16: a striped background, see ``benchmarks/stereo``), flying-3 0.56
+            -> 0.49 of OpenCV's, for about 12 % more time (still below OpenCV's on every
+            benchmark pair). Elsewhere it changed little (Cones 0.43 -> 0.43, KITTI 000046
+            0.28 -> 0.32, the synthetic street views 0.12-0.23 -> 0.18-0.23 of OpenCV's).
         horizontal_paths: also aggregate along each row, left to right and right to left
             (what a downward-looking camera needs on plain ground, see the module docstring).
             Their jump penalty is capped at 111 (they run in 8-bit arithmetic), which needs
@@ -162,7 +169,7 @@ class SkyreconSettings:
     fast: bool = False
     census_width: int = 9
     census_height: int = 7
-    paths: Literal[2, 4, 6] = 4
+    paths: Literal[2, 4, 6] | None = None
     horizontal_paths: bool = False
     P1: int = 5
     P2: int = 100
@@ -197,6 +204,13 @@ class SkyreconSettings:
         return float("inf") if self.fast else K.FILL_NEARER_LEFT_PX
 
     @property
+    def n_paths(self) -> int:
+        """The aggregation paths in use (``paths`` resolved: 6, or 4 when ``fast``)."""
+        if self.paths is not None:
+            return int(self.paths)
+        return 4 if self.fast else 6
+
+    @property
     def census_checker(self) -> bool:
         """Whether the census window is sampled sparsely (more than 33 pixels)."""
         return self.census_width * self.census_height > 33
@@ -218,7 +232,7 @@ class SkyreconSettings:
             )
         if self.census_width * self.census_height < 9:
             raise InputError("the census window needs at least 9 pixels (3x3)")
-        if self.paths not in _PATH_OFFSETS:
+        if self.paths is not None and self.paths not in _PATH_OFFSETS:
             raise InputError(f"setting paths must be 2, 4 or 6, got {self.paths!r}")
         if not (0 < self.P1 < self.P2 <= 2000):
             raise InputError(f"need 0 < P1 < P2 <= 2000, got P1={self.P1}, P2={self.P2}")
@@ -447,7 +461,7 @@ class SkyreconMatcher:
         self._buffers: dict[str, np.ndarray] = {}
         self._lock = threading.Lock()
         s = self.settings
-        self._offsets = tuple(int(o) for o in _PATH_OFFSETS[s.paths])
+        self._offsets = tuple(int(o) for o in _PATH_OFFSETS[s.n_paths])
         self._up_offsets = tuple(-o for o in self._offsets)
         self._guided = bool(s.guided_fill if s.guided_fill is not None else not s.fast)
         self._ooi_cost = int(s.out_of_image_cost if s.out_of_image_cost is not None else s.census_bits // 3)
