@@ -251,3 +251,16 @@ def test_the_nearer_left_rule_is_off_for_the_fast_matcher():
     assert SkyreconSettings(fast=True, fill_nearer_left_px=2.0).nearer_left_px == 2.0
     with pytest.raises(InputError, match="fill_nearer_left_px"):
         SkyreconSettings(fill_nearer_left_px=-1.0)
+
+
+@pytest.mark.parametrize("kw", [{}, {"fast": True}, {"paths": 4}])
+def test_warmup_compiles_the_aggregation_kernel_the_frames_use(kw):
+    """The SGM kernel is compiled once per number of paths: a matcher's warmup compiles the
+    variant its frames then use (the fast one aggregates along four paths, the default six),
+    so that no frame pays for compilation."""
+    m = SkyreconMatcher(32, **kw)
+    m.warmup()
+    n = len(K.sgm_band.signatures)
+    img = np.random.default_rng(1).integers(0, 255, (120, 160), dtype=np.uint8)
+    m.compute(img, np.roll(img, -5, axis=1))
+    assert len(K.sgm_band.signatures) == n

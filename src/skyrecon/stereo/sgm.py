@@ -780,7 +780,8 @@ class SkyreconMatcher:
         frame is not slowed by the JIT."""
         rng = np.random.default_rng(0)
         img = rng.integers(0, 255, (48, 64), dtype=np.uint8)
-        m = SkyreconMatcher(16, settings=replace(self.settings, fast=False))
+        # full resolution on the tiny pair, with this matcher's paths (``fast`` resolves them)
+        m = SkyreconMatcher(16, settings=replace(self.settings, fast=False, paths=self.settings.n_paths))
         m.compute(img, np.roll(img, -3, axis=1))
         if m._guided:  # a tiny pair may have no depth edge: run the guided fill on its own
             fixed = np.full((8, 16), K.INVALID16, np.int16)
