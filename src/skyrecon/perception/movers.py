@@ -33,7 +33,11 @@ Known limits: the visible part of a mover is what is measured, so a detection's 
 towards the camera by up to the mover's half depth (the tracker pushes it back by the size the
 track remembers, see ``MoverSettings.max_push_m``); the parts of a mover that share a voxel
 with a static surface (the lowest ~0.5 m of a vehicle on the road) are not candidates and stay
-out of the mask.
+out of the mask. With the flight map's hit range (17 m for the default rig) movers are seldom
+found beyond 14 m: beyond the hit range the map holds no free space, and inside it an
+undetected mover's points are integrated and make its own voxels, and those behind it, occupied
+before it can be found (``benchmarks/dynamic/probe_free_space.py`` shows the test's parts at
+the movers' points per band of distance).
 """
 
 from __future__ import annotations
