@@ -249,7 +249,9 @@ def test_mover_overrides_are_parsed_and_checked():
     o = parse_mover_overrides("max_push_m=0.2, side_view_cos=0.5,reacquire_s=None,push_once_moving=True")
     assert o == {"max_push_m": 0.2, "side_view_cos": 0.5, "reacquire_s": None, "push_once_moving": True}
     assert parse_mover_overrides("") == {}
-    for bad in ("max_push=0.2", "max_push_m", "max_push_m=far"):
+    assert parse_mover_overrides("history_s=0.3/1.0") == {"history_s": (0.3, 1.0)}
+    assert MoverSettings(**parse_mover_overrides("history_s=0.3/1")).history_s == (0.3, 1.0)
+    for bad in ("max_push=0.2", "max_push_m", "max_push_m=far", "history_s=0.3/far"):
         with pytest.raises(InputError):
             parse_mover_overrides(bad)
     assert MissionConfig(tracker_settings="reacquire_s=1").tracker_settings == "reacquire_s=1"

@@ -291,7 +291,8 @@ class MoverSettings:
 
 def parse_mover_overrides(text: str) -> dict:
     """``"max_push_m=0.2,side_view_cos=0.5,reacquire_s=None"`` -> :class:`MoverSettings`
-    overrides (numbers, ``None``, ``True``/``False``); checked against the settings' fields.
+    overrides (numbers, ``None``, ``True``/``False``, and lists of numbers joined by ``/``, as
+    in ``history_s=0.3/1.0``); checked against the settings' fields.
 
     Raises:
         InputError: an unknown name or a value that is not a number, None, True or False.
@@ -307,9 +308,11 @@ def parse_mover_overrides(text: str) -> dict:
             out[k] = {"None": None, "True": True, "False": False}[v]
             continue
         try:
-            out[k] = float(v)
+            out[k] = tuple(float(x) for x in v.split("/")) if "/" in v else float(v)
         except ValueError:
-            raise InputError(f"mover setting {k}: {v!r} is not a number, None, True or False") from None
+            raise InputError(
+                f"mover setting {k}: {v!r} is not a number, a list like 0.3/1.0, None, True or False"
+            ) from None
     return out
 
 
