@@ -321,3 +321,10 @@ def test_the_third_diagonal_pair_lowers_the_error_on_flyingthings_style_pairs():
             disparity = create_matcher("skyrecon", 64, paths=p).compute(left, right).disparity
             bad1[p] = evaluate_disparity(disparity, gt)["bad1"]
         assert bad1[6] < bad1[4] - 0.005, (seed, bad1)
+
+
+def test_the_diagnostics_name_the_paths_in_use():
+    img = random_texture(40, 60, 1).astype(np.uint8)
+    for kw, n in (({}, 6), ({"fast": True}, 4), ({"paths": 2}, 2)):
+        diag = create_matcher("skyrecon", 16, **kw).compute(img, img).diagnostics
+        assert diag["paths"] == n and diag["settings"]["paths"] == kw.get("paths")

@@ -36,8 +36,7 @@ class PerceptionSettings:
             left off here: on the stereo map benchmark's plain cities it changed recall within
             20 m by -0.023 to +0.034 of OpenCV + OctoMap's (seeds 4, 3, 11; seed 4, the worst,
             1.041 -> 1.018x) and precision at the surface by -0.09 to -0.01, for 5-7 % more
-            time),
-            nothing for the others.
+            time), nothing for the others.
         use_filled: also keep pixels the matcher filled by interpolation (off: they are
             guesses, not measurements, and could carve free space through a textureless wall).
         max_disparity_step_px: drop pixels whose 3x3 neighbourhood spans more disparity than

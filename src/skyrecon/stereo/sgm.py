@@ -8,8 +8,8 @@ Pipeline (grey images, see :func:`~skyrecon.stereo.base.prepare_pair`):
    matches falling outside the right image get a neutral cost so that smoothness decides;
 3. semi-global aggregation along 2, 4 (down, down-right and their opposites; the fast
    setting) or 6 paths (plus the other diagonal pair; the default), with the jump penalty P2
-   lowered at intensity edges; these advance row by row, so one step is a vector operation over all columns,
-   and the paths' states are stored in 8 bits when they fit (with the default penalties: the
+   lowered at intensity edges; these advance row by row, so one step is a vector operation
+   over all columns, and the paths' states are stored in 8 bits when they fit (with the default penalties: the
    two rows of states of a wide image with many disparities then stay in the L2 cache, which
    halved the aggregation time on KITTI at 192 disparities).
    Optionally (``horizontal_paths``) also left-to-right and right-to-left along each row,
@@ -740,7 +740,11 @@ class SkyreconMatcher:
         pair = prepare_pair(left, right)
         H, W = pair.left_grey.shape
         check_disparity_range(self.min_disparity, self.max_disparity, W)
-        diag: dict[str, Any] = {"settings": asdict(s), "converted_from_16bit": pair.converted_from_16bit}
+        diag: dict[str, Any] = {
+            "settings": asdict(s),
+            "paths": s.n_paths,  # ``settings["paths"]`` resolved
+            "converted_from_16bit": pair.converted_from_16bit,
+        }
         gl, gr = pair.left_grey, pair.right_grey
         dmin, dmax = self.min_disparity, self.max_disparity
         scale = 1
