@@ -33,11 +33,11 @@ Since session 42 the default matcher aggregates along six paths (the third diago
 flying-3 0.56 -> 0.49x (its left band as before), flying-6 1.06 -> 0.97x, flying-10 0.94 -> 0.89x,
 Cones 0.43x, KITTI 0.32x, the street views at most 0.23x, for time 0.87-0.97x of OpenCV's.
 Over FlyingThings-style seeds 1-20 (``--pairs flying --flying-seeds 1-20 --runs 1``) three pairs
-stay above 0.5x, 6, 10 and 16, all with a striped background (with four paths: six, also 3, 4
-and 14).
+stay above 0.5x, 6, 10 and 16, all with a striped background (with four paths six pairs did:
+also 3, 4 and 14).
 
-Flying-6 and flying-10 (session 40, four paths) have a large background striped along the rows (periods of
-44 and 18.5 px): both matchers take an alias (d + period) on much of it, we more often (66 % and
+Flying-6 and flying-10 (session 40, four paths) have a large background striped along the rows
+(periods of 44 and 18.5 px): both matchers take an alias (d + period) on much of it, we more often (66 % and
 98 % of its pixels against OpenCV's 34 % and 60 %; bad-1 1.06x and 0.94x of OpenCV's). The
 only evidence for the true disparity is the left band, where the alias falls outside the right
 image, and the objects in front cut the paths that would carry it; the horizontal paths and
