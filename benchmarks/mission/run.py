@@ -15,6 +15,7 @@ Usage:
   .venv/bin/python benchmarks/mission/run.py                      # seeds 0..19, one at a time
   .venv/bin/python benchmarks/mission/run.py --seeds 5 --parallel 2
   .venv/bin/python benchmarks/mission/run.py --small               # 320x240, 100 m city (quick)
+  .venv/bin/python benchmarks/mission/run.py --tracker history_s=0.3/1.0   # tried tracker settings
 
 Resumable: a seed whose ``OUT/seed_NNNN/mission.json`` exists is read back, not flown again
 (``--fresh`` flies everything). Missions run one at a time by default, because missions side by
@@ -82,12 +83,19 @@ def main() -> int:
         help="where the drone's pose comes from (default truth; others write out_<source>/ and "
         "results_<source>.json; the loop p99 target is then 100 ms: odometry included)",
     )
+    ap.add_argument(
+        "--tracker",
+        default="",
+        help="fly tried mover-tracker settings, e.g. history_s=0.3/1.0 (MissionConfig.tracker_settings); "
+        "writes out_tried/ and results_tried.json",
+    )
     args = ap.parse_args()
 
-    cfg = MissionConfig(pose_source=args.pose_source)
+    cfg = MissionConfig(pose_source=args.pose_source, tracker_settings=args.tracker)
     truth = args.pose_source == "truth"
-    if not truth and args.out == str(ROOT / "benchmarks" / "mission" / "out"):
-        args.out = str(ROOT / "benchmarks" / "mission" / f"out_{args.pose_source.replace('+', '_')}")
+    tag = ("" if truth else "_" + args.pose_source.replace("+", "_")) + ("_tried" if args.tracker else "")
+    if tag and args.out == str(ROOT / "benchmarks" / "mission" / "out"):
+        args.out = str(ROOT / "benchmarks" / "mission" / f"out{tag}")
     if args.small:
         cfg = cfg.with_overrides(**SMALL_BENCHMARK)
     if args.max_altitude is not None:
@@ -213,7 +221,7 @@ def main() -> int:
         ],
     }
     if not args.small and args.first_seed == 0 and args.max_altitude is None and args.seeds == 20:
-        name = "results.json" if truth else f"results_{args.pose_source.replace('+', '_')}.json"
+        name = f"results{tag}.json"
         write_text_atomic(ROOT / "benchmarks" / "mission" / name, json.dumps(res, indent=2) + "\n")
     return 0
 
