@@ -33,7 +33,8 @@ Usage:
   .venv/bin/python benchmarks/dynamic/run.py --tracker reacquire_s=None      # tried settings: results_tried.json
   .venv/bin/python benchmarks/dynamic/run.py --tracker history_s=0.3/1.0     # the see-through test
       (session 42: kept as results_see_through_session42*.json; 49/50 delivered, one safe hover,
-      0 collisions, recall within 20 m 0.22 -> 0.32 on seeds 100-149)
+      0 collisions, recall within 20 m 0.22 -> 0.32 on seeds 100-149; held-out 150-199: 50/50,
+      0 collisions, recall 0.33)
   .venv/bin/python benchmarks/dynamic/run.py --no-evade --no-reach-aware    # results_tried_no_evade_no_reach.json
 
 Resumable: a mission whose folder has ``mission.json`` is read back (``--fresh`` flies all
