@@ -60,6 +60,9 @@ from skyrecon.mapping.inputs import as_world_from_cam  # noqa: E402
 from skyrecon.mission import MissionConfig  # noqa: E402
 from skyrecon.mission.batch import fly_and_write  # noqa: E402
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from replay_tracker import parse_seeds  # noqa: E402  (benchmarks/dynamic/replay_tracker.py)
+
 NEAR_M = 1.0  # points this close to a mover's true centre are its points
 BANDS_M = (0, 8, 10, 12, 14, 16, 18, 20)
 
@@ -186,12 +189,8 @@ def main() -> None:
     ap.add_argument("--seeds", default="304", help="e.g. 304 or 300-303")
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "dynamic" / "out_probe")
     args = ap.parse_args()
-    seeds: list[int] = []
-    for part in args.seeds.split(","):
-        a, _, b = part.partition("-")
-        seeds += list(range(int(a), int(b or a) + 1))
     rows = []
-    for seed in seeds:
+    for seed in parse_seeds(args.seeds):
         rows += fly(seed, args.out)
         print(f"seed {seed}: {len(rows)} visible mover-frames so far", flush=True)
     report(rows)
