@@ -7,7 +7,9 @@ building site, and starts from the map an earlier flight left before a scaffold 
 geometry at the TRUE time. Prints per mission and in total:
 
   delivered / how it ended, collisions, minimum true clearance to the static city and to the
-  movers, the movers' detection recall within 20 m (and 10 m) and position error, the phantom
+  movers, the movers' detection recall within 20 m (and 10 m) and position error, the share of
+  phantom tracks (track-frames of the tracks the planner keeps clear of whose centre lies more
+  than 3 m from every mover: ``phantom_track_share``), the phantom
   trail (occupied share of the observed voxels the movers swept until 2 s before the end),
   the time for a vacated voxel to be freed, the time for the new tower to be in the map after
   it came within the trusted stereo range, the time for the gone stack's voxels to be freed
@@ -36,6 +38,10 @@ Usage:
       0 collisions, recall within 20 m 0.22 -> 0.32 on seeds 100-149; held-out 150-199: 50/50,
       0 collisions, recall 0.33)
   .venv/bin/python benchmarks/dynamic/run.py --no-evade --no-reach-aware    # results_tried_no_evade_no_reach.json
+  .venv/bin/python benchmarks/dynamic/run.py --tracker refute_frames=2       # coasting tracks refuted
+      (session 43: kept as results_refute_session43.json; 50/50 delivered, 0 collisions,
+      phantom_track_share 0.69; on a host twice as slow as usual, so its loop figures are not
+      comparable)
 
 Resumable: a mission whose folder has ``mission.json`` is read back (``--fresh`` flies all
 again). Missions side by side share the cores: with ``--parallel 2`` on 2 cores the loop
@@ -84,6 +90,8 @@ def mission_row(folder: Path) -> dict | None:
         "min_clearance_moving_m": doc.get("min_clearance_moving_m"),
         "moving_obstacles": doc.get("moving_obstacles"),
         "sightings": dyn.get("mover_sightings") or [],
+        "track_frames": (dyn.get("mover_tracks") or {}).get("track_frames"),
+        "phantom_track_frames": (dyn.get("mover_tracks") or {}).get("phantom_frames"),
         "error_p95_m": (dyn.get("mover_position_error_m") or {}).get("p95"),
         "error_median_m": (dyn.get("mover_position_error_m") or {}).get("median"),
         "phantom": dyn.get("phantom_trail") or {},
@@ -131,6 +139,8 @@ def totals(rows: list[dict]) -> dict:
     cm = [r["min_clearance_moving_m"] for r in rows if r["min_clearance_moving_m"] is not None]
     cs = [r["min_clearance_static_m"] for r in rows if r["min_clearance_static_m"] is not None]
     err = [r["error_p95_m"] for r in rows if r["error_p95_m"] is not None]
+    track_frames = sum(r.get("track_frames") or 0 for r in rows)
+    phantom_tracks = sum(r.get("phantom_track_frames") or 0 for r in rows)
     ends: dict[str, int] = {}
     for r in rows:
         k = "delivered" if r["success"] else r["reason"]
@@ -153,6 +163,8 @@ def totals(rows: list[dict]) -> dict:
         )
         if any(r["error_median_m"] for r in rows)
         else None,
+        "track_frames": track_frames,
+        "phantom_track_share": round(phantom_tracks / track_frames, 4) if track_frames else None,
         "phantom_fraction_pooled": round(phantom / swept, 5) if swept else None,
         "phantom_fraction_worst": worst_phantom,
         "vacated_free_s_median": float(np.median(vac_med)) if vac_med else None,

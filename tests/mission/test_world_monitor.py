@@ -153,3 +153,49 @@ def test_a_removed_obstacle_s_clock_in_view_counts_only_the_cycles_it_was_seen()
     row = mon.summary(occ, 4.0, None)["changes_seen"][0]
     assert row["free_delay_s_max"] == 0.6 and row["free_in_view_s_max"] == 0.3
     assert row["freed_after_2s_in_view_voxels"] == 0
+
+
+def test_phantom_tracks_are_planner_tracks_far_from_every_mover():
+    """Of the tracks the planner keeps clear of, those over PHANTOM_TRACK_M from every mover at
+    the true time are phantoms; tentative and static tracks are not counted; an estimated world
+    that is shifted from the truth is mapped back first."""
+    from skyrecon.core import Rigid3
+    from skyrecon.mission.world_monitor import PHANTOM_TRACK_M
+    from skyrecon.perception.movers import MoverTrack
+
+    mover_at = np.array([10.0, 0.0, 5.0])  # a mover of 0.5 m radius, standing still
+    scene = SimpleNamespace(
+        movers=[object()], mover_distance=lambda p, t: np.linalg.norm(p - mover_at, axis=1) - 0.5
+    )
+    mon = WorldMonitor(
+        SimpleNamespace(movers=None, city=SimpleNamespace(boxes=np.zeros((0, 6))), changes=[]), 0.5, 17.0
+    )
+    mon.scene = scene
+
+    def track(pos, confirmed=True, moving=True, static=False):
+        z = np.zeros(3)
+        return MoverTrack(
+            1,
+            np.array(pos, float),
+            z,
+            np.eye(6),
+            z,
+            confirmed=confirmed,
+            moving=moving,
+            was_moving=moving,
+            static=static,
+        )
+
+    far = 0.5 + PHANTOM_TRACK_M + 1.0
+    tracks = [
+        track([10.4, 0.0, 5.0]),  # on the mover
+        track([10.0 + far, 0.0, 5.0]),  # a phantom
+        track([30.0, 0.0, 5.0], confirmed=False),  # tentative: not the planner's
+        track([30.0, 0.0, 5.0], static=True, moving=False),  # a new static obstacle
+    ]
+    mon._phantoms(1.0, tracks, None)
+    assert (mon.track_frames, mon.phantom_track_frames) == (2, 1)
+    # the estimate's world is the truth shifted by 2 m along y: its track positions are too
+    shift = Rigid3(np.eye(3), np.array([0.0, 2.0, 0.0]))
+    mon._phantoms(1.1, [track([10.4, 2.0, 5.0])], shift)
+    assert (mon.track_frames, mon.phantom_track_frames) == (3, 1)

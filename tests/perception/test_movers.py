@@ -12,7 +12,7 @@ from skyrecon.core import Intrinsics, Rigid3
 from skyrecon.errors import InputError
 from skyrecon.mapping import OCCUPIED, OccupancyMap
 from skyrecon.perception import MoverFrame, MoverSettings, MoverTracker, strided_intrinsics
-from skyrecon.perception.movers import SEE_THROUGH_AGES_S, SeenDepth, merge_fine_depth
+from skyrecon.perception.movers import SEE_THROUGH_AGES_S, MoverDetection, SeenDepth, merge_fine_depth
 from skyrecon.sim import City
 from skyrecon.sim.render import render_depth
 
@@ -357,6 +357,56 @@ def test_track_coasts_out_of_view_then_drops():
         elif unseen > settings.coast_s + DT:
             assert not alive
     assert len(run.tracker.keep_out(1.0)) == 0
+
+
+def _vanishing_drone(t: float) -> np.ndarray | None:
+    """A drone crossing 8 m ahead at 2 m/s that is gone (landed, say) from t = 1 s."""
+    return np.array([8.0, -2.0, 4.5]) + np.array([0.0, 2.0, 0.0]) * t if t < 1.0 - 1e-9 else None
+
+
+def _alive(frame: MoverFrame, track_id: int) -> bool:
+    return any(t.track_id == track_id for t in frame.tracks)
+
+
+def test_coasting_track_is_dropped_where_the_camera_sees_through_it():
+    """The drone vanishes in full view: where its track says it is, the camera sees the building
+    20 m behind; the track is dropped after refute_frames such frames, not after coast_s."""
+    run = run_mover(_vanishing_drone, 20, settings=MoverSettings(refute_frames=2))
+    (tid,) = [t.track_id for t in run.frames[9].moving_tracks]
+    assert _alive(run.frames[10], tid)  # one frame seen through: still coasting
+    assert not _alive(run.frames[11], tid)  # two: gone (refute_frames = 2)
+    assert len(run.tracker.keep_out(1.0)) == 0
+    kept = run_mover(_vanishing_drone, 20)
+    assert _alive(kept.frames[19], tid)  # without (the default): it coasts on (coast_s 3 s)
+    assert len(kept.tracker.keep_out(1.0)) == 1
+
+
+def test_coasting_track_is_kept_where_something_nearer_hides_it_or_it_is_far():
+    tr = MoverTracker(MoverSettings(refute_frames=2))
+    pose = forward_pose(0.0)
+    ahead = pose.apply(np.array([[0.0, 0.0, 8.0], [0.0, 0.0, 14.0], [0.0, 0.0, -8.0]]))  # 8 m, 14 m, behind
+    tracks = []
+    for c in ahead:
+        t = tr._new_track(MoverDetection(c, DRONE_HALF.copy(), 20, np.zeros((1, 1), bool)), 0.0)
+        t.confirmed = t.moving = t.was_moving = t.coasting = True
+        tracks.append(t)
+    tr._tracks = list(tracks)
+    near_wall = SeenDepth.of(0.1, np.full((CAM.height, CAM.width), 5.0, np.float32), CAM, pose)
+    far_wall = SeenDepth.of(0.1, np.full((CAM.height, CAM.width), 40.0, np.float32), CAM, pose)
+    for _ in range(3):  # hidden by a surface 5 m away: kept
+        assert len(tr._refute(list(tracks), near_wall, pose.t)) == 3
+    tr._refute(list(tracks), far_wall, pose.t)
+    live = tr._refute(list(tracks), far_wall, pose.t)
+    # seen through twice: the 8 m track goes; the one beyond refute_range_m and the one out of view stay
+    assert [t.track_id for t in live] == [tracks[1].track_id, tracks[2].track_id]
+
+
+def test_refute_setting_is_validated():
+    assert MoverSettings().refute_frames == 0
+    with pytest.raises(InputError):
+        MoverSettings(refute_frames=1.5)
+    with pytest.raises(InputError):
+        MoverSettings(refute_frames=-1)
 
 
 def test_deterministic():

@@ -8,6 +8,9 @@ the drone believed with the simulator's truth:
   :data:`DETECTION_RANGE_M` of the camera, whether a confirmed track sits within
   :data:`MATCH_RADIUS_M` of its true centre, and that track's position error. The true and the
   tracked paths are kept for the report.
+* **phantom tracks**: in every frame, the tracks the planner keeps clear of (confirmed, not
+  static, moving once) and how many of them lie farther than :data:`PHANTOM_TRACK_M` from
+  every mover (crane included) at the true time (``mover_tracks``): keep-outs around nothing.
 * **phantom trails**: at the end, the voxels each mover swept until 2 s before the end (minus
   the static city), and how many of those the drone observed that its map holds as occupied.
 * **vacated voxels**: every voxel the map holds as occupied inside a mover's box; once the mover
@@ -48,6 +51,8 @@ MIN_VISIBLE_PX = 30
 DETECTION_RANGE_M = 20.0
 #: A track within this distance of a mover's true centre detects it, metres.
 MATCH_RADIUS_M = 1.5
+#: A planner track whose centre lies farther than this from every mover is a phantom, metres.
+PHANTOM_TRACK_M = 3.0
 #: An added obstacle is "in the map" with this many occupied voxels inside it.
 MAPPED_VOXELS = 20
 
@@ -134,6 +139,8 @@ class WorldMonitor:
         # estimate's world frame), for replaying the tracker (benchmarks/dynamic/replay_tracker.py)
         self.sighting_log: list[tuple[float, int, float, np.ndarray]] = []
         self.times: list[float] = []
+        self.track_frames = 0  # planner tracks (confirmed, not static, moving once) per frame
+        self.phantom_track_frames = 0  # of those, farther than PHANTOM_TRACK_M from every mover
         self.vacate_pending: dict[tuple, float] = {}
         self.vacate_delays: list[float] = []
         self.closest: list[dict] = []
@@ -180,6 +187,8 @@ class WorldMonitor:
         live = [tr for tr in tracks if tr.confirmed and not tr.static]
         for tr in live:
             self.track_paths.setdefault(int(tr.track_id), []).append([t, *np.round(tr.position, 3).tolist()])
+        if self.scene is not None and self.scene.movers:
+            self._phantoms(t, tracks, est_from_true)
         if self.scene is not None:
             mover_px = self.scene.mover_of_object_id(snapshot, object_id)
             counts = np.bincount(mover_px[mover_px >= 0].ravel(), minlength=len(self.names))
@@ -201,6 +210,19 @@ class WorldMonitor:
                 self.sightings.append((d, err is not None))
             self._vacated(t, occ_map, to_est)
         self._changes(t, cam_position, object_id, occ_map, to_est, view)
+
+    def _phantoms(self, t: float, tracks: list, est_from_true: Rigid3 | None) -> None:
+        """Count the tracks the planner keeps clear of (confirmed, not static, moving once) and
+        those of them farther than :data:`PHANTOM_TRACK_M` from every mover at the true time."""
+        planner = [tr for tr in tracks if tr.confirmed and not tr.static and (tr.moving or tr.was_moving)]
+        if not planner:
+            return
+        pos = np.array([tr.position for tr in planner], dtype=np.float64)
+        if est_from_true is not None:
+            pos = est_from_true.inverse().apply(pos)
+        d = self.scene.mover_distance(pos, np.full(len(pos), t))
+        self.track_frames += len(pos)
+        self.phantom_track_frames += int(np.count_nonzero(d > PHANTOM_TRACK_M))
 
     def _vacated(self, t: float, occ_map: OccupancyMap, to_est) -> None:
         """Voxels the map holds occupied inside a mover now; once the mover leaves, time to free."""
@@ -339,6 +361,13 @@ class WorldMonitor:
                 "max": round(float(np.max(self.errors)), 3) if self.errors else None,
             },
             "mover_recall_within_10m": _recall(self.sightings, 10.0),
+            "mover_tracks": {
+                "track_frames": self.track_frames,
+                "phantom_frames": self.phantom_track_frames,
+                "phantom_share": round(self.phantom_track_frames / self.track_frames, 4)
+                if self.track_frames
+                else None,
+            },
             "mover_sightings": [[round(d, 2), bool(h)] for d, h in self.sightings],
             "mover_recall_by_mover": {
                 self.names[i]: round(self.detected_frames[i] / self.visible_frames[i], 3)

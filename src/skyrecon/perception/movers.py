@@ -19,8 +19,10 @@ static occupancy map they would leave phantom trails, and the planner would not 
 2. **Tracking**: one constant-velocity Kalman filter per track (world frame, state position and
    velocity), association by :func:`scipy.optimize.linear_sum_assignment` on the centre
    distance with a gate; tracks are confirmed after ``confirm_hits`` detections, coast (predicted
-   forward) for up to ``coast_s`` when unseen, and a cluster that stays still is released as a
-   *new static obstacle* (its pixels go back into the static map).
+   forward) for up to ``coast_s`` when unseen (with ``refute_frames`` set, off by default,
+   a coasting track is dropped sooner where the camera sees through the place it predicts), and a
+   cluster that stays still is released as a *new static obstacle* (its pixels go back into
+   the static map).
 3. **Outputs** (:class:`MoverFrame`): the detections, copies of the tracks, and the
    ``dynamic_mask`` of pixels to keep out of the static map (``depth[mask] = NaN`` before
    :meth:`~skyrecon.mapping.OccupancyMap.integrate_depth`). For the planner,
@@ -138,6 +140,23 @@ class MoverSettings:
             ``evade_movers``, seed 115 hovered in a crane boom's sweep and was hit.
         coast_s: a track not seen is predicted forward for up to this long, seconds, then
             dropped (tentative, not yet confirmed tracks are dropped at their first miss).
+        refute_frames, refute_range_m: ... unless the camera saw through its predicted centre
+            (in view, nearer than ``refute_range_m`` metres, the 3x3-nearest depth there farther
+            than the centre by the see-through margin, see ``see_through_frac``) in this many
+            consecutive frames: then nothing is where the track says, and it is dropped at
+            once (0, the default: never). Out of view, or where something nearer hides the
+            centre, a track coasts as before; nearer than 12 m the coarse matcher keeps a
+            drone's own depth (farther it may lose a small drone against the background behind
+            it, which would refute a real track). Why it was tried: on dynamic missions 100,
+            102 and 103 (session 43) 54-78 % of the planner's track-frames were more than 3 m
+            from every mover, nearly all of them coasting tracks confirmed on three chance
+            clusters of stereo outliers, their keep-outs sweeping free air along a chance
+            velocity. Why it is off: it seldom fires, as those tracks coast out of view or
+            behind a nearer surface within a few frames: on seeds 100-105 the phantom share was
+            0.608 with it (2) against 0.604 without, recall within 20 m 0.233 against 0.257
+            (one flight, seed 105, went otherwise); over seeds 100-149 with it, 50/50 delivered,
+            0 collisions, phantom share 0.69 (``benchmarks/dynamic/results_refute_session43.json``;
+            ``probe_phantoms.py`` sorts phantoms by cause).
         moving_speed_mps: a confirmed track faster than this is moving, m/s.
         static_speed_mps, static_frames: a track with at least ``static_frames`` detections
             that never moved and whose speed (filter estimate and mean displacement since its
@@ -237,6 +256,8 @@ class MoverSettings:
     gate_inflate_m: float = 0.5
     confirm_hits: int = 3
     coast_s: float = 3.0
+    refute_frames: int = 0
+    refute_range_m: float = 12.0
     reacquire_s: float | None = 1.0
     reacquire_gap_m: float = 1.0
     moving_speed_mps: float = 0.5
@@ -277,6 +298,8 @@ class MoverSettings:
                 continue
             if not np.isfinite(v) or v < 0:
                 raise InputError(f"mover setting {f.name} must be finite and >= 0, got {v}")
+        if int(self.refute_frames) != self.refute_frames:
+            raise InputError(f"mover setting refute_frames must be a whole number, got {self.refute_frames}")
         if int(self.stride) < 1 or int(self.confirm_hits) < 1 or int(self.static_frames) < 1:
             raise InputError("stride, confirm_hits and static_frames must be >= 1")
         if self.cluster_voxel_m <= 0 or self.meas_noise_m <= 0 or self.max_range_m <= self.min_range_m:
@@ -356,6 +379,8 @@ class MoverTrack:
         was_moving: has been moving at some time (such a track is never released as static).
         static: released as a new static obstacle (its pixels go into the map).
         coasting: not detected in the last frame (predicted only).
+        refuted: consecutive frames, up to the last, in which the camera saw through the
+            predicted centre of this coasting track (see ``MoverSettings.refute_frames``).
     """
 
     track_id: int
@@ -374,6 +399,7 @@ class MoverTrack:
     was_moving: bool = False
     static: bool = False
     coasting: bool = False
+    refuted: int = 0
 
     @property
     def speed(self) -> float:
@@ -629,10 +655,12 @@ def detect_movers(
     surface = (here == OCCUPIED) & (back != FREE)  # looks like a static surface of the map
     if references:
         # a point in front of a surface the map holds (within the depth noise) is that surface
-        seen = ~edges & (here != OCCUPIED) & (back != OCCUPIED)
-        for ref in references:  # every earlier view must have seen through it
-            seen &= ref.seen_through(pts, rv_m, s)
-        cand |= seen
+        left = np.flatnonzero(~edges & (here != OCCUPIED) & (back != OCCUPIED))
+        for ref in references:  # every earlier view must have seen through it: ask each
+            if left.size == 0:  # only about the points the views before it saw through
+                break
+            left = left[ref.seen_through(pts[left], rv_m[left], s)]
+        cand[left] = True
     core = cand.copy()  # candidates on their own evidence (not the gates')
     if gates is not None and len(gates):
         g = np.asarray(gates, np.float64).reshape(-1, 6)
@@ -945,9 +973,12 @@ class MoverTracker:
             references,
             fine,
         )
-        if s.history_s:
-            self._history.append(SeenDepth.of(time_s, depth_m, intrinsics, pose))
+        seen_now = SeenDepth.of(time_s, depth_m, intrinsics, pose) if s.history_s or s.refute_frames else None
+        if s.history_s and seen_now is not None:
+            self._history.append(seen_now)
         live = self._track(dets, time_s, pose.t)
+        if s.refute_frames and seen_now is not None:
+            live = self._refute(live, seen_now, pose.t)
         by_id = {t.track_id: t for t in live}
         mask = np.zeros(np.asarray(depth_m).shape, bool)
         for det in dets:
@@ -1004,6 +1035,30 @@ class MoverTracker:
             live.append(t)
         self._tracks = live
         return live
+
+    def _refute(
+        self, live: list[MoverTrack], seen_now: SeenDepth, cam_center: np.ndarray
+    ) -> list[MoverTrack]:
+        """Count, per coasting confirmed track, the consecutive frames that saw through its
+        predicted centre, and drop those refuted ``refute_frames`` times (see
+        :attr:`MoverSettings.refute_frames`); the live tracks left."""
+        s = self.settings
+        coasting = [t for t in live if t.coasting and t.confirmed]
+        for t in live:
+            if not t.coasting:
+                t.refuted = 0
+        if not coasting:
+            return live
+        centres = np.array([t.position for t in coasting])
+        rng = np.linalg.norm(centres - cam_center, axis=1)
+        through = seen_now.seen_through(centres, rng, s) & (rng <= s.refute_range_m)
+        for t, hit in zip(coasting, through):
+            t.refuted = t.refuted + 1 if hit else 0
+        gone = {id(t) for t in coasting if t.refuted >= s.refute_frames}
+        if not gone:
+            return live
+        self._tracks = [t for t in self._tracks if id(t) not in gone]
+        return [t for t in live if id(t) not in gone]
 
     def _references(self, time_s: float) -> list[SeenDepth]:
         """Per age in ``history_s``, the latest remembered frame at least that much older than
