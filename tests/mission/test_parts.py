@@ -43,6 +43,22 @@ def test_step_respects_speed_acceleration_and_turn_rate():
     assert n.speed == 0.0
 
 
+def test_step_faces_the_way_it_goes_when_the_look_at_is_straight_below():
+    """A look-at straight below has no bearing: the drone turns to its carrot and then moves
+    (the heading froze before, and a carrot 90 degrees off it was never flown to: a failsafe
+    return down a steep flown track hovered in place until its time limit)."""
+    cfg = MissionConfig()
+    s = DroneState(np.array([0.0, 0.0, 20.0]), np.zeros(3), 0.0, 0.0)
+    carrot = np.array([0.0, 1.0, 19.5])  # 1 m to the left (+y), a little down
+    below = np.array([0.0, 0.0, 10.0])  # what it looks at: straight below
+    within = 0.5 * math.radians(cfg.max_heading_error_deg)  # as guidance.guide clamps the look
+    turned = False
+    for _ in range(30):
+        s = step(s, carrot, 2.0, cfg, look_at=below, look_within_rad=within)
+        turned = turned or abs(wrap_angle(s.yaw - math.pi / 2)) <= within + 1e-9
+    assert turned and np.linalg.norm(s.position - carrot) < 0.05  # it got there
+
+
 def test_step_brakes_within_its_limit_and_pitches_towards_the_target():
     cfg = MissionConfig()
     s = DroneState(np.zeros(3), np.array([6.0, 0, 0]), 0.0, 0.0)

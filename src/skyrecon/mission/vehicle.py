@@ -169,8 +169,12 @@ def step(
     ) - p
     q_h = float(math.hypot(q[0], q[1]))
     yaw = state.yaw
-    if q_h > 0.3:
-        bearing = math.atan2(q[1], q[0])
+    if q_h > 0.3 or horiz > 0.3:
+        # a look-at straight above or below has no bearing: face the way the drone goes (else
+        # the heading froze and, the motion being beyond max_heading_error_deg of it, the
+        # drone never moved: a failsafe return down a steep flown track hovered until its
+        # time limit in dynamic mission 103 with the see-through test)
+        bearing = math.atan2(q[1], q[0]) if q_h > 0.3 else math.atan2(d[1], d[0])
         if look_within_rad is not None and horiz > 0.3:
             motion = math.atan2(d[1], d[0])
             bearing = motion + float(np.clip(wrap_angle(bearing - motion), -look_within_rad, look_within_rad))
