@@ -74,7 +74,7 @@ def fly(seed: int, out: Path, tracker: str) -> list[dict]:
         mf = update(self, time_s, depth_m, intrinsics, world_from_cam, occ_map, fine=fine)
         dets = {d.track_id: d for d in mf.detections}
         for t in mf.tracks:
-            if t.confirmed and not t.static and (t.moving or t.was_moving):
+            if t.avoided:
                 d = dets.get(t.track_id)
                 rows.append(
                     {

@@ -394,9 +394,9 @@ def test_coasting_track_is_kept_where_something_nearer_hides_it_or_it_is_far():
     near_wall = SeenDepth.of(0.1, np.full((CAM.height, CAM.width), 5.0, np.float32), CAM, pose)
     far_wall = SeenDepth.of(0.1, np.full((CAM.height, CAM.width), 40.0, np.float32), CAM, pose)
     for _ in range(3):  # hidden by a surface 5 m away: kept
-        assert len(tr._refute(list(tracks), near_wall, pose.t)) == 3
-    tr._refute(list(tracks), far_wall, pose.t)
-    live = tr._refute(list(tracks), far_wall, pose.t)
+        assert len(tr._refute(near_wall, pose.t)) == 3
+    tr._refute(far_wall, pose.t)
+    live = tr._refute(far_wall, pose.t)
     # seen through twice: the 8 m track goes; the one beyond refute_range_m and the one out of view stay
     assert [t.track_id for t in live] == [tracks[1].track_id, tracks[2].track_id]
 

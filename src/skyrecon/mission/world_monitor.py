@@ -214,7 +214,7 @@ class WorldMonitor:
     def _phantoms(self, t: float, tracks: list, est_from_true: Rigid3 | None) -> None:
         """Count the tracks the planner keeps clear of (confirmed, not static, moving once) and
         those of them farther than :data:`PHANTOM_TRACK_M` from every mover at the true time."""
-        planner = [tr for tr in tracks if tr.confirmed and not tr.static and (tr.moving or tr.was_moving)]
+        planner = [tr for tr in tracks if tr.avoided]
         if not planner:
             return
         pos = np.array([tr.position for tr in planner], dtype=np.float64)

@@ -407,6 +407,11 @@ class MoverTrack:
         return float(np.linalg.norm(self.velocity))
 
     @property
+    def avoided(self) -> bool:
+        """The planner keeps clear of it: confirmed, not a static obstacle, moving now or once."""
+        return self.confirmed and not self.static and (self.moving or self.was_moving)
+
+    @property
     def position_sigma(self) -> float:
         """Largest standard deviation of the position estimate, metres."""
         return float(np.sqrt(max(np.linalg.eigvalsh(self.covariance[:3, :3]).max(), 0.0)))
@@ -978,7 +983,7 @@ class MoverTracker:
             self._history.append(seen_now)
         live = self._track(dets, time_s, pose.t)
         if s.refute_frames and seen_now is not None:
-            live = self._refute(live, seen_now, pose.t)
+            live = self._refute(seen_now, pose.t)
         by_id = {t.track_id: t for t in live}
         mask = np.zeros(np.asarray(depth_m).shape, bool)
         for det in dets:
@@ -1036,29 +1041,23 @@ class MoverTracker:
         self._tracks = live
         return live
 
-    def _refute(
-        self, live: list[MoverTrack], seen_now: SeenDepth, cam_center: np.ndarray
-    ) -> list[MoverTrack]:
+    def _refute(self, seen_now: SeenDepth, cam_center: np.ndarray) -> list[MoverTrack]:
         """Count, per coasting confirmed track, the consecutive frames that saw through its
         predicted centre, and drop those refuted ``refute_frames`` times (see
         :attr:`MoverSettings.refute_frames`); the live tracks left."""
         s = self.settings
-        coasting = [t for t in live if t.coasting and t.confirmed]
-        for t in live:
+        coasting = [t for t in self._tracks if t.coasting and t.confirmed]
+        for t in self._tracks:
             if not t.coasting:
                 t.refuted = 0
-        if not coasting:
-            return live
-        centres = np.array([t.position for t in coasting])
-        rng = np.linalg.norm(centres - cam_center, axis=1)
-        through = seen_now.seen_through(centres, rng, s) & (rng <= s.refute_range_m)
-        for t, hit in zip(coasting, through):
-            t.refuted = t.refuted + 1 if hit else 0
-        gone = {id(t) for t in coasting if t.refuted >= s.refute_frames}
-        if not gone:
-            return live
-        self._tracks = [t for t in self._tracks if id(t) not in gone]
-        return [t for t in live if id(t) not in gone]
+        if coasting:
+            centres = np.array([t.position for t in coasting])
+            rng = np.linalg.norm(centres - cam_center, axis=1)
+            through = seen_now.seen_through(centres, rng, s) & (rng <= s.refute_range_m)
+            for t, hit in zip(coasting, through):
+                t.refuted = t.refuted + 1 if hit else 0
+        self._tracks = [t for t in self._tracks if t.refuted < s.refute_frames]
+        return self._tracks
 
     def _references(self, time_s: float) -> list[SeenDepth]:
         """Per age in ``history_s``, the latest remembered frame at least that much older than
@@ -1150,7 +1149,7 @@ class MoverTracker:
 
     # ----- for the planner ----------------------------------------------------------------------
     def _planner_tracks(self) -> list[MoverTrack]:
-        return [t for t in self._tracks if t.confirmed and not t.static and (t.moving or t.was_moving)]
+        return [t for t in self._tracks if t.avoided]
 
     def predict(self, horizon_s: float, dt: float = 0.1) -> list[tuple[int, np.ndarray, np.ndarray]]:
         """Predicted paths of the confirmed moving (or coasting) tracks.
