@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
+import cv2
 import numpy as np
 import pytest
 
@@ -602,6 +603,74 @@ def test_history_setting_is_validated():
         MoverSettings(history_s=(0.3, -1.0))
     with pytest.raises(InputError):
         MoverSettings(box_quantile=0.5)
+
+
+# ----- texture: stereo measures nothing on a plain surface ------------------------------------
+def _detections_with_image(image_of, center_at=drone_center) -> list[int]:
+    """Detections per frame of a drone (by default crossing 12 m ahead), the left image (480,
+    640) of each frame given by ``image_of(mover pixels (240, 320) bool)``."""
+    occ = static_map()
+    tr = MoverTracker()
+    out = []
+    for i in range(5):
+        pose = forward_pose(0.0)
+        d_static = render(pose)
+        d = render(pose, [box(center_at(i * DT))])
+        px = mover_pixels(d, d_static)
+        out.append(len(tr.update(i * DT, d, CAM, pose, occ, image=image_of(px)).detections))
+    return out
+
+
+def _image(mover: str) -> np.ndarray:
+    """(480, 640, 3) RGB of a noisy (textured) scene in which the mover is noisy too
+    ("textured"), plain grey ("plain": its outline against the scene is still texture), or plain
+    with the scene around it plain too ("plain_patch": a matcher's guess on a plain wall)."""
+    rng = np.random.default_rng(3)
+
+    def image_of(px: np.ndarray) -> np.ndarray:
+        img = rng.integers(0, 256, (480, 640, 3), dtype=np.uint8)
+        full = np.repeat(np.repeat(px, 2, axis=0), 2, axis=1)
+        if mover == "plain":
+            img[full] = 128
+        elif mover == "plain_patch":  # plain well beyond its outline (past the texture window)
+            img[cv2.dilate(full.astype(np.uint8), np.ones((11, 11), np.uint8)).astype(bool)] = 128
+        return img
+
+    return image_of
+
+
+def test_a_cluster_on_no_texture_is_not_a_mover():
+    """The same depth: a detection where the image has texture, none where it is plain all
+    round (the matcher's guess), and the test off without an image."""
+    assert all(n == 1 for n in _detections_with_image(_image("textured")))
+    assert all(n == 0 for n in _detections_with_image(_image("plain_patch")))
+    assert all(n == 1 for n in _detections_with_image(lambda px: None))
+
+
+def test_a_plain_drone_keeps_its_outline():
+    """A plain grey drone 6-12 m ahead of a textured scene: its rim is texture, it is found."""
+    assert all(n == 1 for n in _detections_with_image(_image("plain")))
+    near = [
+        n for n in _detections_with_image(_image("plain"), lambda t: np.array([6.0, -1.5, 4.5]) + V_DRONE * t)
+    ]
+    assert all(n == 1 for n in near)
+
+
+def test_texture_test_checks_its_image_and_settings():
+    occ = static_map()
+    pose = forward_pose(0.0)
+    d = render(pose, [box(drone_center(0.0))])
+    with pytest.raises(InputError, match="whole multiple"):
+        MoverTracker().update(0.0, d, CAM, pose, occ, image=np.zeros((300, 400), np.uint8))
+    # min_texture 0: no test, any image
+    f = MoverTracker(MoverSettings(min_texture=0.0)).update(
+        0.0, d, CAM, pose, occ, image=np.zeros((300, 400), np.uint8)
+    )
+    assert len(f.detections) == 1
+    with pytest.raises(InputError):
+        MoverSettings(texture_window_px=8)
+    with pytest.raises(InputError):
+        MoverSettings(min_textured_share=1.5)
 
 
 # ----- the fine depth (a full-resolution matcher that still sees a small far mover) -----------

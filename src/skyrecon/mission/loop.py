@@ -462,13 +462,17 @@ def _map_update(
     cam_from_world,
     time_s: float,
     flown_from: np.ndarray,
+    left: np.ndarray | None = None,
 ) -> tuple[float, float]:
-    """Track the movers in this frame's depth and integrate the rest into the static map (the
-    movers' pixels are kept out, so they leave no trail). Returns (movers ms, integrate ms)."""
+    """Track the movers in this frame's depth (and its ``left`` image: clusters on no texture
+    are not movers) and integrate the rest into the static map (the movers' pixels are kept
+    out, so they leave no trail). Returns (movers ms, integrate ms)."""
     depth_for_map, movers_ms = depth.depth_m, 0.0
     if tracker is not None:
         world_from_cam = cam_from_world.inverse().with_frames("world", "cam")
-        mf = tracker.update(time_s, depth.depth_m, depth.intrinsics, world_from_cam, nav.map, fine=depth.fine)
+        mf = tracker.update(
+            time_s, depth.depth_m, depth.intrinsics, world_from_cam, nav.map, fine=depth.fine, image=left
+        )
         movers_ms = mf.ms
         if mf.dynamic_mask.any():
             depth_for_map = depth.depth_m.copy()
@@ -719,7 +723,7 @@ def _fly(
         # no map update from a pose or depth that cannot be trusted; an overrun skips it too
         if depth is not None and not lost and health.trusted and "overrun" not in health.reasons:
             ms["movers"], ms["integrate"] = _map_update(
-                nav, tracker, depth, cam_from_world, state.time_s, p_prev
+                nav, tracker, depth, cam_from_world, state.time_s, p_prev, fresh[0]
             )
             p_prev = p
         rewritten, ms["distance"] = timed(nav.update_distance)
