@@ -193,6 +193,13 @@ def fly(seeds: list[int], out: Path, cfg: MissionConfig, parallel: int, fresh: b
         folder = out / f"seed_{s:04d}"
         if fresh or mission_row(folder) is None:
             jobs.append(MissionJob(s, str(folder), cfg.to_dict()))
+    if len(jobs) < len(seeds):  # resumed: say so, the folders may hold flights of other code
+        print(
+            f"{len(seeds) - len(jobs)} of {len(seeds)} missions read back from {out} as flown earlier "
+            "(perhaps by other code or settings): --fresh flies them again",
+            file=sys.stderr,
+            flush=True,
+        )
     if jobs:
         ex = ProcessExecutor(workers=parallel)
         ex.map(fly_job, jobs, desc=f"missions ({out.name})")
