@@ -31,6 +31,7 @@ Usage:
   .venv/bin/python benchmarks/dynamic/run.py --seeds 10 --baseline # and the no-tracking runs
   .venv/bin/python benchmarks/dynamic/run.py --pose-source odometry
   .venv/bin/python benchmarks/dynamic/run.py --fine-depth          # results_fine_depth.json
+  .venv/bin/python benchmarks/dynamic/run.py --plain --seeds 20     # plain city and movers: results_plain_seeds100-119.json
   .venv/bin/python benchmarks/dynamic/run.py --first-seed 150       # held-out: results_seeds150-199.json
   .venv/bin/python benchmarks/dynamic/run.py --tracker reacquire_s=None      # tried settings: results_tried.json
   .venv/bin/python benchmarks/dynamic/run.py --tracker history_s=0.3/1.0     # the see-through test
@@ -246,6 +247,12 @@ def main() -> int:
         action="store_true",
         help="verify steep climbs as before session 31 (MissionConfig.reach_aware_verify off); results_tried*.json",
     )
+    ap.add_argument(
+        "--plain",
+        action="store_true",
+        help="a world of plain surfaces: plain facades, glass, plain grey streets and plain movers "
+        "(MissionConfig.plain); results_plain*.json",
+    )
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "dynamic" / "out"))
     args = ap.parse_args()
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
@@ -258,9 +265,11 @@ def main() -> int:
         tracker_settings=args.tracker,
         evade_movers=not args.no_evade,
         reach_aware_verify=not args.no_reach_aware,
+        plain=args.plain,
     )
     suffix = "" if args.pose_source == "truth" else "_" + args.pose_source.replace("+", "_")
     suffix += "_fine_depth" if args.fine_depth else ""
+    suffix += "_plain" if args.plain else ""
     # not the defaults: their own file, named by what is tried
     suffix += "_tried" if (args.tracker or args.no_evade or args.no_reach_aware) else ""
     suffix += ("_no_evade" if args.no_evade else "") + ("_no_reach" if args.no_reach_aware else "")
@@ -291,6 +300,7 @@ def main() -> int:
             "tracker_settings": args.tracker,
             "evade_movers": not args.no_evade,
             "reach_aware_verify": not args.no_reach_aware,
+            "plain": args.plain,
             "seeds": seeds,
             "parallel": args.parallel,
         },

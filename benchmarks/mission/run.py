@@ -89,11 +89,18 @@ def main() -> int:
         help="fly tried mover-tracker settings, e.g. history_s=0.3/1.0 (MissionConfig.tracker_settings); "
         "writes out_tried/ and results_tried.json",
     )
+    ap.add_argument(
+        "--plain",
+        action="store_true",
+        help="a city of plain surfaces (MissionConfig.plain: plain facades, glass, plain grey streets); "
+        "writes out_plain/ and results_plain.json",
+    )
     args = ap.parse_args()
 
-    cfg = MissionConfig(pose_source=args.pose_source, tracker_settings=args.tracker)
+    cfg = MissionConfig(pose_source=args.pose_source, tracker_settings=args.tracker, plain=args.plain)
     truth = args.pose_source == "truth"
     tag = ("" if truth else "_" + args.pose_source.replace("+", "_")) + ("_tried" if args.tracker else "")
+    tag += "_plain" if args.plain else ""
     if tag and args.out == str(ROOT / "benchmarks" / "mission" / "out"):
         args.out = str(ROOT / "benchmarks" / "mission" / f"out{tag}")
     if args.small:

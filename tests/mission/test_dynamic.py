@@ -77,6 +77,26 @@ def test_same_seed_same_movers_same_flight(moving_flight, tiny_config):
     assert np.array_equal(a, sc.movers.snapshot(12.3).boxes)
 
 
+def test_a_plain_world_is_painted_plain(tiny_config):
+    """``--plain`` (MissionConfig.plain): a city of plain surfaces and plain movers, by seed."""
+    from skyrecon.sim.texture import MAT_PLAIN
+
+    parser = argparse.ArgumentParser()
+    demo_cli.add_parser(parser.add_subparsers())
+    assert demo_cli._config(parser.parse_args(["demo", "--plain"])).plain
+    assert not demo_cli._config(parser.parse_args(["demo"])).plain
+    cfg = tiny_config.with_overrides(movers=True, pose_source="truth")
+    usual, plain = make_scenario(4, cfg), make_scenario(4, cfg.with_overrides(plain=True))
+    assert np.count_nonzero(plain.city.box_material == MAT_PLAIN) > np.count_nonzero(
+        usual.city.box_material == MAT_PLAIN
+    )
+    assert plain.movers.movers and {m.material for m in plain.movers.movers} == {MAT_PLAIN}
+    assert MAT_PLAIN not in {m.material for m in usual.movers.movers}
+    again = make_scenario(4, cfg.with_overrides(plain=True))
+    assert again.movers.to_dict() == plain.movers.to_dict()
+    np.testing.assert_array_equal(again.city.boxes, plain.city.boxes)
+
+
 def test_tracking_keeps_movers_out_of_the_map(tiny_config):
     """The same moving city flown with tracking on and off: off, the movers leave trails."""
     base = tiny_config.with_overrides(movers=True, pose_source="truth", time_limit_s=25.0)

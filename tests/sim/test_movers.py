@@ -12,6 +12,7 @@ from skyrecon.core import Intrinsics, Rigid3
 from skyrecon.errors import InputError
 from skyrecon.sim import City, Mover, MovingScene, make_movers, mover_of_object_id, render
 from skyrecon.sim.movers import CraneMotion, PolylineMotion, box_sdf
+from skyrecon.sim.texture import MAT_METAL, MAT_PLAIN
 
 
 @pytest.fixture(scope="module")
@@ -50,6 +51,40 @@ def test_deterministic_and_round_trip(city, mission, scene):
     other = make_movers(city, 12, mission[0], mission[-1], mission)
     assert json.dumps(other.to_dict()) != json.dumps(scene.to_dict())
     assert [m.name for m in scene.new_obstacles] == ["crane-0"]
+
+
+def test_plain_movers_are_the_same_movers_in_plain_paint(city, mission, scene):
+    plain = make_movers(city, 11, mission[0], mission[-1], mission, plain=True)
+    assert [m.name for m in plain.movers] == [m.name for m in scene.movers]
+    assert {m.material for m in plain.movers} == {MAT_PLAIN} and MAT_PLAIN not in {
+        m.material for m in scene.movers
+    }
+    for t in (0.0, 7.3, 41.0):
+        np.testing.assert_array_equal(plain.mover_boxes(t), scene.mover_boxes(t))
+    # rendered from the side, a plain drone is one flat grey inside its outline; a metal one is not
+    cam = Intrinsics.from_fov(160, 120, 40.0)
+    for material, textured in ((MAT_PLAIN, False), (MAT_METAL, True)):
+        drone = _drone("drone-x", [[0.0, -10.0, 15.0], [0.0, 10.0, 15.0]], speed=2.0)
+        drone = Mover(drone.name, drone.kind, drone.motion, material=material, texture_scale=0.3)
+        world = MovingScene(_box_city(), [drone])
+        c = drone.state_at(5.0)[0]
+        snap = world.snapshot(5.0)
+        res = render(snap, cam, Rigid3.look_at(c - np.array([4.0, 0.0, 0.0]), c))
+        inside = mover_of_object_id(snap, res.object_id) == 0
+        inner = (
+            inside
+            & np.roll(inside, 3, 0)
+            & np.roll(inside, -3, 0)
+            & np.roll(inside, 3, 1)
+            & np.roll(inside, -3, 1)
+        )
+        assert inner.sum() > 200
+        grey = (
+            res.image.astype(np.float64).mean(axis=-1)
+            if res.image.ndim == 3
+            else res.image.astype(np.float64)
+        )
+        assert grey[inner].std() > 1.0 if textured else grey[inner].std() < 0.5, (material, grey[inner].std())
 
 
 def test_distance_matches_brute_force_and_snapshot(scene):

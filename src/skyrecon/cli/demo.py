@@ -144,6 +144,12 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "the movers described in a JSON file (as mission.json's scenario.movers)",
     )
     p.add_argument(
+        "--plain",
+        action="store_true",
+        help="a world of plain surfaces: plain facades, glass and plain grey streets (as 'skyrecon "
+        "render --plain'), and plain movers (not the same city as without)",
+    )
+    p.add_argument(
         "--prior-map",
         metavar="MAP_DIR|earlier",
         help="start from an older map of this city: a map directory (e.g. the map/ of an earlier demo "
@@ -199,6 +205,7 @@ def _config(args):
         pose_source=args.pose_source,
         movers=args.movers != "off",
         movers_file="" if args.movers in ("on", "off") else args.movers,
+        plain=args.plain,
         prior_map=args.prior_map or "",
         city_changes=bool(args.city_changes or args.prior_map == "earlier"),
         track_movers=not args.no_tracking,

@@ -100,7 +100,7 @@ def fly_and_write(
     except ImpossibleMission as e:
         city = None
         try:
-            city = generate_city(int(seed), cfg.city_size_m)
+            city = generate_city(int(seed), cfg.city_size_m, plain=cfg.plain)
         except Exception:  # noqa: BLE001 - the picture is optional; the reason is what matters
             city = None
         doc = write_refused_outputs(out, e.reason, e.code, seed, cfg, start, goal, city)

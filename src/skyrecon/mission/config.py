@@ -142,6 +142,10 @@ class MissionConfig:
         movers_file: a JSON file describing the movers instead (a list of movers as in
             ``mission.json`` ``scenario.movers``, see :meth:`skyrecon.sim.movers.Mover.to_dict`);
             a mover inside a building or on the drone's start is refused with one clear line.
+        plain: a world of plain surfaces: the city of ``generate_city(..., plain=True)``
+            (plain facades and glass on a share of the buildings, plain grey streets) and plain
+            movers (``make_movers(..., plain=True)``). Not the same city as without (the facade
+            draws differ), so neither are its endpoints and movers.
         city_changes: today's city differs from the one the prior map was made of (a new
             scaffold tower on the way, a container stack gone).
         prior_map: "" (start with an empty map), "earlier" (the map an earlier flight over
@@ -218,6 +222,7 @@ class MissionConfig:
     endpoint_clearance_m: float = 4.0
     movers: bool = False
     movers_file: str = ""
+    plain: bool = False
     city_changes: bool = False
     prior_map: str = ""
     track_movers: bool = True

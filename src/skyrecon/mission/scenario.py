@@ -262,7 +262,7 @@ def make_scenario(
         raise ImpossibleMission(
             "give both --start and --goal, or neither (then the seed picks them)", "endpoints"
         )
-    city = city if city is not None else generate_city(int(seed), cfg.city_size_m)
+    city = city if city is not None else generate_city(int(seed), cfg.city_size_m, plain=cfg.plain)
     box = drone_map_box(city, cfg)
     planner = truth_planner(city, cfg)
     if start is None:
@@ -298,6 +298,7 @@ def make_scenario(
             scenario.shortest.waypoints,
             band=(cfg.min_altitude_m, cfg.max_altitude_m),
             cruise_speed_mps=cfg.cruise_speed_mps,
+            plain=cfg.plain,
             n_drones=4,
             pace=(0.7, 1.0) if cfg.prior_map else (0.35, 0.6),
         )

@@ -21,13 +21,13 @@ Everything is deterministic in its parameters; :func:`make_movers` draws them fr
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 
 from skyrecon.errors import InputError
 from skyrecon.sim.city import City, _points
-from skyrecon.sim.texture import MAT_METAL
+from skyrecon.sim.texture import MAT_METAL, MAT_PLAIN
 
 KIND_MOVER = 6  # ``box_kind`` of mover boxes in a snapshot (after the static kinds of ``sim.city``)
 MOVER_KINDS = ("drone", "vehicle", "crane")
@@ -1049,6 +1049,7 @@ def make_movers(
     cruise_speed_mps: float = 6.0,
     attempts: int = 200,
     pace: tuple[float, float] = (0.5, 0.7),
+    plain: bool = False,
 ) -> MovingScene:
     """Draw the movers of a delivery mission, deterministically from ``seed``.
 
@@ -1069,6 +1070,9 @@ def make_movers(
         pace: the crossing drones are timed for a drone flying the path at this fraction (a range,
             drawn per drone) of ``cruise_speed_mps`` (faster with a prior map: the drone needs not
             stop to look around).
+        plain: every mover's surfaces are plain paint (``MAT_PLAIN``: no texture but their
+            outline against what lies behind) instead of metal; the same movers on the same
+            paths as with ``plain=False`` and the same seed.
     Returns:
         The :class:`MovingScene`. No mover comes within 6 m of ``start`` in the first 5 s, within 4 m of
         ``goal`` ever, overlaps the static city (sampled), or (within the mission's horizon) another mover.
@@ -1111,4 +1115,6 @@ def make_movers(
             used = trial
             movers.append(m)
             break
+    if plain:
+        movers = [replace(m, material=MAT_PLAIN) for m in movers]
     return MovingScene(city, movers, int(seed))
