@@ -73,9 +73,10 @@ from skyrecon.mission import MissionConfig  # noqa: E402
 from skyrecon.mission.batch import MissionJob, fly_job, read_mission_json  # noqa: E402
 
 
-def mission_row(folder: Path) -> dict | None:
-    """The figures of one finished mission folder (None if it has none)."""
-    doc = read_mission_json(folder)
+def mission_row(folder: Path, cfg: MissionConfig | None = None) -> dict | None:
+    """The figures of one finished mission folder (None if it has none, or, with ``cfg``, one
+    flown with other settings)."""
+    doc = read_mission_json(folder, cfg)
     if doc is None or "dynamic" not in doc:
         return None
     dyn = doc.get("dynamic") or {}
@@ -192,12 +193,12 @@ def fly(seeds: list[int], out: Path, cfg: MissionConfig, parallel: int, fresh: b
     jobs = []
     for s in seeds:
         folder = out / f"seed_{s:04d}"
-        if fresh or mission_row(folder) is None:
+        if fresh or mission_row(folder, cfg) is None:
             jobs.append(MissionJob(s, str(folder), cfg.to_dict()))
     if len(jobs) < len(seeds):  # resumed: say so, the folders may hold flights of other code
         print(
             f"{len(seeds) - len(jobs)} of {len(seeds)} missions read back from {out} as flown earlier "
-            "(perhaps by other code or settings): --fresh flies them again",
+            "with these settings (perhaps by other code): --fresh flies them again",
             file=sys.stderr,
             flush=True,
         )

@@ -106,7 +106,7 @@ def main() -> int:
     jobs = [
         MissionJob(s, str(out / f"seed_{s:04d}"), cfg.to_dict())
         for s in seeds
-        if args.fresh or read_mission_json(out / f"seed_{s:04d}") is None
+        if args.fresh or read_mission_json(out / f"seed_{s:04d}", cfg) is None
     ]
     if jobs:
         ProcessExecutor(workers=args.parallel).map(fly_job, jobs, desc="fault missions")

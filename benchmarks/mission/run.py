@@ -54,9 +54,10 @@ from skyrecon.mission.config import SMALL_BENCHMARK  # noqa: E402
 from skyrecon.report.mission_report import render_summary_report  # noqa: E402
 
 
-def row_from_folder(folder: Path) -> dict | None:
-    """The summary row of a finished mission folder, or None if it has none."""
-    doc = read_mission_json(folder)
+def row_from_folder(folder: Path, cfg: MissionConfig | None = None) -> dict | None:
+    """The summary row of a finished mission folder, or None if it has none (or, with ``cfg``,
+    one flown with other settings)."""
+    doc = read_mission_json(folder, cfg)
     if doc is None:
         return None
     row = {k: doc.get(k) for k in SUMMARY_KEYS}
@@ -114,7 +115,7 @@ def main() -> int:
     todo = []
     for s in seeds:
         folder = out / f"seed_{s:04d}"
-        row = None if args.fresh else row_from_folder(folder)
+        row = None if args.fresh else row_from_folder(folder, cfg)
         if row is not None:
             rows[s] = row
         else:

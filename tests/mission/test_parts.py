@@ -467,3 +467,27 @@ def test_the_back_off_starts_sooner_on_steep_climbs_with_reach_aware_verify(awar
     assert held.reason == "path_seen"
     b = BackOff()
     assert b.consider(rest, 1.5, RETREAT_AFTER_S, held, p, lambda q: track, cfg) == aware
+
+
+def test_a_resumed_benchmark_reads_back_only_flights_of_its_settings(tmp_path):
+    import json
+
+    from skyrecon.mission.batch import read_mission_json
+
+    cfg = MissionConfig(movers=True, prior_map="earlier")
+    folder = tmp_path / "seed_0001"
+    folder.mkdir()
+    doc = {"seed": 1, "success": True, "reason": "", "config": cfg.to_dict()}
+    (folder / "mission.json").write_text(json.dumps(doc))
+    assert read_mission_json(folder)["seed"] == 1
+    assert read_mission_json(folder, cfg)["seed"] == 1
+    assert read_mission_json(folder, cfg.with_overrides(tracker_settings="min_texture=0")) is None
+    assert read_mission_json(folder, cfg.with_overrides(plain=True)) is None
+    # a folder flown before a setting existed reads as flown with its default
+    old = {k: v for k, v in cfg.to_dict().items() if k != "plain"}
+    (folder / "mission.json").write_text(json.dumps({**doc, "config": old}))
+    assert read_mission_json(folder, cfg)["seed"] == 1
+    (folder / "mission.json").write_text(json.dumps({**doc, "config": None}))
+    assert read_mission_json(folder) is not None and read_mission_json(folder, cfg) is None
+    (folder / "mission.json").write_text(json.dumps({**doc, "reason": "error"}))
+    assert read_mission_json(folder, cfg) is None

@@ -112,9 +112,13 @@ def fly_and_write(
     return Outcome(doc, False, out)
 
 
-def read_mission_json(folder: str | Path) -> dict | None:
+def read_mission_json(folder: str | Path, cfg: MissionConfig | None = None) -> dict | None:
     """The ``mission.json`` of a finished mission folder, or None when it has none (or it is
-    unreadable, or the mission ended in an error): for resuming batches and benchmarks."""
+    unreadable, or the mission ended in an error): for resuming batches and benchmarks. With
+    ``cfg``, None also when the folder was flown with other settings (its ``config``, missing
+    fields taken as their defaults, differs from ``cfg``): a resumed benchmark flies it again
+    rather than mixing in a flight of other settings. (The code it was flown with is not
+    recorded: a folder flown by older code with the same settings is still read back.)"""
     p = Path(folder) / "mission.json"
     if not p.is_file():
         return None
@@ -122,7 +126,24 @@ def read_mission_json(folder: str | Path) -> dict | None:
         doc = json.loads(p.read_text())
     except (OSError, json.JSONDecodeError):
         return None
-    return None if doc.get("reason") == "error" else doc
+    if doc.get("reason") == "error":
+        return None
+    if cfg is not None and not _same_settings(doc.get("config"), cfg):
+        return None
+    return doc
+
+
+def _same_settings(flown: dict | None, cfg: MissionConfig) -> bool:
+    """Whether a ``mission.json`` ``config`` (missing fields: defaults) holds the settings of ``cfg``."""
+    if not isinstance(flown, dict):
+        return False
+    try:
+        was = MissionConfig.from_dict(flown).to_dict()
+    except (TypeError, ValueError):
+        return False
+    return json.dumps(was, sort_keys=True, default=str) == json.dumps(
+        cfg.to_dict(), sort_keys=True, default=str
+    )
 
 
 def mission_line(doc: dict) -> str:
