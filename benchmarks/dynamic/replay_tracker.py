@@ -42,7 +42,7 @@ sys.path.insert(0, str(ROOT / "src"))
 
 import numpy as np  # noqa: E402
 
-from skyrecon.mission.world_monitor import PHANTOM_TRACK_M, detection_error  # noqa: E402
+from skyrecon.mission.world_monitor import detection_error, phantom_tracks  # noqa: E402
 from skyrecon.perception import MoverSettings, MoverTracker  # noqa: E402
 from skyrecon.perception.movers import MoverDetection, parse_mover_overrides  # noqa: E402
 
@@ -120,7 +120,7 @@ def replay(doc: dict, **overrides) -> tuple[np.ndarray, np.ndarray, np.ndarray, 
     """(position errors of the detected mover-frames (m), detected flags, distances (m), planner
     track-frames, phantom ones) of one recorded mission replayed with ``overrides`` on its
     recorded settings. A planner track (:attr:`MoverTrack.avoided`) is a phantom farther than
-    :data:`PHANTOM_TRACK_M` from every mover, as the world monitor counts them (0, 0 for
+    3 m (``PHANTOM_TRACK_M``) from every mover, as the world monitor counts them (0, 0 for
     recordings made before the movers' geometry was kept)."""
     tracker = MoverTracker(replace(doc["settings"], **overrides))
     scene = doc.get("mover_scene")
@@ -134,7 +134,7 @@ def replay(doc: dict, **overrides) -> tuple[np.ndarray, np.ndarray, np.ndarray, 
         planner = np.array([t.position for t in tracks if t.avoided], dtype=np.float64).reshape(-1, 3)
         if scene is not None and scene.movers and len(planner):
             track_frames += len(planner)
-            phantom_frames += int(np.count_nonzero(scene.mover_distance(planner, f["t"]) > PHANTOM_TRACK_M))
+            phantom_frames += phantom_tracks(scene, planner, f["t"])
     errs, hits, dists = [], [], []
     for t, _i, d, c in doc["sightings"]:
         k = bisect.bisect_right(times, t + 1e-9) - 1

@@ -66,6 +66,16 @@ def detection_error(track_positions, center: np.ndarray) -> float | None:
     return err if err <= MATCH_RADIUS_M else None
 
 
+def phantom_tracks(scene, positions: np.ndarray, time_s: float) -> int:
+    """How many of the planner's track positions (K, 3), in the movers' (true) world, lie
+    farther than :data:`PHANTOM_TRACK_M` from every mover of ``scene``
+    (:class:`~skyrecon.sim.movers.MovingScene`) at ``time_s`` seconds: the phantom tracks."""
+    pos = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
+    if not len(pos):
+        return 0
+    return int(np.count_nonzero(scene.mover_distance(pos, float(time_s)) > PHANTOM_TRACK_M))
+
+
 def _recall(sightings: list[tuple[float, bool]], within_m: float) -> float | None:
     """Share of the mover-frames within ``within_m`` metres in which the mover was detected."""
     near = [h for d, h in sightings if d <= within_m]
@@ -220,9 +230,8 @@ class WorldMonitor:
         pos = np.array([tr.position for tr in planner], dtype=np.float64)
         if est_from_true is not None:
             pos = est_from_true.inverse().apply(pos)
-        d = self.scene.mover_distance(pos, np.full(len(pos), t))
         self.track_frames += len(pos)
-        self.phantom_track_frames += int(np.count_nonzero(d > PHANTOM_TRACK_M))
+        self.phantom_track_frames += phantom_tracks(self.scene, pos, t)
 
     def _vacated(self, t: float, occ_map: OccupancyMap, to_est) -> None:
         """Voxels the map holds occupied inside a mover now; once the mover leaves, time to free."""
