@@ -33,6 +33,7 @@ Usage:
   .venv/bin/python benchmarks/dynamic/run.py --fine-depth          # results_fine_depth.json
   .venv/bin/python benchmarks/dynamic/run.py --plain --seeds 20     # plain city and movers: results_plain_seeds100-119.json
   .venv/bin/python benchmarks/dynamic/run.py --first-seed 150       # held-out: results_seeds150-199.json
+  .venv/bin/python benchmarks/dynamic/run.py --camera-noise 1.5 --seeds 10   # a real camera's noise: results_noise1.5_seeds100-109.json
   .venv/bin/python benchmarks/dynamic/run.py --tracker reacquire_s=None      # tried settings: results_tried.json
   .venv/bin/python benchmarks/dynamic/run.py --tracker history_s=0.3/1.0     # the see-through test
       (session 42: kept as results_see_through_session42*.json; 49/50 delivered, one safe hover,
@@ -254,6 +255,14 @@ def main() -> int:
         help="a world of plain surfaces: plain facades, glass, plain grey streets and plain movers "
         "(MissionConfig.plain); results_plain*.json",
     )
+    ap.add_argument(
+        "--camera-noise",
+        type=float,
+        default=0.0,
+        metavar="SIGMA",
+        help="steady sensor noise of both cameras, grey levels (MissionConfig.camera_noise; real cameras "
+        "have about 1-2); results_noise<SIGMA>*.json",
+    )
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "dynamic" / "out"))
     args = ap.parse_args()
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
@@ -267,10 +276,12 @@ def main() -> int:
         evade_movers=not args.no_evade,
         reach_aware_verify=not args.no_reach_aware,
         plain=args.plain,
+        camera_noise=args.camera_noise,
     )
     suffix = "" if args.pose_source == "truth" else "_" + args.pose_source.replace("+", "_")
     suffix += "_fine_depth" if args.fine_depth else ""
     suffix += "_plain" if args.plain else ""
+    suffix += f"_noise{args.camera_noise:g}" if args.camera_noise > 0 else ""
     # not the defaults: their own file, named by what is tried
     suffix += "_tried" if (args.tracker or args.no_evade or args.no_reach_aware) else ""
     suffix += ("_no_evade" if args.no_evade else "") + ("_no_reach" if args.no_reach_aware else "")
@@ -302,6 +313,7 @@ def main() -> int:
             "evade_movers": not args.no_evade,
             "reach_aware_verify": not args.no_reach_aware,
             "plain": args.plain,
+            "camera_noise": args.camera_noise,
             "seeds": seeds,
             "parallel": args.parallel,
         },

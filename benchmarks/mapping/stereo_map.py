@@ -75,7 +75,12 @@ Usage:
   .venv/bin/python benchmarks/mapping/stereo_map.py --frames 20 --seed 3
   .venv/bin/python benchmarks/mapping/stereo_map.py --plain --baseline-settings
   .venv/bin/python benchmarks/mapping/stereo_map.py --plain-seeds 3 7 11 5 13 --no-flat-ground
-Writes benchmarks/mapping/results_stereo.json.
+  .venv/bin/python benchmarks/mapping/stereo_map.py --plain --noise 1.5 --variant fixed:noise_aware_texture=False
+Writes benchmarks/mapping/results_stereo.json (with --noise SIGMA: results_stereo_noise<SIGMA>.json).
+Camera noise (--noise): the renderer's images are noise-free; real cameras add 1-2 grey levels, which
+a fixed texture threshold takes for texture. skyrecon measures the noise on each image and raises
+its thresholds above it (PerceptionSettings.noise_aware_texture; the variant
+``fixed:noise_aware_texture=False`` flies the fixed threshold).
 """
 
 from __future__ import annotations
@@ -85,7 +90,7 @@ import json
 import os
 import sys
 import time
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import numpy as np
@@ -96,6 +101,7 @@ sys.path.insert(0, str(ROOT / "src"))
 from skyrecon.io.atomic import write_text_atomic  # noqa: E402
 from skyrecon.mapping import OccupancyMap, StereoMapper, StereoMapSettings  # noqa: E402
 from skyrecon.sim import default_rig, flight_poses, generate_city, render_stereo  # noqa: E402
+from skyrecon.sim.sensor_noise import add_sensor_noise  # noqa: E402
 from skyrecon.stereo import create_matcher, disparity_to_depth  # noqa: E402
 
 try:
@@ -104,12 +110,22 @@ except ImportError:  # pragma: no cover - optional peer
     octomap = None
 
 
-def flight(seed: int, frames: int, width: int, height: int, baseline: float, plain: bool = False):
-    """City, rig, poses (world_from_left) and rendered stereo frames of a flight."""
+def flight(
+    seed: int, frames: int, width: int, height: int, baseline: float, plain: bool = False, noise: float = 0.0
+):
+    """City, rig, poses (world_from_left) and rendered stereo frames of a flight; with ``noise``,
+    camera sensor noise of that many grey levels on both images (seeded by the city seed)."""
     city = generate_city(seed, 200.0, plain=plain)
     rig = default_rig(width, height, 90.0, baseline)
     poses = flight_poses(city, frames, seed)
-    return city, rig, poses, [render_stereo(city, rig, p.inverse()) for p in poses]
+    rendered = [render_stereo(city, rig, p.inverse()) for p in poses]
+    if noise > 0:
+        rng = np.random.default_rng([seed, 0x5E4])
+        rendered = [
+            replace(f, left=add_sensor_noise(f.left, noise, rng), right=add_sensor_noise(f.right, noise, rng))
+            for f in rendered
+        ]
+    return city, rig, poses, rendered
 
 
 # ----- the two methods -------------------------------------------------------------------
@@ -262,10 +278,13 @@ def parse_setting(text: str) -> tuple[str, object]:
 def run_case(args, seed: int, plain: bool, variants: dict[str, dict]) -> dict:
     """One flight: our variants and the peer on the same frames; rows, ratios and target of each."""
     t0 = time.perf_counter()
-    city, rig, poses, frames = flight(seed, args.frames, args.width, args.height, args.baseline, plain)
+    city, rig, poses, frames = flight(
+        seed, args.frames, args.width, args.height, args.baseline, plain, args.noise
+    )
     kind = "plain" if plain else "textured"
+    noise = f", camera noise {args.noise:g} grey levels" if args.noise > 0 else ""
     print(
-        f"\n== {kind} city, seed {seed}: {len(frames)} stereo frames {args.width}x{args.height}, rendered in "
+        f"\n== {kind} city, seed {seed}: {len(frames)} stereo frames {args.width}x{args.height}{noise}, rendered in "
         f"{time.perf_counter() - t0:.1f} s; load average {os.getloadavg()[0]:.1f}"
     )
     runs = {}
@@ -386,8 +405,19 @@ def main() -> None:
     ap.add_argument("--max-range", type=float, default=40.0, help="metres (skyrecon map's default)")
     ap.add_argument("--max-disparity", type=int, default=128)
     ap.add_argument("--near", type=float, default=20.0, help="range of recall@near, metres")
-    ap.add_argument("--out", type=Path, default=Path(__file__).with_name("results_stereo.json"))
+    ap.add_argument(
+        "--noise",
+        type=float,
+        default=0.0,
+        metavar="SIGMA",
+        help="camera sensor noise on every image, grey levels (default 0: the renderer's noise-free "
+        "images; real cameras have about 1-2); results_stereo_noise<SIGMA>.json unless --out",
+    )
+    ap.add_argument("--out", type=Path, default=None, help="default results_stereo.json (see --noise)")
     args = ap.parse_args()
+    if args.out is None:
+        name = f"results_stereo_noise{args.noise:g}.json" if args.noise > 0 else "results_stereo.json"
+        args.out = Path(__file__).with_name(name)
     if octomap is None:
         sys.exit(
             "octomap-python is not installed (pip install octomap-python); it is the peer of this benchmark"
@@ -441,6 +471,7 @@ def main() -> None:
         "max_range_m": args.max_range,
         "near_m": args.near,
         "max_disparity": args.max_disparity,
+        "camera_noise": args.noise,
         "cpus": os.cpu_count(),
         "load_average": os.getloadavg()[0],
         "cases": results,

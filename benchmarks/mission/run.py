@@ -96,12 +96,26 @@ def main() -> int:
         help="a city of plain surfaces (MissionConfig.plain: plain facades, glass, plain grey streets); "
         "writes out_plain/ and results_plain.json",
     )
+    ap.add_argument(
+        "--camera-noise",
+        type=float,
+        default=0.0,
+        metavar="SIGMA",
+        help="steady sensor noise of both cameras, grey levels (MissionConfig.camera_noise; real cameras "
+        "have about 1-2); writes out_noise<SIGMA>/ and results_noise<SIGMA>.json",
+    )
     args = ap.parse_args()
 
-    cfg = MissionConfig(pose_source=args.pose_source, tracker_settings=args.tracker, plain=args.plain)
+    cfg = MissionConfig(
+        pose_source=args.pose_source,
+        tracker_settings=args.tracker,
+        plain=args.plain,
+        camera_noise=args.camera_noise,
+    )
     truth = args.pose_source == "truth"
     tag = ("" if truth else "_" + args.pose_source.replace("+", "_")) + ("_tried" if args.tracker else "")
     tag += "_plain" if args.plain else ""
+    tag += f"_noise{args.camera_noise:g}" if args.camera_noise > 0 else ""
     if tag and args.out == str(ROOT / "benchmarks" / "mission" / "out"):
         args.out = str(ROOT / "benchmarks" / "mission" / f"out{tag}")
     if args.small:

@@ -222,3 +222,40 @@ def test_sequence_refuses_a_separate_calibration(unrectified_scene, tmp_path, ca
     assert main(args) == 2
     line = _one_error_line(capsys)
     assert "calib" in line and "rig.yml" in line
+
+
+def test_census_tolerance_auto_on_a_noisy_pair(scene, tmp_path, capsys):
+    """``--census-tolerance auto``: measured on the images (0 on the noise-free render, 4 or
+    more with 2 grey levels of camera noise); a word that is no number, or the option with an
+    OpenCV matcher, is one clear line and exit status 2."""
+    from skyrecon.io import read_image
+    from skyrecon.sim.sensor_noise import add_sensor_noise
+
+    rng = np.random.default_rng(3)
+    for name in ("left", "right"):
+        write_image(tmp_path / f"{name}.png", add_sensor_noise(read_image(scene / f"{name}.png"), 2.0, rng))
+    for src, expected in ((scene, 0), (tmp_path, 4)):
+        out = tmp_path / f"out_{expected}"
+        args = ["stereo", str(src / "left.png"), str(src / "right.png"), "--max-disparity", "48"]
+        assert main([*args, "--census-tolerance", "auto", "--out", str(out), "--quiet"]) == 0
+        got = json.loads((out / "stereo.json").read_text())["census_tolerance"]
+        assert got >= expected if expected else got == 0
+    pair = [str(scene / "left.png"), str(scene / "right.png")]
+    assert main(["stereo", *pair, "--census-tolerance", "lots", "--out", str(tmp_path / "x")]) == 2
+    assert "census-tolerance" in _one_error_line(capsys)
+    assert (
+        main(
+            [
+                "stereo",
+                *pair,
+                "--method",
+                "opencv-sgbm",
+                "--census-tolerance",
+                "auto",
+                "--out",
+                str(tmp_path / "y"),
+            ]
+        )
+        == 2
+    )
+    assert "skyrecon matchers" in _one_error_line(capsys)

@@ -10,6 +10,7 @@ import pytest
 
 from skyrecon.cli import demo as demo_cli
 from skyrecon.cli.main import main
+from skyrecon.errors import InputError
 from skyrecon.mapping import MapConfig, OccupancyMap
 from skyrecon.mission.loop import run_mission
 from skyrecon.mission.metrics import mission_metrics
@@ -95,6 +96,26 @@ def test_a_plain_world_is_painted_plain(tiny_config):
     again = make_scenario(4, cfg.with_overrides(plain=True))
     assert again.movers.to_dict() == plain.movers.to_dict()
     np.testing.assert_array_equal(again.city.boxes, plain.city.boxes)
+
+
+def test_camera_noise_is_measured_by_the_drone(tiny_config):
+    """``--camera-noise`` (MissionConfig.camera_noise): the simulated cameras add steady noise;
+    the health check measures it on every frame (the texture tests stand above it) and
+    ``mission.json`` reports its median; a noise-free render reads almost none."""
+    parser = argparse.ArgumentParser()
+    demo_cli.add_parser(parser.add_subparsers())
+    assert demo_cli._config(parser.parse_args(["demo", "--camera-noise", "1.5"])).camera_noise == 1.5
+    with pytest.raises(InputError, match="camera_noise"):
+        tiny_config.with_overrides(camera_noise=-1.0)
+    base = tiny_config.with_overrides(movers=True, pose_source="truth", time_limit_s=3.0)
+    measured = {}
+    for sigma in (0.0, 2.0):
+        cfg = base.with_overrides(camera_noise=sigma)
+        r = run_mission(make_scenario(2, cfg), cfg)
+        assert all(rec.image_noise is not None for rec in r.records)
+        measured[sigma] = mission_metrics(r)["image_noise_median"]
+    assert measured[0.0] < 0.2
+    assert measured[2.0] == pytest.approx(2.0, abs=0.3)
 
 
 def test_tracking_keeps_movers_out_of_the_map(tiny_config):

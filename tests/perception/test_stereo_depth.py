@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from skyrecon.core import Rigid3, StereoRig
+from skyrecon.core.image_noise import image_noise_sigma
 from skyrecon.errors import InputError
 from skyrecon.perception import (
     PerceptionSettings,
@@ -18,6 +19,7 @@ from skyrecon.perception import (
 )
 from skyrecon.perception.stereo_depth import unambiguous_matches
 from skyrecon.sim import City, default_rig, flight_poses, generate_city, render_stereo
+from skyrecon.sim.sensor_noise import add_sensor_noise
 from skyrecon.stereo import create_matcher, disparity_to_depth, plane_supported_fill, to_grey, trusted_range_m
 
 
@@ -47,6 +49,73 @@ def test_mapping_preset_keeps_measured_pixels_away_from_discontinuities(pair):
     ok = np.isfinite(frame.depth_m)
     near = ok & np.isfinite(f.depth_left_m) & (frame.depth_m < 20.0)
     assert ok.mean() > 0.5 and np.median(np.abs(frame.depth_m[near] - f.depth_left_m[near])) < 0.3
+
+
+def test_texture_masks_stand_above_the_images_noise():
+    """A plain wall with 2 grey levels of camera noise: a fixed threshold calls most of it
+    matchable; raised above the measured noise, almost none of it is, and texture still is."""
+    rng = np.random.default_rng(4)
+    wall = np.full((240, 160), 130.0, np.float32)
+    texture = np.clip(rng.normal(130.0, 25.0, (240, 160)), 0, 255).astype(np.float32)
+    grey = np.clip(np.rint(np.hstack([wall, texture]) + rng.normal(0, 2.0, (240, 320))), 0, 255)
+    grey = grey.astype(np.uint8)
+    fixed, _ = texture_masks(grey, 0.5)
+    assert fixed[:, 10:150].mean() > 0.9  # the noise alone passes 0.5 grey levels per pixel
+    sigma = image_noise_sigma(grey)
+    assert sigma == pytest.approx(2.0, abs=0.3)
+    matchable, edges = texture_masks(grey, 0.5, noise_sigma=sigma)
+    assert matchable[:, 10:150].mean() < 0.01 and edges[:, 10:150].mean() < 0.01
+    assert matchable[:, 170:310].mean() > 0.99
+    # no noise measured (a noise-free render): exactly the fixed threshold
+    np.testing.assert_array_equal(texture_masks(grey, 0.5, noise_sigma=0.0)[0], fixed)
+
+
+def test_stereo_depth_measures_the_noise_for_its_texture_test(pair):
+    rig, f = pair
+    rng = np.random.default_rng(6)
+    left, right = add_sensor_noise(f.left, 1.5, rng), add_sensor_noise(f.right, 1.5, rng)
+    frame = StereoDepth(rig, PerceptionSettings.mapping()).compute(left, right)
+    assert frame.image_noise_sigma == pytest.approx(1.5, abs=0.2)
+    given = StereoDepth(rig, PerceptionSettings.mapping()).compute(left, right, noise_sigma=0.0)
+    assert given.image_noise_sigma == 0.0
+    # the fixed threshold counts more of the noisy plain surfaces as measured
+    off = StereoDepth(rig, PerceptionSettings.mapping(noise_aware_texture=False)).compute(left, right)
+    assert off.measured_fraction > frame.measured_fraction
+    unmeasured = PerceptionSettings.mapping(min_texture=None, matcher_settings={"census_tolerance": 0.0})
+    assert StereoDepth(rig, unmeasured).compute(f.left, f.right).image_noise_sigma is None
+
+
+def test_the_flight_preset_drops_what_noise_decides_and_keeps_open_sky(pair):
+    """Flight: on a noise-free frame exactly the depth without any texture test; with a
+    camera's noise, far fewer depths beyond the true surface (their rays would carve free
+    space through it), and the plain sky above the horizon (a level camera: the middle row)
+    is open air (+inf) and never a surface."""
+    rig, f = pair
+    plain_rules = PerceptionSettings.flight(min_texture=None, plane_fill=False)
+    ours = StereoDepth(rig, PerceptionSettings.flight())
+    np.testing.assert_array_equal(
+        ours.compute(f.left, f.right).depth_m, StereoDepth(rig, plain_rules).compute(f.left, f.right).depth_m
+    )
+    rng = np.random.default_rng(8)
+    left, right = add_sensor_noise(f.left, 2.0, rng), add_sensor_noise(f.right, 2.0, rng)
+    truth = f.depth_left_m[::2, ::2]
+    up = f.left_from_world.R @ np.array([0.0, 0.0, 1.0])  # the camera looks down by atan(-up_z / -up_y)
+    horizon = rig.left.cy - rig.left.fy * (up[2] / up[1])
+    ours_d = ours.compute(left, right, horizon_row_px=horizon).depth_m
+    all_d = StereoDepth(rig, plain_rules).compute(left, right, horizon_row_px=horizon).depth_m
+
+    def beyond(d):
+        with np.errstate(invalid="ignore"):
+            return int((np.isfinite(d) & np.isfinite(truth) & (d > 1.25 * truth + 0.5)).sum())
+
+    assert beyond(ours_d) < 0.5 * beyond(all_d)
+    sky = ~np.isfinite(truth)
+    assert np.isinf(ours_d[sky]).mean() > 0.5
+    # no horizon, no sky rule: the plain sky stays unknown; the rule adds no +inf on a surface
+    # (the matcher's own matches beyond any range, a few under noise, are there either way)
+    no_rule = ours.compute(left, right).depth_m
+    assert np.isinf(no_rule[sky]).mean() < 0.05
+    np.testing.assert_array_equal(np.isinf(ours_d) & ~sky, np.isinf(no_rule) & ~sky)
 
 
 def test_mapping_preset_keeps_textured_measurements_and_plane_supported_segments(pair):
@@ -113,9 +182,12 @@ def test_hit_range_of_the_presets(pair):
 def test_matcher_settings_and_reuse(pair):
     rig, _ = pair
     kwargs = {"uniqueness": 0.05, "paths": 4, "horizontal_paths": True, "guided_fill": False}
-    assert PerceptionSettings.mapping().matcher_kwargs() == kwargs
+    # the census tolerance measured on each image, unless set (see SkyreconSettings)
+    assert PerceptionSettings.mapping().matcher_kwargs() == kwargs | {"census_tolerance": None}
     assert PerceptionSettings.mapping(method="opencv-sgbm").matcher_kwargs() == {}
-    assert PerceptionSettings.flight().matcher_kwargs() == {}
+    assert PerceptionSettings.flight().matcher_kwargs() == {"census_tolerance": None}
+    fixed = PerceptionSettings.flight(matcher_settings={"census_tolerance": 2.0})
+    assert fixed.matcher_kwargs() == {"census_tolerance": 2.0}
     matcher = create_matcher("skyrecon-fast", 64)
     assert StereoDepth(rig, PerceptionSettings.flight(), matcher).matcher is matcher
 

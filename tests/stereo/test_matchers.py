@@ -4,6 +4,7 @@ import cv2
 import numpy as np
 import pytest
 
+from skyrecon.errors import InputError
 from skyrecon.eval.stereo_metrics import evaluate_disparity
 from skyrecon.stereo import (
     DisparityResult,
@@ -328,3 +329,31 @@ def test_the_diagnostics_name_the_paths_in_use():
     for kw, n in (({}, 6), ({"fast": True}, 4), ({"paths": 2}, 2)):
         diag = create_matcher("skyrecon", 16, **kw).compute(img, img).diagnostics
         assert diag["paths"] == n and diag["settings"]["paths"] == kw.get("paths")
+
+
+def test_a_tolerant_census_keeps_plain_surfaces_matched_under_camera_noise(sim_frame):
+    """Noise scrambles the classic census of a plain surface (random bits, random costs): far
+    fewer pixels pass the checks. With the tolerance measured on the image (None), the codes of
+    a plain surface tie again as without noise; on the noise-free pair the measured tolerance
+    is 0 and the result is the classic census's, bit for bit."""
+    from skyrecon.sim.sensor_noise import add_sensor_noise
+
+    f = sim_frame
+    clean = {
+        t: create_matcher("skyrecon", 64, census_tolerance=t).compute(f.left, f.right) for t in (0.0, None)
+    }
+    np.testing.assert_array_equal(clean[0.0].disparity, clean[None].disparity)
+    assert clean[None].diagnostics["census_tolerance"] == 0
+    rng = np.random.default_rng(2)
+    left, right = add_sensor_noise(f.left, 2.0, rng), add_sensor_noise(f.right, 2.0, rng)
+    noisy = {t: create_matcher("skyrecon", 64, census_tolerance=t).compute(left, right) for t in (0.0, None)}
+    assert noisy[None].diagnostics["image_noise"] == pytest.approx(2.0, abs=0.3)
+    assert noisy[None].diagnostics["census_tolerance"] >= 4
+    measured = {t: float(r.measured.mean()) for t, r in noisy.items()}
+    assert measured[None] > measured[0.0] + 0.1
+    assert measured[None] > 0.8 * float(clean[0.0].measured.mean())
+    truth = f.disparity_left_px
+    ok = noisy[None].measured & np.isfinite(truth)
+    assert np.mean(np.abs(noisy[None].disparity[ok] - truth[ok]) > 3) < 0.03
+    with pytest.raises(InputError, match="census_tolerance"):
+        SkyreconSettings(census_tolerance=-1.0)

@@ -168,6 +168,14 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         help="do not separate and track moving objects (they go into the map like buildings); for comparison",
     )
     p.add_argument(
+        "--camera-noise",
+        type=float,
+        default=0.0,
+        metavar="SIGMA",
+        help="steady sensor noise of both cameras, grey levels (standard deviation; default 0: the "
+        "renderer's noise-free images; real cameras have about 1-2)",
+    )
+    p.add_argument(
         "--faults",
         metavar="SPEC",
         help="inject sensor and computer faults: NAME@ONSET[+DURATION][:VALUE], comma-separated "
@@ -206,6 +214,7 @@ def _config(args):
         movers=args.movers != "off",
         movers_file="" if args.movers in ("on", "off") else args.movers,
         plain=args.plain,
+        camera_noise=args.camera_noise,
         prior_map=args.prior_map or "",
         city_changes=bool(args.city_changes or args.prior_map == "earlier"),
         track_movers=not args.no_tracking,

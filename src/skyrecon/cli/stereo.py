@@ -78,6 +78,15 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         help="matcher: skyrecon (default), skyrecon-fast, opencv-sgbm, opencv-bm",
     )
     p.add_argument(
+        "--census-tolerance",
+        default="0",
+        metavar="auto|LEVELS",
+        help="skyrecon matchers: a census bit counts only a neighbour darker by more than this many "
+        "grey levels (default 0, the classic census); 'auto': three times the camera noise measured "
+        "on each image, so that noise does not scramble plain surfaces (what 'skyrecon map' uses; "
+        "it needs flat areas such as sky, walls or road to measure the noise)",
+    )
+    p.add_argument(
         "--max-disparity",
         type=positive_int,
         help="largest disparity searched, pixels (default: calib ndisp or 128)",
@@ -166,7 +175,7 @@ def _run_pair(args: argparse.Namespace, left_path: Path, right_path: Path) -> in
         rig, bound, left, right, rectified_here = _calibrate(args.calib, left, right)
     out = output_dir(args.out)
     max_disp = _max_disparity(args, bound, width)
-    matcher = create_matcher(args.method, max_disp, min_disparity=args.min_disparity)
+    matcher = _matcher(args.method, max_disp, args.min_disparity, args.census_tolerance)
     t0 = time.perf_counter()
     if hasattr(matcher, "warmup"):
         matcher.warmup()  # compile or load the kernels now, so the timing below is the matching itself
@@ -180,6 +189,7 @@ def _run_pair(args: argparse.Namespace, left_path: Path, right_path: Path) -> in
         "left": str(left_path),
         "right": str(right_path),
         "method": args.method,
+        "census_tolerance": result.diagnostics.get("census_tolerance"),
         "size": [width, height],
         "disparity_range": [args.min_disparity, max_disp],
         "density": round(float(np.isfinite(disparity).mean()), 4),
@@ -280,13 +290,14 @@ def _run_sequence(args: argparse.Namespace, root: Path) -> int:
                 a,
                 min(n, a + chunk),
                 str(out),
+                str(args.census_tolerance),
             )
             for a in range(0, n, chunk)
         ]
         with open_executor(args) as executor:
             compute_s = [t for part in executor.map(_match_frames, jobs, desc="stereo frames") for t in part]
     else:
-        matcher = create_matcher(args.method, max_disparity, min_disparity=args.min_disparity)
+        matcher = _matcher(args.method, max_disparity, args.min_disparity, args.census_tolerance)
         compute_s = [
             _match_frame(seq, matcher, i, out, stems[i]) for i in progress(range(n), desc="stereo frames")
         ]
@@ -331,13 +342,34 @@ class _FramesJob:
     first: int
     stop: int
     out: str
+    census_tolerance: str = "0"
+
+
+def _matcher(method: str, max_disparity: int, min_disparity: int, census_tolerance: str):
+    """The matcher ``method`` with its census tolerance (``--census-tolerance``: 'auto' or
+    grey levels; skyrecon matchers only)."""
+    text = str(census_tolerance).strip().lower()
+    if text in ("", "0"):
+        return create_matcher(method, max_disparity, min_disparity=min_disparity)
+    if not method.startswith("skyrecon"):
+        raise InputError(f"--census-tolerance is a setting of the skyrecon matchers, not of {method}")
+    if text == "auto":
+        tol: float | None = None
+    else:
+        try:
+            tol = float(text)
+        except ValueError:
+            raise InputError(
+                f"--census-tolerance must be 'auto' or grey levels, got {census_tolerance!r}"
+            ) from None
+    return create_matcher(method, max_disparity, min_disparity=min_disparity, census_tolerance=tol)
 
 
 def _match_frames(job: _FramesJob) -> list[float]:
     """Match a chunk of frames (on a worker): opens the sequence, writes each frame's disparity and
     depth PFM into ``job.out``; returns the seconds each frame took."""
     seq = open_stereo_sequence(Path(job.root), job.topics)
-    matcher = create_matcher(job.method, job.max_disparity, min_disparity=job.min_disparity)
+    matcher = _matcher(job.method, job.max_disparity, job.min_disparity, job.census_tolerance)
     out = Path(job.out)
     times = []
     for i in range(job.first, job.stop):

@@ -167,6 +167,11 @@ class MissionConfig:
         mover_margin_m: extra radius of a tracked mover's keep-out capsule, metres (stereo places
             a small mover at 10-20 m up to a few metres too far along the viewing ray).
     Faults (:mod:`skyrecon.sim.faults`, :mod:`skyrecon.mission.health`, :mod:`skyrecon.mission.failsafe`):
+        camera_noise: steady sensor noise of both cameras, grey levels (standard deviation,
+            :func:`skyrecon.sim.sensor_noise.add_sensor_noise`; 0: the renderer's noise-free
+            images). A real camera has 1-2; the texture tests measure it on each frame and stand
+            above it (:mod:`skyrecon.core.image_noise`). Not a fault: the health check calls an
+            image noisy only above its ``max_noise`` (6).
         faults: faults injected into the simulated sensors ("" none; a specification or "random").
         failsafe: what a prolonged loss of trustworthy depth triggers: "return" (back along the
             flown track to take-off), "land" (where it is, over observed free ground) or "hover".
@@ -230,6 +235,7 @@ class MissionConfig:
     mover_fine_depth: bool = False
     mover_horizon_s: float = 3.0
     mover_margin_m: float = 1.0
+    camera_noise: float = 0.0
     faults: str = ""
     failsafe: str = "return"
     failsafe_after_s: float = 3.0
@@ -287,6 +293,8 @@ class MissionConfig:
             raise InputError(f"pose_source must be odometry, truth or gps+odometry, got {self.pose_source!r}")
         if not (self.degraded_speed_mps >= 0 and self.delivery_tolerance_m >= 0):
             raise InputError("degraded_speed_mps and delivery_tolerance_m must be at least 0")
+        if not 0 <= self.camera_noise <= 64:
+            raise InputError(f"camera_noise must lie in [0, 64] grey levels, got {self.camera_noise}")
         if self.failsafe not in ("return", "land", "hover"):
             raise InputError(f"failsafe must be return, land or hover, got {self.failsafe!r}")
         if not self.failsafe_after_s > 0:

@@ -10,7 +10,9 @@ trustworthy, and if not, why:
 * ``black``, ``black_left``, ``black_right``: an image is (nearly) uniform black;
 * ``frozen``: the frame is bit-identical to the previous one although the drone moved or
   turned in between (so the camera or its driver is stuck);
-* ``noisy``: the image noise (Immerkaer's estimator) is above ``max_noise``;
+* ``noisy``: the image noise (Immerkaer's estimator,
+  :func:`skyrecon.core.image_noise.image_noise_sigma`) is above ``max_noise``; below that the
+  noise level is passed on (``Health.noise_sigma``) so that stereo's texture test stands above it;
 * ``glare``: more than ``max_saturated`` of the image is saturated (the depth there is masked
   out, the rest is used: glare alone does not stop the drone);
 * ``no_depth``: the images look fine but stereo measured almost nothing;
@@ -32,6 +34,8 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from skyrecon.core.image_noise import image_noise_sigma
+
 #: Reasons that make the depth of the cycle untrustworthy (the drone stops using it).
 UNTRUSTED = {"no_frame", "stale", "black", "black_left", "black_right", "frozen", "noisy", "no_depth"}
 
@@ -52,20 +56,13 @@ REVEALS = {
 @dataclass
 class Health:
     """One cycle's verdict: ``trusted`` (fresh, trustworthy depth), ``reasons`` (see the module
-    docstring) and ``glare_mask`` ((H, W) bool saturated pixels, or None)."""
+    docstring), ``glare_mask`` ((H, W) bool saturated pixels, or None) and ``noise_sigma`` (the
+    left image's noise, grey levels; None when not measured: no frame, or a black one)."""
 
     trusted: bool
     reasons: list[str] = field(default_factory=list)
     glare_mask: np.ndarray | None = None
-
-
-def noise_sigma(gray: np.ndarray) -> float:
-    """Immerkaer's fast noise estimate of a grey image (H, W), grey levels."""
-    g = np.asarray(gray, dtype=np.float32)
-    k = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
-    r = cv2.filter2D(g, -1, k)[1:-1, 1:-1]
-    h, w = g.shape
-    return float(np.sqrt(np.pi / 2) * np.abs(r).sum() / (6.0 * (w - 2) * (h - 2)))
+    noise_sigma: float | None = None
 
 
 @dataclass
@@ -129,6 +126,7 @@ class SensorHealth:
             reasons.append("frozen")
         self._prev = probe.copy()
         glare = None
+        noise = None
         if not (bl or br):
             gray = cv2.cvtColor(left, cv2.COLOR_RGB2GRAY)
             sat = gray >= 250
@@ -137,9 +135,10 @@ class SensorHealth:
                 # the blob's rim matches wrongly too (each camera sees the flare elsewhere)
                 k = max(3, int(0.04 * gray.shape[1]) | 1)
                 glare = cv2.dilate(sat.view(np.uint8), np.ones((k, k), np.uint8)) > 0
-            if noise_sigma(gray) > self.max_noise:
+            noise = image_noise_sigma(gray)
+            if noise > self.max_noise:
                 reasons.append("noisy")
-        return Health(not (set(reasons) & UNTRUSTED), reasons, glare)
+        return Health(not (set(reasons) & UNTRUSTED), reasons, glare, noise)
 
     def check_depth(self, health: Health, measured_fraction: float) -> Health:
         """Add what stereo says (``measured_fraction`` of pixels measured) to the frame's verdict."""

@@ -49,7 +49,7 @@ import gc
 import math
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import partial
 
 import numpy as np
@@ -90,6 +90,7 @@ from skyrecon.record import NullRecorder, Recorder
 from skyrecon.record.mission import MissionRecording
 from skyrecon.sim import render_stereo
 from skyrecon.sim.faults import Delivery, Fault, FaultInjector, parse_faults
+from skyrecon.sim.sensor_noise import add_sensor_noise
 from skyrecon.threads import blas_threads, kernel_threads
 
 #: Milliseconds the simulated flight computer spends on one cycle (about the loop's median on
@@ -130,6 +131,8 @@ class CycleRecord:
             crossed it); "" when not replanned.
         movers_tracked: confirmed tracks of moving objects after this cycle's update.
         health: what was wrong with the cycle's data, comma-separated (:mod:`skyrecon.mission.health`).
+        image_noise: the left image's noise as the health check measured it, grey levels (the
+            texture tests stand above it); None when no image was measured.
         mode: the failsafe mode (:mod:`skyrecon.mission.failsafe`): fly, hold, return or land; or
             retreat (flying normally, backing off to see a climb: :func:`~skyrecon.mission.guidance.retreat_path`).
     """
@@ -161,6 +164,7 @@ class CycleRecord:
     movers_tracked: int = 0
     health: str = ""
     mode: str = "fly"
+    image_noise: float | None = None
 
     @property
     def pose_error_m(self) -> float:
@@ -214,6 +218,7 @@ class CycleRecord:
             "movers_tracked": self.movers_tracked,
             "health": self.health,
             "mode": self.mode,
+            "image_noise": None if self.image_noise is None else round(self.image_noise, 3),
         }
 
 
@@ -471,7 +476,13 @@ def _map_update(
     if tracker is not None:
         world_from_cam = cam_from_world.inverse().with_frames("world", "cam")
         mf = tracker.update(
-            time_s, depth.depth_m, depth.intrinsics, world_from_cam, nav.map, fine=depth.fine, image=left
+            time_s,
+            depth.depth_m,
+            depth.intrinsics,
+            world_from_cam,
+            nav.map,
+            fine=depth.fine,
+            image=left,
         )
         movers_ms = mf.ms
         if mf.dynamic_mask.any():
@@ -479,6 +490,15 @@ def _map_update(
             depth_for_map[mf.dynamic_mask] = np.nan
     _, integrate_ms = timed(nav.integrate, depth_for_map, depth.intrinsics, cam_from_world, flown_from)
     return movers_ms, integrate_ms
+
+
+def _camera_noise(frame, sigma: float, rng: np.random.Generator):
+    """The rendered frame as the cameras deliver it: with their own steady noise of ``sigma``
+    grey levels (``MissionConfig.camera_noise``; the frame itself for 0)."""
+    if not sigma > 0:
+        return frame
+    left, right = add_sensor_noise(frame.left, sigma, rng), add_sensor_noise(frame.right, sigma, rng)
+    return replace(frame, left=left, right=right)
 
 
 def _sense(
@@ -489,11 +509,14 @@ def _sense(
     time_s: float,
     last_loop_ms: float,
     moved: bool,
+    horizon_row_px: float | None = None,
 ):
     """What reaches the drone this cycle and what it makes of it: (the delivery, its health, the
     depth or None, the (left, right) images or None, milliseconds of the drone's sensing: the
     health checks and stereo, not the simulator's fault injection). Saturated (glare) pixels are
-    taken out of the depth; the rest is used."""
+    taken out of the depth; the rest is used. ``horizon_row_px``: where the horizon lies in the
+    image at the camera's pitch (plain sky above it is open air, see
+    :meth:`~skyrecon.perception.StereoDepth.compute`)."""
     delivery = (
         injector.deliver(time_s, frame.left, frame.right)
         if injector is not None
@@ -505,7 +528,9 @@ def _sense(
     )
     if delivery.left is None or delivery.right is None:
         return delivery, health, None, None, 1e3 * (time.perf_counter() - t0)
-    depth = stereo.compute(delivery.left, delivery.right)
+    depth = stereo.compute(
+        delivery.left, delivery.right, noise_sigma=health.noise_sigma, horizon_row_px=horizon_row_px
+    )
     if health.glare_mask is not None:
         depth.depth_m[_strided_mask(health.glare_mask, depth.depth_m.shape)] = np.nan
     health = health_check.check_depth(health, depth.measured_fraction)
@@ -679,6 +704,7 @@ def _fly(
             max_accel_mps2=cfg.max_accel_mps2,
         )
     faults, injector = _fault_injector(cfg.faults, scenario.seed, limit_s, pose_source)
+    camera_rng = np.random.default_rng([int(scenario.seed), 0xCA3E7A])
     truth = pose_source.name == "truth"
     lost_cycles, lost_yaw0 = 0, 0.0  # cycles lost since the pose was last trusted, the heading then
     trusted_run = 0  # consecutive cycles with a pose (not lost)
@@ -699,11 +725,16 @@ def _fly(
         true_cam_from_world = state.cam_from_world()
         t_render = time.perf_counter()
         scene_now = world.snapshot(state.time_s) if world is not None else scenario.city
-        frame = render_stereo(scene_now, rig, true_cam_from_world.with_frames("left", "world"))
+        frame = _camera_noise(
+            render_stereo(scene_now, rig, true_cam_from_world.with_frames("left", "world")),
+            cfg.camera_noise,
+            camera_rng,
+        )
         ms["render"] = 1e3 * (time.perf_counter() - t_render)
         true_world_from_left = true_cam_from_world.inverse().with_frames("world", "left")
+        horizon_row = rig.left.cy - rig.left.fy * math.tan(state.pitch_down)  # the gimbal's pitch
         delivery, health, depth, fresh, ms["stereo"] = _sense(
-            injector, health_check, stereo, frame, state.time_s, last_loop_ms, moved
+            injector, health_check, stereo, frame, state.time_s, last_loop_ms, moved, horizon_row
         )
         ms["pose"] = 0.0
         if depth is not None and fresh is not None:
@@ -834,6 +865,7 @@ def _fly(
             0 if tracker is None else sum(1 for t in tracker.tracks if t.moving),
             ",".join(health.reasons),
             backoff.label(mode),
+            health.noise_sigma,
         )
         records.append(rec)
         # the simulated flight computer spends NOMINAL_LOOP_MS a cycle, stretched by a starved

@@ -30,6 +30,9 @@
 * faults (:mod:`skyrecon.sim.faults`, :mod:`skyrecon.mission.failsafe`): ``outcome``
   (delivered, hovering, returned, landed, collision, timeout, missed_goal), ``faults`` (each
   injected fault, its onset and when the health check revealed it) and ``failsafe_events``;
+* ``image_noise_median``: the median noise of the left images, grey levels, as the health
+  check measured it (the texture tests stand above it; ``MissionConfig.camera_noise`` sets the
+  simulated cameras' noise);
 * ``stage_ms``: per stage (render, stereo, integrate, distance, check, replan, control, loop)
   the median, 95th percentile and mean in milliseconds.
 """
@@ -75,6 +78,13 @@ def _percentiles(loop_ms: np.ndarray) -> dict:
         return dict.fromkeys(keys)
     vals = [*np.percentile(loop_ms, [50, 95, 99]), loop_ms.max()]
     return {k: round(float(v), 2) for k, v in zip(keys, vals)}
+
+
+def _median_noise(records: list[CycleRecord]) -> float | None:
+    """Median image noise the health check measured over the flight, grey levels (None: none
+    measured)."""
+    v = [r.image_noise for r in records if r.image_noise is not None]
+    return round(float(np.median(v)), 3) if v else None
 
 
 def pose_metrics(result: MissionResult) -> dict:
@@ -181,6 +191,7 @@ def mission_metrics(result: MissionResult) -> dict:
         "mean_measured_fraction": round(float(np.mean([r.measured_fraction for r in recs])), 4)
         if recs
         else None,
+        "image_noise_median": _median_noise(recs),
         "wall_s": round(result.wall_s, 2),
         "setup_s": round(result.setup_s, 2),
         "seed": int(sc.seed),

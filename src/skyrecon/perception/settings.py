@@ -54,12 +54,21 @@ class PerceptionSettings:
         disparity_error_px: the disparity error assumed for the trusted range, pixels.
         min_texture: a measured pixel counts as measured only where the left image's mean
             absolute horizontal grey-level gradient over its ``texture_window_px`` window is at
-            least this (grey levels per pixel, 0-255 scale; see
+            least this, raised above the image's noise with ``noise_aware_texture`` (0: only
+            more texture than noise, every pixel of a noise-free image) (grey levels per pixel,
+            0-255 scale; see
             :func:`~skyrecon.perception.stereo_depth.texture_masks`); elsewhere (plain walls,
             roads, sky, horizontal edges) the matcher's value comes from smoothing along its
             paths, not from the image, and the pixel is treated as unmeasured. None: every
             measured pixel counts.
         texture_window_px: side of that window, pixels (odd).
+        texture_scale: the texture test (and its noise estimate) runs on the left image reduced
+            by this factor: the resolution the matcher works at (2 for ``skyrecon-fast``, whose
+            half-resolution images carry half the noise and twice the gradient per pixel).
+        noise_aware_texture: ``min_texture`` is for a noise-free image: raise it above the
+            left image's own noise, measured on the image (a real camera's 1-2 grey levels on
+            a plain wall pass a fixed threshold; see :mod:`skyrecon.core.image_noise`). Off:
+            the threshold as given, whatever the noise.
         plane_fill: give an unmeasured segment the disparity of the plane that the measured
             pixels all around it lie on (see :func:`skyrecon.stereo.plane_supported_fill`):
             a plain wall or road bounded by measured edges gets depth, an occluded strip
@@ -95,6 +104,8 @@ class PerceptionSettings:
     disparity_error_px: float = 0.25
     min_texture: float | None = None
     texture_window_px: int = 7
+    texture_scale: int = 1
+    noise_aware_texture: bool = True
     plane_fill: bool = False
     plane_tolerance_px: float = 0.3
     plane_min_inlier_fraction: float = 0.7
@@ -120,6 +131,8 @@ class PerceptionSettings:
             raise InputError(
                 f"min texture must be a non-negative grey-level deviation, got {self.min_texture}"
             )
+        if self.texture_scale not in (1, 2, 4):
+            raise InputError(f"texture scale must be 1, 2 or 4, got {self.texture_scale}")
         if not (int(self.texture_window_px) == self.texture_window_px and self.texture_window_px % 2 == 1):
             raise InputError(f"texture window must be an odd number of pixels, got {self.texture_window_px}")
         if not (
@@ -150,8 +163,9 @@ class PerceptionSettings:
     def mapping(cls, **overrides: Any) -> PerceptionSettings:
         """What ``skyrecon map`` uses: full-resolution ``skyrecon`` matcher with a uniqueness
         test and the horizontal paths (no colour-guided fill), measured pixels away from
-        discontinuities and on texture (grey-level deviation >= 1 over 7x7), plain segments bounded by one measured plane filled with it
-        (``plane_fill``), sky dropped, obstacles within the trusted range of 2 voxels of depth
+        discontinuities and on texture (mean horizontal gradient >= 0.5 grey levels per pixel
+        over 7x7, raised above the image's noise), plain segments bounded by one measured plane
+        filled with it (``plane_fill``), sky dropped, obstacles within the trusted range of 2 voxels of depth
         error. Keyword overrides on top."""
         return replace(cls(min_texture=0.5, plane_fill=True, guesses=True), **overrides)
 
@@ -162,9 +176,16 @@ class PerceptionSettings:
         subsampled by 2, sky carves free space, obstacles within the trusted range of 3 voxels
         of depth error for a disparity error of 0.5 px (a quarter pixel at the matcher's half
         resolution): about 17 m for the 0.3 m rig at 640 px and 0.5 m voxels. Farther depth
-        still carves free space up to the map's range. Keyword overrides on top."""
+        still carves free space up to the map's range. A measured pixel counts only where the
+        half-resolution image the matcher sees has more texture than noise (``min_texture`` 0,
+        ``texture_scale`` 2: every pixel of a noise-free image; with a real camera's noise the
+        matcher's values over a plain wall are noise, and in the delivery demo they were
+        phantom obstacles on every wall). Keyword overrides on top."""
         base = cls(
             method="skyrecon-fast",
+            min_texture=0.0,
+            texture_scale=2,
+            plane_fill=True,
             max_disparity=64,
             matcher_settings={},
             max_disparity_step_px=None,
@@ -176,12 +197,20 @@ class PerceptionSettings:
         return replace(base, **overrides)
 
     def matcher_kwargs(self) -> dict[str, Any]:
-        """The settings passed to :func:`skyrecon.stereo.create_matcher`."""
+        """The settings passed to :func:`skyrecon.stereo.create_matcher`: ``matcher_settings``,
+        or for the skyrecon matchers by default a uniqueness test and the horizontal paths; for
+        the skyrecon matchers always, unless set there, the census tolerance measured on each
+        image (``census_tolerance`` None: a camera's noise does not scramble the census of a
+        plain surface; see :class:`skyrecon.stereo.SkyreconSettings`)."""
         if self.matcher_settings is not None:
-            return dict(self.matcher_settings)
-        if self.method not in _SKYRECON_MATCHERS:
-            return {}
-        return {"uniqueness": 0.05, "paths": 4, "horizontal_paths": True, "guided_fill": False}
+            kw = dict(self.matcher_settings)
+        elif self.method in _SKYRECON_MATCHERS:
+            kw = {"uniqueness": 0.05, "paths": 4, "horizontal_paths": True, "guided_fill": False}
+        else:
+            kw = {}
+        if self.method in _SKYRECON_MATCHERS:
+            kw.setdefault("census_tolerance", None)
+        return kw
 
     def hit_range_m(self, rig: StereoRig, voxel_size_m: float, max_range_m: float) -> float:
         """Range up to which measurements may mark obstacles, metres: ``max_range_m`` limited

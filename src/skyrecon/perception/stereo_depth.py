@@ -22,11 +22,17 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
 
+from skyrecon.core.image_noise import (
+    excess_noise_sigma,
+    gradient_noise_quantile,
+    image_noise_sigma,
+    noise_aware_threshold,
+)
 from skyrecon.core.intrinsics import Intrinsics
 from skyrecon.core.stereo_rig import StereoRig
 from skyrecon.errors import InputError
@@ -34,6 +40,7 @@ from skyrecon.perception.settings import PerceptionSettings
 from skyrecon.stereo import Matcher, create_matcher, plane_supported_fill, to_grey
 from skyrecon.stereo.base import prepare_pair
 from skyrecon.stereo.opencv_matchers import OpenCVBMMatcher, OpenCVBMSettings
+from skyrecon.stereo.sgm import SkyreconMatcher
 
 
 def strided_intrinsics(cam: Intrinsics, stride: int) -> Intrinsics:
@@ -61,26 +68,74 @@ def disparity_discontinuities(disparity: np.ndarray, max_step_px: float) -> np.n
 
 
 def texture_masks(
-    image: np.ndarray, min_gradient: float, window_px: int = 7
+    image: np.ndarray, min_gradient: float, window_px: int = 7, noise_sigma: float | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
     """Where the image has texture a row-wise stereo match can use, and where it has edges.
 
     Args:
         image: (H, W, 3) uint8 RGB or (H, W) grey.
-        min_gradient: grey levels per pixel (0-255 scale).
+        min_gradient: grey levels per pixel (0-255 scale), for a noise-free image.
         window_px: side of the averaging window, pixels.
+        noise_sigma: the image's noise, grey levels
+            (:func:`~skyrecon.core.image_noise.image_noise_sigma`); each threshold is raised so
+            that pure noise of that level stays under it in all but about 1 window in 1000
+            (:func:`~skyrecon.core.image_noise.noise_aware_threshold`). None: ``min_gradient``
+            as given.
     Returns:
         ``(matchable, edges)``, (H, W) bool: the mean absolute horizontal grey-level gradient over
-        the window is at least ``min_gradient`` (texture along the epipolar lines: a horizontal
+        the window is at least the threshold (texture along the epipolar lines: a horizontal
         edge alone, such as the top of a wall against the sky, matches anywhere along a row);
         the mean of the horizontal plus vertical one is (any edge).
     """
     g = to_grey(np.asarray(image)).astype(np.float32)
-    k = (int(window_px), int(window_px))
+    w = int(window_px)
+    k = (w, w)
     gx = cv2.boxFilter(np.abs(cv2.Sobel(g, cv2.CV_32F, 1, 0, ksize=1)), -1, k)
     gy = cv2.boxFilter(np.abs(cv2.Sobel(g, cv2.CV_32F, 0, 1, ksize=1)), -1, k)
-    t = np.float32(2.0 * min_gradient)  # a ksize=1 Sobel is twice the central difference per pixel
-    return gx >= t, gx + gy >= t
+    # a ksize=1 Sobel is twice the central difference per pixel
+    t_x = np.float32(2.0 * noise_aware_threshold(min_gradient, noise_sigma, gradient_noise_quantile(w)))
+    t_xy = np.float32(
+        2.0 * noise_aware_threshold(min_gradient, noise_sigma, gradient_noise_quantile(w, both_axes=True))
+    )
+    return gx >= t_x, gx + gy >= t_xy
+
+
+#: open sky (see :meth:`StereoDepth.compute`, ``horizon_row_px``) lies at least this far above
+#: the horizon, degrees
+SKY_MARGIN_DEG = 1.0
+
+
+def open_sky(textured: np.ndarray, horizon_row_px: float, camera: Intrinsics, scale: int = 1) -> np.ndarray:
+    """(H, W) bool: the plain segments of an image that reach its top row and lie wholly above
+    the horizon (at least :data:`SKY_MARGIN_DEG` above it): open sky.
+
+    Args:
+        textured: (H, W) bool, the pixels with texture or an edge (they separate the segments;
+            :func:`texture_masks`' ``edges``).
+        horizon_row_px: the image row of the horizon (full resolution), pixels.
+        camera: the full-resolution camera (its ``fy``).
+        scale: the segments are found on ``textured[::scale, ::scale]`` (the resolution the
+            texture test ran at; ``textured`` is that mask repeated to full resolution).
+    """
+    t = np.ascontiguousarray(np.asarray(textured, bool)[::scale, ::scale])
+    n, labels, stats, _ = cv2.connectedComponentsWithStats((~t).view(np.uint8), connectivity=4)
+    last_row = horizon_row_px - camera.fy * np.tan(np.radians(SKY_MARGIN_DEG))  # full resolution
+    top = stats[:, cv2.CC_STAT_TOP]
+    bottom = (top + stats[:, cv2.CC_STAT_HEIGHT]) * scale  # one past the last full-res row
+    sky = (top == 0) & (bottom <= last_row)
+    sky[0] = False  # the textured pixels
+    full = sky[labels]
+    return _upsample_mask(full, scale, np.shape(textured)) if scale > 1 else full
+
+
+def _upsample_mask(mask: np.ndarray, k: int, shape: tuple[int, ...]) -> np.ndarray:
+    """(H, W) = ``shape`` bool: each pixel of ``mask`` repeated k x k times (cropped)."""
+    H, W = shape[0], shape[1]
+    h, w = mask.shape
+    big = cv2.resize(
+        np.ascontiguousarray(mask).view(np.uint8), (w * k, h * k), interpolation=cv2.INTER_NEAREST
+    )
+    return big[:H, :W].view(bool)
 
 
 #: the fine matcher's disparity must exceed the coarse one by this much to count, pixels
@@ -196,6 +251,8 @@ class DepthFrame:
         fine: with ``fine_max_disparity``, the full-resolution block matcher's depth where it
             sees a surface nearer than the matcher's (:class:`FineDepth`): for small near objects
             the half-resolution matcher lost (the mover tracker), not for the map.
+        image_noise_sigma: the left image's noise, grey levels, as given to
+            :meth:`StereoDepth.compute` or measured there for the texture test (None: neither).
     """
 
     depth_m: np.ndarray
@@ -206,6 +263,7 @@ class DepthFrame:
     plane_fraction: float = 0.0
     guess_depth_m: np.ndarray | None = None
     fine: FineDepth | None = None
+    image_noise_sigma: float | None = None
 
 
 class StereoDepth:
@@ -254,7 +312,12 @@ class StereoDepth:
         return self._matcher
 
     def compute(
-        self, left: np.ndarray, right: np.ndarray, after_match: Callable[[], object] | None = None
+        self,
+        left: np.ndarray,
+        right: np.ndarray,
+        after_match: Callable[[], object] | None = None,
+        noise_sigma: float | None = None,
+        horizon_row_px: float | None = None,
     ) -> DepthFrame:
         """Depth of one rectified pair, each (H, W, 3) uint8 RGB (or (H, W) grey).
 
@@ -262,20 +325,47 @@ class StereoDepth:
         texture masks, the plane fill and the conversion to depth, single-threaded): the
         moment to start other work on another thread without slowing the matcher, which uses
         every core (:class:`skyrecon.mapping.StereoMapper` integrates the previous frame then).
+        ``noise_sigma``: the left image's noise, grey levels, if already measured (the mission's
+        health check does); otherwise measured here when the texture test (``min_texture``
+        with ``noise_aware_texture``) or the skyrecon matcher's census tolerance needs it.
+        ``horizon_row_px``: the image row of the horizon (rows above it look up; the camera
+        level, not rolled: ``cy - fy tan(pitch down)``). With ``sky_is_free`` and a texture
+        test that drops pixels, a plain segment that reaches the top of the image and lies
+        wholly above the horizon (:data:`SKY_MARGIN_DEG`) is open sky: no return up to the
+        map's range. On a noise-free render the matcher finds the sky at disparity 0 from the
+        faint steps of its gradient; a real camera's noise drowns them, and without this rule
+        nothing would show the air ahead of a flying drone free. A plain facade reaches below
+        the horizon (it stands on the ground) and is not taken for sky.
         """
         t0 = time.perf_counter()
         self.rig.left.check_image(np.asarray(left), "left image")
-        result = self.matcher.compute(left, right)
+        s = self.settings
+        noise = None if noise_sigma is None else float(noise_sigma)
+        grey_left = None  # converted once for the noise, the texture masks and the plane fill
+        if noise is None and self._needs_noise:
+            grey_left = to_grey(np.asarray(left))
+            noise = image_noise_sigma(grey_left)
+        if isinstance(self.matcher, SkyreconMatcher):
+            result = self.matcher.compute(left, right, noise_sigma=noise)
+        else:
+            result = self.matcher.compute(left, right)
         if after_match is not None:
             after_match()
-        s = self.settings
         measured = result.measured
         textured = None
-        grey_left = None  # converted once for the texture masks and the plane fill
+        dropped = False  # the texture test took pixels out (else no plain segment to fill)
         if s.min_texture is not None:
-            grey_left = to_grey(np.asarray(left))
-            matchable, textured = texture_masks(grey_left, s.min_texture, s.texture_window_px)
-            measured = measured & matchable
+            grey_left = to_grey(np.asarray(left)) if grey_left is None else grey_left
+            matchable, textured = self._texture(grey_left, noise)
+            if matchable is not None:
+                dropped = True
+                measured = measured & matchable
+                if s.sky_is_free and horizon_row_px is not None:
+                    sky = open_sky(textured, horizon_row_px, self.rig.left, int(s.texture_scale))
+                    if sky.any():
+                        measured = measured | sky
+                        sky_disparity = np.float32(-self.rig.doffs_px)
+                        result = replace(result, disparity=np.where(sky, sky_disparity, result.disparity))
         keep = result.valid if s.use_filled else measured
         edge = None
         if s.max_disparity_step_px is not None:
@@ -283,19 +373,9 @@ class StereoDepth:
             keep = keep & ~edge
         disp = result.disparity
         plane = 0.0
-        if s.plane_fill and not s.use_filled:
-            planar, accepted = plane_supported_fill(
-                disp,
-                measured,
-                boundary=textured,
-                left=grey_left if grey_left is not None else to_grey(np.asarray(left)),
-                right=to_grey(np.asarray(right)),
-                tolerance_px=s.plane_tolerance_px,
-                min_inlier_fraction=s.plane_min_inlier_fraction,
-                max_guess_gap_px=s.plane_max_guess_gap_px,
-                max_step_px=s.max_disparity_step_px or 1.0,
-            )
-            disp = np.where(accepted, planar, disp)
+        if s.plane_fill and not s.use_filled and (dropped or s.min_texture is None):
+            grey_left = grey_left if grey_left is not None else to_grey(np.asarray(left))
+            disp, accepted = self._plane_fill(disp, measured, textured, grey_left, right)
             keep = keep | accepted
             plane = float(accepted.mean())
         k = self.stride
@@ -311,8 +391,95 @@ class StereoDepth:
         fine = None if self._fine is None else self._fine_depth(left, right, result.disparity)
         ms = 1e3 * (time.perf_counter() - t0)
         return DepthFrame(
-            depth, self.intrinsics, result.disparity, float(measured.mean()), ms, plane, guess, fine
+            depth, self.intrinsics, result.disparity, float(measured.mean()), ms, plane, guess, fine, noise
         )
+
+    def _plane_fill(
+        self,
+        disp: np.ndarray,
+        measured: np.ndarray,
+        textured: np.ndarray | None,
+        grey_left: np.ndarray,
+        right: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """:func:`~skyrecon.stereo.plane_supported_fill` of the (H, W) disparity: ``(disp,
+        accepted)``, the disparity with the accepted segments' planes and the (H, W) bool mask
+        of those pixels. With the texture test and the depth both at ``k = texture_scale =
+        depth_stride`` > 1 (the flight loop), the fill runs on that grid (disparities and
+        pixel tolerances divided by k, images reduced by area as the matcher's are): the only
+        pixels the depth keeps, a quarter of the work."""
+        s = self.settings
+        k = int(s.texture_scale)
+        step = s.max_disparity_step_px or 1.0
+        if k == 1 or k != self.stride:
+            planar, accepted = plane_supported_fill(
+                disp,
+                measured,
+                boundary=textured,
+                left=grey_left,
+                right=to_grey(np.asarray(right)),
+                tolerance_px=s.plane_tolerance_px,
+                min_inlier_fraction=s.plane_min_inlier_fraction,
+                max_guess_gap_px=s.plane_max_guess_gap_px,
+                max_step_px=step,
+            )
+            return np.where(accepted, planar, disp), accepted
+        H, W = disp.shape
+        size = (-(-W // k), -(-H // k))
+        gap = s.plane_max_guess_gap_px
+        planar, small = plane_supported_fill(
+            disp[::k, ::k] / np.float32(k),
+            measured[::k, ::k],
+            boundary=None if textured is None else textured[::k, ::k],
+            left=cv2.resize(grey_left, size, interpolation=cv2.INTER_AREA),
+            right=cv2.resize(to_grey(np.asarray(right)), size, interpolation=cv2.INTER_AREA),
+            tolerance_px=s.plane_tolerance_px / k,
+            min_inlier_fraction=s.plane_min_inlier_fraction,
+            max_guess_gap_px=None if gap is None else gap / k,
+            max_step_px=step / k,
+        )
+        out = disp.copy()
+        out[::k, ::k] = np.where(small, planar * np.float32(k), out[::k, ::k])
+        accepted = np.zeros((H, W), bool)
+        accepted[::k, ::k] = small
+        return out, accepted
+
+    @property
+    def _needs_noise(self) -> bool:
+        """Whether a frame's noise is measured: for the noise-aware texture test or the
+        skyrecon matcher's automatic census tolerance."""
+        s = self.settings
+        texture = s.min_texture is not None and s.noise_aware_texture
+        census = (
+            s.method in ("skyrecon", "skyrecon-fast")
+            and s.matcher_kwargs().get("census_tolerance", 0) is None
+        )
+        return texture or census
+
+    def _texture(self, grey: np.ndarray, noise: float | None) -> tuple[np.ndarray | None, np.ndarray]:
+        """The texture masks of the full-resolution grey left image (:func:`texture_masks`) at
+        ``texture_scale`` k (its noise ``noise / k``: ``noise`` is the full-resolution
+        image's; an area average of k x k pixels), as full-resolution (H, W) bool; ``matchable``
+        None when every pixel passes (``min_texture`` 0 on a noise-free image: nothing
+        computed)."""
+        s = self.settings
+        base = float(s.min_texture or 0.0)
+        k = int(s.texture_scale)
+        g = grey
+        if k > 1:
+            H, W = grey.shape
+            g = cv2.resize(grey, (-(-W // k), -(-H // k)), interpolation=cv2.INTER_AREA)
+            noise = None if noise is None else noise / k
+        use_noise = noise if s.noise_aware_texture else None
+        if not (base > 0 or excess_noise_sigma(use_noise or 0.0) > 0):
+            return None, np.ones(grey.shape, bool)  # more texture than noise, and no noise
+        matchable, textured = texture_masks(g, base, s.texture_window_px, use_noise)
+        if k > 1:
+            matchable, textured = (
+                _upsample_mask(matchable, k, grey.shape),
+                _upsample_mask(textured, k, grey.shape),
+            )
+        return matchable, textured
 
     def _fine_depth(self, left: np.ndarray, right: np.ndarray, coarse_px: np.ndarray) -> FineDepth:
         """The full-resolution block matcher's depth on the depth grid where it is nearer than

@@ -422,6 +422,12 @@ def render_mission_report(
         ("flight time (s)", m["flight_time_s"], "simulated"),
         ("cycles", m["cycles"], f"{cfg.cycle_hz:g} per simulated second"),
         ("measured pixels", m["mean_measured_fraction"], "mean share with a stereo match"),
+        (
+            "image noise (grey levels)",
+            m.get("image_noise_median"),
+            f"median measured on the frames; the texture tests stand above it (simulated camera noise "
+            f"{cfg.camera_noise:g})",
+        ),
         ("pose source", m.get("pose_source", "truth"), "where the drone's pose came from"),
         ("drift at the end (m)", m.get("drift_m"), "believed vs true position"),
         ("pose ATE (m)", m.get("ate_m"), "RMS over the flight of believed vs true position"),

@@ -15,8 +15,9 @@ mix), or ``none``::
     gps-jump@25+4:30       GPS fixes jump 30 m sideways (multipath); only with a GPS (the
                            ``gps+odometry`` pose source), and ``random`` draws it only then
 
-The simulated cameras are noise-free (the ``noise`` fault adds noise): a frozen frame is told
-from a still scene by the drone's own motion (a camera that moved must see a changed image).
+The simulated cameras are noise-free unless the mission sets ``camera_noise`` (the ``noise``
+fault adds more): a frozen frame is told from a still scene by the drone's own motion (a camera
+that moved must see a changed image).
 
 The injector changes only what the drone receives; it never tells the drone what it did (the
 navigator must find out from the data, see :mod:`skyrecon.mission.health`).
@@ -31,6 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from skyrecon.errors import InputError
+from skyrecon.sim.sensor_noise import add_sensor_noise
 
 #: Fault names and their default value (None: no value).
 FAULTS: dict[str, float | str | None] = {
@@ -197,16 +199,12 @@ class FaultInjector:
                 off += float(f.value) * np.array([math.cos(a), math.sin(a), 0.0])  # type: ignore[arg-type]
         return off
 
-    def _noise(self, img: np.ndarray, sigma: float) -> np.ndarray:
-        n = self.rng.normal(0.0, sigma, img.shape[:2])[..., None]
-        return np.clip(img.astype(np.float32) + n, 0, 255).astype(np.uint8)
-
     def deliver(self, t: float, left: np.ndarray, right: np.ndarray) -> Delivery:
         """The frame the drone receives at time ``t`` from the frame rendered at ``t``."""
         act = {f.name: f for f in self.active(t)}
         if "noise" in act:
             sigma = float(act["noise"].value)  # type: ignore[arg-type]
-            left, right = self._noise(left, sigma), self._noise(right, sigma)
+            left, right = add_sensor_noise(left, sigma, self.rng), add_sensor_noise(right, sigma, self.rng)
         if "glare" in act:
             frac = float(act["glare"].value)  # type: ignore[arg-type]
             h, w = left.shape[:2]

@@ -418,14 +418,18 @@ def _select_block_right(typingctx, Sa, base, ts, D, xr0, dmin, rbest, rarg):
 # census transform and matching cost
 # --------------------------------------------------------------------------------------------
 @njit(**_JIT)
-def census_transform(padded, rh, rw, checker, out, x_off, y0, y1, out_y0):
+def census_transform(padded, centres, rh, rw, checker, out, x_off, y0, y1, out_y0):
     """Census codes of a (2*rh+1) x (2*rw+1) window, centre excluded, at most 32 bits.
 
-    A bit is set where the neighbour is darker than the centre. With ``checker`` only the
+    A bit is set where the neighbour is darker than the centre's value in ``centres``: the
+    image itself (the classic census), or the image less a tolerance (saturating at 0), so
+    that a bit is set only where the neighbour is darker by more than the tolerance (a census
+    that camera noise on a plain surface does not scramble). With ``checker`` only the
     neighbours with an even ``dx + dy`` are used (a sparse census: 31 bits for 9x7).
 
     Args:
         padded: (H + 2*rh, W + 2*rw) uint8 grey image with replicated borders.
+        centres: the same shape, uint8: the values the neighbours are compared with.
         rh, rw: window half-height and half-width, pixels.
         checker: sample the window in a checkerboard pattern.
         out: (H, >= x_off + W) uint32 result, written at columns ``x_off .. x_off + W - 1``.
@@ -436,7 +440,7 @@ def census_transform(padded, rh, rw, checker, out, x_off, y0, y1, out_y0):
     W = padded.shape[1] - 2 * rw
     for y in range(y0, y1):
         code = out[y - out_y0, x_off : x_off + W]
-        centre = padded[y + rh, rw : rw + W]
+        centre = centres[y + rh, rw : rw + W]
         for x in range(W):
             code[x] = 0
         for dy in range(2 * rh + 1):

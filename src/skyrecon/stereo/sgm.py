@@ -52,6 +52,7 @@ from typing import Any, Literal
 import cv2
 import numpy as np
 
+from skyrecon.core.image_noise import excess_noise_sigma, image_noise_sigma
 from skyrecon.errors import InputError
 from skyrecon.stereo import _kernels as K
 from skyrecon.stereo.base import (
@@ -81,6 +82,11 @@ _GUIDE_TARGETS_PER_THREAD = 4096
 #: the median filter) go to several threads from this many pixels per thread
 _POST_PIXELS_PER_THREAD = 1 << 16
 
+
+#: the automatic census tolerance (``SkyreconSettings.census_tolerance`` None), in standard
+#: deviations of the image's noise: two noisy values of a plain surface differ by more than 3
+#: sigma (their difference has sqrt(2) sigma) in 1.7 % of the comparisons
+CENSUS_NOISE_SIGMAS = 3.0
 
 #: edge-aware P2 reduction (``SkyreconSettings.p2_edge_alpha``) at full and at half resolution
 DEFAULT_EDGE_ALPHA = 0.05
@@ -163,6 +169,27 @@ class SkyreconSettings:
             matched part of the surface (a striped square of a FlyingThings-style pair was
             wrong over 100 of its 165 columns, 64 with the restart: flying-3 error 0.66 ->
             0.60 of OpenCV's; the other benchmark pairs within 0.01).
+        census_tolerance: a census bit is set only where the neighbour is darker than the
+            centre by more than this, grey levels (0: the classic census, darker at all). On
+            a plain surface the classic census of a real camera's image is its noise: random
+            bits, random costs, and a disparity that is noise too (a plain city at 1.5 grey
+            levels of noise: 14 % of the pixels measured instead of 93 %; the delivery demo's
+            map two to four times as full, phantom obstacles in the air). With a
+            tolerance above the noise, a plain surface's codes tie again as in a noise-free
+            image and its disparity comes from the paths (Stein's ternary census, one bit
+            kept). None: :data:`CENSUS_NOISE_SIGMAS` times the image's own noise at matching
+            resolution (measured on the full left image, :mod:`skyrecon.core.image_noise`,
+            divided by 2 when ``fast``): 0 on noise-free renders, so they match exactly as
+            with the classic census. The estimate
+            needs flat areas (sky, walls, road: outdoor scenes have them); on an image of fine
+            texture everywhere it reads texture as noise and the tolerance throws real contrast
+            away (a FlyingThings-style pair: 1.7 grey levels read, bad-1 0.32 -> 0.91 of OpenCV's;
+            Cones 0.43 -> 0.52, KITTI 000046 D1 0.32 -> 0.35). So the default is 0, and the
+            perception layer (``skyrecon map``, the flight loop), which looks at outdoor scenes
+            from a real camera, asks for None. Applying it only on plain windows kept the
+            FlyingThings-style pair no better (0.86) and lost the map's precision on noisy
+            flights (precision@surface 0.80 -> 0.48): the noise scrambles the textured windows'
+            small differences too.
         threads: worker threads; None uses every core this process may run on.
     """
 
@@ -187,6 +214,7 @@ class SkyreconSettings:
     median: int = 5
     band_margin: int = 32
     left_band_restart: bool = True
+    census_tolerance: float | None = 0.0
     threads: int | None = None
 
     @property
@@ -234,6 +262,10 @@ class SkyreconSettings:
             raise InputError("the census window needs at least 9 pixels (3x3)")
         if self.paths is not None and self.paths not in _PATH_OFFSETS:
             raise InputError(f"setting paths must be 2, 4 or 6, got {self.paths!r}")
+        if self.census_tolerance is not None and not 0 <= self.census_tolerance <= 64:
+            raise InputError(
+                f"census_tolerance must lie in [0, 64] grey levels or be None, got {self.census_tolerance}"
+            )
         if not (0 < self.P1 < self.P2 <= 2000):
             raise InputError(f"need 0 < P1 < P2 <= 2000, got P1={self.P1}, P2={self.P2}")
         if self.horizontal_paths and self.P1 >= K.H_MAX_JUMP - 1:
@@ -479,6 +511,22 @@ class SkyreconMatcher:
     def _threads(self) -> int:
         return self.settings.threads or available_cores()
 
+    def _census_tolerance(
+        self, grey: np.ndarray, noise_sigma: float | None, scale: int, diag: dict[str, Any]
+    ) -> int:
+        """The census tolerance for this pair, grey levels (``census_tolerance`` resolved: with
+        None, :data:`CENSUS_NOISE_SIGMAS` times the noise beyond what a noise-free image reads,
+        at matching resolution: the full-resolution ``grey`` left image's noise (``noise_sigma``
+        if given, else measured on it) divided by ``scale``); recorded in ``diag``."""
+        t = self.settings.census_tolerance
+        if t is None:
+            sigma = image_noise_sigma(grey) if noise_sigma is None else float(noise_sigma)
+            diag["image_noise"] = round(sigma, 3)
+            t = CENSUS_NOISE_SIGMAS * excess_noise_sigma(sigma / scale)  # k x k area average: sigma / k
+        tol = min(int(round(t)), 64)
+        diag["census_tolerance"] = tol
+        return tol
+
     # ----- core ----------------------------------------------------------------------------
     def _match(
         self,
@@ -490,8 +538,10 @@ class SkyreconMatcher:
         scale: int,
         sw: Stopwatch,
         diag: dict[str, Any],
+        tolerance: int = 0,
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Disparity of an 8-bit grey pair: (disparity, measured mask).
+        """Disparity of an 8-bit grey pair: (disparity, measured mask); ``tolerance``: the
+        census tolerance, grey levels (see :class:`SkyreconSettings`).
 
         The image is split into bands of rows, one per thread; each band task runs the census
         transform (its rows and margins), the semi-global matching (the two bands of a pair
@@ -507,6 +557,10 @@ class SkyreconMatcher:
         rh, rw = s.census_height // 2, s.census_width // 2
         pl = cv2.copyMakeBorder(gl, rh, rh, rw, rw, cv2.BORDER_REPLICATE)
         pr = cv2.copyMakeBorder(gr, rh, rh, rw, rw, cv2.BORDER_REPLICATE)
+        # a census bit is set where the neighbour is darker than the centre by more than this
+        tol8 = np.uint8(tolerance)
+        cl_centres = np.maximum(pl, tol8) - tol8 if tolerance else pl  # saturating at 0
+        cr_centres = np.maximum(pr, tol8) - tol8 if tolerance else pr
         wp = -(-W // K.LANES) * K.LANES
         cr_pad = max(dmax, 0) + K.LANES
         cr_width = cr_pad + wp + max(-dmin, 0) + K.LANES
@@ -566,8 +620,8 @@ class SkyreconMatcher:
             lo, hi = max(0, a - top), min(H, b + bottom)
             cl = self._buf(f"cl@{tid}", (max_rows + 2 * margin, wp), np.uint32)[: hi - lo]
             cr = self._buf(f"cr@{tid}", (max_rows + 2 * margin, cr_width), np.uint32)[: hi - lo]
-            K.census_transform(pl, rh, rw, chk, cl, 0, lo, hi, lo)
-            K.census_transform(pr, rh, rw, chk, cr, cr_pad, lo, hi, lo)
+            K.census_transform(pl, cl_centres, rh, rw, chk, cl, 0, lo, hi, lo)
+            K.census_transform(pr, cr_centres, rh, rw, chk, cr, cr_pad, lo, hi, lo)
             t1 = time.perf_counter()
             S = self._buf(f"S@{tid}", (max_rows, D * wp), np.uint8)[: b - a]
             args = (
@@ -719,11 +773,15 @@ class SkyreconMatcher:
         _run_all([partial(K.guided_fill_spread, others[a:b], done, out) for a, b in spread])
         return out
 
-    def compute(self, left: np.ndarray, right: np.ndarray) -> DisparityResult:
+    def compute(
+        self, left: np.ndarray, right: np.ndarray, noise_sigma: float | None = None
+    ) -> DisparityResult:
         """Disparity of a rectified pair.
 
         Args:
             left, right: (H, W, 3) uint8 RGB or (H, W) grey (uint16 accepted), same size.
+            noise_sigma: the left image's noise, grey levels, if already measured (for
+                ``census_tolerance`` None; otherwise measured here).
         Returns:
             DisparityResult with (H, W) float32 disparity (``x_right = x_left - d``), NaN
             where no estimate (only when ``fill`` is off or the whole map failed), and the
@@ -732,9 +790,11 @@ class SkyreconMatcher:
             InputError: bad images or a disparity range at least as wide as the image.
         """
         with self._lock:
-            return self._compute(left, right)
+            return self._compute(left, right, noise_sigma)
 
-    def _compute(self, left: np.ndarray, right: np.ndarray) -> DisparityResult:
+    def _compute(
+        self, left: np.ndarray, right: np.ndarray, noise_sigma: float | None = None
+    ) -> DisparityResult:
         s = self.settings
         sw = Stopwatch()
         pair = prepare_pair(left, right)
@@ -746,6 +806,7 @@ class SkyreconMatcher:
             "converted_from_16bit": pair.converted_from_16bit,
         }
         gl, gr = pair.left_grey, pair.right_grey
+        tolerance = self._census_tolerance(gl, noise_sigma, 2 if s.fast and min(H, W) >= 64 else 1, diag)
         dmin, dmax = self.min_disparity, self.max_disparity
         scale = 1
         if s.fast and min(H, W) >= 64:  # tiny images are matched at full resolution
@@ -764,7 +825,7 @@ class SkyreconMatcher:
             if scale != 1:
                 guide = cv2.resize(guide, (gl.shape[1], gl.shape[0]), interpolation=cv2.INTER_AREA)
             guide = cv2.blur(guide, (3, 3)).reshape(gl.shape[0], gl.shape[1], -1)
-        out, measured = self._match(gl, gr, guide, dmin, dmax, scale, sw, diag)
+        out, measured = self._match(gl, gr, guide, dmin, dmax, scale, sw, diag, tolerance)
         if scale != 1:
             out = _upsample2(out, (W, H))
             measured = cv2.resize(measured.view(np.uint8), (W, H), interpolation=cv2.INTER_NEAREST).astype(
