@@ -105,27 +105,42 @@ def texture_masks(
 SKY_MARGIN_DEG = 1.0
 
 
-def open_sky(textured: np.ndarray, horizon_row_px: float, camera: Intrinsics, scale: int = 1) -> np.ndarray:
+#: the edges that separate open sky from the rest stand this many times farther above the
+#: noise than the texture test's (a test at about 1 window in 1000 leaves specks of noise in a
+#: plain sky that cut it into islands; a drone against the sky has far more contrast)
+SKY_EDGE_NOISE_FACTOR = 1.5
+
+
+def open_sky(
+    separators: np.ndarray,
+    horizon_row_px: float,
+    camera: Intrinsics,
+    scale: int = 1,
+    shape: tuple[int, ...] | None = None,
+) -> np.ndarray:
     """(H, W) bool: the plain segments of an image that reach its top row and lie wholly above
     the horizon (at least :data:`SKY_MARGIN_DEG` above it): open sky.
 
     Args:
-        textured: (H, W) bool, the pixels with texture or an edge (they separate the segments;
-            :func:`texture_masks`' ``edges``).
+        separators: (h, w) bool, the pixels with texture or an edge, at the image's resolution
+            divided by ``scale`` (they separate the segments; :func:`texture_masks`' ``edges``).
         horizon_row_px: the image row of the horizon (full resolution), pixels.
         camera: the full-resolution camera (its ``fy``).
-        scale: the segments are found on ``textured[::scale, ::scale]`` (the resolution the
-            texture test ran at; ``textured`` is that mask repeated to full resolution).
+        scale: the reduction of ``separators``; shape: the full-resolution (H, W) (default
+            ``scale`` times the separators').
     """
-    t = np.ascontiguousarray(np.asarray(textured, bool)[::scale, ::scale])
+    t = np.ascontiguousarray(np.asarray(separators, bool))
+    full_shape = shape if shape is not None else (t.shape[0] * scale, t.shape[1] * scale)
     n, labels, stats, _ = cv2.connectedComponentsWithStats((~t).view(np.uint8), connectivity=4)
     last_row = horizon_row_px - camera.fy * np.tan(np.radians(SKY_MARGIN_DEG))  # full resolution
     top = stats[:, cv2.CC_STAT_TOP]
     bottom = (top + stats[:, cv2.CC_STAT_HEIGHT]) * scale  # one past the last full-res row
     sky = (top == 0) & (bottom <= last_row)
     sky[0] = False  # the textured pixels
-    full = sky[labels]
-    return _upsample_mask(full, scale, np.shape(textured)) if scale > 1 else full
+    # a pixel off the sky's rim: where an edge is faint (a roof corner at the image's top) the
+    # segment may take in a pixel or two of what stands there
+    full = cv2.erode(sky[labels].view(np.uint8), np.ones((3, 3), np.uint8)).view(bool)
+    return _upsample_mask(full, scale, full_shape) if scale > 1 else full
 
 
 def _upsample_mask(mask: np.ndarray, k: int, shape: tuple[int, ...]) -> np.ndarray:
@@ -361,7 +376,7 @@ class StereoDepth:
                 dropped = True
                 measured = measured & matchable
                 if s.sky_is_free and horizon_row_px is not None:
-                    sky = open_sky(textured, horizon_row_px, self.rig.left, int(s.texture_scale))
+                    sky = self._open_sky(grey_left, noise, horizon_row_px)
                     if sky.any():
                         measured = measured | sky
                         sky_disparity = np.float32(-self.rig.doffs_px)
@@ -456,6 +471,29 @@ class StereoDepth:
         )
         return texture or census
 
+    def _open_sky(self, grey: np.ndarray, noise: float | None, horizon_row_px: float) -> np.ndarray:
+        """(H, W) bool open sky (:func:`open_sky`) of the full-resolution grey left image, its
+        segments separated by the edges that stand :data:`SKY_EDGE_NOISE_FACTOR` times farther
+        above the noise than the texture test's (at ``texture_scale``)."""
+        s = self.settings
+        k = int(s.texture_scale)
+        g, noise_k = self._reduced(grey, noise)
+        factor = SKY_EDGE_NOISE_FACTOR if s.noise_aware_texture else 1.0
+        _, separators = texture_masks(
+            g, float(s.min_texture or 0.0), s.texture_window_px, None if noise_k is None else noise_k * factor
+        )
+        return open_sky(separators, horizon_row_px, self.rig.left, k, grey.shape)
+
+    def _reduced(self, grey: np.ndarray, noise: float | None) -> tuple[np.ndarray, float | None]:
+        """The full-resolution grey image at ``texture_scale`` k (an area average) and its noise
+        there (``noise / k``)."""
+        k = int(self.settings.texture_scale)
+        if k == 1:
+            return grey, noise
+        H, W = grey.shape
+        g = cv2.resize(grey, (-(-W // k), -(-H // k)), interpolation=cv2.INTER_AREA)
+        return g, None if noise is None else noise / k
+
     def _texture(self, grey: np.ndarray, noise: float | None) -> tuple[np.ndarray | None, np.ndarray]:
         """The texture masks of the full-resolution grey left image (:func:`texture_masks`) at
         ``texture_scale`` k (its noise ``noise / k``: ``noise`` is the full-resolution
@@ -465,11 +503,7 @@ class StereoDepth:
         s = self.settings
         base = float(s.min_texture or 0.0)
         k = int(s.texture_scale)
-        g = grey
-        if k > 1:
-            H, W = grey.shape
-            g = cv2.resize(grey, (-(-W // k), -(-H // k)), interpolation=cv2.INTER_AREA)
-            noise = None if noise is None else noise / k
+        g, noise = self._reduced(grey, noise)
         use_noise = noise if s.noise_aware_texture else None
         if not (base > 0 or excess_noise_sigma(use_noise or 0.0) > 0):
             return None, np.ones(grey.shape, bool)  # more texture than noise, and no noise
