@@ -67,6 +67,7 @@ sys.path.insert(0, str(ROOT / "src"))
 
 import numpy as np  # noqa: E402
 
+from skyrecon.cli.common import add_camera_noise_option  # noqa: E402
 from skyrecon.cli.main import install_sigterm  # noqa: E402
 from skyrecon.executor import ProcessExecutor  # noqa: E402
 from skyrecon.io.atomic import write_text_atomic  # noqa: E402
@@ -255,14 +256,7 @@ def main() -> int:
         help="a world of plain surfaces: plain facades, glass, plain grey streets and plain movers "
         "(MissionConfig.plain); results_plain*.json",
     )
-    ap.add_argument(
-        "--camera-noise",
-        type=float,
-        default=0.0,
-        metavar="SIGMA",
-        help="steady sensor noise of both cameras, grey levels (MissionConfig.camera_noise; real cameras "
-        "have about 1-2); results_noise<SIGMA>*.json",
-    )
+    add_camera_noise_option(ap, "results_noise<SIGMA>*.json")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "dynamic" / "out"))
     args = ap.parse_args()
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))

@@ -38,6 +38,7 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "src"))
 
 
+from skyrecon.cli.common import add_camera_noise_option  # noqa: E402
 from skyrecon.cli.main import install_sigterm  # noqa: E402
 from skyrecon.executor import ProcessExecutor  # noqa: E402
 from skyrecon.io.atomic import write_text_atomic  # noqa: E402
@@ -96,14 +97,7 @@ def main() -> int:
         help="a city of plain surfaces (MissionConfig.plain: plain facades, glass, plain grey streets); "
         "writes out_plain/ and results_plain.json",
     )
-    ap.add_argument(
-        "--camera-noise",
-        type=float,
-        default=0.0,
-        metavar="SIGMA",
-        help="steady sensor noise of both cameras, grey levels (MissionConfig.camera_noise; real cameras "
-        "have about 1-2); writes out_noise<SIGMA>/ and results_noise<SIGMA>.json",
-    )
+    add_camera_noise_option(ap, "writes out_noise<SIGMA>/ and results_noise<SIGMA>.json")
     args = ap.parse_args()
 
     cfg = MissionConfig(

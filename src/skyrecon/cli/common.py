@@ -114,6 +114,20 @@ def add_cloud_format(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def add_camera_noise_option(parser: argparse.ArgumentParser, writes: str = "") -> None:
+    """``--camera-noise SIGMA``: steady sensor noise of the simulated cameras
+    (``MissionConfig.camera_noise``), for ``skyrecon demo`` and the mission benchmarks
+    (``writes``: what a benchmark then writes, added to the help)."""
+    parser.add_argument(
+        "--camera-noise",
+        type=float,
+        default=0.0,
+        metavar="SIGMA",
+        help="steady sensor noise of both cameras, grey levels (standard deviation; default 0: the "
+        "renderer's noise-free images; real cameras have about 1-2)" + (f"; {writes}" if writes else ""),
+    )
+
+
 def add_record_option(parser: argparse.ArgumentParser) -> None:
     """``--record FILE``: log the run on a timeline for a viewer (see :mod:`skyrecon.record`)."""
     parser.add_argument(

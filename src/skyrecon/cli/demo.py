@@ -36,6 +36,7 @@ import time
 from collections import deque
 
 from skyrecon.cli.common import (
+    add_camera_noise_option,
     add_cloud_format,
     add_command,
     add_executor_options,
@@ -167,14 +168,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         action="store_true",
         help="do not separate and track moving objects (they go into the map like buildings); for comparison",
     )
-    p.add_argument(
-        "--camera-noise",
-        type=float,
-        default=0.0,
-        metavar="SIGMA",
-        help="steady sensor noise of both cameras, grey levels (standard deviation; default 0: the "
-        "renderer's noise-free images; real cameras have about 1-2)",
-    )
+    add_camera_noise_option(p)
     p.add_argument(
         "--faults",
         metavar="SPEC",
