@@ -114,6 +114,11 @@ def test_camera_noise_is_measured_by_the_drone(tiny_config):
         r = run_mission(make_scenario(2, cfg), cfg)
         assert all(rec.image_noise is not None for rec in r.records)
         measured[sigma] = mission_metrics(r)["image_noise_median"]
+        # grainy images (noise above 1 grey level): the depth is used, the drone flies slower
+        grainy = ["grainy" in rec.health.split(",") for rec in r.records]
+        assert all(grainy) if sigma else not any(grainy)
+        if sigma:
+            assert max(rec.speed_limit_mps for rec in r.records) <= cfg.grainy_speed_mps
     assert measured[0.0] < 0.2
     assert measured[2.0] == pytest.approx(2.0, abs=0.3)
 

@@ -13,6 +13,9 @@ trustworthy, and if not, why:
 * ``noisy``: the image noise (Immerkaer's estimator,
   :func:`skyrecon.core.image_noise.image_noise_sigma`) is above ``max_noise``; below that the
   noise level is passed on (``Health.noise_sigma``) so that stereo's texture test stands above it;
+* ``grainy``: the image noise is above ``grainy_noise`` (but not ``noisy``): the depth is
+  used, but stereo sees less and later through the noise (a crossing drone among it), so the
+  drone flies slower (``MissionConfig.grainy_speed_mps``);
 * ``glare``: more than ``max_saturated`` of the image is saturated (the depth there is masked
   out, the rest is used: glare alone does not stop the drone);
 * ``no_depth``: the images look fine but stereo measured almost nothing;
@@ -73,6 +76,7 @@ class SensorHealth:
         max_age_s: a frame older than this is stale, seconds.
         black_mean, black_std: an image darker and flatter than this is black, grey levels.
         max_noise: image noise above this is untrustworthy, grey levels.
+        grainy_noise: image noise above this (up to ``max_noise``) is ``grainy``, grey levels.
         max_saturated: share of saturated pixels above which glare is reported.
         min_measured: below this share of measured pixels the depth is missing.
         budget_ms: the loop's latency budget, milliseconds.
@@ -83,6 +87,7 @@ class SensorHealth:
     black_mean: float = 12.0
     black_std: float = 4.0
     max_noise: float = 6.0
+    grainy_noise: float = 1.0
     max_saturated: float = 0.03
     min_measured: float = 0.05
     budget_ms: float = 100.0
@@ -138,6 +143,8 @@ class SensorHealth:
             noise = image_noise_sigma(gray)
             if noise > self.max_noise:
                 reasons.append("noisy")
+            elif noise > self.grainy_noise:
+                reasons.append("grainy")
         return Health(not (set(reasons) & UNTRUSTED), reasons, glare, noise)
 
     def check_depth(self, health: Health, measured_fraction: float) -> Health:

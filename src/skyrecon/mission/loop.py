@@ -425,14 +425,18 @@ def _follow(
     momentum_m: float,
     degraded: bool,
     cfg: MissionConfig,
+    grainy: bool = False,
 ) -> tuple[float, Guidance]:
     """Guidance along the path ahead ``rest`` (K, 3), with how far it is observed free, metres;
-    no faster than ``degraded_speed_mps`` on a ``degraded`` pose; on an escape's first leg at up to
+    no faster than ``degraded_speed_mps`` on a ``degraded`` pose, nor than ``grainy_speed_mps``
+    on ``grainy`` images (:mod:`skyrecon.mission.health`); on an escape's first leg at up to
     :data:`ESCAPE_SPEED_MPS` whichever way the camera looks."""
     verified = nav.verified_distance(rest, cfg.verify_horizon_m, cfg.verify_skip_m)
     g = guide(rest, believed, verified, cfg, momentum_m)
     if degraded and g.speed_limit > cfg.degraded_speed_mps:
         g.speed_limit = cfg.degraded_speed_mps
+    if grainy and g.speed_limit > cfg.grainy_speed_mps:
+        g.speed_limit = cfg.grainy_speed_mps
     if nav.escaping(believed.position):
         # a sidestep out of a mover's way (or off an obstacle) cannot wait for the drone to turn
         # round first: its leg is clear by construction, and the stopping rule still holds
@@ -799,7 +803,8 @@ def _fly(
         elif backoff.active and not recovering:
             verified, g = cfg.verify_horizon_m, backoff.guide(p, believed, cfg, momentum)
         elif len(rest) >= 2 and path_ok and not recovering:
-            verified, g = _follow(nav, rest, believed, momentum, reading.state == TrackingState.DEGRADED, cfg)
+            degraded = reading.state == TrackingState.DEGRADED
+            verified, g = _follow(nav, rest, believed, momentum, degraded, cfg, "grainy" in health.reasons)
         else:
             verified, g = 0.0, hover(p, scenario.goal)
             if recovering:
