@@ -88,16 +88,50 @@ def texture_masks(
         the mean of the horizontal plus vertical one is (any edge).
     """
     g = to_grey(np.asarray(image)).astype(np.float32)
-    w = int(window_px)
-    k = (w, w)
-    gx = cv2.boxFilter(np.abs(cv2.Sobel(g, cv2.CV_32F, 1, 0, ksize=1)), -1, k)
-    gy = cv2.boxFilter(np.abs(cv2.Sobel(g, cv2.CV_32F, 0, 1, ksize=1)), -1, k)
-    # a ksize=1 Sobel is twice the central difference per pixel
-    t_x = np.float32(2.0 * noise_aware_threshold(min_gradient, noise_sigma, gradient_noise_quantile(w)))
-    t_xy = np.float32(
-        2.0 * noise_aware_threshold(min_gradient, noise_sigma, gradient_noise_quantile(w, both_axes=True))
-    )
+    gx, gy = _window_gradients(g, int(window_px))
+    t_x, t_xy = _gradient_thresholds(min_gradient, noise_sigma, int(window_px))
     return gx >= t_x, gx + gy >= t_xy
+
+
+def _window_gradients(grey: np.ndarray, window_px: int) -> tuple[np.ndarray, np.ndarray]:
+    """(H, W) float32 mean absolute horizontal and vertical gradients of the float32 grey image
+    over a ``window_px`` square, in ksize=1 Sobel units (twice the central difference)."""
+    k = (window_px, window_px)
+    gx = cv2.boxFilter(np.abs(cv2.Sobel(grey, cv2.CV_32F, 1, 0, ksize=1)), -1, k)
+    gy = cv2.boxFilter(np.abs(cv2.Sobel(grey, cv2.CV_32F, 0, 1, ksize=1)), -1, k)
+    return gx, gy
+
+
+def _gradient_thresholds(
+    min_gradient: float, noise_sigma: float | None, window_px: int
+) -> tuple[np.float32, np.float32]:
+    """The thresholds of :func:`texture_masks` in :func:`_window_gradients`' units: on the
+    horizontal gradient, and on the sum of both."""
+    # a ksize=1 Sobel is twice the central difference per pixel
+    t_x = 2.0 * noise_aware_threshold(min_gradient, noise_sigma, gradient_noise_quantile(window_px))
+    t_xy = 2.0 * noise_aware_threshold(
+        min_gradient, noise_sigma, gradient_noise_quantile(window_px, both_axes=True)
+    )
+    return np.float32(t_x), np.float32(t_xy)
+
+
+@dataclass(eq=False)
+class _TextureTest:
+    """One frame's texture test at ``texture_scale`` k (see :meth:`StereoDepth.compute`).
+
+    Attributes:
+        grey: (h, w) uint8 left image reduced by k (an area average, as the fast matcher's).
+        noise: its noise, grey levels (the full image's divided by k; None: not measured).
+        gx, gy: (h, w) float32 window gradients (:func:`_window_gradients`).
+        matchable, edges: (h, w) bool masks of :func:`texture_masks`.
+    """
+
+    grey: np.ndarray
+    noise: float | None
+    gx: np.ndarray
+    gy: np.ndarray
+    matchable: np.ndarray
+    edges: np.ndarray
 
 
 #: open sky (see :meth:`StereoDepth.compute`, ``horizon_row_px``) lies at least this far above
@@ -367,20 +401,17 @@ class StereoDepth:
         if after_match is not None:
             after_match()
         measured = result.measured
-        textured = None
-        dropped = False  # the texture test took pixels out (else no plain segment to fill)
-        if s.min_texture is not None:
+        tex = None  # the texture test, when it takes pixels out (else no plain segment to fill)
+        if self._texture_applies(noise):
             grey_left = to_grey(np.asarray(left)) if grey_left is None else grey_left
-            matchable, textured = self._texture(grey_left, noise)
-            if matchable is not None:
-                dropped = True
-                measured = measured & matchable
-                if s.sky_is_free and horizon_row_px is not None:
-                    sky = self._open_sky(grey_left, noise, horizon_row_px)
-                    if sky.any():
-                        measured = measured | sky
-                        sky_disparity = np.float32(-self.rig.doffs_px)
-                        result = replace(result, disparity=np.where(sky, sky_disparity, result.disparity))
+            tex = self._texture(grey_left, noise)
+            measured = measured & self._full(tex.matchable)
+            if s.sky_is_free and horizon_row_px is not None:
+                sky = self._open_sky(tex, horizon_row_px, measured.shape)
+                if sky.any():
+                    measured = measured | sky
+                    sky_disparity = np.float32(-self.rig.doffs_px)
+                    result = replace(result, disparity=np.where(sky, sky_disparity, result.disparity))
         keep = result.valid if s.use_filled else measured
         edge = None
         if s.max_disparity_step_px is not None:
@@ -388,9 +419,9 @@ class StereoDepth:
             keep = keep & ~edge
         disp = result.disparity
         plane = 0.0
-        if s.plane_fill and not s.use_filled and (dropped or s.min_texture is None):
+        if s.plane_fill and not s.use_filled and (tex is not None or s.min_texture is None):
             grey_left = grey_left if grey_left is not None else to_grey(np.asarray(left))
-            disp, accepted = self._plane_fill(disp, measured, textured, grey_left, right)
+            disp, accepted = self._plane_fill(disp, measured, tex, grey_left, right)
             keep = keep | accepted
             plane = float(accepted.mean())
         k = self.stride
@@ -413,24 +444,25 @@ class StereoDepth:
         self,
         disp: np.ndarray,
         measured: np.ndarray,
-        textured: np.ndarray | None,
+        tex: _TextureTest | None,
         grey_left: np.ndarray,
         right: np.ndarray,
     ) -> tuple[np.ndarray, np.ndarray]:
-        """:func:`~skyrecon.stereo.plane_supported_fill` of the (H, W) disparity: ``(disp,
-        accepted)``, the disparity with the accepted segments' planes and the (H, W) bool mask
-        of those pixels. With the texture test and the depth both at ``k = texture_scale =
-        depth_stride`` > 1 (the flight loop), the fill runs on that grid (disparities and
-        pixel tolerances divided by k, images reduced by area as the matcher's are): the only
-        pixels the depth keeps, a quarter of the work."""
+        """:func:`~skyrecon.stereo.plane_supported_fill` of the (H, W) disparity, its segments
+        bounded by the texture test's edges (``tex``; None: no test): ``(disp, accepted)``, the
+        disparity with the accepted segments' planes and the (H, W) bool mask of those pixels.
+        With the texture test and the depth both at ``k = texture_scale = depth_stride`` > 1
+        (the flight loop), the fill runs on that grid (disparities and pixel tolerances divided
+        by k, the test's reduced images): the only pixels the depth keeps, a quarter of the
+        work."""
         s = self.settings
         k = int(s.texture_scale)
         step = s.max_disparity_step_px or 1.0
-        if k == 1 or k != self.stride:
+        if tex is None or k == 1 or k != self.stride:
             planar, accepted = plane_supported_fill(
                 disp,
                 measured,
-                boundary=textured,
+                boundary=None if tex is None else self._full(tex.edges),
                 left=grey_left,
                 right=to_grey(np.asarray(right)),
                 tolerance_px=s.plane_tolerance_px,
@@ -440,14 +472,13 @@ class StereoDepth:
             )
             return np.where(accepted, planar, disp), accepted
         H, W = disp.shape
-        size = (-(-W // k), -(-H // k))
         gap = s.plane_max_guess_gap_px
         planar, small = plane_supported_fill(
             disp[::k, ::k] / np.float32(k),
             measured[::k, ::k],
-            boundary=None if textured is None else textured[::k, ::k],
-            left=cv2.resize(grey_left, size, interpolation=cv2.INTER_AREA),
-            right=cv2.resize(to_grey(np.asarray(right)), size, interpolation=cv2.INTER_AREA),
+            boundary=tex.edges,
+            left=tex.grey,
+            right=self._reduced(to_grey(np.asarray(right))),
             tolerance_px=s.plane_tolerance_px / k,
             min_inlier_fraction=s.plane_min_inlier_fraction,
             max_guess_gap_px=None if gap is None else gap / k,
@@ -462,58 +493,64 @@ class StereoDepth:
     @property
     def _needs_noise(self) -> bool:
         """Whether a frame's noise is measured: for the noise-aware texture test or the
-        skyrecon matcher's automatic census tolerance."""
+        skyrecon matcher's automatic census tolerance (``matcher_kwargs`` sets it only for
+        the skyrecon matchers)."""
         s = self.settings
         texture = s.min_texture is not None and s.noise_aware_texture
-        census = (
-            s.method in ("skyrecon", "skyrecon-fast")
-            and s.matcher_kwargs().get("census_tolerance", 0) is None
-        )
-        return texture or census
+        return texture or s.matcher_kwargs().get("census_tolerance", 0) is None
 
-    def _open_sky(self, grey: np.ndarray, noise: float | None, horizon_row_px: float) -> np.ndarray:
-        """(H, W) bool open sky (:func:`open_sky`) of the full-resolution grey left image, its
-        segments separated by the edges that stand :data:`SKY_EDGE_NOISE_FACTOR` times farther
-        above the noise than the texture test's (at ``texture_scale``)."""
+    def _texture_applies(self, noise: float | None) -> bool:
+        """Whether the texture test can take a pixel out: ``min_texture`` above 0, or more
+        noise at ``texture_scale`` than a noise-free image has (``min_texture`` 0, the flight
+        loop: every pixel of a noise-free image passes, and nothing is computed)."""
+        s = self.settings
+        if s.min_texture is None:
+            return False
+        if s.min_texture > 0:
+            return True
+        k = int(s.texture_scale)
+        return s.noise_aware_texture and noise is not None and excess_noise_sigma(noise / k) > 0
+
+    def _texture(self, grey: np.ndarray, noise: float | None) -> _TextureTest:
+        """The texture test (:func:`texture_masks`) of the full-resolution grey left image at
+        ``texture_scale`` k, its noise there ``noise / k`` (``noise`` is the full image's; an
+        area average of k x k pixels)."""
         s = self.settings
         k = int(s.texture_scale)
-        g, noise_k = self._reduced(grey, noise)
-        factor = SKY_EDGE_NOISE_FACTOR if s.noise_aware_texture else 1.0
-        _, separators = texture_masks(
-            g, float(s.min_texture or 0.0), s.texture_window_px, None if noise_k is None else noise_k * factor
+        g = self._reduced(grey)
+        noise_k = None if noise is None else noise / k
+        w = int(s.texture_window_px)
+        gx, gy = _window_gradients(g.astype(np.float32), w)
+        t_x, t_xy = _gradient_thresholds(
+            float(s.min_texture or 0.0), noise_k if s.noise_aware_texture else None, w
         )
-        return open_sky(separators, horizon_row_px, self.rig.left, k, grey.shape)
+        return _TextureTest(g, noise_k, gx, gy, gx >= t_x, gx + gy >= t_xy)
 
-    def _reduced(self, grey: np.ndarray, noise: float | None) -> tuple[np.ndarray, float | None]:
-        """The full-resolution grey image at ``texture_scale`` k (an area average) and its noise
-        there (``noise / k``)."""
+    def _open_sky(self, tex: _TextureTest, horizon_row_px: float, shape: tuple[int, ...]) -> np.ndarray:
+        """(H, W) = ``shape`` bool open sky (:func:`open_sky`) of the texture test's image, its
+        segments separated by the edges that stand :data:`SKY_EDGE_NOISE_FACTOR` times farther
+        above the noise than the texture test's."""
+        s = self.settings
+        factor = SKY_EDGE_NOISE_FACTOR if s.noise_aware_texture else 1.0
+        noise = None if tex.noise is None else tex.noise * factor
+        _, t_xy = _gradient_thresholds(float(s.min_texture or 0.0), noise, int(s.texture_window_px))
+        return open_sky(tex.gx + tex.gy >= t_xy, horizon_row_px, self.rig.left, int(s.texture_scale), shape)
+
+    def _reduced(self, grey: np.ndarray) -> np.ndarray:
+        """A full-resolution grey image at ``texture_scale`` k (an area average)."""
         k = int(self.settings.texture_scale)
         if k == 1:
-            return grey, noise
+            return grey
         H, W = grey.shape
-        g = cv2.resize(grey, (-(-W // k), -(-H // k)), interpolation=cv2.INTER_AREA)
-        return g, None if noise is None else noise / k
+        return cv2.resize(grey, (-(-W // k), -(-H // k)), interpolation=cv2.INTER_AREA)
 
-    def _texture(self, grey: np.ndarray, noise: float | None) -> tuple[np.ndarray | None, np.ndarray]:
-        """The texture masks of the full-resolution grey left image (:func:`texture_masks`) at
-        ``texture_scale`` k (its noise ``noise / k``: ``noise`` is the full-resolution
-        image's; an area average of k x k pixels), as full-resolution (H, W) bool; ``matchable``
-        None when every pixel passes (``min_texture`` 0 on a noise-free image: nothing
-        computed)."""
-        s = self.settings
-        base = float(s.min_texture or 0.0)
-        k = int(s.texture_scale)
-        g, noise = self._reduced(grey, noise)
-        use_noise = noise if s.noise_aware_texture else None
-        if not (base > 0 or excess_noise_sigma(use_noise or 0.0) > 0):
-            return None, np.ones(grey.shape, bool)  # more texture than noise, and no noise
-        matchable, textured = texture_masks(g, base, s.texture_window_px, use_noise)
-        if k > 1:
-            matchable, textured = (
-                _upsample_mask(matchable, k, grey.shape),
-                _upsample_mask(textured, k, grey.shape),
-            )
-        return matchable, textured
+    def _full(self, mask: np.ndarray) -> np.ndarray:
+        """A mask at ``texture_scale`` k as a full-resolution (H, W) mask (each pixel k x k)."""
+        k = int(self.settings.texture_scale)
+        if k == 1:
+            return mask
+        H, W = self.rig.left.height, self.rig.left.width
+        return _upsample_mask(mask, k, (H, W))
 
     def _fine_depth(self, left: np.ndarray, right: np.ndarray, coarse_px: np.ndarray) -> FineDepth:
         """The full-resolution block matcher's depth on the depth grid where it is nearer than
