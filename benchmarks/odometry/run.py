@@ -38,6 +38,8 @@ Usage:
   .venv/bin/python benchmarks/odometry/run.py --merge c1.json c2.json r1.json   # ... parts combined
   .venv/bin/python benchmarks/odometry/run.py --seeds 8 9 10 --flights route --low-texture-fraction 0.6 \
       --out plain.json                                             # plainer cities: their own table
+  .venv/bin/python benchmarks/odometry/run.py --seeds 1 2 3 --flights route --length-m 200 --camera-noise 1.5 \
+      --out noisy.json                                             # a noisy camera: its own table
   .venv/bin/python benchmarks/odometry/run.py --quick            # 1 seed, 100 m at 320x240
   .venv/bin/python benchmarks/odometry/run.py --seeds 1 2 --length-m 300 --methods opencv
 Writes benchmarks/odometry/results.json (or --out).
@@ -63,6 +65,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from opencv_vo import OpenCVStereoVO  # noqa: E402
 
+from skyrecon.cli.common import add_camera_noise_option  # noqa: E402
 from skyrecon.core.rigid import Rigid3  # noqa: E402
 from skyrecon.eval.odometry_metrics import evaluate_odometry  # noqa: E402
 from skyrecon.io.sequence import is_sequence_dir, read_sequence, write_sequence  # noqa: E402
@@ -71,6 +74,7 @@ from skyrecon.odometry.run import run_odometry, summarize_run  # noqa: E402
 from skyrecon.sim import generate_city, render_stereo  # noqa: E402
 from skyrecon.sim.gps import simulate_gps  # noqa: E402
 from skyrecon.sim.scenes import _sample, _Segment, default_rig, flight_path, look_from  # noqa: E402
+from skyrecon.sim.sensor_noise import add_sensor_noise  # noqa: E402
 
 SPEED_MPS, FPS = 5.0, 10.0
 LOW_TEXTURE_FRACTION = 0.3  # the default share of buildings with plain facades
@@ -216,8 +220,11 @@ def run_method(
     max_frames: int | None,
     flight: str = "route",
     low_texture_fraction: float = LOW_TEXTURE_FRACTION,
+    camera_noise: float = 0.0,
 ) -> dict:
-    """Track flight ``root`` with ``method`` and score it; ``flight`` labels the row (its table)."""
+    """Track flight ``root`` with ``method`` and score it; ``flight`` labels the row (its table).
+    ``camera_noise``: grey levels of white sensor noise added to every image as it is read (seeded
+    by the flight's seed, the same for every method)."""
     seq = read_sequence(root)
     n = min(len(seq), max_frames or len(seq))
     gt = seq.world_from_left[:n]  # type: ignore[index]
@@ -225,7 +232,17 @@ def run_method(
     city = generate_city(seed, 240.0, low_texture_fraction=low_texture_fraction)
     fixes = simulate_gps(city, t, np.array([p.t for p in gt]), seed=seed)
     engine = make_engine(method, seq.rig, gt[0])
-    result = run_odometry(engine, (seq.frame(i) for i in range(n)), t, fixes, GpsFusion(rotation_known=True))
+    noise_rng = np.random.default_rng([seed, 7919])
+
+    def frames():
+        for i in range(n):
+            left, right = seq.frame(i)
+            yield (
+                add_sensor_noise(left, camera_noise, noise_rng),
+                add_sensor_noise(right, camera_noise, noise_rng),
+            )
+
+    result = run_odometry(engine, frames(), t, fixes, GpsFusion(rotation_known=True))
     summary = summarize_run(result)
     m = evaluate_odometry(result.odometry, gt, t)
     fused_err = np.array([np.linalg.norm(a.t - b.t) for a, b in zip(result.fused or [], gt)])
@@ -366,6 +383,7 @@ def main() -> None:
         default=LOW_TEXTURE_FRACTION,
         help="share of buildings with plain, almost textureless facades (0-1)",
     )
+    add_camera_noise_option(ap, "added to every image as it is read; the rows get their own table")
     ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "skyrecon_vo_bench")
     ap.add_argument("--out", type=Path, default=Path(__file__).with_name("results.json"))
     ap.add_argument(
@@ -413,10 +431,20 @@ def main() -> None:
             )
             tag = plain_tag(args.low_texture_fraction)
             label = f"{flight}-{tag}" if tag else flight  # a plainer city gets its own table
+            if args.camera_noise > 0:
+                label = f"{label}-noise{args.camera_noise:g}"  # and a noisy camera its own
             for method in methods:
                 t0 = time.perf_counter()
-                row = run_method(method, root, seed, args.frames, label, args.low_texture_fraction)
-                rows.append({**row, "low_texture_fraction": args.low_texture_fraction})
+                row = run_method(
+                    method, root, seed, args.frames, label, args.low_texture_fraction, args.camera_noise
+                )
+                rows.append(
+                    {
+                        **row,
+                        "low_texture_fraction": args.low_texture_fraction,
+                        "camera_noise": args.camera_noise,
+                    }
+                )
                 print(f"  {method}: {time.perf_counter() - t0:.0f} s", flush=True)
     print()
     worst_rows = print_table(rows, methods)
@@ -433,6 +461,7 @@ def main() -> None:
             "baseline_m": 0.3,
             "hfov_deg": 90.0,
             "low_texture_fraction": args.low_texture_fraction,
+            "camera_noise": args.camera_noise,
             "yaw_swings": "+-45 deg at up to 90 deg/s, every 50 m",
         },
         "methods": methods,

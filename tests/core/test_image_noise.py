@@ -8,6 +8,7 @@ import pytest
 
 from skyrecon.core.image_noise import (
     NOISE_FREE_SIGMA,
+    corner_noise_quantile,
     excess_noise_sigma,
     gradient_noise_quantile,
     image_noise_sigma,
@@ -53,6 +54,16 @@ def test_the_noise_quantiles_match_simulated_noise():
             np.quantile(gx + gy, 0.999), rel=0.05
         )
         assert std_noise_quantile(w) == pytest.approx(np.quantile(sd, 0.999), rel=0.05)
+
+
+@pytest.mark.parametrize("sigma", [1.0, 3.0])
+def test_the_corner_noise_quantile_bounds_the_corners_of_a_noisy_uint8_image(sigma):
+    """OpenCV scales a uint8 image's gradients: the quantile is on that scale, times sigma^2."""
+    rng = np.random.default_rng(4)
+    img = np.clip(np.rint(128.0 + rng.normal(0.0, sigma, (400, 500))), 0, 255).astype(np.uint8)
+    strength = cv2.cornerMinEigenVal(img, 5)[5:-5, 5:-5]
+    variance = sigma**2 + 1.0 / 12.0  # the 8-bit rounding adds its own
+    assert np.quantile(strength, 0.999) == pytest.approx(corner_noise_quantile(5) * variance, rel=0.1)
 
 
 def test_thresholds_stay_as_given_without_noise_and_rise_above_it():

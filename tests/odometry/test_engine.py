@@ -109,6 +109,22 @@ def test_sky_view_is_flagged_not_silently_wrong(flight, sky_view):
     assert e2.state is TrackingState.LOST and e2.reason.startswith("cannot initialise")
 
 
+@pytest.mark.parametrize("corner_noise_factor", [1.0, 0.0])
+def test_a_noisy_cameras_sky_view_is_flagged_not_tracked_on_the_noise(flight, sky_view, corner_noise_factor):
+    """With 2 grey levels of sensor noise the sky is full of Shi-Tomasi "corners"; the odometry
+    must not start a track on them (without the noise floor it did, and said "ok")."""
+    from skyrecon.sim.sensor_noise import add_sensor_noise
+
+    rng = np.random.default_rng(0)
+    left, right = (add_sensor_noise(im, 2.0, rng) for im in (sky_view.left[0], sky_view.right[0]))
+    vo = StereoOdometry(flight.rig, OdometrySettings(corner_noise_factor=corner_noise_factor))
+    e = vo.track(left, right, 0.0)
+    if corner_noise_factor == 0.0:  # the floor off: what it guards against
+        assert e.state is TrackingState.OK
+    else:
+        assert e.state is TrackingState.LOST and e.reason.startswith("cannot initialise")
+
+
 def test_lost_track_reinitialises_chained_to_the_prediction(flight, sky_view):
     vo = StereoOdometry(flight.rig, OdometrySettings(), flight.world_from_left[0])
     est = [vo.track(flight.left[k], flight.right[k], flight.timestamps[k]) for k in range(5)]

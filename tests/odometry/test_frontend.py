@@ -37,6 +37,24 @@ def test_detect_corners_spreads_and_avoids_existing():
     assert len(more) < len(pts)  # the cells are (nearly) full already
 
 
+def test_detect_corners_leaves_noise_corners_out_above_a_strength_floor():
+    """Half texture, half a plain area with 2 grey levels of noise: each cell's best corners
+    include the plain cells' noise, unless corners must be stronger than the noise floor."""
+    from skyrecon.core.image_noise import corner_noise_quantile
+
+    rng = np.random.default_rng(5)
+    img = _texture().astype(np.float32)
+    img[:, 80:] = 128.0
+    img = np.clip(np.rint(img + rng.normal(0.0, 2.0, img.shape)), 0, 255).astype(np.uint8)
+    none = np.zeros((0, 2), np.float32)
+    every = detect_corners(img, none, 96, grid=(4, 3), min_distance_px=5)
+    assert np.count_nonzero(every[:, 0] > 84) >= 20  # noise "corners" in the plain half
+    floor = 4.0 * corner_noise_quantile(5) * 4.0
+    strong = detect_corners(img, none, 96, grid=(4, 3), min_distance_px=5, min_strength=floor)
+    assert np.count_nonzero(strong[:, 0] > 84) == 0
+    assert np.count_nonzero(strong[:, 0] < 76) >= 0.8 * np.count_nonzero(every[:, 0] < 76)
+
+
 def test_track_points_follows_a_shift_and_drops_bad_tracks():
     img = _texture()
     moved = _shift(img, 3.3, -1.7)

@@ -21,6 +21,7 @@ rounding adds 0.29 in quadrature); on a KITTI frame 0.65. 0.7 ms on a 640x480 im
 
 from __future__ import annotations
 
+import functools
 import math
 
 import cv2
@@ -33,6 +34,7 @@ __all__ = [
     "noise_aware_threshold",
     "gradient_noise_quantile",
     "std_noise_quantile",
+    "corner_noise_quantile",
 ]
 
 #: what :func:`image_noise_sigma` may read on a noise-free 8-bit image, grey levels: rounding to
@@ -118,6 +120,21 @@ def std_noise_quantile(window_px: int) -> float:
     pixels, 1.24 for 9."""
     n = max(2, int(window_px) ** 2)
     return 1.0 + _Z / math.sqrt(2.0 * (n - 1))
+
+
+@functools.lru_cache(maxsize=8)
+def corner_noise_quantile(block_px: int = 5) -> float:
+    """Upper quantile (1 in 1000) of the Shi-Tomasi corner strength of a uint8 image, OpenCV's
+    ``cornerMinEigenVal(image, block_px)`` (3x3 Sobel; on uint8 images OpenCV scales the gradients
+    by 1/255), on pure unit Gaussian noise; multiply by the noise variance (sigma squared: the
+    strength is quadratic in the grey levels). Measured by simulation on a seeded 480x640 image
+    (about 30 ms, once per block size): 2.2e-5 for 5 pixels. A corner weaker than this is as
+    likely noise as texture: tracked, it follows the noise."""
+    rng = np.random.default_rng(0)
+    noise = rng.normal(0.0, 1.0, (480, 640)).astype(np.float32)
+    strength = cv2.cornerMinEigenVal(noise, int(block_px))  # float input: no 1/255 scaling
+    b = int(block_px)  # the border, where the window is reflected, is left out
+    return float(np.quantile(strength[b:-b, b:-b], 0.999)) / 255.0**2
 
 
 def noise_aware_threshold(base: float, noise_sigma: float | None, per_sigma: float) -> float:

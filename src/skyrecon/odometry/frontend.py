@@ -59,6 +59,7 @@ def detect_corners(
     grid: tuple[int, int] = (8, 6),
     min_distance_px: float = 8.0,
     quality: float = 0.005,
+    min_strength: float = 0.0,
 ) -> np.ndarray:
     """New Shi-Tomasi corners spread over a grid, away from the existing features.
 
@@ -72,6 +73,10 @@ def detect_corners(
         grid: cells across and down.
         min_distance_px: minimum distance between corners (and to the existing ones), pixels.
         quality: Shi-Tomasi quality level relative to the best corner in each cell.
+        min_strength: corners weaker than this (OpenCV's ``cornerMinEigenVal`` over a 5-pixel
+            block) are left out, whatever the best corner in their cell: the noise floor of a
+            noisy camera (see :func:`skyrecon.core.image_noise.corner_noise_quantile`), where a
+            plain cell's best "corner" is noise; 0 keeps every one.
     Returns:
         (K, 2) float32 pixels of the new corners (K may be 0).
     """
@@ -100,15 +105,18 @@ def detect_corners(
             xa, xb = max(x0, border), min(x1, W - border)
             if yb - ya < 3 or xb - xa < 3:
                 continue
-            pts = cv2.goodFeaturesToTrack(
-                grey[ya:yb, xa:xb],
-                int(want),
-                quality,
-                min_distance_px,
-                mask=np.ascontiguousarray(mask[ya:yb, xa:xb]),
-                blockSize=5,
-            )
-            if pts is not None:
+            cell_mask = np.ascontiguousarray(mask[ya:yb, xa:xb])
+            if min_strength > 0:
+                pts, strength = cv2.goodFeaturesToTrackWithQuality(
+                    grey[ya:yb, xa:xb], int(want), quality, min_distance_px, cell_mask, blockSize=5
+                )
+                if pts is not None:
+                    pts = pts[strength.reshape(-1) >= min_strength]
+            else:
+                pts = cv2.goodFeaturesToTrack(
+                    grey[ya:yb, xa:xb], int(want), quality, min_distance_px, mask=cell_mask, blockSize=5
+                )
+            if pts is not None and len(pts):
                 out.append(pts.reshape(-1, 2) + np.array([xa, ya], np.float32))
     if not out:
         return np.zeros((0, 2), np.float32)
