@@ -119,3 +119,40 @@ def test_a_lasting_loss_looks_around_then_flies_on(tiny_config):
     turned = abs(math.remainder(lost[-1].yaw - lost[0].yaw, 2 * math.pi))
     assert turned > math.radians(40)
     assert r.success and r.collisions == 0
+
+
+def test_an_odometry_slip_is_caught_by_the_accelerometer_and_not_flown_on():
+    """The odometry pose source with its engine slipping sideways while it says "ok": the reading
+    holds the dead-reckoned position and says degraded, then lost; without the check it flies on
+    the slip."""
+    from types import SimpleNamespace
+
+    from skyrecon.mission.pose_source import OdometryPose
+    from skyrecon.sim import default_rig
+
+    rig = default_rig(64, 48, baseline_m=0.3)
+    frame = np.zeros((48, 64, 3), np.uint8)
+
+    def fly(inertial: bool) -> list[tuple[PoseReading, np.ndarray]]:
+        source = OdometryPose(rig, Rigid3(), seed=1, inertial=inertial)
+        out = []
+        for k in range(60):
+            t = 0.1 * k
+            true = Rigid3(np.eye(3), np.array([2.0 * t, 0.0, 10.0]), "world", "left")  # 2 m/s along x
+            slip = np.array([0.0, 3.0 * max(0.0, t - 3.0) ** 2, 0.0])  # from 3 s: sliding off along y
+            est = SimpleNamespace(
+                world_from_left=Rigid3(np.eye(3), true.t + slip), state=TrackingState.OK, reason=""
+            )
+            source.odometry = SimpleNamespace(track=lambda *a, est=est: est)
+            out.append((source.read(frame, frame, t, None, true), true.t))
+        return out
+
+    checked = fly(True)
+    assert all(r.state is TrackingState.OK for r, _ in checked[:30])  # before the slip: as given
+    states = [r.state for r, _ in checked[30:]]
+    assert TrackingState.DEGRADED in states and states[-1] is TrackingState.LOST
+    assert any("accelerometer" in r.reason for r, _ in checked)
+    assert max(np.linalg.norm(r.world_from_left.t - t) for r, t in checked) < 0.5  # slid 27 m
+    unchecked = fly(False)
+    assert all(r.state is TrackingState.OK for r, _ in unchecked)
+    assert np.linalg.norm(unchecked[-1][0].world_from_left.t - unchecked[-1][1]) > 20.0

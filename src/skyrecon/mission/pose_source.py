@@ -17,7 +17,8 @@ Sources (``MissionConfig.pose_source``, ``skyrecon demo --pose-source``):
 * ``truth``: the simulator's exact pose (what the first wave flew on);
 * ``odometry``: :class:`skyrecon.odometry.StereoOdometry` on the loop's stereo frames, reusing the
   loop's dense disparity for the features' depth; the first pose is the true start (the drone
-  knows where it takes off);
+  knows where it takes off); its position is checked against the flight controller's
+  accelerometer (:mod:`skyrecon.mission.inertial`): a slip is dead-reckoned over, degraded;
 * ``gps+odometry``: the odometry anchored by a simulated urban-canyon GPS
   (:mod:`skyrecon.odometry.gps`).
 
@@ -37,10 +38,12 @@ import numpy as np
 
 from skyrecon.core import Rigid3, StereoRig
 from skyrecon.io.gps import GpsFix
+from skyrecon.mission.inertial import InertialCheck, InertialCheckSettings
 from skyrecon.mission.vehicle import DroneState, wrap_angle
 from skyrecon.odometry.engine import OdometrySettings, StereoOdometry
 from skyrecon.odometry.gps import GpsFusion, GpsFusionSettings
 from skyrecon.odometry.types import TrackingState
+from skyrecon.sim.accelerometer import SimulatedAccelerometer
 from skyrecon.sim.gps import UrbanCanyonGps
 from skyrecon.sim.gyro import SimulatedGyro
 
@@ -114,12 +117,21 @@ class OdometryPose:
     cameras alone. Without the gyro (``gyro=False``) a restart after a turn in the dark carried
     the extrapolated rotation, tens of degrees off, into the rest of the flight.
 
+    The position the loop flies on is checked against the flight controller's accelerometer
+    (:class:`~skyrecon.mission.inertial.InertialCheck`, simulated with a consumer MEMS
+    accelerometer's errors: :mod:`skyrecon.sim.accelerometer`): when the odometry's change of
+    velocity over a second disagrees with the accelerometer's, the position is dead-reckoned from
+    before the slip and the pose is reported degraded (lost after 3 s of it). On a flight where the
+    odometry holds, its poses pass through unchanged.
+
     Args:
         rig: the loop's rectified rig.
         init_world_from_left: the pose at take-off (the first frame), frames ``("world", "left")``.
         settings: odometry settings (None: :meth:`loop_settings`).
-        seed: seeds the simulated gyro.
+        seed: seeds the simulated gyro and accelerometer.
         gyro: feed the gyro's rotation to the odometry.
+        inertial: check the odometry against the accelerometer.
+        inertial_settings: how (None: :class:`~skyrecon.mission.inertial.InertialCheckSettings`).
     """
 
     name = "odometry"
@@ -132,11 +144,15 @@ class OdometryPose:
         max_accel_mps2: float = 5.0,
         seed: int = 0,
         gyro: bool = True,
+        inertial: bool = True,
+        inertial_settings: InertialCheckSettings | None = None,
     ) -> None:
         self.odometry = StereoOdometry(
             rig, settings or self.loop_settings(max_accel_mps2), init_world_from_left
         )
         self.gyro = SimulatedGyro(seed=seed) if gyro else None
+        self.accelerometer = SimulatedAccelerometer(seed=seed) if inertial else None
+        self.inertial = InertialCheck(inertial_settings) if inertial else None
 
     @staticmethod
     def loop_settings(max_accel_mps2: float = 5.0) -> OdometrySettings:
@@ -160,8 +176,19 @@ class OdometryPose:
         turn = None if self.gyro is None else self.gyro.measure(time_s, true_world_from_left)
         t0 = time.perf_counter()
         est = self.odometry.track(left, right, time_s, disparity_px, turn)
+        pose, state, reason = est.world_from_left.with_frames("world", "left"), est.state, est.reason
+        if self.inertial is not None and self.accelerometer is not None:
+            dv = self.accelerometer.velocity_change(time_s, true_world_from_left)
+            if dv is not None:  # into the odometry's world, as the flight controller's attitude has it
+                dv = (pose.R @ np.asarray(true_world_from_left.R).T) @ dv
+            verdict = self.inertial.update(time_s, pose.t, dv)
+            if not np.array_equal(verdict.position, pose.t):
+                pose = Rigid3(pose.R, verdict.position).with_frames("world", "left")
+            if verdict.dead_reckoning and state != TrackingState.LOST:
+                state = TrackingState.LOST if verdict.lost else TrackingState.DEGRADED
+                reason = verdict.reason
         ms = 1e3 * (time.perf_counter() - t0)
-        return PoseReading(est.world_from_left.with_frames("world", "left"), est.state, est.reason, ms)
+        return PoseReading(pose, state, reason, ms)
 
 
 class GpsOdometryPose:
