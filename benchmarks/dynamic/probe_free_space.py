@@ -12,6 +12,7 @@ neither: the weak prior of the earlier flight).
 Usage:
   .venv/bin/python benchmarks/dynamic/probe_free_space.py --seeds 304
   .venv/bin/python benchmarks/dynamic/probe_free_space.py --seeds 300-303 --out /tmp/probe
+  .venv/bin/python benchmarks/dynamic/probe_free_space.py --seeds 101 --camera-noise 1.5
 
 Session 42 (seeds 304 and 300; replayed detections of seeds 300-307 show no detection within
 1.5 m of a mover beyond 14 m in any frame): the movers' points are there (median 82 and 64
@@ -56,6 +57,7 @@ import numpy as np  # noqa: E402
 
 import skyrecon.mission.world_monitor as wm  # noqa: E402
 import skyrecon.perception.movers as movers  # noqa: E402
+from skyrecon.cli.common import add_camera_noise_option  # noqa: E402
 from skyrecon.mapping.inputs import as_world_from_cam  # noqa: E402
 from skyrecon.mission import MissionConfig  # noqa: E402
 from skyrecon.mission.batch import fly_and_write  # noqa: E402
@@ -98,7 +100,7 @@ def _probe(depth_m, intrinsics, world_from_cam, occ_map, s) -> dict:
     }
 
 
-def fly(seed: int, out: Path) -> list[tuple[float, dict]]:
+def fly(seed: int, out: Path, camera_noise: float = 0.0) -> list[tuple[float, dict]]:
     """Fly one mission; per visible mover-frame (distance m, the test's parts at its points)."""
     frames: list[dict] = []
     monitors: list = []
@@ -125,7 +127,7 @@ def fly(seed: int, out: Path) -> list[tuple[float, dict]]:
         init_probe,
     )
     try:
-        cfg = MissionConfig(movers=True, city_changes=True, prior_map="earlier")
+        cfg = MissionConfig(movers=True, city_changes=True, prior_map="earlier", camera_noise=camera_noise)
         fly_and_write(seed, out / f"seed_{seed:04d}", cfg)
     finally:
         movers.detect_movers, movers.MoverTracker._track, wm.WorldMonitor.__init__ = detect, track, init
@@ -188,10 +190,11 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seeds", default="304", help="e.g. 304 or 300-303")
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "dynamic" / "out_probe")
+    add_camera_noise_option(ap)
     args = ap.parse_args()
     rows = []
     for seed in parse_seeds(args.seeds):
-        rows += fly(seed, args.out)
+        rows += fly(seed, args.out, args.camera_noise)
         print(f"seed {seed}: {len(rows)} visible mover-frames so far", flush=True)
     report(rows)
 

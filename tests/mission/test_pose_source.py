@@ -121,10 +121,9 @@ def test_a_lasting_loss_looks_around_then_flies_on(tiny_config):
     assert r.success and r.collisions == 0
 
 
-def test_an_odometry_slip_is_caught_by_the_accelerometer_and_not_flown_on():
+def test_an_odometry_slip_is_caught_by_the_accelerometer_and_reported_degraded():
     """The odometry pose source with its engine slipping sideways while it says "ok": the reading
-    holds the dead-reckoned position and says degraded, then lost; without the check it flies on
-    the slip."""
+    says degraded, why, and keeps the odometry's pose; without the check it says ok."""
     from types import SimpleNamespace
 
     from skyrecon.mission.pose_source import OdometryPose
@@ -144,15 +143,11 @@ def test_an_odometry_slip_is_caught_by_the_accelerometer_and_not_flown_on():
                 world_from_left=Rigid3(np.eye(3), true.t + slip), state=TrackingState.OK, reason=""
             )
             source.odometry = SimpleNamespace(track=lambda *a, est=est: est)
-            out.append((source.read(frame, frame, t, None, true), true.t))
+            out.append((source.read(frame, frame, t, None, true), true.t + slip))
         return out
 
     checked = fly(True)
     assert all(r.state is TrackingState.OK for r, _ in checked[:30])  # before the slip: as given
-    states = [r.state for r, _ in checked[30:]]
-    assert TrackingState.DEGRADED in states and states[-1] is TrackingState.LOST
-    assert any("accelerometer" in r.reason for r, _ in checked)
-    assert max(np.linalg.norm(r.world_from_left.t - t) for r, t in checked) < 0.5  # slid 27 m
-    unchecked = fly(False)
-    assert all(r.state is TrackingState.OK for r, _ in unchecked)
-    assert np.linalg.norm(unchecked[-1][0].world_from_left.t - unchecked[-1][1]) > 20.0
+    assert all(r.state is TrackingState.DEGRADED and "accelerometer" in r.reason for r, _ in checked[38:])
+    assert all(np.array_equal(r.world_from_left.t, odo) for r, odo in checked)  # the odometry's pose
+    assert all(r.state is TrackingState.OK for r, _ in fly(False))

@@ -18,7 +18,7 @@ Sources (``MissionConfig.pose_source``, ``skyrecon demo --pose-source``):
 * ``odometry``: :class:`skyrecon.odometry.StereoOdometry` on the loop's stereo frames, reusing the
   loop's dense disparity for the features' depth; the first pose is the true start (the drone
   knows where it takes off); its position is checked against the flight controller's
-  accelerometer (:mod:`skyrecon.mission.inertial`): a slip is dead-reckoned over, degraded;
+  accelerometer (:mod:`skyrecon.mission.inertial`): a slip is reported, degraded;
 * ``gps+odometry``: the odometry anchored by a simulated urban-canyon GPS
   (:mod:`skyrecon.odometry.gps`).
 
@@ -117,12 +117,11 @@ class OdometryPose:
     cameras alone. Without the gyro (``gyro=False``) a restart after a turn in the dark carried
     the extrapolated rotation, tens of degrees off, into the rest of the flight.
 
-    The position the loop flies on is checked against the flight controller's accelerometer
+    The odometry is checked against the flight controller's accelerometer
     (:class:`~skyrecon.mission.inertial.InertialCheck`, simulated with a consumer MEMS
-    accelerometer's errors: :mod:`skyrecon.sim.accelerometer`): when the odometry's change of
-    velocity over a second disagrees with the accelerometer's, the position is dead-reckoned from
-    before the slip and the pose is reported degraded (lost after 3 s of it). On a flight where the
-    odometry holds, its poses pass through unchanged.
+    accelerometer's errors: :mod:`skyrecon.sim.accelerometer`): when its change of velocity over a
+    second disagrees with the accelerometer's, the pose is reported degraded (the loop slows
+    down) until they agree again for a second. The pose itself is always the odometry's.
 
     Args:
         rig: the loop's rectified rig.
@@ -182,11 +181,8 @@ class OdometryPose:
             if dv is not None:  # into the odometry's world, as the flight controller's attitude has it
                 dv = (pose.R @ np.asarray(true_world_from_left.R).T) @ dv
             verdict = self.inertial.update(time_s, pose.t, dv)
-            if not np.array_equal(verdict.position, pose.t):
-                pose = Rigid3(pose.R, verdict.position).with_frames("world", "left")
-            if verdict.dead_reckoning and state != TrackingState.LOST:
-                state = TrackingState.LOST if verdict.lost else TrackingState.DEGRADED
-                reason = verdict.reason
+            if verdict.slipping and state == TrackingState.OK:
+                state, reason = TrackingState.DEGRADED, verdict.reason
         ms = 1e3 * (time.perf_counter() - t0)
         return PoseReading(pose, state, reason, ms)
 
