@@ -109,7 +109,7 @@ def test_sky_view_is_flagged_not_silently_wrong(flight, sky_view):
     assert e2.state is TrackingState.LOST and e2.reason.startswith("cannot initialise")
 
 
-@pytest.mark.parametrize("corner_noise_factor", [1.0, 0.0])
+@pytest.mark.parametrize("corner_noise_factor", [OdometrySettings().corner_noise_factor, 0.0])
 def test_a_noisy_cameras_sky_view_is_flagged_not_tracked_on_the_noise(flight, sky_view, corner_noise_factor):
     """With 2 grey levels of sensor noise the sky is full of Shi-Tomasi "corners"; the odometry
     must not start a track on them (without the noise floor it did, and said "ok")."""

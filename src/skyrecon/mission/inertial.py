@@ -3,7 +3,7 @@
 Visual odometry can go wrong while it says all is well: with a noisy camera turned up to a plain
 sky, the delivery demo's odometry read the noise's "corners" as features and its position went
 9 m off in 2 s, every frame "ok" (fixed at its cause since, see
-``OdometrySettings.corner_noise_factor``; slips of 0.2-1.1 m in 0.3 s remained on noisy
+``OdometrySettings.corner_noise_factor``; smaller slips, 0.2-1.1 m in 0.3 s, remained on noisy
 missions). A flight controller knows better over a second: its accelerometer gives the change of
 velocity between frames to a few centimetres per second (:mod:`skyrecon.sim.accelerometer`).
 
@@ -21,9 +21,9 @@ odometry missions (seed 7) the drone, hovering with that velocity in its belief,
 own mind at 1.6 m/s, stayed lost, and later flew into the ground. Without it the mission
 delivered.
 
-On the ten noisy odometry missions of ``benchmarks/mission`` (1.5 grey levels, with the corner
-floor) the disagreement stayed under 0.62 m/s except at two slips (1.2 and 3.1 m/s); the demo's
-9 m failure read 7-9 m/s. Noise-free flights: nothing flagged.
+On the ten noisy odometry missions of ``benchmarks/mission`` (1.5 grey levels, the corner floor
+at a factor of 1) the disagreement stayed under 0.62 m/s except at two slips (1.2 and 3.1 m/s);
+the demo's 9 m failure read 7-9 m/s. Noise-free flights: nothing flagged.
 
 Frames: positions and velocity changes in the estimated world (the odometry's), metres, m/s,
 seconds.

@@ -86,19 +86,22 @@ class OdometrySettings:
         grid: (columns, rows) of the detection grid that keeps features spread.
         min_corner_distance_px: minimum distance between corners, pixels.
         corner_noise_factor: a new corner must be at least this many times as strong as the
-            strongest corners pure noise makes (1 in 1000, :func:`skyrecon.core.image_noise.corner_noise_quantile`
-            times the image's measured noise variance beyond what a noise-free image reads); the
-            noise is measured on the image at each detection (about 1 ms). Each grid cell keeps
-            its best corners relative to its own strongest one, so on a noisy camera a plain cell
-            (sky, a plain wall) filled up with noise "corners" whose tracks follow the noise: in
-            the delivery demo at 1.5 grey levels, a turn with the camera raised to the sky moved
-            the odometry's position 9 m off in 2 s while it said "ok" (with the floor it
-            delivered, 0.76 m off). On 200 m routes of ``benchmarks/odometry`` at 1.5 grey
-            levels (seeds 1-3) the worst drift went from 0.40 to 0.30 % and the frame rate from
-            13-23 to 33-42 frames/s (the noise corners' tracks had wandered, died and been
-            replaced each keyframe); factors 2 and 4 kept fewer corners and drifted more on seed 1
-            (0.32, 0.33 %). No effect on noise-free images (nothing above what they read); 0
-            turns it off.
+            strongest corners pure noise makes (1 in 1000,
+            :func:`skyrecon.core.image_noise.corner_noise_quantile`, times the image's measured
+            noise variance beyond what a noise-free image reads); the noise is measured on the
+            image at each detection (about 1 ms, keyframes only). Each grid cell keeps its best
+            corners relative to its own strongest, so on a noisy camera a plain cell (sky, a
+            plain wall) filled up with noise "corners" whose tracks follow the noise: in the
+            delivery demo at 1.5 grey levels, a turn with the camera raised to the sky moved the
+            odometry's position 9 m off in 2 s while it said "ok" (it missed its goal by 14 m).
+            A 640x480 view of plain sky at 1.5 grey levels keeps 1080 corners with no floor,
+            138 at a factor of 1 (the rarest noise peaks are stronger than the 1-in-1000
+            quantile) and none at 1.5. Flown at 1.5 grey levels with the odometry pose: the
+            demo delivered (drift 0.76 m at factor 1, 0.90 m at 1.5); delivery seeds 6 and 7
+            slipped 0.2-1.1 m in 0.3 s at factor 1 (drift at the goal 0.90, 2.35 m) and 0.45,
+            0.80 m at 1.5; at 2, corners grew scarce (seed 6: 106 cycles with too few inliers).
+            200 m routes of ``benchmarks/odometry`` (seeds 1-3): worst drift 0.40 % with no
+            floor, 0.30 at 1, 0.32 at 2. No effect on noise-free images; 0 turns it off.
         klt_window_px: KLT window side, pixels.
         klt_levels: KLT pyramid levels above the base (one more after a dropped frame).
         fb_threshold_px: forward-backward tracking check, pixels.
@@ -191,7 +194,7 @@ class OdometrySettings:
     max_features: int = 1000
     grid: tuple[int, int] = (12, 9)
     min_corner_distance_px: float = 8.0
-    corner_noise_factor: float = 1.0
+    corner_noise_factor: float = 1.5
     klt_window_px: int = 15
     klt_levels: int = 3
     retry_levels: int = 2
