@@ -173,11 +173,15 @@ class OdometryPose:
 
     def read(self, left, right, time_s, disparity_px, true_world_from_left) -> PoseReading:
         turn = None if self.gyro is None else self.gyro.measure(time_s, true_world_from_left)
+        dv = (
+            None
+            if self.accelerometer is None
+            else self.accelerometer.velocity_change(time_s, true_world_from_left)
+        )
         t0 = time.perf_counter()
         est = self.odometry.track(left, right, time_s, disparity_px, turn)
         pose, state, reason = est.world_from_left.with_frames("world", "left"), est.state, est.reason
-        if self.inertial is not None and self.accelerometer is not None:
-            dv = self.accelerometer.velocity_change(time_s, true_world_from_left)
+        if self.inertial is not None:
             if dv is not None:  # into the odometry's world, as the flight controller's attitude has it
                 dv = (pose.R @ np.asarray(true_world_from_left.R).T) @ dv
             verdict = self.inertial.update(time_s, pose.t, dv)
