@@ -7,7 +7,9 @@ fast matcher works at half resolution, only *measured* pixels are kept (pixels t
 filled by interpolation carry no evidence and could carve free space through a textureless
 wall), the depth is subsampled by ``depth_stride`` (nothing is lost at half resolution), and sky
 (disparity 0, infinite depth) carves free space up to the map's maximum range, which is right
-for open sky. The map reaches as far as the rig's trusted range (where a quarter pixel of
+for open sky; so does the unmeasured band between open sky and ground beyond that range across
+the horizon (``horizon_far_m``, :func:`skyrecon.perception.stereo_depth.horizon_band`), where a
+noisy camera measures nothing and the drone's own altitude projects. The map reaches as far as the rig's trusted range (where a quarter pixel of
 disparity error at the matcher's half resolution moves depth by at most 3 voxels: about 17 m for
 the default rig, below ``max_range_m``); farther depth carves free space up to it only. Marking
 obstacles out to 20 m put phantom voxels metres from any surface where the matcher was off by a
@@ -47,6 +49,7 @@ def flight_perception(cfg: MissionConfig) -> PerceptionSettings:
         max_disparity=int(cfg.max_disparity),
         depth_stride=int(cfg.depth_stride),
         fine_max_disparity=FINE_MAX_DISPARITY if cfg.track_movers and cfg.mover_fine_depth else 0,
+        horizon_far_m=float(cfg.max_range_m),
     )
 
 

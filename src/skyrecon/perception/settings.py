@@ -90,6 +90,10 @@ class PerceptionSettings:
             where the half-resolution matcher already sees such objects. For the mover tracker
             (:mod:`skyrecon.perception.movers`), not for the map.
         fine_block_px: block size of that matcher, pixels (odd, at least 5).
+        horizon_far_m: with ``sky_is_free`` and a horizon row given, the unmeasured band
+            between open sky and ground at least this far, metres, counts as sky too (see
+            :func:`~skyrecon.perception.stereo_depth.horizon_band`; the map's range: nothing
+            in the band lies within it); None: off.
     """
 
     method: str = "skyrecon"
@@ -113,6 +117,7 @@ class PerceptionSettings:
     guesses: bool = False
     fine_max_disparity: int = 0
     fine_block_px: int = 9
+    horizon_far_m: float | None = None
 
     def __post_init__(self) -> None:
         if not int(self.max_disparity) > 0:
@@ -155,6 +160,8 @@ class PerceptionSettings:
             raise InputError(
                 f"plane inlier fraction must lie in (0, 1], got {self.plane_min_inlier_fraction}"
             )
+        if self.horizon_far_m is not None and not self.horizon_far_m > 0:
+            raise InputError(f"horizon far range must be positive or None, got {self.horizon_far_m} m")
         gap = self.plane_max_guess_gap_px
         if gap is not None and not gap > 0:
             raise InputError(f"plane guess gap must be positive or None, got {gap} px")
