@@ -9,6 +9,7 @@ cameras share fx = fy and cy, and a left pixel x matches right pixel
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -72,9 +73,10 @@ class StereoRig:
         """Distance between the two optical centres, metres."""
         return float(np.linalg.norm(self.right_from_left.t))
 
-    @property
+    @cached_property
     def is_rectified(self) -> bool:
-        """True when the rig is row-aligned: no rotation, translation along x, same fy and cy."""
+        """True when the rig is row-aligned: no rotation, translation along x, same fy and cy
+        (computed once: the rig is frozen, and every disparity-to-depth conversion asks)."""
         t = self.right_from_left.t
         return bool(
             np.allclose(self.right_from_left.R, np.eye(3), atol=1e-9)

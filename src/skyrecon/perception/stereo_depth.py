@@ -560,7 +560,7 @@ class StereoDepth:
             grey_left = grey_left if grey_left is not None else to_grey(np.asarray(left))
             disp, accepted = self._plane_fill(disp, measured, tex, grey_left, right)
             keep = keep | accepted
-            plane = float(accepted.mean())
+            plane = float(np.count_nonzero(accepted) / accepted.size)
         k = self.stride
         # one conversion for the kept pixels and the guesses (+inf: sky, only ever kept)
         all_depth = self._depth(disp[::k, ::k], s.sky_is_free)
@@ -574,7 +574,15 @@ class StereoDepth:
         fine = None if self._fine is None else self._fine_depth(left, right, result.disparity)
         ms = 1e3 * (time.perf_counter() - t0)
         return DepthFrame(
-            depth, self.intrinsics, result.disparity, float(measured.mean()), ms, plane, guess, fine, noise
+            depth,
+            self.intrinsics,
+            result.disparity,
+            float(np.count_nonzero(measured) / measured.size),
+            ms,
+            plane,
+            guess,
+            fine,
+            noise,
         )
 
     def _plane_fill(

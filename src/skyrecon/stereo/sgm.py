@@ -676,7 +676,7 @@ class SkyreconMatcher:
         diag["threads"] = min(nthreads, parts)
         diag["bands"] = parts
         diag["band_ms"] = task_ms
-        lr_valid = float(np.isfinite(disp).mean())
+        lr_valid = float(np.count_nonzero(np.isfinite(disp)) / disp.size)
         diag["lr_rejected"] = 1.0 - lr_valid
         if fs is None:  # huge disparity range: float post-processing
             work = remove_speckles(disp.copy(), speckle, s.speckle_range / scale)
@@ -687,11 +687,11 @@ class SkyreconMatcher:
                 if s.median > 1:
                     f = cv2.medianBlur(f, int(s.median))
                 out = f if s.fill else np.where(measured, f, np.float32(np.nan))
-            diag["speckle_rejected"] = lr_valid - float(measured.mean())
+            diag["speckle_rejected"] = lr_valid - float(np.count_nonzero(measured) / measured.size)
             sw.lap("postprocess")
             return out, measured
         measured = fixed != K.INVALID16
-        diag["speckle_rejected"] = lr_valid - float(measured.mean())
+        diag["speckle_rejected"] = lr_valid - float(np.count_nonzero(measured) / measured.size)
         result = fixed
         if do_fill and measured.any():
             result = filled
@@ -834,8 +834,8 @@ class SkyreconMatcher:
             sw.lap("upsample")
         out = np.ascontiguousarray(out, dtype=np.float32)
         filled_mask = np.isfinite(out) & ~measured
-        diag["density"] = float(np.isfinite(out).mean())
-        diag["measured_density"] = float(measured.mean())
+        diag["density"] = float(np.count_nonzero(np.isfinite(out)) / out.size)
+        diag["measured_density"] = float(np.count_nonzero(measured) / measured.size)
         return DisparityResult(
             out, filled_mask, self.name, self.min_disparity, self.max_disparity, sw.total(), diag
         )
