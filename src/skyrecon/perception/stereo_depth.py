@@ -503,7 +503,9 @@ class StereoDepth:
         map's range. On a noise-free render the matcher finds the sky at disparity 0 from the
         faint steps of its gradient; a real camera's noise drowns them, and without this rule
         nothing would show the air ahead of a flying drone free. A plain facade reaches below
-        the horizon (it stands on the ground) and is not taken for sky.
+        the horizon (it stands on the ground) and is not taken for sky. With
+        ``horizon_far_m`` too, the unmeasured band across the horizon between open sky and
+        ground measured beyond that range is open air as well (:func:`horizon_band`).
         """
         t0 = time.perf_counter()
         self.rig.left.check_image(np.asarray(left), "left image")
