@@ -9,9 +9,10 @@ wall), the depth is subsampled by ``depth_stride`` (nothing is lost at half reso
 (disparity 0, infinite depth) carves free space up to the map's maximum range, which is right
 for open sky; so does the unmeasured band between open sky and ground beyond that range across
 the horizon (``horizon_far_m``, :func:`skyrecon.perception.stereo_depth.horizon_band`), where a
-noisy camera measures nothing and the drone's own altitude projects. The map reaches as far as the rig's trusted range (where a quarter pixel of
-disparity error at the matcher's half resolution moves depth by at most 3 voxels: about 17 m for
-the default rig, below ``max_range_m``); farther depth carves free space up to it only. Marking
+noisy camera measures nothing and the drone's own altitude projects. The map reaches as far as
+the rig's trusted range (where a quarter pixel of disparity error at the matcher's half
+resolution moves depth by at most 3 voxels: about 17 m for the default rig, below
+``max_range_m``); farther depth carves free space up to it only. Marking
 obstacles out to 20 m put phantom voxels metres from any surface where the matcher was off by a
 pixel on far grass, and a hovering drone saw them again every cycle until they saturated (mission
 seed 9 hovered by its goal); 2 voxels (14 m) saw obstacles so late that paths grew longer and
