@@ -9,6 +9,7 @@ import pytest
 
 from skyrecon.core import Intrinsics
 from skyrecon.errors import InputError
+from skyrecon.mapping import OccupancyMap
 from skyrecon.mission import MissionConfig, make_scenario
 from skyrecon.mission.guidance import guide, hover
 from skyrecon.mission.navigator import Navigator
@@ -491,3 +492,18 @@ def test_a_resumed_benchmark_reads_back_only_flights_of_its_settings(tmp_path):
     assert read_mission_json(folder) is not None and read_mission_json(folder, cfg) is None
     (folder / "mission.json").write_text(json.dumps({**doc, "reason": "error"}))
     assert read_mission_json(folder, cfg) is None
+
+
+def test_a_view_over_far_fields_is_not_refused_as_millimetres():
+    """The loop's depth is its own stereo's, in metres: a frame whose measured pixels are
+    mostly ground kilometres away (a noisy plain city's view over the fields beyond it) carves
+    free space; the map's plausibility check for users' depth images must not stop the flight
+    (it did: noisy plain delivery seed 6, session 48). A user's map keeps the check."""
+    nav = _box_navigator(MissionConfig())
+    _look(nav, 3045.0, 1)
+    assert len(nav.map.pop_changed_blocks()) > 0  # free space carved, no error
+    user_map = OccupancyMap(voxel_size_m=0.5)
+    with pytest.raises(InputError, match="implausible in metres"):
+        user_map.integrate_depth(
+            np.full((48, 64), 3045.0, np.float32), Intrinsics.from_fov(64, 48, 90.0), np.eye(4)
+        )

@@ -15,6 +15,14 @@ def logit(p: float) -> float:
     return math.log(p / (1.0 - p))
 
 
+#: ``max_plausible_depth_m`` for depth from the package's own stereo (the delivery loop, the
+#: stereo mapper): in metres by construction, so no frame is refused for being far. A noisy
+#: plain city's view over the fields beyond it measured mostly ground 1-5 km away (median
+#: 3045 m), and the default check stopped a delivery mission (the noisy plain benchmark's
+#: seed 6) with an error about millimetres (session 48)
+STEREO_PLAUSIBLE_DEPTH_M = 1e9
+
+
 @dataclass(frozen=True)
 class MapConfig:
     """How measurements update the map. Defaults follow OctoMap.
@@ -35,7 +43,9 @@ class MapConfig:
             voxels either side of the measured depth (voxels between the band and the free
             space are left untouched).
         max_plausible_depth_m: if the median valid depth of a frame exceeds this, the depth is
-            rejected as not in metres (e.g. millimetres by mistake).
+            rejected as not in metres (e.g. millimetres by mistake). For a user's depth
+            images; depth from the package's own stereo is in metres by construction, and a
+            view over far fields measures kilometres (:data:`STEREO_PLAUSIBLE_DEPTH_M`).
         surface_pull_voxels: each measured surface is taken this many voxels nearer its sensor
             before hits and free space are decided (0: where measured). For noisy depth
             (stereo): the noise that falls behind a surface marks voxels inside the obstacle

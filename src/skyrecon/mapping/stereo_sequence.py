@@ -65,7 +65,7 @@ import numpy as np
 from skyrecon.core.rigid import Rigid3
 from skyrecon.core.stereo_rig import StereoRig
 from skyrecon.errors import InputError
-from skyrecon.mapping.config import MapConfig
+from skyrecon.mapping.config import STEREO_PLAUSIBLE_DEPTH_M, MapConfig
 from skyrecon.mapping.depth_sequence import FrameTimings, MappedFrame, as_rigid
 from skyrecon.mapping.frame_support import FrameSupport
 from skyrecon.mapping.ground_level import GroundLevel, GroundSettings
@@ -212,6 +212,7 @@ class StereoMapper:
             prob_hit=s.prob_hit,
             prob_miss=s.prob_miss,
             surface_pull_voxels=s.surface_pull_voxels,
+            max_plausible_depth_m=STEREO_PLAUSIBLE_DEPTH_M,  # its own stereo: metres
         )
         self._map = OccupancyMap(MapConfig.from_dict(base))
         self._support = (

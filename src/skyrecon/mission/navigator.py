@@ -38,6 +38,7 @@ import numpy as np
 
 from skyrecon.core import Intrinsics, Rigid3
 from skyrecon.mapping import FREE, OCCUPIED, UNKNOWN, DistanceField, MapConfig, OccupancyMap
+from skyrecon.mapping.config import STEREO_PLAUSIBLE_DEPTH_M
 from skyrecon.mission.config import MissionConfig
 from skyrecon.mission.guidance import out_of_reach_mask
 from skyrecon.mission.prior import OBSERVED_FREE_LOG_ODDS, PriorMap
@@ -94,7 +95,10 @@ class Navigator:
         self.cfg = cfg
         self.goal = np.asarray(goal, dtype=np.float64)
         rng = cfg.max_range_m if max_range_m is None else max_range_m
-        mc = MapConfig(voxel_size_m=cfg.voxel_size_m, max_range_m=rng)
+        # the loop's depth is its own stereo's, in metres: a view over far fields is not an error
+        mc = MapConfig(
+            voxel_size_m=cfg.voxel_size_m, max_range_m=rng, max_plausible_depth_m=STEREO_PLAUSIBLE_DEPTH_M
+        )
         if prior is not None:
             self.map = prior.seed_map(mc)
             # a voxel is seen free only after this flight's own cameras saw it (see mission.prior)
