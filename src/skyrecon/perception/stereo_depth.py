@@ -229,7 +229,8 @@ def horizon_band(
 
     Args:
         sky: (H, W) bool open sky (:func:`open_sky`), full resolution.
-        separators: (H, W) bool pixels with texture or an edge (full resolution).
+        separators: (h, w) bool pixels with texture or an edge at the reduced resolution
+            (every ``scale``-th row and column, as the texture test computes them).
         measured: (H, W) bool measured pixels (after the texture test).
         disparity_px: (H, W) disparity, full-resolution pixels.
         range_disparity_px: the disparity at the map's range, pixels.
@@ -255,7 +256,7 @@ def horizon_band(
     if r1 - r0 < g + 2:
         return out
     # the band's rows at the reduced resolution (the matcher's and the texture test's)
-    sky_k, sep_k = sky[r0 * k : r1 * k : k, ::k], separators[r0 * k : r1 * k : k, ::k]
+    sky_k, sep_k = sky[r0 * k : r1 * k : k, ::k], separators[r0:r1]
     meas_k, disp_k = measured[r0 * k : r1 * k : k, ::k], disparity_px[r0 * k : r1 * k : k, ::k]
     h = sky_k.shape[0]
     rows = np.arange(h)[:, None]
@@ -536,7 +537,7 @@ class StereoDepth:
                     range_px = float(self.rig.depth_to_disparity(np.array([s.horizon_far_m]))[0])
                     band = horizon_band(
                         sky,
-                        self._full(separators),
+                        separators,
                         measured,
                         result.disparity,
                         range_px,
