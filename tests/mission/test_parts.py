@@ -507,3 +507,18 @@ def test_a_view_over_far_fields_is_not_refused_as_millimetres():
         user_map.integrate_depth(
             np.full((48, 64), 3045.0, np.float32), Intrinsics.from_fov(64, 48, 90.0), np.eye(4)
         )
+
+
+def test_the_navigator_gives_the_cameras_ground_plane():
+    """The stereo stage's ground prior: the ground at ``cfg.ground_z_m`` as the camera sees it
+    (its up direction in the camera's frame and its height above the ground); none without a
+    ground height or from below it."""
+    pose = look_from(np.array([0.0, 4.0, 14.0]), 0.3, math.radians(40.0))
+    plane = _box_navigator(MissionConfig(ground_z_m=0.5)).ground_plane(pose)
+    assert plane is not None and plane.height_m == pytest.approx(13.5)
+    np.testing.assert_allclose(plane.up_cam, pose.R @ np.array([0.0, 0.0, 1.0]), atol=1e-12)
+    np.testing.assert_allclose(
+        plane.up_cam, [0.0, -math.cos(math.radians(40)), -math.sin(math.radians(40))], atol=1e-12
+    )
+    assert _box_navigator(MissionConfig(ground_z_m=None)).ground_plane(pose) is None
+    assert _box_navigator(MissionConfig(ground_z_m=20.0)).ground_plane(pose) is None

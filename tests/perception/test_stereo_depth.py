@@ -17,7 +17,7 @@ from skyrecon.perception import (
     strided_intrinsics,
     texture_masks,
 )
-from skyrecon.perception.stereo_depth import unambiguous_matches
+from skyrecon.perception.stereo_depth import near_specks, unambiguous_matches
 from skyrecon.sim import City, default_rig, flight_poses, generate_city, render_stereo
 from skyrecon.sim.sensor_noise import add_sensor_noise
 from skyrecon.stereo import create_matcher, disparity_to_depth, plane_supported_fill, to_grey, trusted_range_m
@@ -283,3 +283,23 @@ def test_unambiguous_matches_sets_aliases_of_a_periodic_texture_aside():
     alias = unambiguous_matches(periodic, right, r, c, np.full(50, 9.0), 16, 9)  # 2 + 7
     assert not alias.any()
     assert unambiguous_matches(noise, noise, r[:0], c[:0], np.zeros(0), 16, 9).shape == (0,)
+
+
+def test_near_specks_are_dropped_and_near_surfaces_kept():
+    """A few pixels matched 1.7 m away on plain sky are a speck (noisy plain seeds 1 and 8 hovered
+    behind such phantoms); a wall 2 m away, a thin pole 3 m away and far pixels stay."""
+    fx, fb = 160.0, 48.0  # the delivery rig's depth grid: fx, f B (pixels, pixel metres)
+    depth = np.full((120, 160), np.nan, np.float32)
+    depth[10:13, 100:102] = 1.7  # a speck: 6 pixels
+    depth[60:100, 0:40] = 2.0  # a wall
+    depth[20:100, 70] = 3.0  # a pole one pixel wide, 80 long
+    depth[5, 5] = 40.0  # one far pixel: not near
+    depth[30, 30] = np.inf  # open air
+    specks = near_specks(depth, fx, fb, 0.01)
+    assert specks[10:13, 100:102].all()
+    assert specks.sum() == 6
+    # a speck stepping onto a far background is still a speck (its disparity jumps)
+    depth[11, 102:110] = 30.0
+    assert near_specks(depth, fx, fb, 0.01)[10:13, 100:102].all()
+    with pytest.raises(InputError, match="near speck area"):
+        PerceptionSettings.flight(near_speck_area_m2=0.0)

@@ -154,3 +154,53 @@ def test_a_plain_road_between_two_poles_is_not_a_sheet_hung_between_them():
     # invalid guesses (NaN) are no evidence either way
     out, accepted = plane_supported_fill(np.where(wall, truth, np.nan), wall, max_guess_gap_px=1.5)
     assert accepted[22:98, 32:128].all()
+
+
+# ----- a prior plane (the ground) for segments their own border does not fix -------------------
+
+
+def _field() -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[float, float, float]]:
+    """A plain field below a horizon at row 20, running out of the image right, bottom and up to
+    the horizon (an edge at rows 18-19 parts it from the sky); its only measured border is a
+    street edge along its lower left (a diagonal band of measured ground). Returns (disparity,
+    measured, the horizon's edge, ground plane)."""
+    ground = (0.0, 0.05, -1.0)  # d = 0.05 v - 1: zero at row 20, the horizon
+    disp = _plane(*ground)
+    v, u = np.mgrid[0:H, 0:W]
+    measured = (u - 0.8 * (v - 20) > -6) & (u - 0.8 * (v - 20) < 0) & (v >= 20)  # the street edge
+    disp[~measured] = 7.0  # the matcher's values on the plain field and the sky: anything
+    return disp, measured, (v >= 18) & (v < 20), ground
+
+
+def test_a_field_bounded_on_one_side_takes_the_prior_ground_plane():
+    disp, measured, horizon, ground = _field()
+    _, accepted = plane_supported_fill(disp, measured, boundary=horizon)
+    assert not accepted.any()  # its own border (one edge) does not fix a plane
+    out, accepted = plane_supported_fill(disp, measured, boundary=horizon, prior_plane=ground)
+    assert accepted[40:110, 100:150].all() and not accepted[:18].any()
+    np.testing.assert_allclose(out[accepted], _plane(*ground)[accepted], rtol=1e-5, atol=1e-5)
+
+
+def test_the_prior_is_refused_when_the_border_disagrees_or_lies_only_above():
+    disp, measured, horizon, ground = _field()
+    # the border is a wall 1.5 px nearer than the ground: not the ground
+    nearer = np.where(measured, disp + 1.5, disp).astype(np.float32)
+    assert not plane_supported_fill(nearer, measured, boundary=horizon, prior_plane=ground)[1].any()
+    # a plain wall filling the lower image whose only measured border is the far ground above
+    # its (horizontal, unmatched) roof line: all support above the segment, refused
+    v = np.mgrid[0:H, 0:W][0]
+    wall_measured = (v >= 20) & (v < 26)  # a band of measured far ground over the roof line
+    wall = np.where(wall_measured, _plane(*ground), 9.0).astype(np.float32)
+    _, accepted = plane_supported_fill(wall, wall_measured, boundary=horizon, prior_plane=ground)
+    assert not accepted[26:].any()
+    # and with no measured border at all, nothing
+    none = np.zeros((H, W), bool)
+    assert not plane_supported_fill(wall, none, boundary=horizon, prior_plane=ground)[1].any()
+
+
+def test_the_prior_never_fills_a_segment_reaching_above_its_horizon():
+    disp, measured, _, ground = _field()
+    # no edge at the horizon: the field's segment runs on into the sky above it (the ground
+    # left of the street edge, wholly below the horizon, is still taken)
+    _, accepted = plane_supported_fill(disp, measured, prior_plane=ground)
+    assert not accepted[:, 100:].any() and accepted[100:, 10:40].all()

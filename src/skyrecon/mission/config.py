@@ -93,6 +93,13 @@ class MissionConfig:
             missions without a failure.
         min_altitude_m, max_altitude_m: flight band, world z metres. Streets are free above
             10 m (poles, trees and overhead wires stay below), so the band starts at 12 m.
+        ground_z_m: the ground's world height, metres: the flight band's reference (a real
+            drone's terrain model and altimeter). The stereo stage uses it as a prior plane:
+            plain ground whose measured border agrees with it is open air up to the map's range
+            well above it (:meth:`skyrecon.perception.StereoDepth.compute`, ``ground``). None:
+            no ground prior. (Learning the level from the flight's own depth instead,
+            :class:`skyrecon.mapping.ground_level.GroundLevel`, failed in a noisy plain city:
+            roofs and walls outweigh the plain streets, and the level jumped to a roof.)
     Vehicle:
         cruise_speed_mps: top speed, m/s.
         max_accel_mps2: acceleration and braking limit, m/s^2 (5: a multirotor tilting about 27 degrees).
@@ -207,6 +214,7 @@ class MissionConfig:
     backoff_looks_ahead: bool = False
     min_altitude_m: float = 12.0
     max_altitude_m: float = 30.0
+    ground_z_m: float | None = 0.0
     cruise_speed_mps: float = 6.0
     max_accel_mps2: float = 5.0
     max_yaw_rate_deg_s: float = 90.0

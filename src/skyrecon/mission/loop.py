@@ -84,7 +84,7 @@ from skyrecon.mission.scenario import Scenario
 from skyrecon.mission.vehicle import DroneState, step
 from skyrecon.mission.world_monitor import WorldMonitor
 from skyrecon.odometry.types import TrackingState
-from skyrecon.perception import StereoDepth
+from skyrecon.perception import GroundPlane, StereoDepth
 from skyrecon.perception.movers import MoverSettings, MoverTracker, parse_mover_overrides
 from skyrecon.record import NullRecorder, Recorder
 from skyrecon.record.mission import MissionRecording
@@ -514,13 +514,15 @@ def _sense(
     last_loop_ms: float,
     moved: bool,
     horizon_row_px: float | None = None,
+    ground: GroundPlane | None = None,
 ):
     """What reaches the drone this cycle and what it makes of it: (the delivery, its health, the
     depth or None, the (left, right) images or None, milliseconds of the drone's sensing: the
     health checks and stereo, not the simulator's fault injection). Saturated (glare) pixels are
     taken out of the depth; the rest is used. ``horizon_row_px``: where the horizon lies in the
     image at the camera's pitch (plain sky above it is open air, see
-    :meth:`~skyrecon.perception.StereoDepth.compute`)."""
+    :meth:`~skyrecon.perception.StereoDepth.compute`); ``ground``: the ground as the camera sees
+    it (plain ground bordered by measured ground is open air well above it, ibid.)."""
     delivery = (
         injector.deliver(time_s, frame.left, frame.right)
         if injector is not None
@@ -533,7 +535,11 @@ def _sense(
     if delivery.left is None or delivery.right is None:
         return delivery, health, None, None, 1e3 * (time.perf_counter() - t0)
     depth = stereo.compute(
-        delivery.left, delivery.right, noise_sigma=health.noise_sigma, horizon_row_px=horizon_row_px
+        delivery.left,
+        delivery.right,
+        noise_sigma=health.noise_sigma,
+        horizon_row_px=horizon_row_px,
+        ground=ground,
     )
     if health.glare_mask is not None:
         depth.depth_m[_strided_mask(health.glare_mask, depth.depth_m.shape)] = np.nan
@@ -737,8 +743,9 @@ def _fly(
         ms["render"] = 1e3 * (time.perf_counter() - t_render)
         true_world_from_left = true_cam_from_world.inverse().with_frames("world", "left")
         horizon_row = rig.left.cy - rig.left.fy * math.tan(state.pitch_down)  # the gimbal's pitch
+        ground = nav.ground_plane(believed.cam_from_world())  # where the drone believes it is
         delivery, health, depth, fresh, ms["stereo"] = _sense(
-            injector, health_check, stereo, frame, state.time_s, last_loop_ms, moved, horizon_row
+            injector, health_check, stereo, frame, state.time_s, last_loop_ms, moved, horizon_row, ground
         )
         ms["pose"] = 0.0
         if depth is not None and fresh is not None:

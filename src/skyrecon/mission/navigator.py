@@ -44,6 +44,7 @@ from skyrecon.mission.guidance import out_of_reach_mask
 from skyrecon.mission.prior import OBSERVED_FREE_LOG_ODDS, PriorMap
 from skyrecon.mission.scenario import MapBox
 from skyrecon.mission.vehicle import sample_path
+from skyrecon.perception import GroundPlane
 from skyrecon.planning import Planner, PlanResult, Replanner, path_conflict, remaining_path
 from skyrecon.planning.keep_out import warm_kernels as warm_keep_out
 
@@ -156,6 +157,14 @@ class Navigator:
         self.map.integrate_depth(depth_m, intrinsics, world_from_cam)
         if flown_from is not None:
             self.map.mark_flown_free(np.stack([flown_from, world_from_cam.t]), self.cfg.drone_radius_m)
+
+    def ground_plane(self, cam_from_world: Rigid3) -> GroundPlane | None:
+        """The ground (world z ``cfg.ground_z_m``) as a camera at ``cam_from_world`` sees it,
+        for the stereo stage's ground prior; None when the camera is not above it or the
+        ground's height is not given."""
+        if self.cfg.ground_z_m is None:
+            return None
+        return GroundPlane.from_pose(cam_from_world.inverse(), self.cfg.ground_z_m)
 
     def update_distance(self) -> np.ndarray:
         """Bring the distance field and the planner's grid up to date.

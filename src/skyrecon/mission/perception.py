@@ -44,13 +44,15 @@ def flight_perception(cfg: MissionConfig) -> PerceptionSettings:
     """The stereo-depth rules of the delivery loop: :meth:`PerceptionSettings.flight` with the
     mission's matcher, disparity bound and depth stride; with ``mover_fine_depth`` (and movers
     tracked), also the full-resolution fine depth (a drone 15-20 m away is lost at half
-    resolution)."""
+    resolution). The horizon band and the ground prior's open air reach the mission's
+    ``max_range_m`` (the map carves no farther than its own, shorter, range)."""
     return PerceptionSettings.flight(
         method=cfg.matcher,
         max_disparity=int(cfg.max_disparity),
         depth_stride=int(cfg.depth_stride),
         fine_max_disparity=FINE_MAX_DISPARITY if cfg.track_movers and cfg.mover_fine_depth else 0,
         horizon_far_m=float(cfg.max_range_m),
+        ground_range_m=float(cfg.max_range_m),
     )
 
 

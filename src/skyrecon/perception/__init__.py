@@ -7,6 +7,7 @@ kept out of the static map and tracked for the planner (with a full-resolution b
 :class:`FineDepth` for small far ones).
 """
 
+from skyrecon.perception.ground_plane import GroundPlane
 from skyrecon.perception.movers import (
     MoverDetection,
     MoverFrame,
@@ -28,6 +29,7 @@ from skyrecon.perception.stereo_depth import (
 __all__ = [
     "DepthFrame",
     "FineDepth",
+    "GroundPlane",
     "MoverDetection",
     "MoverFrame",
     "MoverSettings",

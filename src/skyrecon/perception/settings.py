@@ -94,6 +94,21 @@ class PerceptionSettings:
             between open sky and ground at least this far, metres, counts as sky too (see
             :func:`~skyrecon.perception.stereo_depth.horizon_band`; the map's range: nothing
             in the band lies within it); None: off.
+        ground_range_m: with a ground plane given to :meth:`StereoDepth.compute` and the plane
+            fill, a plain segment that takes the ground's plane (see ``ground`` there) is open
+            air up to this range, metres (+inf depth: the map carves free space along it and
+            marks no obstacle), on the pixels whose ray is still ``ground_clearance_m`` above
+            the ground at this range; its other pixels stay unmeasured. The map's range: a
+            plain roof, car or platform no taller than the clearance that the noisy border
+            cannot tell from the ground is never carved into, and neither is the ground. None:
+            off (the segments keep the ground's depth).
+        ground_clearance_m: see ``ground_range_m``, metres; at least
+            :data:`~skyrecon.perception.stereo_depth.GROUND_CLEARANCE_SHARE` of the camera's
+            height above the ground (what the border's disparity cannot tell apart grows with
+            it).
+        near_speck_area_m2: when the texture test takes pixels out (a noisy camera), drop
+            blobs of depth within a few metres smaller than this, square metres
+            (:func:`~skyrecon.perception.stereo_depth.near_specks`); None: off.
     """
 
     method: str = "skyrecon"
@@ -118,6 +133,9 @@ class PerceptionSettings:
     fine_max_disparity: int = 0
     fine_block_px: int = 9
     horizon_far_m: float | None = None
+    ground_range_m: float | None = None
+    ground_clearance_m: float = 3.0
+    near_speck_area_m2: float | None = None
 
     def __post_init__(self) -> None:
         if not int(self.max_disparity) > 0:
@@ -162,6 +180,12 @@ class PerceptionSettings:
             )
         if self.horizon_far_m is not None and not self.horizon_far_m > 0:
             raise InputError(f"horizon far range must be positive or None, got {self.horizon_far_m} m")
+        if self.ground_range_m is not None and not self.ground_range_m > 0:
+            raise InputError(f"ground range must be positive or None, got {self.ground_range_m} m")
+        if self.near_speck_area_m2 is not None and not self.near_speck_area_m2 > 0:
+            raise InputError(f"near speck area must be positive or None, got {self.near_speck_area_m2} m^2")
+        if not self.ground_clearance_m >= 0:
+            raise InputError(f"ground clearance must be >= 0, got {self.ground_clearance_m} m")
         gap = self.plane_max_guess_gap_px
         if gap is not None and not gap > 0:
             raise InputError(f"plane guess gap must be positive or None, got {gap} px")
@@ -187,7 +211,8 @@ class PerceptionSettings:
         half-resolution image the matcher sees has more texture than noise (``min_texture`` 0,
         ``texture_scale`` 2: every pixel of a noise-free image; with a real camera's noise the
         matcher's values over a plain wall are noise, and in the delivery demo they were
-        phantom obstacles on every wall). Keyword overrides on top."""
+        phantom obstacles on every wall); near blobs under 10 x 10 cm are specks of that noise
+        (``near_speck_area_m2``). Keyword overrides on top."""
         base = cls(
             method="skyrecon-fast",
             min_texture=0.0,
@@ -200,6 +225,7 @@ class PerceptionSettings:
             sky_is_free=True,
             max_depth_error_voxels=3.0,
             disparity_error_px=0.5,
+            near_speck_area_m2=0.01,
         )
         return replace(base, **overrides)
 

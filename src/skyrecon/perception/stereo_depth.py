@@ -9,10 +9,15 @@ Per pair:
    those on image texture, and, with ``max_disparity_step_px``, none at a disparity
    discontinuity (full resolution);
 2b. with ``plane_fill``, unmeasured segments bounded all around by one measured plane get that
-   plane's disparity (:func:`skyrecon.stereo.plane_supported_fill`);
+   plane's disparity (:func:`skyrecon.stereo.plane_supported_fill`); with a ground plane
+   given (:class:`~skyrecon.perception.GroundPlane`), plain segments whose measured border
+   agrees with the ground take the ground's, and with ``ground_range_m`` they are open air
+   up to that range where it stays well above the ground (+inf), unknown elsewhere;
 3. the disparity and the mask are subsampled by ``depth_stride`` and converted with the full
    rig (disparities stay in full-resolution pixels): ``Z = f B / (d + doffs)``;
-4. matches at ``d + doffs <= 0`` become +inf (``sky_is_free``) or NaN.
+4. matches at ``d + doffs <= 0`` become +inf (``sky_is_free``) or NaN;
+5. with ``near_speck_area_m2`` and a noisy image, blobs of near depth too small to be
+   anything there are dropped (:func:`near_specks`).
 
 Frames and units: images (H, W, 3) uint8 RGB (or grey) of a rectified rig; depth (h, w)
 float32 metres along the left optical axis, NaN where not measured.
@@ -20,6 +25,7 @@ float32 metres along the left optical axis, NaN where not measured.
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
@@ -36,6 +42,7 @@ from skyrecon.core.image_noise import (
 from skyrecon.core.intrinsics import Intrinsics
 from skyrecon.core.stereo_rig import StereoRig
 from skyrecon.errors import InputError
+from skyrecon.perception.ground_plane import GroundPlane
 from skyrecon.perception.settings import PerceptionSettings
 from skyrecon.stereo import Matcher, create_matcher, plane_supported_fill, to_grey
 from skyrecon.stereo.base import prepare_pair
@@ -297,6 +304,67 @@ def horizon_band(
     return out
 
 
+#: the ground prior's band at a plain segment's border: this many times the matcher's disparity
+#: error (``disparity_error_px``) ...
+GROUND_TOLERANCE_ERRORS = 2.0
+#: ... plus this share of the ground's disparity (the ground level's own error, a few per cent
+#: of the drone's height)
+GROUND_TOLERANCE_REL = 0.05
+#: the ground prior's open air keeps at least this share of the camera's height above the
+#: ground: an object standing on the ground h_o high differs from it by h_o / (h - h_o) of the
+#: disparity, so the band above lets through objects up to about 12 % of the height h (at the
+#: map's range, 2.8 px of disparity at half resolution, the band is 14 %)
+GROUND_CLEARANCE_SHARE = 0.15
+
+
+#: the near ranges whose specks :func:`near_specks` drops, metres: each range's blobs are judged
+#: by the pixel area at that range (the largest a pixel nearer covers)
+NEAR_SPECK_RANGES_M = (5.0, 2.5)
+
+
+def near_specks(
+    depth_m: np.ndarray, fx_px: float, focal_baseline_px_m: float, min_area_m2: float
+) -> np.ndarray:
+    """(h, w) bool: the finite ``depth_m`` pixels (metres along the axis; NaN, inf ignored)
+    in blobs too small to be anything near the camera. A blob is a set of 8-connected pixels
+    whose disparities (``focal_baseline_px_m / depth``, pixels) step by at most 1 pixel; for
+    each range ``r`` of :data:`NEAR_SPECK_RANGES_M`, a blob of the pixels nearer than ``r``
+    covering less than ``min_area_m2`` (square metres, each pixel ``(r / fx_px)^2`` at most)
+    is a speck. Under a camera's noise a few pixels on plain sky or ground pass the texture
+    test and match at a large disparity: specks 1.6-4 m from a hovering drone (noisy plain
+    delivery seeds 1 and 8, session 49), each a phantom obstacle inside its clearance that no
+    later ray clears (nothing behind it is measured), until the drone could not plan. Anything
+    real that near is a blob of hundreds of pixels (a 2 cm wire 30 cm long at 2.5 m: 60)."""
+    out = np.zeros(depth_m.shape, bool)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        finite = np.isfinite(depth_m)
+        q = np.where(finite, 16.0 * focal_baseline_px_m / depth_m, -1.0)
+    for r in NEAR_SPECK_RANGES_M:
+        near = finite & (depth_m < r)
+        if not near.any():
+            continue
+        smallest = int(math.ceil(min_area_m2 / (r / fx_px) ** 2))  # pixels of the smallest blob kept
+        blobs = np.where(near, np.minimum(q, 32000.0), -1.0).astype(np.int16)
+        cv2.filterSpeckles(blobs, -1, smallest - 1, 16)  # blobs of < smallest pixels become -1
+        out |= near & (blobs < 0)
+    return out
+
+
+def _on_plane(
+    disparity: np.ndarray, accepted: np.ndarray, plane: tuple[float, float, float] | None
+) -> np.ndarray | None:
+    """(H, W) bool: the ``accepted`` pixels whose ``disparity`` is the ``plane``'s ``a u + b v +
+    c`` (painted from it, to float32 rounding); None without a plane."""
+    if plane is None:
+        return None
+    a, b, c = plane
+    v, u = np.nonzero(accepted)
+    model = np.float32(a) * u.astype(np.float32) + np.float32(b) * v.astype(np.float32) + np.float32(c)
+    on = np.zeros(accepted.shape, bool)
+    on[v, u] = np.abs(disparity[v, u] - model) <= 1e-4 * np.maximum(1.0, np.abs(model))
+    return on
+
+
 def _upsample_mask(mask: np.ndarray, k: int, shape: tuple[int, ...]) -> np.ndarray:
     """(H, W) = ``shape`` bool: each pixel of ``mask`` repeated k x k times (cropped)."""
     H, W = shape[0], shape[1]
@@ -422,6 +490,10 @@ class DepthFrame:
             the half-resolution matcher lost (the mover tracker), not for the map.
         image_noise_sigma: the left image's noise, grey levels, as given to
             :meth:`StereoDepth.compute` or measured there for the texture test (None: neither).
+        from_ground: with a ground plane given to :meth:`StereoDepth.compute` and the plane
+            fill, (h, w) bool: the pixels of ``depth_m`` that took the ground's plane (not
+            measured: not evidence of where the ground lies; with ``ground_range_m`` they are
+            +inf or NaN in ``depth_m``). None otherwise.
     """
 
     depth_m: np.ndarray
@@ -433,6 +505,7 @@ class DepthFrame:
     guess_depth_m: np.ndarray | None = None
     fine: FineDepth | None = None
     image_noise_sigma: float | None = None
+    from_ground: np.ndarray | None = None
 
 
 class StereoDepth:
@@ -455,6 +528,7 @@ class StereoDepth:
         self.stride = int(self.settings.depth_stride)
         self.intrinsics = strided_intrinsics(rig.left, self.stride)
         self._matcher = matcher
+        self._unit_rays: np.ndarray | None = None  # (h, w, 3) of the depth grid, made on first use
         self._fine: OpenCVBMMatcher | None = None
         if self.settings.fine_max_disparity:
             self._fine = OpenCVBMMatcher(
@@ -487,6 +561,7 @@ class StereoDepth:
         after_match: Callable[[], object] | None = None,
         noise_sigma: float | None = None,
         horizon_row_px: float | None = None,
+        ground: GroundPlane | None = None,
     ) -> DepthFrame:
         """Depth of one rectified pair, each (H, W, 3) uint8 RGB (or (H, W) grey).
 
@@ -559,11 +634,13 @@ class StereoDepth:
             keep = keep & ~edge
         disp = result.disparity
         plane = 0.0
+        from_ground = None
         if s.plane_fill and not s.use_filled and (tex is not None or s.min_texture is None):
             grey_left = grey_left if grey_left is not None else to_grey(np.asarray(left))
-            disp, accepted = self._plane_fill(disp, measured, tex, grey_left, right)
+            disp, accepted, on_ground = self._plane_fill(disp, measured, tex, grey_left, right, ground)
             keep = keep | accepted
             plane = float(np.count_nonzero(accepted) / accepted.size)
+            from_ground = None if on_ground is None else on_ground[:: self.stride, :: self.stride]
         k = self.stride
         # one conversion for the kept pixels and the guesses (+inf: sky, only ever kept)
         all_depth = self._depth(disp[::k, ::k], s.sky_is_free)
@@ -574,6 +651,13 @@ class StereoDepth:
             g = result.valid & ~keep if edge is None else result.valid & ~keep & ~edge
             guess = np.where(g[::k, ::k] & np.isfinite(all_depth), all_depth, nan)
         depth = np.where(keep[::k, ::k], all_depth, nan)
+        if from_ground is not None and ground is not None and s.ground_range_m is not None:
+            clear = self._clear_of_ground(ground)
+            depth[from_ground & clear] = np.inf
+            depth[from_ground & ~clear] = nan
+        if tex is not None and s.near_speck_area_m2 is not None:
+            fb = self.intrinsics.fx * self.rig.baseline_m
+            depth[near_specks(depth, self.intrinsics.fx, fb, s.near_speck_area_m2)] = nan
         fine = None if self._fine is None else self._fine_depth(left, right, result.disparity)
         ms = 1e3 * (time.perf_counter() - t0)
         return DepthFrame(
@@ -586,6 +670,7 @@ class StereoDepth:
             guess,
             fine,
             noise,
+            from_ground,
         )
 
     def _plane_fill(
@@ -595,10 +680,13 @@ class StereoDepth:
         tex: _TextureTest | None,
         grey_left: np.ndarray,
         right: np.ndarray,
-    ) -> tuple[np.ndarray, np.ndarray]:
+        ground: GroundPlane | None = None,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """:func:`~skyrecon.stereo.plane_supported_fill` of the (H, W) disparity, its segments
-        bounded by the texture test's edges (``tex``; None: no test): ``(disp, accepted)``, the
-        disparity with the accepted segments' planes and the (H, W) bool mask of those pixels.
+        bounded by the texture test's edges (``tex``; None: no test): ``(disp, accepted,
+        on_ground)``, the disparity with the accepted segments' planes, the (H, W) bool mask of
+        those pixels and, with ``ground`` (the prior plane), the (H, W) mask of those that took
+        the ground's (None without).
         With the texture test and the depth both at ``k = texture_scale = depth_stride`` > 1
         (the flight loop), the fill runs on that grid (disparities and pixel tolerances divided
         by k, the test's reduced images): the only pixels the depth keeps, a quarter of the
@@ -606,7 +694,9 @@ class StereoDepth:
         s = self.settings
         k = int(s.texture_scale)
         step = s.max_disparity_step_px or 1.0
+        floor = max(0.0, -float(self.rig.doffs_px))  # the ground's horizon
         if tex is None or k == 1 or k != self.stride:
+            prior = None if ground is None else ground.disparity_coefficients(self.rig)
             planar, accepted = plane_supported_fill(
                 disp,
                 measured,
@@ -617,10 +707,15 @@ class StereoDepth:
                 min_inlier_fraction=s.plane_min_inlier_fraction,
                 max_guess_gap_px=s.plane_max_guess_gap_px,
                 max_step_px=step,
+                prior_plane=prior,
+                prior_min_disparity=floor,
+                prior_tolerance_px=GROUND_TOLERANCE_ERRORS * s.disparity_error_px,
+                prior_tolerance_rel=GROUND_TOLERANCE_REL,
             )
-            return np.where(accepted, planar, disp), accepted
+            return np.where(accepted, planar, disp), accepted, _on_plane(planar, accepted, prior)
         H, W = disp.shape
         gap = s.plane_max_guess_gap_px
+        prior = None if ground is None else ground.disparity_coefficients(self.rig, k)
         planar, small = plane_supported_fill(
             disp[::k, ::k] / np.float32(k),
             measured[::k, ::k],
@@ -631,12 +726,36 @@ class StereoDepth:
             min_inlier_fraction=s.plane_min_inlier_fraction,
             max_guess_gap_px=None if gap is None else gap / k,
             max_step_px=step / k,
+            prior_plane=prior,
+            prior_min_disparity=floor / k,
+            prior_tolerance_px=GROUND_TOLERANCE_ERRORS * s.disparity_error_px / k,
+            prior_tolerance_rel=GROUND_TOLERANCE_REL,
         )
         out = disp.copy()
         out[::k, ::k] = np.where(small, planar * np.float32(k), out[::k, ::k])
         accepted = np.zeros((H, W), bool)
         accepted[::k, ::k] = small
-        return out, accepted
+        on_ground = None
+        small_ground = _on_plane(planar, small, prior)
+        if small_ground is not None:
+            on_ground = np.zeros((H, W), bool)
+            on_ground[::k, ::k] = small_ground
+        return out, accepted, on_ground
+
+    def _clear_of_ground(self, ground: GroundPlane) -> np.ndarray:
+        """(h, w) bool on the depth grid: the rays still ``ground_clearance_m`` (at least
+        :data:`GROUND_CLEARANCE_SHARE` of the camera's height) above the ``ground`` at
+        ``ground_range_m`` from the camera."""
+        s = self.settings
+        assert s.ground_range_m is not None
+        if self._unit_rays is None:
+            K = self.intrinsics
+            v, u = np.mgrid[0 : K.height, 0 : K.width].astype(np.float64)
+            rays = np.stack([(u - K.cx) / K.fx, (v - K.cy) / K.fy, np.ones_like(u)], axis=-1)
+            self._unit_rays = (rays / np.linalg.norm(rays, axis=-1, keepdims=True)).astype(np.float32)
+        clearance = max(float(s.ground_clearance_m), GROUND_CLEARANCE_SHARE * ground.height_m)
+        rise = self._unit_rays @ np.asarray(ground.up_cam, np.float32)  # metres up per metre along
+        return ground.height_m + float(s.ground_range_m) * rise >= clearance
 
     @property
     def _needs_noise(self) -> bool:

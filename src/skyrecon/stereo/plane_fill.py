@@ -241,6 +241,72 @@ def _segment_planes(
 
 
 @njit(cache=True, nogil=True)
+def _prior_planes(
+    pu,
+    pv,
+    pd,
+    pl,
+    n,
+    x0,
+    y0,
+    w,
+    h,
+    cv,
+    prior,
+    floor,
+    tolerance,
+    tolerance_rel,
+    min_support,
+    min_inliers,
+    min_below,
+    coef,
+    ok,
+):  # pragma: no cover - compiled
+    """Per segment not accepted on its own fit (``ok`` False): the ``prior`` plane ``d = a u + b v
+    + c`` when at least ``min_support`` of its border pairs lie within ``tolerance +
+    tolerance_rel * d`` of it, they are at least ``min_inliers`` of them all, at least
+    ``min_below`` of them lie on or below the segment's centroid row ``cv`` (a ground segment
+    is supported from below or beside: a plain wall whose only measured border is the far
+    ground above its roof line is not), and the prior's
+    disparity is above ``floor`` at the four corners of the segment's bounding box (``x0, y0, w,
+    h``; the prior is affine, so it is above it everywhere inside): the whole segment lies on
+    the side of the plane's horizon that the plane covers. Sets
+    ``coef`` and ``ok`` of the segments it accepts; returns (n,) bool, those segments."""
+    total = np.zeros(n)
+    inl = np.zeros(n)
+    low = np.zeros(n)
+    a, b, c = prior[0], prior[1], prior[2]
+    for k in range(pl.shape[0]):
+        lab = pl[k]
+        if ok[lab]:
+            continue
+        total[lab] += 1.0
+        d = pd[k]
+        if abs(a * pu[k] + b * pv[k] + c - d) <= tolerance + tolerance_rel * abs(d):
+            inl[lab] += 1.0
+            if pv[k] >= cv[lab]:
+                low[lab] += 1.0
+    taken = np.zeros(n, np.bool_)
+    for lab in range(1, n):
+        if ok[lab] or inl[lab] < min_support or inl[lab] < min_inliers * total[lab]:
+            continue
+        if low[lab] < min_below * inl[lab]:
+            continue
+        below = True
+        for cu in (x0[lab], x0[lab] + w[lab] - 1):
+            for cv in (y0[lab], y0[lab] + h[lab] - 1):
+                if a * cu + b * cv + c <= floor:
+                    below = False
+        if below:
+            coef[lab, 0] = a
+            coef[lab, 1] = b
+            coef[lab, 2] = c
+            ok[lab] = True
+            taken[lab] = True
+    return taken
+
+
+@njit(cache=True, nogil=True)
 def _photo_check(labels, ok, coef, left, right, max_diff, max_bad, min_count):  # pragma: no cover
     """Refuse (in ``ok``) the planes that do not map their segment onto the right image.
 
@@ -321,6 +387,12 @@ def plane_supported_fill(
     max_slope: float = 0.5,
     open_borders: bool = True,
     max_guess_gap_px: float | None = None,
+    prior_plane: tuple[float, float, float] | None = None,
+    prior_min_support: int = 30,
+    prior_min_inlier_fraction: float = 0.8,
+    prior_min_disparity: float = 0.0,
+    prior_tolerance_px: float | None = None,
+    prior_tolerance_rel: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Disparity of unmeasured segments whose measured border is one plane.
 
@@ -365,6 +437,22 @@ def plane_supported_fill(
     around them, can. A plain wall's plane and the matcher's smoothed values over it differ by
     well under 1.5 px (the largest median seen on the synthetic plain cities: 1.3 px), the
     road behind a gantry by 2-7 px.
+
+    With ``prior_plane`` ``(a, b, c)``, a plane known beforehand (the ground, from the drone's
+    height and attitude: :class:`skyrecon.perception.GroundPlane`), a segment that its own border
+    does not fix (bounded on one side, as a road or a field running out of the image and up to
+    the horizon) takes the prior's disparity when at least ``prior_min_support`` of its trusted
+    border pixels, and at least ``prior_min_inlier_fraction`` of them, agree with it (within
+    ``prior_tolerance_px + prior_tolerance_rel * d``; None: the fit's band; a prior is not
+    fitted to the border, so its band is the measurement's error plus the prior's own), at
+    least ``min_side_fraction`` of those lie on or below the segment's centroid (support from
+    below or beside: a plain wall whose only measured border is the far ground beyond its roof
+    line is refused) and the prior's disparity is above ``prior_min_disparity`` over the whole
+    segment (it lies below the plane's horizon; for a rig with ``doffs``, ``-doffs``). The
+    border's agreement is the evidence: a plain facade is bounded by its corners and roof line,
+    which lie nearer than the ground behind them, and a segment with no measured border is
+    never taken. The photometric check and the matcher's values (``max_guess_gap_px``) are
+    applied to it as to a fitted plane.
 
     Args:
         disparity: (H, W) float32 disparity, pixels; only the ``measured`` pixels are read
@@ -434,6 +522,28 @@ def plane_supported_fill(
         coef,
         ok,
     )
+    if prior_plane is not None:
+        _prior_planes(
+            pu,
+            pv,
+            pd,
+            pl,
+            n,
+            x0.astype(np.float64),
+            y0.astype(np.float64),
+            w.astype(np.float64),
+            h.astype(np.float64),
+            np.ascontiguousarray(centroids[:, 1]),
+            np.asarray(prior_plane, np.float64),
+            float(prior_min_disparity),
+            float(tolerance_px if prior_tolerance_px is None else prior_tolerance_px),
+            float(tolerance_rel if prior_tolerance_rel is None else prior_tolerance_rel),
+            float(prior_min_support),
+            float(prior_min_inlier_fraction),
+            float(min_side_fraction),
+            coef,
+            ok,
+        )
     if left is not None and right is not None:
         gl = np.ascontiguousarray(left, dtype=np.float32)
         gr = np.ascontiguousarray(right, dtype=np.float32)

@@ -1,0 +1,147 @@
+"""Is the ground prior ever wrong? Its open air against the true geometry, on random noisy views.
+
+With a ground plane (the drone's attitude and the ground's height), the delivery loop's stereo
+stage takes a plain segment whose measured border agrees with the ground for the ground, and
+the pixels whose ray stays well above the ground up to the map's range for open air (+inf:
+the map carves free space along them; see ``ground`` in
+:meth:`skyrecon.perception.StereoDepth.compute`). Such a pixel whose ray meets anything within
+that range would carve free space through a real obstacle. This tool renders random views of
+generated cities (positions 3 m or more from any obstacle at 7-30 m, any heading, the camera
+5 degrees up to 40 degrees down), adds the camera noise, runs the loop's stereo stage with the
+ground plane (optionally given a wrong ground height, as a drifting altimeter would) and
+raycasts every open-air ground pixel through the true city. It prints, per city kind, noise
+and height error, the views, the ground pixels taken for open air and how many lie on
+something within the range (the target is none).
+
+Usage:
+  .venv/bin/python benchmarks/mission/probe_ground_prior.py
+  .venv/bin/python benchmarks/mission/probe_ground_prior.py --cities 23-29 --noise 1.5 3 --ground-error 0 0.5 -0.5
+
+Session 49 (``--cities 23-29 --views 25 --noise 1.5 3 --ground-error 0 0.5 -0.5``,
+``results_ground_prior.json``): see the file.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT / "src"))
+
+from skyrecon.mission.config import MissionConfig  # noqa: E402
+from skyrecon.mission.perception import flight_perception, mission_rig  # noqa: E402
+from skyrecon.mission.vehicle import look_from  # noqa: E402
+from skyrecon.perception import GroundPlane, StereoDepth  # noqa: E402
+from skyrecon.sim import generate_city, render_stereo  # noqa: E402
+from skyrecon.sim.sensor_noise import add_sensor_noise  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from probe_horizon_band import _seeds  # noqa: E402  (benchmarks/mission/probe_horizon_band.py)
+
+
+def probe(cities: list[int], views: int, sigma: float, plain: bool, ground_error_m: float) -> dict:
+    """Open-air ground pixels of ``views`` random views per city against the truth; a summary."""
+    cfg = MissionConfig(camera_noise=sigma)
+    rig = mission_rig(cfg)
+    K = rig.left
+    stereo = StereoDepth(rig, flight_perception(cfg))
+    reach_m = float(stereo.settings.ground_range_m or cfg.max_range_m)
+    n_views = n_open = n_wrong = n_unknown = 0
+    worst: list[dict] = []
+    for seed in cities:
+        city = generate_city(seed, cfg.city_size_m, plain=plain)
+        rng = np.random.default_rng([seed, int(sigma * 100), int(plain), 11])
+        done = 0
+        while done < views:
+            p = np.array([rng.uniform(-90, 90), rng.uniform(-90, 90), rng.uniform(7, 30)])
+            if city.distance(p[None])[0] < 3.0:
+                continue
+            done += 1
+            yaw, pitch = rng.uniform(-math.pi, math.pi), math.radians(rng.uniform(-5, 40))
+            cam_from_world = look_from(p, yaw, pitch)
+            frame = render_stereo(city, rig, cam_from_world.with_frames("left", "world"))
+            left, right = add_sensor_noise(frame.left, sigma, rng), add_sensor_noise(frame.right, sigma, rng)
+            ground = GroundPlane.from_pose(cam_from_world.inverse(), ground_error_m)
+            depth = stereo.compute(left, right, horizon_row_px=K.cy - K.fy * math.tan(pitch), ground=ground)
+            n_views += 1
+            if depth.from_ground is None:
+                continue
+            n_unknown += int((depth.from_ground & np.isnan(depth.depth_m)).sum())
+            v, u = np.nonzero(depth.from_ground & np.isinf(depth.depth_m))
+            if not len(v):
+                continue
+            Kd = depth.intrinsics
+            rays = np.stack([(u - Kd.cx) / Kd.fx, (v - Kd.cy) / Kd.fy, np.ones(len(u))], axis=1)
+            world_from_cam = cam_from_world.inverse()
+            hit = city.raycast(world_from_cam.t[None], rays @ world_from_cam.R.T)
+            bad = hit < reach_m
+            n_open += len(v)
+            n_wrong += int(bad.sum())
+            if bad.any():
+                worst.append(
+                    {
+                        "city": seed,
+                        "position": np.round(p, 2).tolist(),
+                        "yaw_deg": round(math.degrees(yaw), 1),
+                        "pitch_down_deg": round(math.degrees(pitch), 1),
+                        "wrong_pixels": int(bad.sum()),
+                        "nearest_m": round(float(hit[bad].min()), 2),
+                    }
+                )
+    return {
+        "plain": plain,
+        "camera_noise": sigma,
+        "ground_error_m": ground_error_m,
+        "cities": f"{cities[0]}-{cities[-1]}",
+        "views": n_views,
+        "open_air_pixels": n_open,
+        "open_air_pixels_within_range": n_wrong,
+        "ground_pixels_too_low_left_unknown": n_unknown,
+        "range_m": reach_m,
+        "wrong_views": sorted(worst, key=lambda w: -w["wrong_pixels"])[:10],
+    }
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--cities", default="23-25", help="city seeds, e.g. 23-29 or 3,7,11 (default 23-25)")
+    ap.add_argument("--views", type=int, default=25, help="random views per city (default 25)")
+    ap.add_argument("--noise", type=float, nargs="+", default=[1.5], help="camera noise levels, grey levels")
+    ap.add_argument(
+        "--ground-error", type=float, nargs="+", default=[0.0], help="errors of the ground's height, metres"
+    )
+    ap.add_argument(
+        "--plain", choices=["no", "yes", "both"], default="both", help="plain cities (default both)"
+    )
+    ap.add_argument("--out", type=Path, help="write the rows to this JSON file")
+    args = ap.parse_args()
+    rows = []
+    t0 = time.perf_counter()
+    for plain in {"no": [False], "yes": [True], "both": [False, True]}[args.plain]:
+        for sigma in args.noise:
+            for err in args.ground_error:
+                row = probe(_seeds(args.cities), args.views, sigma, plain, err)
+                rows.append(row)
+                print(
+                    f"{'plain' if plain else 'textured':8s} noise {sigma:3.1f} ground {err:+4.1f} m: "
+                    f"{row['views']:4d} views, {row['open_air_pixels']:9d} open-air ground pixels, "
+                    f"{row['open_air_pixels_within_range']} on something within {row['range_m']:.0f} m",
+                    flush=True,
+                )
+                for w in row["wrong_views"][:3]:
+                    print("   ", w)
+    print(f"{time.perf_counter() - t0:.0f} s")
+    if args.out:
+        args.out.write_text(json.dumps(rows, indent=1) + "\n")
+    return 0 if all(r["open_air_pixels_within_range"] == 0 for r in rows) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

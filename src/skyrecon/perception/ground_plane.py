@@ -1,0 +1,63 @@
+"""The ground as a plane in the camera's frame, and its disparity in a rectified rig.
+
+A drone knows which way is up (its attitude) and, once it has measured some of the ground,
+how high the ground lies (:class:`skyrecon.mapping.ground_level.GroundLevel`). That fixes the ground as a
+plane in the left camera's frame, and in a rectified rig a plane's disparity is an affine
+function of the pixel, ``d(u, v) = a u + b v + c``. The stereo stage uses it as a prior plane
+for plain ground that its own border does not fix (a field or a road running out of the image
+and up to the horizon; see :func:`skyrecon.stereo.plane_supported_fill`).
+
+Frames and units: camera frame x right, y down, z forward (optical axis); metres; disparity
+``d = f B / Z - doffs`` pixels, ``x_right = x_left - d``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from skyrecon.core.rigid import Rigid3
+from skyrecon.core.stereo_rig import StereoRig
+
+_UP = np.array([0.0, 0.0, 1.0])  # world z up
+
+
+@dataclass(frozen=True)
+class GroundPlane:
+    """The ground seen from one camera pose.
+
+    Attributes:
+        up_cam: (3,) unit vector of the world's up direction in the camera frame.
+        height_m: the camera's height above the ground, metres (> 0).
+    """
+
+    up_cam: np.ndarray
+    height_m: float
+
+    @classmethod
+    def from_pose(cls, world_from_cam: Rigid3, ground_z_m: float) -> GroundPlane | None:
+        """The ground at world height ``ground_z_m`` (metres) seen from ``world_from_cam``
+        (``p_world = R p_cam + t``); None when the camera is not above it."""
+        pose = world_from_cam
+        height = float(pose.t[2]) - float(ground_z_m)
+        if not height > 0:
+            return None
+        return cls(pose.R.T @ _UP, height)
+
+    def disparity_coefficients(self, rig: StereoRig, stride: int = 1) -> tuple[float, float, float]:
+        """``(a, b, c)`` of the ground's disparity ``d = a u + b v + c`` on the pixel grid
+        ``[::stride, ::stride]`` of the left image, in pixels of that grid (full-resolution
+        disparity divided by ``stride``): ``u, v`` are that grid's column and row. Positive
+        below the ground's horizon; above it the ground is not in view.
+
+        From ``Z = -h / (up . r)`` along the ray ``r = ((u - cx) / fx, (v - cy) / fy, 1)``
+        (skew ignored) and ``d = f B / Z - doffs``."""
+        K = rig.left
+        nx, ny, nz = (float(x) for x in self.up_cam)
+        fb = K.fx * rig.baseline_m / self.height_m  # f B / h, pixels
+        a = -fb * nx / K.fx
+        b = -fb * ny / K.fy
+        c = -fb * (nz - nx * K.cx / K.fx - ny * K.cy / K.fy) - rig.doffs_px
+        k = int(stride)
+        return a, b, c / k
