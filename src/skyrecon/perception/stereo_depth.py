@@ -315,6 +315,10 @@ GROUND_TOLERANCE_REL = 0.05
 #: disparity, so the band above lets through objects up to about 12 % of the height h (at the
 #: map's range, 2.8 px of disparity at half resolution, the band is 14 %)
 GROUND_CLEARANCE_SHARE = 0.15
+#: the ground prior's open air keeps this far (pixels of the depth grid, a 5 x 5 erosion) inside
+#: its segments: the outermost rows of a segment can graze what bounds it (the truth probe, noise 3,
+#: city 29: 8 pixels of a road's segment on the top edge of a tree's crown 15 m away)
+GROUND_INSET_KERNEL = np.ones((5, 5), np.uint8)
 
 
 #: the near ranges whose specks :func:`near_specks` drops, metres: each range's blobs are judged
@@ -652,9 +656,12 @@ class StereoDepth:
             guess = np.where(g[::k, ::k] & np.isfinite(all_depth), all_depth, nan)
         depth = np.where(keep[::k, ::k], all_depth, nan)
         if from_ground is not None and ground is not None and s.ground_range_m is not None:
-            clear = self._clear_of_ground(ground)
-            depth[from_ground & clear] = np.inf
-            depth[from_ground & ~clear] = nan
+            # open air only inside the segments: their outer pixels may graze what bounds them
+            inner = cv2.erode(np.ascontiguousarray(from_ground).view(np.uint8), GROUND_INSET_KERNEL).view(
+                bool
+            )
+            depth[from_ground] = nan
+            depth[inner & self._clear_of_ground(ground)] = np.inf
         if tex is not None and s.near_speck_area_m2 is not None:
             fb = self.intrinsics.fx * self.rig.baseline_m
             depth[near_specks(depth, self.intrinsics.fx, fb, s.near_speck_area_m2)] = nan
