@@ -23,7 +23,6 @@ Session 49 (``--cities 23-29 --views 25 --noise 1.5 3 --ground-error 0 0.5 -0.5`
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import sys
@@ -43,7 +42,7 @@ from skyrecon.sim import generate_city, render_stereo  # noqa: E402
 from skyrecon.sim.sensor_noise import add_sensor_noise  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from probe_horizon_band import _seeds  # noqa: E402  (benchmarks/mission/probe_horizon_band.py)
+from probe_horizon_band import CITY_KINDS, _seeds, probe_arguments  # noqa: E402  (benchmarks/mission/)
 
 
 def probe(cities: list[int], views: int, sigma: float, plain: bool, ground_error_m: float) -> dict:
@@ -110,21 +109,14 @@ def probe(cities: list[int], views: int, sigma: float, plain: bool, ground_error
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--cities", default="23-25", help="city seeds, e.g. 23-29 or 3,7,11 (default 23-25)")
-    ap.add_argument("--views", type=int, default=25, help="random views per city (default 25)")
-    ap.add_argument("--noise", type=float, nargs="+", default=[1.5], help="camera noise levels, grey levels")
+    ap = probe_arguments(__doc__.split("\n")[0], "23-25")
     ap.add_argument(
         "--ground-error", type=float, nargs="+", default=[0.0], help="errors of the ground's height, metres"
     )
-    ap.add_argument(
-        "--plain", choices=["no", "yes", "both"], default="both", help="plain cities (default both)"
-    )
-    ap.add_argument("--out", type=Path, help="write the rows to this JSON file")
     args = ap.parse_args()
     rows = []
     t0 = time.perf_counter()
-    for plain in {"no": [False], "yes": [True], "both": [False, True]}[args.plain]:
+    for plain in CITY_KINDS[args.plain]:
         for sigma in args.noise:
             for err in args.ground_error:
                 row = probe(_seeds(args.cities), args.views, sigma, plain, err)

@@ -126,21 +126,31 @@ def probe(cities: list[int], views: int, sigma: float, plain: bool, spy: _BandSp
     }
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--cities", default="20-25", help="city seeds, e.g. 20-29 or 3,7,11 (default 20-25)")
+def probe_arguments(description: str, cities: str) -> argparse.ArgumentParser:
+    """The options of the truth probes (this one and ``probe_ground_prior.py``): ``--cities``
+    (default ``cities``), ``--views``, ``--noise``, ``--plain`` (see :data:`CITY_KINDS`), ``--out``."""
+    ap = argparse.ArgumentParser(description=description)
+    ap.add_argument("--cities", default=cities, help=f"city seeds, e.g. 20-29 or 3,7,11 (default {cities})")
     ap.add_argument("--views", type=int, default=25, help="random views per city (default 25)")
     ap.add_argument("--noise", type=float, nargs="+", default=[1.5], help="camera noise levels, grey levels")
     ap.add_argument(
         "--plain", choices=["no", "yes", "both"], default="both", help="plain cities (default both)"
     )
     ap.add_argument("--out", type=Path, help="write the rows to this JSON file")
-    args = ap.parse_args()
+    return ap
+
+
+#: ``--plain`` as the ``plain`` flags of the cities probed
+CITY_KINDS = {"no": [False], "yes": [True], "both": [False, True]}
+
+
+def main() -> int:
+    args = probe_arguments(__doc__.split("\n")[0], "20-25").parse_args()
     spy = _BandSpy()
     stereo_depth_module.horizon_band = spy  # StereoDepth.compute looks it up at each call
     rows = []
     t0 = time.perf_counter()
-    for plain in {"no": [False], "yes": [True], "both": [False, True]}[args.plain]:
+    for plain in CITY_KINDS[args.plain]:
         for sigma in args.noise:
             row = probe(_seeds(args.cities), args.views, sigma, plain, spy)
             rows.append(row)

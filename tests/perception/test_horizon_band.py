@@ -17,6 +17,7 @@ from skyrecon.perception import PerceptionSettings, StereoDepth
 from skyrecon.perception.stereo_depth import horizon_band
 from skyrecon.sim import generate_city, render_stereo
 from skyrecon.sim.sensor_noise import add_sensor_noise
+from tests.perception.truth import true_reach
 
 H, W = 120, 40
 CAMERA = Intrinsics(100.0, 100.0, 20.0, 60.0, W, H)
@@ -109,10 +110,5 @@ def test_a_noisy_camera_sees_the_air_at_its_own_altitude():
     rows = slice(int(horizon / 2) - 4, int(horizon / 2) + 4)  # the depth is at half resolution
     assert np.isinf(with_band[rows]).mean() > np.isinf(without[rows]).mean() + 0.3
     added = np.isinf(with_band) & ~np.isinf(without)
-    v, u = np.nonzero(added)
-    K = rig.left
-    rays = np.stack([(2 * u - K.cx) / K.fx, (2 * v - K.cy) / K.fy, np.ones(len(u))], axis=1)
-    world_from_cam = cam_from_world.inverse()
-    dirs = rays @ world_from_cam.R.T
-    reach = city.raycast(world_from_cam.t[None], dirs)
+    reach, _, _ = true_reach(city, rig, cam_from_world, *np.nonzero(added))
     assert len(reach) > 1000 and reach.min() > cfg.max_range_m
