@@ -15,7 +15,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
+from numba import njit
 
 from skyrecon.core.rigid import Rigid3
 from skyrecon.core.stereo_rig import StereoRig
@@ -61,3 +63,67 @@ class GroundPlane:
         c = -fb * (nz - nx * K.cx / K.fx - ny * K.cy / K.fy) - rig.doffs_px
         k = int(stride)
         return a, b, c / k
+
+
+@njit(cache=True, nogil=True)
+def _runs_below(seed, inside, out):  # pragma: no cover - compiled
+    """Down each column: ``out`` True on the pixels of ``inside`` whose run (the unbroken
+    stretch of ``inside`` pixels in the column) has a ``seed`` pixel at or above them, the run's
+    first pixel included when the pixel just above the run is a seed."""
+    H, W = inside.shape
+    for c in range(W):
+        on = False
+        for r in range(H):
+            if inside[r, c]:
+                on = on or seed[r, c]
+                out[r, c] = on
+            else:
+                on = seed[r, c]
+
+
+@njit(cache=True, nogil=True)
+def _whole_row_runs(inside, marked):  # pragma: no cover - compiled
+    """Along each row: every pixel of a run of ``inside`` that holds a ``marked`` pixel is
+    marked (in place)."""
+    H, W = inside.shape
+    for r in range(H):
+        c = 0
+        while c < W:
+            if not inside[r, c]:
+                c += 1
+                continue
+            e = c
+            hit = False
+            while e < W and inside[r, e]:
+                hit = hit or marked[r, e]
+                e += 1
+            if hit:
+                for j in range(c, e):
+                    marked[r, j] = True
+            c = e
+
+
+def below_raised(raised: np.ndarray, inside: np.ndarray, holes_px: int = 0, whole_rows: bool = False) -> np.ndarray:
+    """(H, W) bool: the pixels of ``inside`` ((H, W) bool: the pixels taken for the ground)
+    that lie straight below a pixel of ``raised`` ((H, W) bool: measured nearer than the ground)
+    in the same column, with nothing but ``inside`` pixels between them.
+
+    A plain roof or platform whose edge with the ground beyond it vanished under noise joins
+    the ground's segment; seen from above, its top lies below (nearer than) its far edge in
+    the image, and that edge, where measured, is nearer than the ground there. Everything of
+    the segment straight below it is then possibly that top, not ground. Below a building's
+    roof line its facade (not ground) stops the run; beside a wall's vertical edge only a
+    strip of its own width is lost. ``holes_px``: gaps in ``inside`` up to this wide (a
+    morphological closing; the specks a noisy matcher measures inside a plain segment) do not
+    break a run."""
+    seed = np.ascontiguousarray(raised, dtype=np.bool_)
+    ins = np.ascontiguousarray(inside, dtype=np.bool_)
+    runs = ins
+    if holes_px > 0:
+        kernel = np.ones((holes_px + 1, holes_px + 1), np.uint8)
+        runs = cv2.morphologyEx(ins.view(np.uint8), cv2.MORPH_CLOSE, kernel).view(np.bool_)
+    out = np.zeros(ins.shape, np.bool_)
+    _runs_below(seed, runs, out)
+    if whole_rows:
+        _whole_row_runs(runs, out)
+    return out & ins

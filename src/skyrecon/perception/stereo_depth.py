@@ -12,7 +12,9 @@ Per pair:
    plane's disparity (:func:`skyrecon.stereo.plane_supported_fill`); with a ground plane
    given (:class:`~skyrecon.perception.GroundPlane`), plain segments whose measured border
    agrees with the ground take the ground's, and with ``ground_range_m`` they are open air
-   up to that range where it stays well above the ground (+inf), unknown elsewhere;
+   up to that range where it stays well above the ground (+inf), unknown elsewhere and in
+   the rows below anything measured nearer than the ground beside them (a plain roof that
+   joined the ground's segment under noise);
 3. the disparity and the mask are subsampled by ``depth_stride`` and converted with the full
    rig (disparities stay in full-resolution pixels): ``Z = f B / (d + doffs)``;
 4. matches at ``d + doffs <= 0`` become +inf (``sky_is_free``) or NaN;
@@ -42,7 +44,7 @@ from skyrecon.core.image_noise import (
 from skyrecon.core.intrinsics import Intrinsics
 from skyrecon.core.stereo_rig import StereoRig
 from skyrecon.errors import InputError
-from skyrecon.perception.ground_plane import GroundPlane
+from skyrecon.perception.ground_plane import GroundPlane, below_raised
 from skyrecon.perception.settings import PerceptionSettings
 from skyrecon.stereo import Matcher, create_matcher, plane_supported_fill, to_grey
 from skyrecon.stereo.base import prepare_pair
@@ -317,8 +319,29 @@ GROUND_TOLERANCE_REL = 0.05
 GROUND_CLEARANCE_SHARE = 0.15
 #: the ground prior's open air keeps this far (pixels of the depth grid, a 5 x 5 erosion) inside
 #: its segments: the outermost rows of a segment can graze what bounds it (the truth probe, noise 3,
-#: city 29: 8 pixels of a road's segment on the top edge of a tree's crown 15 m away)
+#: city 29: 8 pixels of a road's segment on the top edge of a tree's crown 15 m away), the image's
+#: border included: what bounds a segment there is out of view (city 39 at 3 grey levels: a
+#: sliver of a plain roof in the image's first 3 columns)
 GROUND_INSET_KERNEL = np.ones((5, 5), np.uint8)
+#: ... and off the pixels straight below a measured pixel nearer than the ground by more than
+#: this many times its band (:func:`~skyrecon.perception.ground_plane.below_raised`): under
+#: noise the edge between a plain roof or platform and the street beyond it can vanish, one
+#: segment then holds both, and most of its border still agrees with the ground (the truth
+#: probe, noise 3, city 29: a plain roof 10 m away merged with the street under it, 1275
+#: pixels of open air through it) ...
+GROUND_RAISED_BANDS = 2.0
+#: ... those measured pixels grown by this kernel first (rows x columns of the depth grid): the
+#: plane fill's segments keep a seal of a few pixels off measured pixels, and a roof's far edge
+#: is measured in pieces, least near its corners (city 29's roof: its last 6-8 columns)
+GROUND_RAISED_KERNEL = np.ones((9, 17), np.uint8)
+#: ... and the pixels below them followed through holes in the segment up to this wide (depth-
+#: grid pixels: the specks a noisy matcher measures inside a plain surface, with their seal)
+GROUND_RAISED_HOLES_PX = 12
+#: ... and whole rows of the segment beside them: a raised top's far edge is measured in pieces
+#: and its sides not at all (they border ground beyond, as the ground would), so a column's
+#: reach leaves the top's ends in the open (the probe: city 34 at 1.5 grey levels, a roof's last
+#: 5 columns at the image's border and a facade's corner)
+GROUND_RAISED_WHOLE_ROWS = True
 
 
 #: the near ranges whose specks :func:`near_specks` drops, metres: each range's blobs are judged
@@ -657,11 +680,15 @@ class StereoDepth:
         depth = np.where(keep[::k, ::k], all_depth, nan)
         if from_ground is not None and ground is not None and s.ground_range_m is not None:
             # open air only inside the segments: their outer pixels may graze what bounds them
-            inner = cv2.erode(np.ascontiguousarray(from_ground).view(np.uint8), GROUND_INSET_KERNEL).view(
-                bool
-            )
+            inner = cv2.erode(
+                np.ascontiguousarray(from_ground).view(np.uint8),
+                GROUND_INSET_KERNEL,
+                borderType=cv2.BORDER_CONSTANT,
+                borderValue=0,
+            ).view(bool)
+            hidden = self._below_raised(ground, result.disparity[::k, ::k], measured[::k, ::k], from_ground)
             depth[from_ground] = nan
-            depth[inner & self._clear_of_ground(ground)] = np.inf
+            depth[inner & ~hidden & self._clear_of_ground(ground)] = np.inf
         if tex is not None and s.near_speck_area_m2 is not None:
             fb = self.intrinsics.fx * self.rig.baseline_m
             depth[near_specks(depth, self.intrinsics.fx, fb, s.near_speck_area_m2)] = nan
@@ -748,6 +775,30 @@ class StereoDepth:
             on_ground = np.zeros((H, W), bool)
             on_ground[::k, ::k] = small_ground
         return out, accepted, on_ground
+
+    def _below_raised(
+        self, ground: GroundPlane, matched: np.ndarray, measured: np.ndarray, from_ground: np.ndarray
+    ) -> np.ndarray:
+        """(h, w) bool on the depth grid: the pixels of ``from_ground`` straight below a
+        ``measured`` pixel (both (h, w) bool) whose disparity ``matched`` ((h, w), full-
+        resolution pixels) lies more than :data:`GROUND_RAISED_BANDS` times the ground prior's
+        band above the ``ground``'s there, below the ground's horizon
+        (:func:`~skyrecon.perception.ground_plane.below_raised`)."""
+        s = self.settings
+        k = self.stride
+        a, b, c = ground.disparity_coefficients(self.rig)
+        h, w = from_ground.shape
+        ground_px = (
+            np.float32(a * k) * np.arange(w, dtype=np.float32)[None, :]
+            + np.float32(b * k) * np.arange(h, dtype=np.float32)[:, None]
+            + np.float32(c)
+        )
+        band = GROUND_TOLERANCE_ERRORS * s.disparity_error_px + GROUND_TOLERANCE_REL * np.abs(ground_px)
+        floor = max(0.0, -float(self.rig.doffs_px))
+        with np.errstate(invalid="ignore"):
+            raised = measured & (ground_px > floor) & (matched - ground_px > GROUND_RAISED_BANDS * band)
+        grown = cv2.dilate(raised.view(np.uint8), GROUND_RAISED_KERNEL).view(bool)
+        return below_raised(grown, from_ground, GROUND_RAISED_HOLES_PX, GROUND_RAISED_WHOLE_ROWS)
 
     def _clear_of_ground(self, ground: GroundPlane) -> np.ndarray:
         """(h, w) bool on the depth grid: the rays still ``ground_clearance_m`` (at least
