@@ -17,11 +17,13 @@ Usage:
   .venv/bin/python benchmarks/mission/probe_ground_prior.py
   .venv/bin/python benchmarks/mission/probe_ground_prior.py --cities 23-29 --noise 1.5 3 --ground-error 0 0.5 -0.5
 
-Session 49 (``--cities 23-29 --views 25 --noise 1.5 3 --ground-error 0 0.5 -0.5``, textured and
-plain, ``results_ground_prior.json``): 2100 views, 3.8 million open-air pixels; at 1.5 grey
-levels none on anything within 20 m; at 3 grey levels one plain view (city 29) put 1275 pixels
-on something 10 m away (with the ground right and 0.5 m low), not yet understood: the prior is
-off by default in the mission (``MissionConfig.ground_z_m`` None).
+Session 49 (cities 23-29, textured and plain, 1.5 and 3 grey levels, ground 0 and +-0.5 m): 2100
+views, 3.8 million open-air pixels; at 3 grey levels one plain view (city 29) put 1275 pixels
+on a plain roof 10 m away that had joined the street's segment. Session 50 mended it (no open
+air below what is measured nearer than the ground, nor beside it along the rows, nor at the
+image's border), found two more in cities 30-39 (a roof and a facade at the image's border, city
+34 at 1.5; a roof's sliver, city 39 at 3), mended them and ran cities 40-49 for the first time
+(``results_ground_prior.json``): see its rows.
 """
 
 from __future__ import annotations

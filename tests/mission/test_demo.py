@@ -142,6 +142,7 @@ def test_goal_inside_a_building_is_refused_with_a_report(flight, tmp_path):
         (["--start", "0", "0", "15"], "both --start and --goal"),
         (["--goal", "0", "0", "15", "--start", "0", "0", "abc"], "three numbers"),
         (["--missions", "2", "--start", "0", "0", "15", "--goal", "5", "5", "15"], "--missions"),
+        (["--ground-z", "1", "--no-ground-prior"], "--no-ground-prior"),
     ],
 )
 def test_bad_options_give_one_error_line(tmp_path, argv, text):
@@ -162,6 +163,16 @@ def test_baseline_option_sets_the_rig_and_its_trusted_range():
         cfg.baseline_m == 0.6 and cfg.max_range_m == pytest.approx(20.0 * 2**0.5) and cfg.max_disparity == 128
     )
     assert config("--baseline", "0.6", "--max-range", "22").max_range_m == 22.0
+
+
+def test_ground_options_set_the_ground_prior():
+    parser = argparse.ArgumentParser()
+    demo_cli.add_parser(parser.add_subparsers())
+
+    def ground(*argv):
+        return demo_cli._config(parser.parse_args(["demo", *argv])).ground_z_m
+
+    assert ground() == 0.0 and ground("--ground-z", "2.5") == 2.5 and ground("--no-ground-prior") is None
 
 
 def test_help_has_an_example():

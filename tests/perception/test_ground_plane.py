@@ -97,8 +97,8 @@ def test_below_raised_follows_columns_through_the_segment_only():
     assert not out[:, [0, 2, 3, 5]].any()
     out = below_raised(raised, inside, holes_px=2)
     assert out[[2, 3, 5, 6, 7], 1].all() and not out[4, 1]  # ... unless holes are followed
-    rows = below_raised(raised, inside, holes_px=2, whole_rows=True)
-    assert rows[[2, 3, 5, 6, 7], 0:4].all() and not rows[:2].any() and not rows[:, 4:].any()
+    aside = below_raised(raised, inside, holes_px=2, aside_px=1)
+    assert aside[[2, 3, 5, 6, 7], 0:3].all() and not aside[:, 3:].any() and not aside[:2].any()
 
 
 def test_a_plain_roof_merged_with_the_street_is_not_open_air(monkeypatch):

@@ -34,6 +34,7 @@ import os
 import sys
 import time
 from collections import deque
+from dataclasses import replace
 
 from skyrecon.cli.common import (
     add_camera_noise_option,
@@ -170,6 +171,19 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     )
     add_camera_noise_option(p)
     p.add_argument(
+        "--ground-z",
+        type=float,
+        metavar="METRES",
+        help="the ground's world height (a terrain model and altimeter; the generated city's is 0, the "
+        "default): under camera noise, plain ground whose measured border agrees with it is seen as "
+        "open air above it",
+    )
+    p.add_argument(
+        "--no-ground-prior",
+        action="store_true",
+        help="fly without the ground's height (plain ground under noise then stays unknown)",
+    )
+    p.add_argument(
         "--faults",
         metavar="SPEC",
         help="inject sensor and computer faults: NAME@ONSET[+DURATION][:VALUE], comma-separated "
@@ -214,7 +228,10 @@ def _config(args):
         track_movers=not args.no_tracking,
         faults=args.faults or "",
         failsafe=args.failsafe,
+        ground_z_m=args.ground_z,
     )
+    if args.no_ground_prior and args.ground_z is not None:
+        raise InputError("--ground-z and --no-ground-prior contradict each other: give one")
     if args.city_size is not None:
         scale = min(1.0, args.city_size / cfg.city_size_m)
         changes.update(
@@ -233,6 +250,8 @@ def _config(args):
         raise InputError(str(e)) from None
     if args.baseline is not None:
         cfg = cfg.with_baseline(args.baseline, keep_range=args.max_range is not None)
+    if args.no_ground_prior:
+        cfg = replace(cfg, ground_z_m=None)
     return cfg
 
 

@@ -45,6 +45,7 @@ from skyrecon.jit import (
     warm_stamp_path,
 )
 from skyrecon.mapping import OccupancyMap, blocks, save_map
+from skyrecon.perception.ground_plane import warm_kernels as warm_ground_plane
 from skyrecon.planning.keep_out import warm_kernels as warm_keep_out
 from skyrecon.sfm import tiled_cholesky
 from skyrecon.sim import generate_object_scene, orbit_views, render_views
@@ -90,8 +91,9 @@ EXTRA_KERNELS: dict[str, tuple[Callable[[], None], ...]] = {
     # paths the tiny inputs do not reach: the tiled factorisation of large reduced camera systems
     "sfm": (tiled_cholesky.warm_kernels,),
     # the delivery loop's keep-out volumes around tracked movers (no command line here plans around
-    # one), and the growth of a map's block table (a map of a wider flight than the tiny ones here)
-    "map": (warm_keep_out, blocks.warm_kernels),
+    # one), the growth of a map's block table (a map of a wider flight than the tiny ones here) and
+    # the ground prior's kernels (noisy frames only)
+    "map": (warm_keep_out, blocks.warm_kernels, warm_ground_plane),
 }
 """Per group, functions that compile kernels its command lines leave out (run before them)."""
 

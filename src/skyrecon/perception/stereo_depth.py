@@ -337,11 +337,12 @@ GROUND_RAISED_KERNEL = np.ones((9, 17), np.uint8)
 #: ... and the pixels below them followed through holes in the segment up to this wide (depth-
 #: grid pixels: the specks a noisy matcher measures inside a plain surface, with their seal)
 GROUND_RAISED_HOLES_PX = 12
-#: ... and whole rows of the segment beside them: a raised top's far edge is measured in pieces
-#: and its sides not at all (they border ground beyond, as the ground would), so a column's
-#: reach leaves the top's ends in the open (the probe: city 34 at 1.5 grey levels, a roof's last
-#: 5 columns at the image's border and a facade's corner)
-GROUND_RAISED_WHOLE_ROWS = True
+#: ... and this far beside them along the rows (depth-grid pixels): a raised top's far edge is
+#: measured in pieces and its sides not at all (they border ground beyond, as the ground would),
+#: so a column's reach leaves the top's ends in the open (the truth probe: city 29's roof, its
+#: last 6-8 columns; city 34 at 1.5 grey levels, a roof's last 13 columns at the image's border;
+#: twice the worst). Whole rows of the segment cost half the open air (and deliveries).
+GROUND_RAISED_ASIDE_PX = 26
 
 
 #: the near ranges whose specks :func:`near_specks` drops, metres: each range's blobs are judged
@@ -798,7 +799,7 @@ class StereoDepth:
         with np.errstate(invalid="ignore"):
             raised = measured & (ground_px > floor) & (matched - ground_px > GROUND_RAISED_BANDS * band)
         grown = cv2.dilate(raised.view(np.uint8), GROUND_RAISED_KERNEL).view(bool)
-        return below_raised(grown, from_ground, GROUND_RAISED_HOLES_PX, GROUND_RAISED_WHOLE_ROWS)
+        return below_raised(grown, from_ground, GROUND_RAISED_HOLES_PX, GROUND_RAISED_ASIDE_PX)
 
     def _clear_of_ground(self, ground: GroundPlane) -> np.ndarray:
         """(h, w) bool on the depth grid: the rays still ``ground_clearance_m`` (at least
