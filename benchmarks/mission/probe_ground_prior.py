@@ -22,8 +22,11 @@ views, 3.8 million open-air pixels; at 3 grey levels one plain view (city 29) pu
 on a plain roof 10 m away that had joined the street's segment. Session 50 mended it (no open
 air below what is measured nearer than the ground, nor beside it along the rows, nor at the
 image's border), found two more in cities 30-39 (a roof and a facade at the image's border, city
-34 at 1.5; a roof's sliver, city 39 at 3), mended them and ran cities 40-49 for the first time
-(``results_ground_prior.json``): see its rows.
+34 at 1.5; a roof's sliver, city 39 at 3), mended them and ran cities 40-49 for the first time.
+Final (``--cities 20-49 --noise 1.5 3 --ground-error 0 0.5 -0.5``, textured and plain,
+``results_ground_prior.json``): 9000 views, 12.3 million open-air pixels; one pixel on
+something within 20 m (city 39 at 3 grey levels, a roof edge 19.99 m away: the ray's last
+centimetre), none in cities 40-49.
 """
 
 from __future__ import annotations
