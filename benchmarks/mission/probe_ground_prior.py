@@ -31,10 +31,9 @@ centimetre), none in cities 40-49.
 
 from __future__ import annotations
 
-import json
 import math
 import sys
-import time
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -50,7 +49,7 @@ from skyrecon.sim import generate_city, render_stereo  # noqa: E402
 from skyrecon.sim.sensor_noise import add_sensor_noise  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from probe_horizon_band import CITY_KINDS, _seeds, probe_arguments  # noqa: E402  (benchmarks/mission/)
+from probe_horizon_band import CITY_KINDS, _seeds, kind, probe_arguments, run_probes  # noqa: E402  (benchmarks/mission/)
 
 
 def probe(cities: list[int], views: int, sigma: float, plain: bool, ground_error_m: float) -> dict:
@@ -122,25 +121,22 @@ def main() -> int:
         "--ground-error", type=float, nargs="+", default=[0.0], help="errors of the ground's height, metres"
     )
     args = ap.parse_args()
-    rows = []
-    t0 = time.perf_counter()
-    for plain in CITY_KINDS[args.plain]:
-        for sigma in args.noise:
-            for err in args.ground_error:
-                row = probe(_seeds(args.cities), args.views, sigma, plain, err)
-                rows.append(row)
-                print(
-                    f"{'plain' if plain else 'textured':8s} noise {sigma:3.1f} ground {err:+4.1f} m: "
-                    f"{row['views']:4d} views, {row['open_air_pixels']:9d} open-air ground pixels, "
-                    f"{row['open_air_pixels_within_range']} on something within {row['range_m']:.0f} m",
-                    flush=True,
-                )
-                for w in row["wrong_views"][:3]:
-                    print("   ", w)
-    print(f"{time.perf_counter() - t0:.0f} s")
-    if args.out:
-        args.out.write_text(json.dumps(rows, indent=1) + "\n")
-    return 0 if all(r["open_air_pixels_within_range"] == 0 for r in rows) else 1
+    cases = (
+        partial(probe, _seeds(args.cities), args.views, sigma, plain, err)
+        for plain in CITY_KINDS[args.plain]
+        for sigma in args.noise
+        for err in args.ground_error
+    )
+    return run_probes(
+        cases,
+        lambda row: (
+            f"{kind(row)} ground {row['ground_error_m']:+4.1f} m: {row['views']:4d} views, "
+            f"{row['open_air_pixels']:9d} open-air ground pixels, "
+            f"{row['open_air_pixels_within_range']} on something within {row['range_m']:.0f} m"
+        ),
+        "open_air_pixels_within_range",
+        args.out,
+    )
 
 
 if __name__ == "__main__":

@@ -29,6 +29,8 @@ import json
 import math
 import sys
 import time
+from collections.abc import Callable, Iterable
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -144,28 +146,49 @@ def probe_arguments(description: str, cities: str) -> argparse.ArgumentParser:
 CITY_KINDS = {"no": [False], "yes": [True], "both": [False, True]}
 
 
+def run_probes(
+    cases: Iterable[Callable[[], dict]], describe: Callable[[dict], str], wrong_key: str, out
+) -> int:
+    """Run each case (one summary row each), print ``describe(row)`` and its three worst views,
+    then the time; write the rows to ``out`` (a JSON file) if given. Exit status 0 when no row
+    has pixels ``wrong_key`` on something, else 1."""
+    rows = []
+    t0 = time.perf_counter()
+    for case in cases:
+        row = case()
+        rows.append(row)
+        print(describe(row), flush=True)
+        for w in row["wrong_views"][:3]:
+            print("   ", w)
+    print(f"{time.perf_counter() - t0:.0f} s")
+    if out:
+        out.write_text(json.dumps(rows, indent=1) + "\n")
+    return 0 if all(r[wrong_key] == 0 for r in rows) else 1
+
+
+def kind(row: dict) -> str:
+    """A row's city kind and noise, for its line."""
+    return f"{'plain' if row['plain'] else 'textured':8s} noise {row['camera_noise']:3.1f}"
+
+
 def main() -> int:
     args = probe_arguments(__doc__.split("\n")[0], "20-25").parse_args()
     spy = _BandSpy()
     stereo_depth_module.horizon_band = spy  # StereoDepth.compute looks it up at each call
-    rows = []
-    t0 = time.perf_counter()
-    for plain in CITY_KINDS[args.plain]:
-        for sigma in args.noise:
-            row = probe(_seeds(args.cities), args.views, sigma, plain, spy)
-            rows.append(row)
-            print(
-                f"{'plain' if plain else 'textured':8s} noise {sigma:3.1f}: {row['views']:4d} views, "
-                f"{row['band_pixels']:9d} band pixels, {row['band_pixels_within_range']} on something "
-                f"within {row['range_m']:.0f} m",
-                flush=True,
-            )
-            for w in row["wrong_views"][:3]:
-                print("   ", w)
-    print(f"{time.perf_counter() - t0:.0f} s")
-    if args.out:
-        args.out.write_text(json.dumps(rows, indent=1) + "\n")
-    return 0 if all(r["band_pixels_within_range"] == 0 for r in rows) else 1
+    cases = (
+        partial(probe, _seeds(args.cities), args.views, sigma, plain, spy)
+        for plain in CITY_KINDS[args.plain]
+        for sigma in args.noise
+    )
+    return run_probes(
+        cases,
+        lambda row: (
+            f"{kind(row)}: {row['views']:4d} views, {row['band_pixels']:9d} band pixels, "
+            f"{row['band_pixels_within_range']} on something within {row['range_m']:.0f} m"
+        ),
+        "band_pixels_within_range",
+        args.out,
+    )
 
 
 if __name__ == "__main__":

@@ -729,7 +729,7 @@ class StereoDepth:
         s = self.settings
         k = int(s.texture_scale)
         step = s.max_disparity_step_px or 1.0
-        floor = max(0.0, -float(self.rig.doffs_px))  # the ground's horizon
+        floor = self._ground_horizon_px
         if tex is None or k == 1 or k != self.stride:
             prior = None if ground is None else ground.disparity_coefficients(self.rig)
             planar, accepted = plane_supported_fill(
@@ -795,11 +795,17 @@ class StereoDepth:
             + np.float32(c)
         )
         band = GROUND_TOLERANCE_ERRORS * s.disparity_error_px + GROUND_TOLERANCE_REL * np.abs(ground_px)
-        floor = max(0.0, -float(self.rig.doffs_px))
+        floor = self._ground_horizon_px
         with np.errstate(invalid="ignore"):
             raised = measured & (ground_px > floor) & (matched - ground_px > GROUND_RAISED_BANDS * band)
         grown = cv2.dilate(raised.view(np.uint8), GROUND_RAISED_KERNEL).view(bool)
         return below_raised(grown, from_ground, GROUND_RAISED_HOLES_PX, GROUND_RAISED_ASIDE_PX)
+
+    @property
+    def _ground_horizon_px(self) -> float:
+        """The ground's disparity at its horizon (full-resolution pixels): the ground is in view
+        where its plane's disparity lies above this."""
+        return max(0.0, -float(self.rig.doffs_px))
 
     def _clear_of_ground(self, ground: GroundPlane) -> np.ndarray:
         """(h, w) bool on the depth grid: the rays still ``ground_clearance_m`` (at least
