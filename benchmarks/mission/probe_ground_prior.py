@@ -43,13 +43,11 @@ sys.path.insert(0, str(ROOT / "src"))
 
 from skyrecon.mission.config import MissionConfig  # noqa: E402
 from skyrecon.mission.perception import flight_perception, mission_rig  # noqa: E402
-from skyrecon.mission.vehicle import look_from  # noqa: E402
 from skyrecon.perception import GroundPlane, StereoDepth  # noqa: E402
-from skyrecon.sim import generate_city, render_stereo  # noqa: E402
-from skyrecon.sim.sensor_noise import add_sensor_noise  # noqa: E402
+from skyrecon.sim import generate_city  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from probe_horizon_band import CITY_KINDS, _seeds, kind, probe_arguments, run_probes  # noqa: E402  (benchmarks/mission/)
+from probe_horizon_band import CITY_KINDS, _seeds, kind, noisy_views, probe_arguments, run_probes  # noqa: E402  (benchmarks/mission/)
 
 
 def probe(cities: list[int], views: int, sigma: float, plain: bool, ground_error_m: float) -> dict:
@@ -64,16 +62,9 @@ def probe(cities: list[int], views: int, sigma: float, plain: bool, ground_error
     for seed in cities:
         city = generate_city(seed, cfg.city_size_m, plain=plain)
         rng = np.random.default_rng([seed, int(sigma * 100), int(plain), 11])
-        done = 0
-        while done < views:
-            p = np.array([rng.uniform(-90, 90), rng.uniform(-90, 90), rng.uniform(7, 30)])
-            if city.distance(p[None])[0] < 3.0:
-                continue
-            done += 1
-            yaw, pitch = rng.uniform(-math.pi, math.pi), math.radians(rng.uniform(-5, 40))
-            cam_from_world = look_from(p, yaw, pitch)
-            frame = render_stereo(city, rig, cam_from_world.with_frames("left", "world"))
-            left, right = add_sensor_noise(frame.left, sigma, rng), add_sensor_noise(frame.right, sigma, rng)
+        for p, yaw, pitch, cam_from_world, left, right in noisy_views(
+            city, rig, rng, views, sigma, (7.0, 30.0), (-5.0, 40.0)
+        ):
             ground = GroundPlane.from_pose(cam_from_world.inverse(), ground_error_m)
             depth = stereo.compute(left, right, horizon_row_px=K.cy - K.fy * math.tan(pitch), ground=ground)
             n_views += 1

@@ -29,7 +29,7 @@ import json
 import math
 import sys
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from functools import partial
 from pathlib import Path
 
@@ -68,6 +68,26 @@ class _BandSpy:
         return self.band
 
 
+def noisy_views(
+    city, rig, rng: np.random.Generator, views: int, sigma: float, heights_m: tuple, pitches_deg: tuple
+) -> Iterator[tuple]:
+    """``views`` random noisy stereo views of ``city``: positions over the city 3 m or more from
+    any obstacle at ``heights_m`` (low, high), any heading, pitched ``pitches_deg`` (low, high;
+    positive down), ``sigma`` grey levels of noise; yields ``(position, yaw, pitch, cam_from_world,
+    left, right)`` (radians)."""
+    done = 0
+    while done < views:
+        p = np.array([rng.uniform(-90, 90), rng.uniform(-90, 90), rng.uniform(*heights_m)])
+        if city.distance(p[None])[0] < 3.0:
+            continue
+        done += 1
+        yaw, pitch = rng.uniform(-math.pi, math.pi), math.radians(rng.uniform(*pitches_deg))
+        cam_from_world = look_from(p, yaw, pitch)
+        frame = render_stereo(city, rig, cam_from_world.with_frames("left", "world"))
+        left, right = add_sensor_noise(frame.left, sigma, rng), add_sensor_noise(frame.right, sigma, rng)
+        yield p, yaw, pitch, cam_from_world, left, right
+
+
 def probe(cities: list[int], views: int, sigma: float, plain: bool, spy: _BandSpy) -> dict:
     """Band pixels of ``views`` random views per city against the truth; a summary dict."""
     cfg = MissionConfig(camera_noise=sigma)
@@ -80,16 +100,9 @@ def probe(cities: list[int], views: int, sigma: float, plain: bool, spy: _BandSp
     for seed in cities:
         city = generate_city(seed, cfg.city_size_m, plain=plain)
         rng = np.random.default_rng([seed, int(sigma * 100), int(plain)])
-        done = 0
-        while done < views:
-            p = np.array([rng.uniform(-90, 90), rng.uniform(-90, 90), rng.uniform(12, 30)])
-            if city.distance(p[None])[0] < 3.0:
-                continue
-            done += 1
-            yaw, pitch = rng.uniform(-math.pi, math.pi), math.radians(rng.uniform(-15, 30))
-            cam_from_world = look_from(p, yaw, pitch)
-            frame = render_stereo(city, rig, cam_from_world.with_frames("left", "world"))
-            left, right = add_sensor_noise(frame.left, sigma, rng), add_sensor_noise(frame.right, sigma, rng)
+        for p, yaw, pitch, cam_from_world, left, right in noisy_views(
+            city, rig, rng, views, sigma, (12.0, 30.0), (-15.0, 30.0)
+        ):
             spy.band = None
             stereo.compute(left, right, horizon_row_px=K.cy - K.fy * math.tan(pitch))
             n_views += 1
