@@ -204,3 +204,20 @@ def test_the_prior_never_fills_a_segment_reaching_above_its_horizon():
     # left of the street edge, wholly below the horizon, is still taken)
     _, accepted = plane_supported_fill(disp, measured, prior_plane=ground)
     assert not accepted[:, 100:].any() and accepted[100:, 10:40].all()
+
+
+def test_warm_kernels_loads_every_kernel_the_fill_runs():
+    """A flight loads them before its first cycle (StereoDepth.warm_up): none may be left."""
+    from skyrecon.stereo import plane_fill
+
+    plane_fill.warm_kernels()
+    called_from_python = (
+        "_border_pairs",
+        "_ransac_planes",
+        "_segment_planes",
+        "_prior_planes",
+        "_photo_check",
+        "_count_against_guesses",
+        "_paint_planes",
+    )
+    assert [k for k in called_from_python if not getattr(plane_fill, k).signatures] == []

@@ -85,7 +85,6 @@ from skyrecon.mission.vehicle import DroneState, step
 from skyrecon.mission.world_monitor import WorldMonitor
 from skyrecon.odometry.types import TrackingState
 from skyrecon.perception import GroundPlane, StereoDepth
-from skyrecon.perception.ground_plane import warm_kernels as warm_ground_plane
 from skyrecon.perception.movers import MoverSettings, MoverTracker, parse_mover_overrides
 from skyrecon.record import NullRecorder, Recorder
 from skyrecon.record.mission import MissionRecording
@@ -656,8 +655,7 @@ def _fly(
     rig = mission_rig(cfg)
     perception = flight_perception(cfg)
     stereo = StereoDepth(rig, perception)
-    _ = stereo.matcher  # build (and warm up) the matcher before the first cycle
-    warm_ground_plane()  # and load the ground prior's kernels
+    stereo.warm_up()  # the matcher and the kernels of a noisy frame, before the first cycle
     # the map's range is the rig's trusted range: nearer depth marks obstacles and carves free
     # space; farther depth carves free space up to it only. (Carving farther, up to a far surface
     # whose depth is metres uncertain, cut through real surfaces measured too far: their points,

@@ -586,3 +586,23 @@ def _count_against_guesses(guess, labels, coef, ok, max_gap_px, n_all, n_far):
                 n_all[lab] += 1
                 if abs(plane - g) > max_gap_px:
                     n_far[lab] += 1
+
+
+def warm_kernels() -> None:
+    """Load (or compile) every kernel :func:`plane_supported_fill` runs, on a tiny input: a
+    measured ring around a plain square, with a prior plane, the grey images and the matcher's
+    guesses. Loading them from Numba's cache takes about 50 ms, which a flight pays before it
+    starts (:meth:`skyrecon.perception.StereoDepth.warm_up`), not in its first cycle."""
+    size = 24
+    disparity = np.full((size, size), 4.0, np.float32)
+    measured = np.ones((size, size), np.bool_)
+    measured[6:18, 6:18] = False  # the plain square, its border measured all round
+    grey = np.tile(np.arange(size, dtype=np.float32) * 8.0, (size, 1))
+    plane_supported_fill(
+        disparity,
+        measured,
+        left=grey,
+        right=grey,
+        max_guess_gap_px=2.0,
+        prior_plane=(0.0, 0.0, 4.0),
+    )
