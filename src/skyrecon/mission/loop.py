@@ -642,6 +642,23 @@ def frozen_heap() -> Iterator[None]:
         gc.unfreeze()
 
 
+def _mover_tracker(cfg: MissionConfig, hit_range: float) -> MoverTracker | None:
+    """The flight's mover tracker (None with ``track_movers`` off). Movers
+    are told from the static map where it holds obstacles (farther, a static surface's points
+    fall in space carved free and would pass for movers): its range is the map's hit range."""
+    if not cfg.track_movers:
+        return None
+    return MoverTracker(
+        MoverSettings(
+            **{
+                "max_range_m": hit_range,
+                "fine_range_m": cfg.max_range_m,
+                **parse_mover_overrides(cfg.tracker_settings),
+            }
+        )
+    )
+
+
 def _fly(
     scenario: Scenario,
     cfg: MissionConfig,
@@ -664,21 +681,7 @@ def _fly(
     hit_range = mission_hit_range_m(cfg)
     prior = mission_prior(scenario, cfg)
     nav = Navigator(cfg, scenario.box, scenario.goal, hit_range, prior=prior)
-    # movers are told from the static map where it holds obstacles (farther, a static surface's
-    # points fall in space carved free and would pass for movers)
-    tracker = (
-        MoverTracker(
-            MoverSettings(
-                **{
-                    "max_range_m": hit_range,
-                    "fine_range_m": cfg.max_range_m,
-                    **parse_mover_overrides(cfg.tracker_settings),
-                }
-            )
-        )
-        if cfg.track_movers
-        else None
-    )
+    tracker = _mover_tracker(cfg, hit_range)
     nav.warm_up(stereo.intrinsics)  # load the map's kernels now, not in the first cycle
     world = scenario.movers
     monitor = (
