@@ -39,6 +39,9 @@ Usage:
       (session 42: kept as results_see_through_session42*.json; 49/50 delivered, one safe hover,
       0 collisions, recall within 20 m 0.22 -> 0.32 on seeds 100-149; held-out 150-199: 50/50,
       0 collisions, recall 0.33)
+  .venv/bin/python benchmarks/dynamic/run.py --camera-noise 1.5 --seeds 10 --tracker motion_ratio=0.7
+      # the motion test (skyrecon.perception.motion_test; session 51, against the same run without:
+      # results_noise1.5_tried_seeds100-109.json, recall within 20 m 0.154 -> 0.217; off by default)
   .venv/bin/python benchmarks/dynamic/run.py --no-evade --no-reach-aware    # results_tried_no_evade_no_reach.json
   .venv/bin/python benchmarks/dynamic/run.py --tracker refute_frames=2       # coasting tracks refuted
       (session 43: kept as results_refute_session43.json; 50/50 delivered, 0 collisions,

@@ -14,6 +14,8 @@ static occupancy map they would leave phantom trails, and the planner would not 
    a candidate, and so are the voxels a little away from it along the axes, so that the silhouette
    of a static object is not one), or when it lies in the gate (predicted box, inflated) of a confirmed moving track
    and does not look like a static surface (its voxel OCCUPIED with no free space behind it).
+   With ``motion_ratio`` set (off by default), also a point whose patch the previous frame,
+   carried to this one as a still world, does not show (:mod:`skyrecon.perception.motion_test`).
    Candidates are voxelised at ``cluster_voxel_m`` and grouped into 26-connected components;
    each component with enough points, on enough texture for stereo to have measured it (when
    the left image is given), is a :class:`MoverDetection`.
