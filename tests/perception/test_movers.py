@@ -535,10 +535,19 @@ def test_points_taken_in_by_a_gate_do_not_grow_the_detection():
 
 
 # ----- the see-through test (earlier frames, no map needed) -----------------------------------
-def _fly_unmapped(center_at, n: int, settings: MoverSettings, cam_x_at=lambda t: 0.0, noise_seed=None):
-    """Frames at 10 Hz against a map that has seen nothing (only the see-through test can fire);
-    the map is not updated. Returns the frames and the true centres (None: no mover)."""
-    occ = OccupancyMap(voxel_size_m=0.5, max_range_m=40.0)
+def _fly_unmapped(
+    center_at,
+    n: int,
+    settings: MoverSettings,
+    cam_x_at=lambda t: 0.0,
+    noise_seed=None,
+    images=False,
+    occ=None,
+):
+    """Frames at 10 Hz against a map that has seen nothing (only the see-through test can fire),
+    or against ``occ``; the map is not updated. With ``images``, each frame's rendered left image
+    (textured boxes) goes with it. Returns the frames and the true centres (None: no mover)."""
+    occ = OccupancyMap(voxel_size_m=0.5, max_range_m=40.0) if occ is None else occ
     tr = MoverTracker(settings)
     rng = None if noise_seed is None else np.random.default_rng(noise_seed)
     frames, centers = [], []
@@ -546,10 +555,16 @@ def _fly_unmapped(center_at, n: int, settings: MoverSettings, cam_x_at=lambda t:
         t = i * DT
         pose = forward_pose(cam_x_at(t))
         c = center_at(t)
-        d = render(pose) if c is None else render(pose, [box(c)])
+        image = None
+        if images:
+            city = City.from_obstacles(STATIC if c is None else np.vstack([STATIC, box(c)]), extent=EXTENT)
+            image = sim_render(city, FULL_CAM, pose.inverse()).image
+            d = render_depth(city, CAM, pose.inverse())
+        else:
+            d = render(pose) if c is None else render(pose, [box(c)])
         if rng is not None:
             d = (d * (1.0 + 0.005 * rng.standard_normal(d.shape))).astype(np.float32)
-        frames.append(tr.update(t, d, CAM, pose, occ))
+        frames.append(tr.update(t, d, CAM, pose, occ, image=image))
         centers.append(c)
     return frames, centers
 
@@ -592,24 +607,6 @@ FULL_CAM = Intrinsics.from_fov(640, 480, 90.0)  # the left image of CAM's depth
 EXTENT = np.array([-20.0, -40.0, 60.0, 40.0])  # the paving stays put when a mover is added
 
 
-def _fly_unmapped_seen(center_at, n: int, settings: MoverSettings, cam_x_at=lambda t: 0.0, occ=None):
-    """As :func:`_fly_unmapped`, with each frame's rendered left image (textured boxes); ``occ``:
-    the map instead (not updated)."""
-    occ = OccupancyMap(voxel_size_m=0.5, max_range_m=40.0) if occ is None else occ
-    tr = MoverTracker(settings)
-    frames, centers = [], []
-    for i in range(n):
-        t = i * DT
-        pose = forward_pose(cam_x_at(t))
-        c = center_at(t)
-        city = City.from_obstacles(STATIC if c is None else np.vstack([STATIC, box(c)]), extent=EXTENT)
-        image = sim_render(city, FULL_CAM, pose.inverse()).image
-        depth = render_depth(city, CAM, pose.inverse())
-        frames.append(tr.update(t, depth, CAM, pose, occ, image=image))
-        centers.append(c)
-    return frames, centers
-
-
 MOTION = MoverSettings(motion_ratio=0.7, motion_min_contrast=2.0)
 
 
@@ -622,18 +619,20 @@ def test_motion_test_finds_a_mover_the_map_cannot():
     is of the logic): with the motion test it is tracked and avoided within a second and kept;
     without it nothing finds it."""
     far = lambda t: np.array([17.0, -6.0, 4.0]) + np.array([0.0, 5.0, 0.0]) * t  # noqa: E731
-    frames, centers = _fly_unmapped_seen(far, 16, MOTION, cam_x_at=lambda t: 2.0 * t)
+    frames, centers = _fly_unmapped(far, 16, MOTION, cam_x_at=lambda t: 2.0 * t, images=True)
     assert not frames[0].detections  # no earlier frame yet
     avoided = [_avoided_near(f, c, 1.0) for f, c in zip(frames, centers)]
     assert any(avoided[:10]) and all(avoided[avoided.index(True) :])
-    off, _ = _fly_unmapped_seen(far, 16, MoverSettings(), cam_x_at=lambda t: 2.0 * t)
+    off, _ = _fly_unmapped(far, 16, MoverSettings(), cam_x_at=lambda t: 2.0 * t, images=True)
     assert all(not f.detections for f in off)
 
 
 def test_motion_test_leaves_a_static_scene_alone_under_fast_motion():
     """6 m/s forward past the blocks, mapped before: nothing the planner would keep clear of
     (a block's outline against what lies behind it does not line up, but it is the map's)."""
-    frames, _ = _fly_unmapped_seen(lambda t: None, 16, MOTION, cam_x_at=lambda t: 6.0 * t, occ=static_map())
+    frames, _ = _fly_unmapped(
+        lambda t: None, 16, MOTION, cam_x_at=lambda t: 6.0 * t, images=True, occ=static_map()
+    )
     assert not any(t.avoided for f in frames for t in f.tracks)
 
 

@@ -38,6 +38,24 @@ import numpy as np
 from skyrecon.core.intrinsics import Intrinsics
 from skyrecon.core.rigid import Rigid3
 from skyrecon.errors import InputError
+from skyrecon.stereo.base import to_grey
+
+
+def grid_scale(image: np.ndarray, depth_shape: tuple[int, int], what: str) -> int:
+    """The whole number k with ``image`` ((kH, kW) grey or (kH, kW, 3) RGB) k times the depth
+    grid ``depth_shape`` (H, W) on each side.
+
+    Raises:
+        InputError: it is not (named by ``what``, the stage that was given it).
+    """
+    H, W = depth_shape
+    k = image.shape[0] // H
+    if image.ndim not in (2, 3) or k < 1 or image.shape[0] != k * H or image.shape[1] != k * W:
+        raise InputError(
+            f"{what}: image {image.shape[:2]} must be a whole multiple of the depth {depth_shape}"
+        )
+    return k
+
 
 #: the grey images are blurred by this much (Gaussian sigma, depth-grid pixels) before they are
 #: compared: what is left of a static patch's misplacement after the shifts (up to half a
@@ -80,17 +98,11 @@ class MotionView:
         d = np.ascontiguousarray(depth_m, np.float32)
         H, W = d.shape
         img = np.asarray(image)
-        if img.ndim == 3:
-            img = cv2.cvtColor(np.ascontiguousarray(img), cv2.COLOR_RGB2GRAY)
-        if img.ndim != 2 or img.shape[0] % H or img.shape[1] % W or img.shape[0] // H != img.shape[1] // W:
-            raise InputError(
-                f"motion test: image {img.shape[:2]} must be a whole multiple of the depth {(H, W)}"
-            )
-        grey: np.ndarray = img.astype(np.float32)
-        if grey.shape != (H, W):
+        k = grid_scale(img, (H, W), "motion test")
+        grey: np.ndarray = to_grey(img).astype(np.float32)
+        if k > 1:
             grey = cv2.resize(grey, (W, H), interpolation=cv2.INTER_AREA)
-        if BLUR_SIGMA_PX > 0:
-            grey = cv2.GaussianBlur(grey, (0, 0), BLUR_SIGMA_PX)
+        grey = cv2.GaussianBlur(grey, (0, 0), BLUR_SIGMA_PX)
         seen = np.where(np.isnan(d) | (d <= 0), np.float32(np.inf), d)
         nearest = cv2.erode(seen, np.ones((3, 3), np.uint8), borderType=cv2.BORDER_REPLICATE)
         return cls(float(time_s), np.ascontiguousarray(grey), d, nearest, intrinsics, world_from_cam)

@@ -60,7 +60,7 @@ from scipy.sparse.csgraph import connected_components
 from skyrecon.core.intrinsics import Intrinsics
 from skyrecon.core.rigid import Rigid3
 from skyrecon.errors import InputError
-from skyrecon.perception.motion_test import MotionView, moved
+from skyrecon.perception.motion_test import MotionView, grid_scale, moved
 
 if TYPE_CHECKING:  # skyrecon.mapping imports skyrecon.perception: import it late, in the functions
     from skyrecon.mapping.occupancy import OccupancyMap
@@ -668,7 +668,6 @@ def detect_movers(
     taken = seen_behind = None
     if fine is not None:
         depth, taken, seen_behind = merge_fine_depth(depth, fine.depth_m, intrinsics, s)
-    motion_on = motion is not None and s.motion_ratio > 0
     rays, ray_norm = _rays(intrinsics, st)
     d = np.asarray(depth[::st, ::st], np.float32)
     with np.errstate(invalid="ignore"):
@@ -732,7 +731,7 @@ def detect_movers(
                 break
             left = left[ref.seen_through(pts[left], rv_m[left], s)]
         cand[left] = True
-    if motion is not None and motion_on:
+    if motion is not None and s.motion_ratio > 0:
         # not in a voxel the map holds occupied: a building's outline does not line up across
         # frames (what lies behind it moves otherwise), but it is the map's
         test = np.flatnonzero(~cand & ~edges & (here != OCCUPIED) & (rv_m >= s.motion_min_range_m))
@@ -837,13 +836,7 @@ class _ClusterTexture:
         if self._min <= 0:
             return
         img = np.asarray(image)
-        H, W = depth_shape
-        k = img.shape[0] // H
-        if img.ndim not in (2, 3) or k < 1 or img.shape[0] != k * H or img.shape[1] != k * W:
-            raise InputError(
-                f"mover detection: image {img.shape[:2]} must be a whole multiple of the depth {depth_shape}"
-            )
-        self._image, self._k = img, k
+        self._image, self._k = img, grid_scale(img, depth_shape, "mover detection")
         self._off = np.arange(int(s.texture_window_px)) - int(s.texture_window_px) // 2
 
     def too_plain(self, mask: np.ndarray) -> bool:
