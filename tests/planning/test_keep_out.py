@@ -103,3 +103,9 @@ def test_keep_out_matches_a_grid_rebuilt_with_the_capsules_and_restores_every_le
     np.testing.assert_array_equal(grid.flyable, fly_before)
     for f, a in before.items():
         np.testing.assert_array_equal(grid.level(f), a)
+
+
+def test_a_negative_radius_keeps_less_than_the_clearance_from_the_capsule():
+    caps = np.array([[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -0.5]])
+    d = capsule_distance(np.array([[2.0, 0.0, 0.0]]), caps)
+    np.testing.assert_allclose(d, [2.5])  # a planner needing 2.5 m may pass 2 m from it

@@ -68,7 +68,7 @@ from skyrecon.mission.guidance import (
     scan_look_at,
 )
 from skyrecon.mission.health import REVEALS, SensorHealth
-from skyrecon.mission.navigator import Navigator, timed
+from skyrecon.mission.navigator import CheckOutcome, Navigator, timed
 from skyrecon.mission.perception import flight_perception, mission_rig
 from skyrecon.mission.perception import hit_range_m as mission_hit_range_m
 from skyrecon.mission.pose_source import (
@@ -81,6 +81,7 @@ from skyrecon.mission.pose_source import (
 )
 from skyrecon.mission.prior import PriorMap, mission_prior
 from skyrecon.mission.scenario import Scenario
+from skyrecon.mission.unseen import UNSEEN_AFTER_S
 from skyrecon.mission.vehicle import DroneState, step
 from skyrecon.mission.world_monitor import WorldMonitor
 from skyrecon.odometry.types import TrackingState
@@ -127,8 +128,9 @@ class CycleRecord:
         clearance_static_m, clearance_moving_m: the true clearance along the step to the static
             city (ground included) and to the movers (true geometry at the true time), metres.
         replan_reason: why the path was replanned: "no_path" (none yet), "blocked" (the map
-            showed the path inside the clearance) or "mover" (a tracked mover's predicted sweep
-            crossed it); "" when not replanned.
+            showed the path inside the clearance), "mover" (a tracked mover's predicted sweep
+            crossed it) or "unseen" (held a whole scan by space it cannot observe, it plans round
+            it: :mod:`skyrecon.mission.unseen`); "" when not replanned.
         movers_tracked: confirmed tracks of moving objects after this cycle's update.
         health: what was wrong with the cycle's data, comma-separated (:mod:`skyrecon.mission.health`).
         image_noise: the left image's noise as the health check measured it, grey levels (the
@@ -446,6 +448,71 @@ def _follow(
     return verified, g
 
 
+def _unseen_due(
+    mode: str,
+    backoff: BackOff,
+    outcome: CheckOutcome,
+    conflict_m: float,
+    held_by: str,
+    stalled_s: float,
+    since_tried_s: float,
+) -> bool:
+    """Whether to plan round unobserved space now (:meth:`Navigator.avoid_unseen`): flying a
+    clear path (failsafe ``mode`` "fly", not backing off, no mover's sweep on it at
+    ``conflict_m``), held still ``stalled_s`` seconds by unobserved space (``held_by``
+    "path_seen"), at least :data:`~skyrecon.mission.unseen.UNSEEN_AFTER_S` of each since the
+    last try (``since_tried_s`` ago)."""
+    return (
+        mode == "fly"
+        and not backoff.active
+        and outcome.clear
+        and not math.isfinite(conflict_m)
+        and held_by == "path_seen"
+        and stalled_s >= UNSEEN_AFTER_S
+        and since_tried_s >= UNSEEN_AFTER_S
+    )
+
+
+def _replan(
+    nav: Navigator,
+    p: np.ndarray,
+    keep: np.ndarray | None,
+    outcome: CheckOutcome,
+    conflict_m: float,
+    unseen: bool,
+    plans: list[PlanEvent],
+    cycle: int,
+) -> tuple[bool, bool, str, str]:
+    """The cycle's replanning at ``p`` (3,): round unobserved space when ``unseen`` is due
+    (:meth:`Navigator.avoid_unseen`; when nothing goes round it, nothing changes), else when the
+    path check ``outcome`` found it blocked or a mover's sweep (``keep`` capsules) meets it at
+    ``conflict_m``. A new plan is appended to ``plans``.
+
+    Returns:
+        (replanned, replan_ok, replan_reason (see :class:`CycleRecord`), the failed plan's
+        message or "").
+    """
+    if unseen:
+        around = nav.avoid_unseen(p, keep)
+        if around is not None:
+            r, how = around
+            plans.append(
+                PlanEvent(cycle, r.waypoints.copy(), "escape" if how == "escape" else "replan", r.reason)
+            )
+            return True, True, "unseen", ""
+    if outcome.clear and not math.isfinite(conflict_m):
+        return False, False, "", ""
+    reason = (
+        "mover" if outcome.clear or outcome.evading else ("no_path" if not len(nav.waypoints) else "blocked")
+    )
+    r, how = nav.replan(p, keep)
+    if not r.success:
+        return True, False, reason, r.message
+    kind = "initial" if not plans else ("escape" if how == "escape" else "replan")
+    plans.append(PlanEvent(cycle, r.waypoints.copy(), kind, r.reason))
+    return True, True, reason, ""
+
+
 def _failsafe_guidance(
     failsafe: Failsafe, mode: str, p: np.ndarray, believed: DroneState, goal: np.ndarray, cfg: MissionConfig
 ) -> Guidance:
@@ -706,6 +773,8 @@ def _fly(
     cycle = 0
     p_prev = scenario.start.copy()
     stalled = 0  # cycles held still while following a path (see guidance.scan_look_at)
+    held_by = ""  # what held the speed last cycle (SpeedLimit.reason)
+    unseen_tried_s = -math.inf  # when unseen spots were last sought (mission.unseen)
     backoff = BackOff()  # backing off to see a climb the camera cannot look at
     if pose_source is None:
         pose_source = make_pose_source(
@@ -782,23 +851,17 @@ def _fly(
         # seed 123 backed off blind for 3 s into a drone it tracked, its escapes computed but unused)
         backoff.yield_to_movers(p, keep, partial(nav.mover_conflict, reach_m=reach_m))
         ms["check"] = 1e3 * (time.perf_counter() - t0)
-        replanned = replan_ok = False
-        replan_reason = ""
         t0 = time.perf_counter()
-        if not outcome.clear or math.isfinite(conflict_m):
-            replanned = True
-            replan_reason = (
-                "mover"
-                if outcome.clear or outcome.evading
-                else ("no_path" if not len(nav.waypoints) else "blocked")
-            )
-            r, how = nav.replan(p, keep)
-            replan_ok = r.success
-            if r.success:
-                kind = "initial" if not plans else ("escape" if how == "escape" else "replan")
-                plans.append(PlanEvent(cycle, r.waypoints.copy(), kind, r.reason))
-            else:
-                message = r.message
+        due = _unseen_due(
+            mode, backoff, outcome, conflict_m, held_by, stalled * cfg.dt, state.time_s - unseen_tried_s
+        )
+        if due:
+            unseen_tried_s = state.time_s
+        replanned, replan_ok, replan_reason, failed = _replan(
+            nav, p, keep, outcome, conflict_m, due, plans, cycle
+        )
+        if failed:
+            message = failed
         failsafe.progress(state.time_s, float(np.linalg.norm(scenario.goal - p)), p, nav.map, backoff.active)
         ms["replan"] = 1e3 * (time.perf_counter() - t0)
         # control: how far the path is seen free, how fast we may go, where we look
@@ -827,6 +890,7 @@ def _fly(
             lost_cycles = 0
         # (a failsafe flies a path it already knows; it does not stop to look around)
         stalled = stalled + 1 if believed.speed < 0.05 and g.limit is not None and mode == "fly" else 0
+        held_by = g.limit.reason if g.limit is not None else ""
         if stalled:
             g.look_at = scan_look_at(g.look_at, p, stalled * cfg.dt)
         # held still by a point it cannot look at: back off along the flown track to see it

@@ -9,7 +9,10 @@ uncertainty). For one planning query the capsules are written into the planner's
 distance where that is smaller) and restored afterwards, so the distance field of the static map
 is never touched.
 
-Capsules: (K, 7) float64 ``[x0, y0, z0, x1, y1, z1, radius_m]``, world frame, metres.
+Capsules: (K, 7) float64 ``[x0, y0, z0, x1, y1, z1, radius_m]``, world frame, metres. A negative
+radius keeps the planner that much less than its clearance from the segment (space nobody has
+seen, :mod:`skyrecon.mission.unseen`, needs less room than a thing known to be there); it must
+not take away more than the clearance.
 """
 
 from __future__ import annotations
@@ -28,8 +31,8 @@ def as_capsules(capsules: np.ndarray | None) -> np.ndarray:
     if capsules is None:
         return np.zeros((0, 7))
     c = np.asarray(capsules, dtype=np.float64).reshape(-1, 7) if np.size(capsules) else np.zeros((0, 7))
-    if not np.all(np.isfinite(c)) or np.any(c[:, 6] < 0):
-        raise InputError("keep-out capsules must be finite with a non-negative radius")
+    if not np.all(np.isfinite(c)):
+        raise InputError("keep-out capsules must be finite")
     return c
 
 
@@ -75,7 +78,7 @@ def path_conflict(path: np.ndarray, capsules: np.ndarray, threshold_m: float, st
 def _capsule_region(grid, cap: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     """Voxel box ``[lo, hi)`` of ``grid`` a capsule (7,) can lower (None if it misses the grid)."""
     v = grid.voxel
-    pad = cap[6] + grid.threshold + 2 * v
+    pad = max(cap[6] + grid.threshold, 0.0) + 2 * v
     lo_w = np.minimum(cap[:3], cap[3:6]) - pad
     hi_w = np.maximum(cap[:3], cap[3:6]) + pad
     lo_w[2] = max(lo_w[2], grid.zmin - 2 * v)  # below or above the band nothing is flyable anyway

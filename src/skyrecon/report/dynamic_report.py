@@ -202,6 +202,7 @@ def dynamic_section(result, metrics: dict, extent) -> list[str]:
                     "mover": "a mover's predicted sweep crossed the path",
                     "blocked": "the map showed the path inside the clearance",
                     "no_path": "no path yet",
+                    "unseen": "held by space its cameras could not observe, it went round it",
                 }.get(k, ""),
             )
             for k, v in reasons.items()
