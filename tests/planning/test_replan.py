@@ -90,33 +90,3 @@ def test_incremental_grid_refresh_equals_a_fresh_grid():
     np.testing.assert_array_equal(g1.flyable, g2.flyable)
     np.testing.assert_array_equal(g1.safe, g2.safe)
     np.testing.assert_array_equal(g1.level(3), g2.level(3))
-
-
-def test_a_goal_inside_the_clearance_is_reached_at_the_clearance_within_the_snap_distance():
-    m = open_map()
-    P = Planner(m, 1.0, min_z=1.0, max_z=11.0)
-    goal = np.array([27.0, 10.0, 4.0])
-    for _ in range(4):  # a speck 1 m off the goal
-        m.integrate_points(np.array([[27.0, 11.0, 4.0]]), np.array([27.0, 14.0, 4.0]))
-    P.update(m.pop_changed_blocks())
-    start = np.array([2.0, 10.0, 4.0])
-    plain = Replanner(P, goal)
-    r = plain.replan(start)
-    assert not r.success and r.reason == "goal_too_close"
-    snapping = Replanner(P, goal, goal_snap_m=0.9)
-    r = snapping.replan(start)
-    assert r.success
-    end = r.waypoints[-1]
-    assert 0 < np.linalg.norm(end - goal) <= 0.9 and np.allclose(r.adjusted["goal"]["to"], end)
-    assert np.allclose(snapping.snapped_goal, end)
-    assert P.path_is_clear(r.waypoints)[0]  # the clearance holds to the end of the path
-    assert not snapping.retry_due(start, 1.0) and snapping.retry_due(end + [0.5, 0, 0], 1.0)
-    assert not Replanner(P, goal, goal_snap_m=0.2).replan(start).success  # too far to snap
-
-    # seen from close by, the speck is not there: the goal itself again
-    for _ in range(8):
-        m.integrate_points(np.array([[27.0, 13.0, 4.0]]), np.array([27.0, 9.5, 4.0]))
-    P.update(m.pop_changed_blocks())
-    r = snapping.replan(end)
-    assert r.success and np.allclose(r.waypoints[-1], goal) and snapping.snapped_goal is None
-    assert not snapping.retry_due(goal, 1.0)

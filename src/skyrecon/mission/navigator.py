@@ -49,15 +49,6 @@ from skyrecon.perception import GroundPlane
 from skyrecon.planning import Planner, PlanResult, Replanner, path_conflict, remaining_path
 from skyrecon.planning.keep_out import warm_kernels as warm_keep_out
 
-#: When the goal lies closer than the planner's clearance to something mapped, the path ends at
-#: the nearest point at the clearance within this many metres more than the clearance of it
-#: (:class:`Replanner`'s ``goal_snap_m``), and within :data:`GOAL_RETRY_M` of that point the drone
-#: plans to the goal itself again: held-out plain seed 11 hovered 17 m from its goal for 30 s,
-#: every replan failing on noise specks of far plain surfaces mapped 1-2 m from the goal (none of
-#: them there: the city is 6 m away), until the no-progress failsafe sent it home.
-GOAL_SNAP_EXTRA_M = 0.5
-GOAL_RETRY_M = 1.0
-
 #: Why a plan cannot start where the drone is (too close to an obstacle): an escape point is sought.
 _START_PROBLEMS = ("start_too_close", "start_in_obstacle", "start_enclosed")
 
@@ -127,8 +118,7 @@ class Navigator:
         self.planner = Planner(
             self.df, cfg.clearance_m, allow_unknown=True, min_z=cfg.min_altitude_m, max_z=cfg.max_altitude_m
         )
-        snap = self.planner.threshold + GOAL_SNAP_EXTRA_M  # see GOAL_SNAP_EXTRA_M
-        self.replanner = Replanner(self.planner, self.goal, goal_snap_m=snap)
+        self.replanner = Replanner(self.planner, self.goal)
         self.escape_to: np.ndarray | None = None  # the escape point of the path followed, if any
         self.evading = False  # the path followed ends at its escape point (no way on from there yet)
         # space the cameras could not observe, kept clear of (mission.unseen)
@@ -198,15 +188,11 @@ class Navigator:
         """Whether the rest of the path from ``position`` (3,) is still clear (re-checked only
         where the distance field changed, see ``Replanner.check``). A path the Replanner finds
         blocked is kept when it stays within ``replan_tolerance_m`` of the clearance (see
-        :meth:`clear_at`). A path that ends short of the goal (the goal inside the clearance of
-        something mapped, see :data:`GOAL_SNAP_EXTRA_M`) counts as blocked once the drone is
-        within :data:`GOAL_RETRY_M` of its end, so that the goal itself is planned to again."""
+        :meth:`clear_at`)."""
         if len(self.replanner.waypoints) == 0:
             return CheckOutcome(False, True, 0)
         if self.evading:
             return CheckOutcome(False, True, 0, evading=True)
-        if self.replanner.retry_due(position, GOAL_RETRY_M):
-            return CheckOutcome(False, True, 0)  # at the near end of a path short of the goal
         clear, k, checked = self.replanner.check(position, rewritten)
         if not clear:
             rest = remaining_path(self.replanner.waypoints, position)

@@ -80,24 +80,11 @@ class Replanner:
         planner: the :class:`Planner` (map, clearance, limits) to use.
         goal: (3,) world metres.
         waypoints: an initial path (K, 3), or None (call :meth:`replan`).
-        goal_snap_m: when the goal itself comes closer than the clearance to something mapped,
-            plan to the nearest point at the clearance within this distance of it instead
-            (:attr:`snapped_goal`): coming closer, a vehicle sees whether the thing is there
-            (a far speck of a noisy map seldom is) and plans to the goal itself again
-            (:meth:`retry_due`); 0: never.
     """
 
-    def __init__(
-        self,
-        planner: Planner,
-        goal: np.ndarray,
-        waypoints: np.ndarray | None = None,
-        goal_snap_m: float = 0.0,
-    ):
+    def __init__(self, planner: Planner, goal: np.ndarray, waypoints: np.ndarray | None = None):
         self.planner = planner
         self.goal = check_point3(goal, "goal")
-        self.goal_snap_m = float(goal_snap_m)
-        self.snapped_goal: np.ndarray | None = None  # where the path ends instead of the goal
         self.waypoints = (
             np.zeros((0, 3)) if waypoints is None else np.asarray(waypoints, dtype=np.float64).reshape(-1, 3)
         )
@@ -105,36 +92,11 @@ class Replanner:
         planner.update(planner.map.pop_changed_blocks())
 
     def replan(self, position: np.ndarray) -> PlanResult:
-        """Plan from ``position`` to the goal; on success the new path replaces the current one.
-        With ``goal_snap_m`` and the goal closer than the clearance to something mapped, the
-        path ends at the nearest point at the clearance within that distance of the goal
-        (:attr:`snapped_goal`; the result's ``adjusted["goal"]`` says where and why)."""
-        p = check_point3(position, "current position")
-        r = self.planner.plan(p, self.goal)
-        snapped_to = None
-        if not r.success and r.reason == "goal_too_close" and self.goal_snap_m > 0:
-            near = self.planner.nearest_clear_point(self.goal, self.goal_snap_m, toward=p)
-            snapped = None if near is None else self.planner.plan(p, near)
-            if near is not None and snapped is not None and snapped.success:
-                snapped.adjusted["goal"] = {
-                    "from": self.goal.tolist(),
-                    "to": near.tolist(),
-                    "distance_m": float(np.linalg.norm(near - self.goal)),
-                    "reason": r.reason,
-                }
-                r, snapped_to = snapped, near
+        """Plan from ``position`` to the goal; on success the new path replaces the current one."""
+        r = self.planner.plan(check_point3(position, "current position"), self.goal)
         if r.success:
             self.waypoints = r.waypoints
-            self.snapped_goal = snapped_to
         return r
-
-    def retry_due(self, position: np.ndarray, within_m: float) -> bool:
-        """Whether the path ends at a :attr:`snapped_goal` that ``position`` (3,) is within
-        ``within_m`` of: time to plan to the goal itself again (the map near it has been seen
-        from close by now)."""
-        if self.snapped_goal is None or len(self.waypoints) == 0:
-            return False
-        return bool(np.linalg.norm(check_point3(position, "position") - self.snapped_goal) <= within_m)
 
     def check(
         self, position: np.ndarray, changed_distance_blocks: np.ndarray | None = None
