@@ -492,20 +492,19 @@ def _replan(
         (replanned, replan_ok, replan_reason (see :class:`CycleRecord`), the failed plan's
         message or "").
     """
-    if unseen:
-        around = nav.avoid_unseen(p, keep)
-        if around is not None:
-            r, how = around
-            plans.append(
-                PlanEvent(cycle, r.waypoints.copy(), "escape" if how == "escape" else "replan", r.reason)
-            )
-            return True, True, "unseen", ""
-    if outcome.clear and not math.isfinite(conflict_m):
+    around = nav.avoid_unseen(p, keep) if unseen else None
+    if around is not None:
+        reason = "unseen"
+        r, how = around
+    elif outcome.clear and not math.isfinite(conflict_m):
         return False, False, "", ""
-    reason = (
-        "mover" if outcome.clear or outcome.evading else ("no_path" if not len(nav.waypoints) else "blocked")
-    )
-    r, how = nav.replan(p, keep)
+    else:
+        reason = (
+            "mover"
+            if outcome.clear or outcome.evading
+            else ("no_path" if not len(nav.waypoints) else "blocked")
+        )
+        r, how = nav.replan(p, keep)
     if not r.success:
         return True, False, reason, r.message
     kind = "initial" if not plans else ("escape" if how == "escape" else "replan")

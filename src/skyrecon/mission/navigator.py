@@ -254,7 +254,7 @@ class Navigator:
             "plan" or "escape".
         """
         p = np.asarray(position, dtype=np.float64)
-        movers = keep_out is not None and len(keep_out) > 0
+        movers = _any(keep_out)
         if len(self.unseen):
             # unseen spots are kept clear of like obstacles; when no path goes round them, the
             # plan is what it would be without them
@@ -268,7 +268,7 @@ class Navigator:
     def _keep_out(self, movers: np.ndarray | None) -> np.ndarray:
         """(K, 7) the movers' capsules (or None) and the unseen spots' together."""
         spots = self.unseen.capsules(self.planner.threshold)
-        return spots if movers is None or len(movers) == 0 else np.vstack([movers, spots])
+        return np.vstack([movers, spots]) if movers is not None and _any(movers) else spots
 
     def _replan_avoiding(self, p: np.ndarray, keep_out: np.ndarray, movers: bool) -> tuple[PlanResult, str]:
         """:meth:`replan` keeping clear of the capsules ``keep_out`` (K, 7); ``movers``: some of
@@ -308,7 +308,7 @@ class Navigator:
         pocket = unknown_pocket(self.map, probes, self.observed_free_below)
         if self.unseen.add(pocket) == 0:
             return None
-        movers = keep_out is not None and len(keep_out) > 0
+        movers = _any(keep_out)
         before = (self.replanner.waypoints, self.escape_to, self.evading)
         r, how = self._replan_avoiding(p, self._keep_out(keep_out), movers)
         if not r.success or self.evading:  # a step out of a mover's way alone is not a way round
@@ -416,7 +416,7 @@ class Navigator:
         tube = self._tube(rest, horizon_m, skip_m)
         if tube is None:
             return horizon_m
-        s, _, ok = tube
+        s, _, _, ok = tube
         bad = np.flatnonzero(~ok)
         return float(s[bad[0]]) if len(bad) else horizon_m
 
@@ -425,19 +425,19 @@ class Navigator:
         itself and its tube points) whose voxels are not observed: (M, 3) world metres, (0, 3)
         when the whole horizon is verified."""
         tube = self._tube(rest, horizon_m, skip_m)
-        if tube is None or tube[2].all():
+        if tube is None or tube[3].all():
             return np.zeros((0, 3))
-        _, probes, ok = tube
+        _, probes, unseen, ok = tube
         k = int(np.argmin(ok))
-        pts = probes[:, k]
-        return pts[unknown(self.map.log_odds_at(pts), self.observed_free_below)]
+        return probes[unseen[:, k], k]
 
     def _tube(
         self, rest: np.ndarray, horizon_m: float, skip_m: float
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
         """The samples of :meth:`verified_distance` beyond ``skip_m``: their arc lengths (N,),
-        probes (4, N, 3) (the sample; left, right, below it) and whether each is verified (N,);
-        None when there are none."""
+        probes (4, N, 3) (the sample; left, right, below it), whether each probe's voxel is
+        unobserved (4, N) (:func:`~skyrecon.mission.unseen.unknown`) and whether each sample is
+        verified (N,); None when there are none."""
         if len(rest) < 2:
             return None
         v = self.cfg.voxel_size_m
@@ -457,9 +457,10 @@ class Navigator:
         r = self.cfg.verify_radius_m
         probes = np.stack([pts, pts + r * side, pts - r * side, pts + r * down])
         lo = self.map.log_odds_at(probes.reshape(-1, 3)).reshape(4, -1)
+        unseen = unknown(lo, self.observed_free_below)
         with np.errstate(invalid="ignore"):
-            seen_free = lo < self.observed_free_below
-            known = seen_free[1:] | (lo[1:] >= 0.0)
+            seen_free = lo[0] < self.observed_free_below
+        known = ~unseen[1:]
         if self.cfg.reach_aware_verify and not known.all():
             # near tube probes the camera cannot reach from here count as known, as the path
             # samples within skip_m do (see MissionConfig.reach_aware_verify)
@@ -468,7 +469,7 @@ class Navigator:
             check = near & ~known
             if check.any():
                 known[check] = out_of_reach_mask(rest[0], tube[check], self.cfg)
-        return s, probes, seen_free[0] & np.all(known, axis=0)
+        return s, probes, unseen, seen_free & np.all(known, axis=0)
 
     def free_along(self, position: np.ndarray, velocity: np.ndarray, horizon_m: float) -> float:
         """How far along the straight line from ``position`` (3,) in the direction of ``velocity``
@@ -505,3 +506,8 @@ def timed(fn, *args, **kwargs):
 
 
 __all__ = ["Navigator", "CheckOutcome", "timed", "OCCUPIED", "FREE", "UNKNOWN"]
+
+
+def _any(capsules: np.ndarray | None) -> bool:
+    """Whether ``capsules`` (K, 7) or None holds any capsule."""
+    return capsules is not None and len(capsules) > 0
