@@ -64,7 +64,23 @@ def _range_plane(plane, lo, hi, r, c, zmax):
 
 @njit(cache=True, nogil=True)
 def _prepare_row(
-    r, depth, dirs, ray_norm, R_wc, fx, fy, min_range, max_range, half, worst, eps, cap, plane, lo, hi
+    r,
+    depth,
+    dirs,
+    ray_norm,
+    R_wc,
+    fx,
+    fy,
+    min_range,
+    max_range,
+    half,
+    worst,
+    eps,
+    cap,
+    carve_only,
+    plane,
+    lo,
+    hi,
 ):
     """One image row of :func:`prepare_depth`."""
     H, W = depth.shape
@@ -82,6 +98,9 @@ def _prepare_row(
         zmax = max_range / n
         if d == np.inf:
             _range_plane(plane, lo, hi, r, c, zmax)
+            continue
+        if carve_only[r, c]:  # free in front of the point (a voxel's half diagonal short), no hit
+            _range_plane(plane, lo, hi, r, c, min(zmax, d - worst / n))
             continue
         du = _slope(depth, r, c, 0, 1, d, 0.05)
         dv = _slope(depth, r, c, 1, 0, d, 0.05)
@@ -127,7 +146,7 @@ def _prepare_row(
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def prepare_depth(depth, dirs, ray_norm, R_wc, fx, fy, min_range, max_range, voxel, eps, cap):
+def prepare_depth(depth, dirs, ray_norm, R_wc, fx, fy, min_range, max_range, voxel, eps, cap, carve_only):
     """Per-pixel surface planes that decide the fate of the voxels projecting onto each pixel.
 
     For a pixel with depth ``d`` within range, the local surface is the plane through the
@@ -149,11 +168,15 @@ def prepare_depth(depth, dirs, ray_norm, R_wc, fx, fy, min_range, max_range, vox
     up to the surface plane or the range, whichever is nearer (+inf depth, or a range nearer than
     the plane: ``n = (0, 0, 1)``, ``o`` the depth at the range, ``F = 0``). Without a
     usable neighbour the plane faces the camera and the cube's worst-case width is used.
-    Invalid pixels (NaN, <= 0, nearer than ``min_range``) get ``F = NaN``: no update.
+    Invalid pixels (NaN, <= 0, nearer than ``min_range``) get ``F = NaN``: no update. A
+    ``carve_only`` pixel (a depth not trusted to mark a surface) carves free space up to a
+    voxel's half diagonal in front of its point (or the range) and gives no hit, as one beyond
+    the range does.
 
     Args:
         depth: (H, W) float32 metres; dirs: (H, W, 3) float32 ray directions with z = 1 (camera
-        frame); ray_norm: (H, W) float32 their lengths; R_wc: (3, 3) rotation world_from_cam.
+        frame); ray_norm: (H, W) float32 their lengths; R_wc: (3, 3) rotation world_from_cam;
+        carve_only: (H, W) bool or uint8, the pixels that carve only.
     Returns:
         plane (H, W, 6) float32 ``nx, ny, nz, o, F, Hh``; lo, hi (H, W) float32: bounds on the
         depth z of a voxel centre projecting onto the pixel below which it is surely free and
@@ -167,7 +190,23 @@ def prepare_depth(depth, dirs, ray_norm, R_wc, fx, fy, min_range, max_range, vox
     worst = half * np.sqrt(3.0)
     for r in prange(H):
         _prepare_row(
-            r, depth, dirs, ray_norm, R_wc, fx, fy, min_range, max_range, half, worst, eps, cap, plane, lo, hi
+            r,
+            depth,
+            dirs,
+            ray_norm,
+            R_wc,
+            fx,
+            fy,
+            min_range,
+            max_range,
+            half,
+            worst,
+            eps,
+            cap,
+            carve_only,
+            plane,
+            lo,
+            hi,
         )
     return plane, lo, hi
 

@@ -242,6 +242,7 @@ class OccupancyMap:
         depth_m: np.ndarray,
         intrinsics: Intrinsics,
         world_from_cam: Rigid3 | np.ndarray,
+        carve_only: np.ndarray | None = None,
     ) -> IntegrationStats:
         """Integrate one depth image taken from a known pose.
 
@@ -250,6 +251,9 @@ class OccupancyMap:
                 "no return within range" (carves free space up to the maximum range).
             intrinsics: the depth camera (size must match ``depth_m``).
             world_from_cam: the camera pose, ``p_world = R @ p_cam + t`` (Rigid3 or 4x4 / 3x4).
+            carve_only: optional (H, W) bool: pixels whose depth is not trusted to mark a
+                surface (see :class:`~skyrecon.mapping.far_hits.FarHitFilter`); they carve free
+                space up to a voxel's half diagonal in front of their point and mark no hit.
         Returns:
             IntegrationStats.
         Raises:
@@ -263,6 +267,18 @@ class OccupancyMap:
         v = self.voxel_size
         eps = self._surface_push_m()
         dirs, ray_norm, planes, fan = self._camera_tables(intrinsics)
+        hit_depth = depth
+        if carve_only is None:
+            carve = np.zeros(depth.shape, np.bool_)
+        else:
+            carve = np.asarray(carve_only, np.bool_)
+            if carve.shape != depth.shape:
+                raise InputError(
+                    f"carve_only mask {carve.shape} does not match the depth image {depth.shape}"
+                )
+            if carve.any():
+                hit_depth = depth.copy()
+                hit_depth[carve] = np.nan
         plane, lo, hi = proj.prepare_depth(
             depth,
             dirs,
@@ -275,6 +291,7 @@ class OccupancyMap:
             v,
             eps,
             cfg.grazing_cap_voxels * v,
+            carve,
         )
         mn, mx, offs, _hs, ws = proj.build_pyramid(lo, hi)
         t1 = time.perf_counter()
@@ -323,7 +340,7 @@ class OccupancyMap:
             self._octflag = np.zeros((self._hitmask.shape[0], 8), np.uint8)
         self._local_of_pool[ids[part]] = loc[part]
         proj.mark_endpoints(
-            depth,
+            hit_depth,
             dirs,
             ray_norm,
             pose.R,

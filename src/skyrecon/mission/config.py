@@ -42,6 +42,11 @@ class MissionConfig:
         max_range_m: depth beyond this carves free space up to it only (stereo is unreliable
             farther); the map's range is the rig's trusted range, at most this
             (:func:`skyrecon.mission.perception.hit_range_m`, about 17 m by default).
+        far_hit_confirm_m: depth pixels at this range or farther go into the map only where
+            the frame before saw a surface at their point too (within a disparity error of
+            1 px): a camera's noise on far plain surfaces leaves one-frame specks metres in
+            front of them, phantom obstacles where no later ray looks
+            (:class:`skyrecon.mapping.far_hits.FarHitFilter`); None: off.
         map_padding_m: the map covers the city plus this much on every side, metres.
     Planner:
         clearance_m: distance the planner keeps from mapped obstacles, metres (the planner adds
@@ -207,6 +212,7 @@ class MissionConfig:
     depth_stride: int = 2
     voxel_size_m: float = 0.5
     max_range_m: float = 20.0
+    far_hit_confirm_m: float | None = 10.0
     map_padding_m: float = 25.0
     clearance_m: float = 2.0
     replan_tolerance_m: float = 0.5
@@ -326,8 +332,13 @@ class MissionConfig:
                 f"{self.mover_horizon_s} and {self.keep_out_heuristic_weight}"
             )
         self._check_tracker_settings()
-        if self.time_limit_s is not None and not self.time_limit_s > 0:
-            raise InputError(f"time_limit_s must be positive, got {self.time_limit_s}")
+        self._check_optional()
+
+    def _check_optional(self) -> None:
+        """Refuse an optional setting (None: off) that is set but not positive."""
+        for name in ("time_limit_s", "far_hit_confirm_m"):
+            if getattr(self, name) is not None and not getattr(self, name) > 0:
+                raise InputError(f"{name} must be positive or None, got {getattr(self, name)}")
 
     def _check_timing(self) -> None:
         """Refuse a negative latency budget and a loop thread count that is not a count."""

@@ -57,6 +57,7 @@ import numpy as np
 from skyrecon.core import Rigid3
 from skyrecon.errors import InputError
 from skyrecon.mapping import OccupancyMap
+from skyrecon.mapping.far_hits import FarHitFilter
 from skyrecon.mission.config import MissionConfig
 from skyrecon.mission.failsafe import Failsafe
 from skyrecon.mission.guidance import (
@@ -538,13 +539,22 @@ def _map_update(
     time_s: float,
     flown_from: np.ndarray,
     left: np.ndarray | None = None,
+    far_hits: FarHitFilter | None = None,
 ) -> tuple[float, float]:
     """Track the movers in this frame's depth (and its ``left`` image: clusters on no texture
     are not movers) and integrate the rest into the static map (the movers' pixels are kept
-    out, so they leave no trail). Returns (movers ms, integrate ms)."""
+    out, so they leave no trail; with ``far_hits``, the far pixels the frame before does not
+    confirm only carve free space in front of them). Returns (movers ms, integrate ms)."""
     depth_for_map, movers_ms = depth.depth_m, 0.0
+    world_from_cam = cam_from_world.inverse().with_frames("world", "cam")
+    t0 = time.perf_counter()
+    carve_only = (
+        far_hits.unconfirmed(depth.depth_m, depth.intrinsics, world_from_cam, time_s)
+        if far_hits is not None
+        else None
+    )
+    far_ms = 1e3 * (time.perf_counter() - t0)
     if tracker is not None:
-        world_from_cam = cam_from_world.inverse().with_frames("world", "cam")
         mf = tracker.update(
             time_s,
             depth.depth_m,
@@ -558,8 +568,10 @@ def _map_update(
         if mf.dynamic_mask.any():
             depth_for_map = depth.depth_m.copy()
             depth_for_map[mf.dynamic_mask] = np.nan
-    _, integrate_ms = timed(nav.integrate, depth_for_map, depth.intrinsics, cam_from_world, flown_from)
-    return movers_ms, integrate_ms
+    _, integrate_ms = timed(
+        nav.integrate, depth_for_map, depth.intrinsics, cam_from_world, flown_from, carve_only
+    )
+    return movers_ms, integrate_ms + far_ms
 
 
 def _camera_noise(frame, sigma: float, rng: np.random.Generator):
@@ -748,6 +760,13 @@ def _fly(
     prior = mission_prior(scenario, cfg)
     nav = Navigator(cfg, scenario.box, scenario.goal, hit_range, prior=prior)
     tracker = _mover_tracker(cfg, hit_range)
+    far_hits = (
+        FarHitFilter(
+            cfg.far_hit_confirm_m, rig.left.fx * rig.baseline_m, hit_range, min_tol_m=cfg.voxel_size_m
+        )
+        if cfg.far_hit_confirm_m is not None
+        else None
+    )
     nav.warm_up(stereo.intrinsics)  # load the map's kernels now, not in the first cycle
     world = scenario.movers
     monitor = (
@@ -836,7 +855,7 @@ def _fly(
         # no map update from a pose or depth that cannot be trusted; an overrun skips it too
         if depth is not None and not lost and health.trusted and "overrun" not in health.reasons:
             ms["movers"], ms["integrate"] = _map_update(
-                nav, tracker, depth, cam_from_world, state.time_s, p_prev, fresh[0]
+                nav, tracker, depth, cam_from_world, state.time_s, p_prev, fresh[0], far_hits
             )
             p_prev = p
         rewritten, ms["distance"] = timed(nav.update_distance)

@@ -152,12 +152,14 @@ class Navigator:
         intrinsics: Intrinsics,
         cam_from_world: Rigid3,
         flown_from: np.ndarray | None = None,
+        carve_only: np.ndarray | None = None,
     ) -> None:
         """Integrate one depth image (h, w) float32 metres (NaN invalid, inf beyond range); with
         ``flown_from`` (3,) world metres, the segment flown from there to the camera is marked free
-        (the drone's body swept it, ``drone_radius_m``)."""
+        (the drone's body swept it, ``drone_radius_m``); ``carve_only`` (h, w) bool: pixels that
+        carve free space in front of them but mark no obstacle (unconfirmed far depth)."""
         world_from_cam = cam_from_world.inverse().with_frames("world", "cam")
-        self.map.integrate_depth(depth_m, intrinsics, world_from_cam)
+        self.map.integrate_depth(depth_m, intrinsics, world_from_cam, carve_only=carve_only)
         if flown_from is not None:
             self.map.mark_flown_free(np.stack([flown_from, world_from_cam.t]), self.cfg.drone_radius_m)
         self.unseen.forget_known(self.map, self.observed_free_below)
