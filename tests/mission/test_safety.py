@@ -206,3 +206,27 @@ def test_fine_depth_is_opt_in_for_the_tracker():
     assert flight_perception(MissionConfig()).fine_max_disparity == 0
     assert flight_perception(MissionConfig(mover_fine_depth=True)).fine_max_disparity == FINE_MAX_DISPARITY
     assert flight_perception(MissionConfig(mover_fine_depth=True, track_movers=False)).fine_max_disparity == 0
+
+
+def test_a_path_whose_unobserved_end_lies_within_the_arrival_tolerance_is_cut_short():
+    """Held by unobserved space beside the goal, the drone need not fly its last metre: the path
+    ends half the arrival tolerance short of the goal, inside the arrival sphere."""
+    from skyrecon.mission.loop import ARRIVAL_CUT_SHARE, arrival_cut
+
+    cfg = MissionConfig()
+    goal = np.array([10.0, 0.0, 15.0])
+    rest = np.array([[8.1, 0.0, 15.0], [9.0, 0.0, 15.0], goal])  # 1.9 m to go
+    cut = arrival_cut(rest, 1.5, goal, cfg)  # observed free for 1.5 m: the last 0.4 m is not
+    assert cut is not None
+    end = 1.9 - ARRIVAL_CUT_SHARE * cfg.arrival_tolerance_m
+    np.testing.assert_allclose(cut[-1], [8.1 + end, 0.0, 15.0])
+    np.testing.assert_allclose(cut[:2], rest[:2])
+    assert np.linalg.norm(cut[-1] - goal) < cfg.arrival_tolerance_m
+    # whole horizon observed, unobserved space farther than the tolerance from the end, a path
+    # ending elsewhere (an escape point): left as it is
+    assert arrival_cut(rest, cfg.verify_horizon_m, goal, cfg) is None
+    far = np.array([[0.0, 0.0, 15.0], goal])
+    assert arrival_cut(far, 5.0, goal, cfg) is None
+    assert arrival_cut(rest, 1.5, goal + np.array([0.0, 3.0, 0.0]), cfg) is None
+    # nothing left to cut from
+    assert arrival_cut(np.array([[9.6, 0.0, 15.0], goal]), 0.0, goal, cfg) is None
