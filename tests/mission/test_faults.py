@@ -202,6 +202,16 @@ def test_no_progress_to_the_goal_for_long_begins_the_failsafe(tiny_config):
     assert fs.progress(9.0, 56.0, p, occ, paused=True) == "fly"  # 6 s backing off, farther away
     assert fs.progress(10.9, 50.5, p, occ) == "fly"  # 4.9 s not paused since the best
     assert fs.progress(11.1, 50.5, p, occ) == "return"
+    # depth untrustworthy every other frame: the held frames do not count, nor restart the count
+    fs = Failsafe(tiny_config.with_overrides(failsafe="return", no_progress_failsafe_s=5.0))
+    modes = []
+    for k in range(120):
+        t = 0.1 * k
+        fs.update(t, k % 2 == 0, [] if k % 2 == 0 else ["no_depth"], p, occ)
+        modes.append(fs.progress(t, 50.0, p, occ))
+        if modes[-1] == "return":
+            break
+    assert modes[-1] == "return" and 9.5 <= t <= 11.0  # 5 s of flying frames in 10 s
 
 
 def test_a_fault_hidden_by_missing_frames_is_masked_not_missed(tiny_config):

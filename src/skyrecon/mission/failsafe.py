@@ -97,15 +97,21 @@ class Failsafe:
     ) -> str:
         """After this cycle (``to_goal_m``: the believed distance to the goal, metres): no metre
         gained for ``no_progress_failsafe_s`` begins the configured action (``hover``: the drone
-        keeps holding). Time in a failsafe hold does not count (its own timer acts), nor time
-        since the last call while ``paused`` (the drone backing off to see its way,
+        keeps holding). Time in a failsafe hold does not count (its own timer acts), but does not
+        start the count again either: depth that is untrustworthy every other frame (a camera
+        turning between a plain wall and the goal, noisy plain seed 19) restarted the count at
+        every held frame, and the drone hovered 100 s without progress until its time limit;
+        nor does time since the last call while ``paused`` (the drone backing off to see its way,
         :class:`~skyrecon.mission.guidance.BackOff`: a bounded manoeuvre away from the goal;
         counted, two back-offs used up the 30 s and odometry mission seed 4 turned home)."""
-        if paused and self._best_to_goal is not None and self._last_progress_t is not None:
+        held = self.mode != "fly"
+        if (paused or held) and self._best_to_goal is not None and self._last_progress_t is not None:
             best, since = self._best_to_goal
             self._best_to_goal = (best, since + (t - self._last_progress_t))
         self._last_progress_t = t
-        if self.mode != "fly" or self._best_to_goal is None or to_goal_m < self._best_to_goal[0] - 1.0:
+        if held:
+            return self.mode
+        if self._best_to_goal is None or to_goal_m < self._best_to_goal[0] - 1.0:
             self._best_to_goal = (to_goal_m, t)
             return self.mode
         stuck = t - self._best_to_goal[1]
