@@ -948,14 +948,10 @@ def _fly(
         trusted_run = trusted_run + 1 if not lost else 0
         if trusted_run >= 5:  # a re-initialisation lost again at the next frame is still lost
             lost_cycles = 0
-        # (a failsafe flies a path it already knows; it does not stop to look around). A hold
-        # (no trustworthy depth this frame) keeps the count going: looking where the path is
-        # unobserved, at a plain wall, the depth failed every other frame (noisy plain seed 19),
-        # and a count restarted at each held frame never let the drone look round or plan round it
-        still = believed.speed < 0.05
-        stalled = stalled + 1 if still and (mode == "hold" or (g.limit is not None and mode == "fly")) else 0
-        held_by = g.limit.reason if g.limit is not None else (held_by if mode == "hold" and still else "")
-        if stalled and mode == "fly":  # a hold keeps its camera still (a frozen image shows then)
+        # (a failsafe flies a path it already knows; it does not stop to look around)
+        stalled = stalled + 1 if believed.speed < 0.05 and g.limit is not None and mode == "fly" else 0
+        held_by = g.limit.reason if g.limit is not None else ""
+        if stalled:
             g.look_at = scan_look_at(g.look_at, p, stalled * cfg.dt)
         # held still by a point it cannot look at: back off along the flown track to see it
         backoff.consider(rest, verified, stalled * cfg.dt, g.limit, p, failsafe.way_back, cfg, mode)
