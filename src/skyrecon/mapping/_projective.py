@@ -64,23 +64,7 @@ def _range_plane(plane, lo, hi, r, c, zmax):
 
 @njit(cache=True, nogil=True)
 def _prepare_row(
-    r,
-    depth,
-    dirs,
-    ray_norm,
-    R_wc,
-    fx,
-    fy,
-    min_range,
-    max_range,
-    half,
-    worst,
-    eps,
-    cap,
-    carve_only,
-    plane,
-    lo,
-    hi,
+    r, depth, dirs, ray_norm, R_wc, fx, fy, min_range, max_range, half, worst, eps, cap, plane, lo, hi
 ):
     """One image row of :func:`prepare_depth`."""
     H, W = depth.shape
@@ -98,9 +82,6 @@ def _prepare_row(
         zmax = max_range / n
         if d == np.inf:
             _range_plane(plane, lo, hi, r, c, zmax)
-            continue
-        if carve_only[r, c]:  # free in front of the point (a voxel's half diagonal short), no hit
-            _range_plane(plane, lo, hi, r, c, min(zmax, d - worst / n))
             continue
         du = _slope(depth, r, c, 0, 1, d, 0.05)
         dv = _slope(depth, r, c, 1, 0, d, 0.05)
@@ -190,25 +171,21 @@ def prepare_depth(depth, dirs, ray_norm, R_wc, fx, fy, min_range, max_range, vox
     worst = half * np.sqrt(3.0)
     for r in prange(H):
         _prepare_row(
-            r,
-            depth,
-            dirs,
-            ray_norm,
-            R_wc,
-            fx,
-            fy,
-            min_range,
-            max_range,
-            half,
-            worst,
-            eps,
-            cap,
-            carve_only,
-            plane,
-            lo,
-            hi,
+            r, depth, dirs, ray_norm, R_wc, fx, fy, min_range, max_range, half, worst, eps, cap, plane, lo, hi
         )
+        _carve_only_row(r, depth, ray_norm, min_range, max_range, worst, carve_only, plane, lo, hi)
     return plane, lo, hi
+
+
+@njit(cache=True, nogil=True)
+def _carve_only_row(r, depth, ray_norm, min_range, max_range, worst, carve_only, plane, lo, hi):
+    """The ``carve_only`` pixels of one row of :func:`prepare_depth` with a finite, valid depth:
+    free up to a voxel's half diagonal (``worst``) in front of the point, or the range, no hit."""
+    for c in range(depth.shape[1]):
+        d = depth[r, c]
+        n = ray_norm[r, c]
+        if carve_only[r, c] and d > 0 and d < np.inf and d * n >= min_range:
+            _range_plane(plane, lo, hi, r, c, min(max_range / n, d - worst / n))
 
 
 @njit(cache=True, nogil=True)

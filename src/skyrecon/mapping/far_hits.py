@@ -32,6 +32,7 @@ import numpy as np
 from skyrecon.core.intrinsics import Intrinsics
 from skyrecon.core.rigid import Rigid3
 from skyrecon.errors import InputError
+from skyrecon.mapping.rays import camera_rays
 
 #: a previous frame older than this (seconds) confirms nothing (a gap: the sensor dropped frames)
 MAX_AGE_S = 0.35
@@ -89,7 +90,7 @@ class FarHitFilter:
 
         Args:
             depth_m: (h, w) float32 depth along the optical axis, metres (NaN none, +inf open air).
-            intrinsics: the (pinhole) camera of ``depth_m``.
+            intrinsics: the camera of ``depth_m``.
             world_from_cam: the camera's pose.
             time_s: the frame's time, seconds.
         """
@@ -98,15 +99,15 @@ class FarHitFilter:
             raise InputError(
                 f"depth image {depth.shape} does not match the camera ({intrinsics.height}, {intrinsics.width})"
             )
-        rays = _rays(intrinsics)
+        dirs, lengths = camera_rays(intrinsics)
         with np.errstate(invalid="ignore"):
-            rng = depth * rays[..., 2]  # Euclidean range: rays[..., 2] is the ray's length per metre of depth
+            rng = depth * lengths  # Euclidean range
             far = np.isfinite(rng) & (rng >= self.min_range_m) & (rng <= self.max_range_m)
         self.last_far = int(np.count_nonzero(far))
         drop = far
         if self.last_far:
             drop = far.copy()
-            drop[far] = ~self._confirmed(depth, far, intrinsics, world_from_cam, float(time_s))
+            drop[far] = ~self._confirmed(depth, far, dirs, world_from_cam, float(time_s))
         self.last_dropped = int(np.count_nonzero(drop))
         lo, hi = _neighbourhood_bounds(depth)
         self._prev = (float(time_s), lo, hi, intrinsics, world_from_cam)
@@ -116,29 +117,24 @@ class FarHitFilter:
         self,
         depth: np.ndarray,
         far: np.ndarray,
-        intrinsics: Intrinsics,
+        dirs: np.ndarray,
         world_from_cam: Rigid3,
         time_s: float,
     ) -> np.ndarray:
-        """(K,) bool for the K far pixels: the previous frame saw a surface at their point."""
+        """(K,) bool for the K ``far`` pixels (their rays ``dirs`` (h, w, 3), z = 1): the previous
+        frame saw a surface at their point."""
         k = int(np.count_nonzero(far))
         if self._prev is None:
             return np.zeros(k, bool)
         t_prev, lo, hi, cam_prev, pose_prev = self._prev
         if not 0.0 <= time_s - t_prev <= self.max_age_s:
             return np.zeros(k, bool)
-        v, u = np.nonzero(far)
-        z = depth[v, u].astype(np.float64)
-        x_cam = np.stack(
-            [(u - intrinsics.cx) / intrinsics.fx * z, (v - intrinsics.cy) / intrinsics.fy * z, z], axis=1
-        )
+        x_cam = dirs[far] * depth[far].astype(np.float64)[:, None]
         p = pose_prev.inverse().apply(world_from_cam.apply(x_cam))
         zp = p[:, 2]
-        ok = zp > 1e-3
-        with np.errstate(divide="ignore", invalid="ignore"):
-            up = np.rint(cam_prev.fx * p[:, 0] / zp + cam_prev.cx)
-            vp = np.rint(cam_prev.fy * p[:, 1] / zp + cam_prev.cy)
-        ok &= (up >= 0) & (up < cam_prev.width) & (vp >= 0) & (vp < cam_prev.height)
+        up, vp = np.rint(cam_prev.project(p)).T  # NaN behind the camera
+        with np.errstate(invalid="ignore"):
+            ok = (up >= 0) & (up < cam_prev.width) & (vp >= 0) & (vp < cam_prev.height)
         keep = np.zeros(k, bool)
         if not ok.any():
             return keep
@@ -147,24 +143,6 @@ class FarHitFilter:
         tol = np.maximum(self.min_tol_m, zz * zz * self.disparity_tol_px / self.fb)
         keep[ok] = (zz >= lo[vi, ui] - tol) & (zz <= hi[vi, ui] + tol)
         return keep
-
-
-_RAYS: dict[tuple, np.ndarray] = {}
-
-
-def _rays(intr: Intrinsics) -> np.ndarray:
-    """(h, w, 3) float32: pixel rays (x/z, y/z, |ray|) of ``intr`` (cached per camera)."""
-    key = (intr.fx, intr.fy, intr.cx, intr.cy, intr.width, intr.height)
-    out = _RAYS.get(key)
-    if out is None:
-        u = (np.arange(intr.width) - intr.cx) / intr.fx
-        v = (np.arange(intr.height) - intr.cy) / intr.fy
-        uu, vv = np.meshgrid(u, v)
-        out = np.stack([uu, vv, np.sqrt(1.0 + uu * uu + vv * vv)], axis=-1).astype(np.float32)
-        if len(_RAYS) > 8:
-            _RAYS.clear()
-        _RAYS[key] = out
-    return out
 
 
 def _neighbourhood_bounds(depth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -482,13 +482,8 @@ def arrival_cut(
     end = to_go - ARRIVAL_CUT_SHARE * cfg.arrival_tolerance_m
     if end <= 0.0:
         return None
-    seg = np.linalg.norm(np.diff(rest, axis=0), axis=1)
-    cum = np.concatenate([[0.0], np.cumsum(seg)])
-    k = int(np.searchsorted(cum, end, side="right"))
-    cut = point_along(rest, end)
-    if float(np.linalg.norm(cut - rest[k - 1])) < 1e-9:
-        return rest[:k].copy() if k >= 2 else None
-    return np.vstack([rest[:k], cut[None]])
+    before = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(rest, axis=0), axis=1))]) < end
+    return np.vstack([rest[before], point_along(rest, end)[None]])
 
 
 def _unseen_due(
