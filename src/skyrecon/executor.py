@@ -15,6 +15,8 @@ from __future__ import annotations
 import multiprocessing
 import os
 import signal
+import threading
+import time
 from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from typing import Protocol, TypeVar
@@ -61,6 +63,7 @@ class ProcessExecutor:
             return SerialExecutor().map(fn, items, desc=desc)
         ctx = multiprocessing.get_context("forkserver")
         results: list = [None] * len(items)
+        children_before = set(multiprocessing.active_children())
         with ProcessPoolExecutor(
             max_workers=min(self.workers, len(items)), mp_context=ctx, initializer=_ignore_sigint
         ) as pool:
@@ -81,7 +84,7 @@ class ProcessExecutor:
                     for fut in pending:
                         fut.cancel()
                 else:  # interrupted (Ctrl-C, SIGTERM): stop the workers now
-                    _stop_workers(pool)
+                    _stop_workers(pool, children_before)
                 raise
             finally:
                 bar.close()
@@ -90,26 +93,61 @@ class ProcessExecutor:
 
 def _ignore_sigint() -> None:
     """Worker initializer: Ctrl-C reaches the whole process group; only the parent handles it
-    (it stops the workers), so workers print no tracebacks of their own."""
+    (it stops the workers), so workers print no tracebacks of their own. A worker also ends itself
+    once orphaned (:func:`exit_when_orphaned`)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    threading.Thread(target=exit_when_orphaned, name="skyrecon-orphan-watch", daemon=True).start()
 
 
-def _stop_workers(pool: ProcessPoolExecutor) -> None:
+#: how often a worker checks that the process that started it is still there, seconds
+ORPHAN_POLL_S = 0.5
+
+
+def exit_when_orphaned(
+    poll_s: float = ORPHAN_POLL_S,
+    parent_pid: Callable[[], int] = os.getppid,
+    exit_now: Callable[[int], object] = os._exit,
+    sleep: Callable[[float], object] = time.sleep,
+) -> None:
+    """Run in a worker's daemon thread: end the worker as soon as its parent is gone.
+
+    A worker is forked by the forkserver, which ends when the program does. An interruption can
+    reach the program while the pool is starting a worker (after the fork, before the pool records
+    it); nothing then stops that worker, which waits on the pool's queue for ever, holding the
+    program's stderr open (whoever waits for the program's output, a shell pipe or CI, waits with
+    it: a 10 min hang seen in CI on an mvs run terminated at half time). When the parent changes
+    (the worker was re-parented), the worker exits at once with status 1.
+    """
+    first = parent_pid()
+    while True:
+        sleep(poll_s)
+        if parent_pid() != first:
+            exit_now(1)
+            return
+
+
+def _stop_workers(pool: ProcessPoolExecutor, children_before: set | None = None) -> None:
     """Terminate a pool's workers at once instead of waiting for their running items.
 
     The queued items are cancelled by the pool's own manager thread (``cancel_futures``), never
     from here: on Python 3.11 a future cancelled from this thread can still be in the pool's
     pending table when the manager sees the terminated workers, and its ``set_exception`` on the
     cancelled future raises ``InvalidStateError`` in that thread (a traceback after the one-line
-    interruption message, seen in CI on mvs)."""
+    interruption message, seen in CI on mvs).
+
+    Besides the pool's own workers, every child this process started since ``children_before``
+    (taken before the pool) is terminated: an interruption between a worker's start and the pool
+    recording it leaves a worker the pool does not know, and the interpreter's exit joins every
+    child it started (a hang)."""
     processes = dict(getattr(pool, "_processes", None) or {})  # private, but the only handle there is
+    strays = [p for p in multiprocessing.active_children() if p not in (children_before or set())]
     # items still queued for the killed workers must not hold the exit: the queue's feeder thread
     # blocks on a full pipe nobody reads, and interpreter exit joins it (a hang seen in CI on mvs)
     call_queue = getattr(pool, "_call_queue", None)
     if call_queue is not None:
         call_queue.cancel_join_thread()
     pool.shutdown(wait=False, cancel_futures=True)
-    for proc in processes.values():
+    for proc in {id(p): p for p in [*processes.values(), *strays]}.values():
         proc.terminate()
 
 
