@@ -303,3 +303,7 @@ def test_near_specks_are_dropped_and_near_surfaces_kept():
     assert near_specks(depth, fx, fb, 0.01)[10:13, 100:102].all()
     with pytest.raises(InputError, match="near speck area"):
         PerceptionSettings.flight(near_speck_area_m2=0.0)
+    with pytest.raises(InputError, match="plane min support"):
+        PerceptionSettings.flight(plane_min_support_px=-1)
+    with pytest.raises(InputError, match="plane min support"):
+        PerceptionSettings.flight(plane_min_support_px=2.5)

@@ -221,3 +221,43 @@ def test_warm_kernels_loads_every_kernel_the_fill_runs():
         "_paint_planes",
     )
     assert [k for k in called_from_python if not getattr(plane_fill, k).signatures] == []
+
+
+def _near_wall_before_far_building(specks: bool) -> tuple[np.ndarray, np.ndarray]:
+    """A plain wall filling the left of the view (cut by the image's left, top and bottom), a
+    far textured building measured right of its diagonal edge, and (``specks``) a few 3 x 3
+    specks of noise on the wall that matched at the far building's disparity."""
+    far = _plane(0.01, 0.0, 5.0)
+    v, u = np.mgrid[0:H, 0:W]
+    measured = u > 130 - v // 4  # the far building, right of the wall's edge
+    if specks:
+        for r, c in [(10, 10), (10, 60), (50, 20), (60, 70), (100, 15), (105, 70), (30, 100)]:
+            measured[r : r + 3, c : c + 3] = True
+    return far, measured
+
+
+def test_specks_of_noise_do_not_support_a_plane():
+    far, measured = _near_wall_before_far_building(specks=True)
+    # the specks "span" the wall: it takes the far building's plane (the hazard: a near wall read far)
+    assert plane_supported_fill(far, measured)[1][40:80, 30:60].all()
+    # blobs under 25 pixels support no plane: one edge alone does not fix one
+    _, accepted = plane_supported_fill(far, measured, min_support_area_px=25)
+    assert not accepted.any()
+    # without the specks, the wall is refused as well
+    far, measured = _near_wall_before_far_building(specks=False)
+    assert not plane_supported_fill(far, measured)[1].any()
+
+
+def test_open_borders_can_be_required_to_bound_a_segment():
+    # a wall cut by the image's left and bottom edges, measured on its right and along most of
+    # its top; an unmeasured image edge above its left third (a boundary)
+    disp = _plane(0.02, 0.01, 8.0)
+    measured = np.zeros((H, W), bool)
+    measured[:, 80:] = True
+    measured[:30, 26:80] = True
+    boundary = np.zeros((H, W), bool)
+    boundary[28:31, :26] = True
+    assert plane_supported_fill(disp, measured, boundary=boundary)[1][40:110, 10:70].all()
+    # too little supports it left of its centre: refused unless the image border may stand for it
+    _, accepted = plane_supported_fill(disp, measured, boundary=boundary, open_borders=False)
+    assert not accepted.any()

@@ -78,6 +78,12 @@ class PerceptionSettings:
         plane_max_guess_gap_px: a segment whose plane differs from the matcher's own values
             inside it by more than this on most of its pixels is not filled (the plain road
             between two poles at one depth is not a sheet hung between them); None: no check.
+        plane_open_borders: a plain segment running into the left, right or bottom image border
+            needs no support on that side (``open_borders`` of
+            :func:`~skyrecon.stereo.plane_supported_fill`).
+        plane_min_support_px: measured blobs of fewer full-resolution pixels support no plane
+            (``min_support_area_px`` of :func:`~skyrecon.stereo.plane_supported_fill`): a noisy
+            camera's specks on a plain wall match at random disparities; 0: every blob.
         guesses: also return the depth of the matcher's values that are not kept (see
             :attr:`DepthFrame.guess_depth_m`), for evidence that needs several frames.
         fine_max_disparity: 0 (default): off; else also match the pair at full resolution with
@@ -129,6 +135,8 @@ class PerceptionSettings:
     plane_tolerance_px: float = 0.3
     plane_min_inlier_fraction: float = 0.7
     plane_max_guess_gap_px: float | None = 1.5
+    plane_open_borders: bool = True
+    plane_min_support_px: int = 0
     guesses: bool = False
     fine_max_disparity: int = 0
     fine_block_px: int = 9
@@ -186,6 +194,12 @@ class PerceptionSettings:
             raise InputError(f"near speck area must be positive or None, got {self.near_speck_area_m2} m^2")
         if not self.ground_clearance_m >= 0:
             raise InputError(f"ground clearance must be >= 0, got {self.ground_clearance_m} m")
+        if not (
+            int(self.plane_min_support_px) == self.plane_min_support_px and self.plane_min_support_px >= 0
+        ):
+            raise InputError(
+                f"plane min support must be a whole number of pixels >= 0, got {self.plane_min_support_px}"
+            )
         gap = self.plane_max_guess_gap_px
         if gap is not None and not gap > 0:
             raise InputError(f"plane guess gap must be positive or None, got {gap} px")
@@ -212,7 +226,12 @@ class PerceptionSettings:
         ``texture_scale`` 2: every pixel of a noise-free image; with a real camera's noise the
         matcher's values over a plain wall are noise, and in the delivery demo they were
         phantom obstacles on every wall); near blobs under 10 x 10 cm are specks of that noise
-        (``near_speck_area_m2``). Keyword overrides on top."""
+        (``near_speck_area_m2``), and blobs under 100 pixels (10 x 10) support no plane of the
+        plane fill (``plane_min_support_px``). A plain segment cut by the image's border must be
+        supported on every side all the same (``plane_open_borders`` off): a near plain wall
+        filling the view, bounded only by the far building along its one edge, took that
+        building's plane (plain delivery seeds 4 and 19; the ground, a road running out of the
+        image, has its own prior). Keyword overrides on top."""
         base = cls(
             method="skyrecon-fast",
             min_texture=0.0,
@@ -226,6 +245,8 @@ class PerceptionSettings:
             max_depth_error_voxels=3.0,
             disparity_error_px=0.5,
             near_speck_area_m2=0.01,
+            plane_min_support_px=100,
+            plane_open_borders=False,
         )
         return replace(base, **overrides)
 

@@ -156,15 +156,35 @@ SKY_MARGIN_DEG = 1.0
 SKY_EDGE_NOISE_FACTOR = 1.5
 
 
+#: the range (metres) within which measured depth frames a plain segment (see
+#: :func:`open_sky`) when the settings give no ``horizon_far_m``
+SKY_NEAR_RANGE_M = 20.0
+#: a plain segment whose lower rim is measured nearer than the map's range on at least this
+#: share of its length is a surface, not sky (see :func:`open_sky`)
+SKY_ENCLOSED_SHARE = 0.5
+#: ... looking this many pixels (of the separators' grid) under the rim: the edge between them
+SKY_RIM_PX = 8
+
+
 def open_sky(
     separators: np.ndarray,
     horizon_row_px: float,
     camera: Intrinsics,
     scale: int = 1,
     shape: tuple[int, ...] | None = None,
+    near: np.ndarray | None = None,
 ) -> np.ndarray:
     """(H, W) bool: the plain segments of an image that reach its top row and lie wholly above
     the horizon (at least :data:`SKY_MARGIN_DEG` above it): open sky.
+
+    With ``near``, a segment whose lower rim lies on measured depth nearer than the map's range
+    (within :data:`SKY_RIM_PX` under it) along at least :data:`SKY_ENCLOSED_SHARE` of its
+    length is not sky: a plain panel framed by what stands near, such as the glass panes of a
+    tower that fill the top of the image, each bounded by its window frames (noisy plain
+    delivery seed 8 and textured seed 3: the upper panes of a glass tower 10 m ahead were
+    taken for sky, and the map carved free space through the tower). The sky lies above a
+    skyline of roofs, most of them beyond the range; sky above a near tower taller than the
+    drone is refused too, which costs only the air above that tower.
 
     Args:
         separators: (h, w) bool, the pixels with texture or an edge, at the image's resolution
@@ -173,6 +193,8 @@ def open_sky(
         camera: the full-resolution camera (its ``fy``).
         scale: the reduction of ``separators``; shape: the full-resolution (H, W) (default
             ``scale`` times the separators').
+        near: optional (h, w) bool on the separators' grid: measured depth nearer than the
+            map's range.
     """
     t = np.ascontiguousarray(np.asarray(separators, bool))
     full_shape = shape if shape is not None else (t.shape[0] * scale, t.shape[1] * scale)
@@ -182,10 +204,28 @@ def open_sky(
     bottom = (top + stats[:, cv2.CC_STAT_HEIGHT]) * scale  # one past the last full-res row
     sky = (top == 0) & (bottom <= last_row)
     sky[0] = False  # the textured pixels
+    if near is not None and sky.any():
+        sky &= ~_enclosed_from_below(labels, n, np.asarray(near, bool))
     # a pixel off the sky's rim: where an edge is faint (a roof corner at the image's top) the
     # segment may take in a pixel or two of what stands there
     full = cv2.erode(sky[labels].view(np.uint8), np.ones((3, 3), np.uint8)).view(bool)
     return _upsample_mask(full, scale, full_shape) if scale > 1 else full
+
+
+def _enclosed_from_below(labels: np.ndarray, n: int, near: np.ndarray) -> np.ndarray:
+    """(n,) bool per segment of ``labels`` (h, w): its lower rim (its pixels whose lower
+    neighbour is not its own) has a ``near`` pixel within :data:`SKY_RIM_PX` under it on at
+    least :data:`SKY_ENCLOSED_SHARE` of its pixels."""
+    if near.shape != labels.shape:
+        raise InputError(f"near mask {near.shape} does not match the separators {labels.shape}")
+    rim = np.ones(labels.shape, bool)  # the bottom row's pixels have nothing under them
+    rim[:-1] = labels[:-1] != labels[1:]
+    under = np.zeros(labels.shape, bool)
+    for k in range(1, SKY_RIM_PX + 1):
+        under[:-k] |= near[k:]
+    total = np.bincount(labels[rim], minlength=n)
+    framed = np.bincount(labels[rim & under], minlength=n)
+    return framed >= SKY_ENCLOSED_SHARE * np.maximum(total, 1)
 
 
 #: the open sky must reach within this many degrees of the horizon for :func:`horizon_band`
@@ -644,7 +684,12 @@ class StereoDepth:
             if s.sky_is_free and horizon_row_px is not None:
                 separators = self._separators(tex)
                 sky = open_sky(
-                    separators, horizon_row_px, self.rig.left, int(s.texture_scale), measured.shape
+                    separators,
+                    horizon_row_px,
+                    self.rig.left,
+                    int(s.texture_scale),
+                    measured.shape,
+                    near=self._near_on_grid(measured, result.disparity),
                 )
                 if sky.any() and s.horizon_far_m is not None:
                     range_px = float(self.rig.depth_to_disparity(np.array([s.horizon_far_m]))[0])
@@ -756,6 +801,8 @@ class StereoDepth:
                 prior_min_disparity=floor,
                 prior_tolerance_px=GROUND_TOLERANCE_ERRORS * s.disparity_error_px,
                 prior_tolerance_rel=GROUND_TOLERANCE_REL,
+                min_support_area_px=int(s.plane_min_support_px),
+                open_borders=s.plane_open_borders,
             )
             return np.where(accepted, planar, disp), accepted, _on_plane(planar, accepted, prior)
         H, W = disp.shape
@@ -775,6 +822,8 @@ class StereoDepth:
             prior_min_disparity=floor / k,
             prior_tolerance_px=GROUND_TOLERANCE_ERRORS * s.disparity_error_px / k,
             prior_tolerance_rel=GROUND_TOLERANCE_REL,
+            min_support_area_px=int(s.plane_min_support_px) // (k * k),
+            open_borders=s.plane_open_borders,
         )
         out = disp.copy()
         out[::k, ::k] = np.where(small, planar * np.float32(k), out[::k, ::k])
@@ -810,6 +859,16 @@ class StereoDepth:
             raised = measured & (ground_px > floor) & (matched - ground_px > GROUND_RAISED_BANDS * band)
         grown = cv2.dilate(raised.view(np.uint8), GROUND_RAISED_KERNEL).view(bool)
         return below_raised(grown, from_ground, GROUND_RAISED_HOLES_PX, GROUND_RAISED_ASIDE_PX)
+
+    def _near_on_grid(self, measured: np.ndarray, disparity: np.ndarray) -> np.ndarray:
+        """(h, w) bool at ``texture_scale``: the ``measured`` pixels ((H, W) bool) whose
+        ``disparity`` ((H, W), full-resolution pixels) puts them nearer than the map's range
+        (``horizon_far_m``, else :data:`SKY_NEAR_RANGE_M`)."""
+        k = int(self.settings.texture_scale)
+        far_m = self.settings.horizon_far_m or SKY_NEAR_RANGE_M
+        range_px = float(self.rig.depth_to_disparity(np.array([far_m]))[0])
+        with np.errstate(invalid="ignore"):
+            return measured[::k, ::k] & (disparity[::k, ::k] > range_px)
 
     @property
     def _ground_horizon_px(self) -> float:

@@ -1,0 +1,57 @@
+"""Open sky: plain segments that reach the top of the image and lie wholly above the horizon,
+unless what stands near frames them from below (the glass panes of a near tower)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from skyrecon.core import Intrinsics
+from skyrecon.errors import InputError
+from skyrecon.perception.stereo_depth import open_sky
+
+H, W = 60, 80
+CAMERA = Intrinsics(100.0, 100.0, 40.0, 30.0, W, H)
+HORIZON = 50.0  # row: everything above row ~48 lies above the horizon
+
+
+def _tower_of_panes() -> tuple[np.ndarray, np.ndarray]:
+    """A tower's glass panes over the whole view: frames (separators, measured near) every 12
+    rows and 16 columns; the panes themselves plain."""
+    separators = np.zeros((H, W), bool)
+    separators[11::12, :] = True
+    separators[:, 15::16] = True
+    near = separators.copy()
+    return separators, near
+
+
+def test_panes_framed_by_a_near_tower_are_not_sky():
+    separators, near = _tower_of_panes()
+    # without the depth under them, the top row of panes passes for sky
+    assert open_sky(separators, HORIZON, CAMERA)[2:8, 2:12].all()
+    assert not open_sky(separators, HORIZON, CAMERA, near=near).any()
+
+
+def test_the_frames_under_a_pane_may_be_unmeasured_for_a_few_rows():
+    separators, near = _tower_of_panes()
+    near[11:14, :] = False  # the horizontal bar under the top panes (a horizontal edge: no match)
+    near[14:18, :] = True  # ... the frame's near depth starts 3 rows under it
+    assert not open_sky(separators, HORIZON, CAMERA, near=near)[:11].any()
+
+
+def test_sky_above_a_skyline_of_far_roofs_and_one_near_tower_is_sky():
+    separators = np.zeros((H, W), bool)
+    separators[40, :] = True  # the skyline
+    near = np.zeros((H, W), bool)
+    near[41:, 60:] = True  # a near tower under a quarter of it; the rest far (measured or not)
+    sky = open_sky(separators, HORIZON, CAMERA, near=near)
+    assert sky[:38, 2:-2].all()
+    # under a near skyline along most of its length, it is taken for a framed surface
+    near[41:, 10:] = True
+    assert not open_sky(separators, HORIZON, CAMERA, near=near).any()
+
+
+def test_near_must_match_the_separators():
+    separators, near = _tower_of_panes()
+    with pytest.raises(InputError):
+        open_sky(separators, HORIZON, CAMERA, near=near[:, :-1])
