@@ -55,3 +55,14 @@ def test_near_must_match_the_separators():
     separators, near = _tower_of_panes()
     with pytest.raises(InputError):
         open_sky(separators, HORIZON, CAMERA, near=near[:, :-1])
+
+
+def test_sky_reaching_down_to_the_horizon_beside_a_near_roof_is_sky():
+    separators = np.zeros((H, W), bool)
+    separators[40, :50] = True  # a near roof line under the left of the sky ...
+    separators[40:, 50] = True  # ... the wall's side ...
+    separators[46, 50:] = True  # ... and the horizon's edge beyond it, 4 degrees above the horizon
+    near = np.zeros((H, W), bool)
+    near[41:, :51] = True
+    sky = open_sky(separators, HORIZON, CAMERA, near=near)
+    assert sky[:38, 2:-2].all() and sky[:44, 53:-2].all()

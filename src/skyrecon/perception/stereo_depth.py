@@ -179,12 +179,15 @@ def open_sky(
 
     With ``near``, a segment whose lower rim lies on measured depth nearer than the map's range
     (within :data:`SKY_RIM_PX` under it) along at least :data:`SKY_ENCLOSED_SHARE` of its
-    length is not sky: a plain panel framed by what stands near, such as the glass panes of a
-    tower that fill the top of the image, each bounded by its window frames (noisy plain
-    delivery seed 8 and textured seed 3: the upper panes of a glass tower 10 m ahead were
-    taken for sky, and the map carved free space through the tower). The sky lies above a
-    skyline of roofs, most of them beyond the range; sky above a near tower taller than the
-    drone is refused too, which costs only the air above that tower.
+    length is not sky, unless it reaches down to within :data:`HORIZON_BAND_DEG` of the horizon
+    (it opens onto the far view there): a plain panel framed by what stands near, such as the
+    glass panes of a tower that fill the top of the image, each bounded by its window frames
+    (noisy plain delivery seed 8 and textured seed 3: the upper panes of a glass tower 10 m
+    ahead were taken for sky, and the map carved free space through the tower). The sky lies
+    above a skyline of roofs, most of them beyond the range, or reaches down to the horizon
+    beside a near roof (noisy plain seed 8 again: the sky beside a plain wall's roof line,
+    refused, left the drone without depth and it turned home); sky seen only above near roofs
+    taller than the drone is refused, which costs the air above them.
 
     Args:
         separators: (h, w) bool, the pixels with texture or an edge, at the image's resolution
@@ -205,7 +208,9 @@ def open_sky(
     sky = (top == 0) & (bottom <= last_row)
     sky[0] = False  # the textured pixels
     if near is not None and sky.any():
-        sky &= ~_enclosed_from_below(labels, n, np.asarray(near, bool))
+        # a segment reaching down towards the horizon opens onto the far view: sky, framed or not
+        to_horizon = bottom >= horizon_row_px - camera.fy * np.tan(np.radians(HORIZON_BAND_DEG))
+        sky &= to_horizon | ~_enclosed_from_below(labels, n, np.asarray(near, bool))
     # a pixel off the sky's rim: where an edge is faint (a roof corner at the image's top) the
     # segment may take in a pixel or two of what stands there
     full = cv2.erode(sky[labels].view(np.uint8), np.ones((3, 3), np.uint8)).view(bool)

@@ -43,14 +43,16 @@ def _trusted(disparity: np.ndarray, measured: np.ndarray, max_step: np.float32) 
         return measured & (hi - lo <= max_step)
 
 
-def _in_blobs_of(mask: np.ndarray, min_area_px: int) -> np.ndarray:
-    """(H, W) bool: the pixels of ``mask`` in 8-connected blobs of at least ``min_area_px``."""
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(
+def _keep_in_blobs_of(pixels: np.ndarray, mask: np.ndarray, min_area_px: int) -> None:
+    """Clear, in place, the ``pixels`` ((H, W) bool, contiguous, within ``mask``) that lie in
+    8-connected blobs of ``mask`` of fewer than ``min_area_px`` pixels."""
+    _, labels, stats, _ = cv2.connectedComponentsWithStats(
         np.ascontiguousarray(mask).view(np.uint8), connectivity=8, ltype=cv2.CV_32S
     )
-    big = stats[:, cv2.CC_STAT_AREA] >= min_area_px
-    big[0] = False  # the background
-    return big[labels]
+    small = stats[:, cv2.CC_STAT_AREA] < min_area_px
+    flat = pixels.reshape(-1)
+    idx = np.flatnonzero(flat)
+    flat[idx[small[labels.reshape(-1)[idx]]]] = False
 
 
 @njit(cache=True, nogil=True)
@@ -505,7 +507,7 @@ def plane_supported_fill(
         return out, accepted
     trusted = _trusted(d, m, np.float32(max_step_px))
     if min_support_area_px > 1:
-        trusted &= _in_blobs_of(m, int(min_support_area_px))
+        _keep_in_blobs_of(trusted, m, int(min_support_area_px))
     reach = int(radius_px) + int(seal_px)
     # only trusted pixels with a segment within reach have pairs: the rest skip the window scan
     near = cv2.dilate((labels > 0).view(np.uint8), np.ones((2 * reach + 1, 2 * reach + 1), np.uint8))
