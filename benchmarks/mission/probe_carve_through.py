@@ -18,9 +18,11 @@ Usage:
   .venv/bin/python benchmarks/mission/probe_carve_through.py
   .venv/bin/python benchmarks/mission/probe_carve_through.py --cities 40-49 --noise 1.5 3 --out carve.json
 
-Session 54 (``--cities 40-49 --views 20 --noise 1.5``, textured and plain): see
-``results_carve_through_session54.json`` and the closing note of session 54 for the figures
-before and after the plane fill's and the open sky's mends.
+Session 54 (``--cities 40-49 --views 10``, 1.5 grey levels, cities not looked at while mending;
+``results_carve_through_session54.json``), before -> after the plane fill's and the open sky's
+mends: textured 4560 -> 2703 pixels carving through per million (open air 25311 -> 11173; 5 -> 4
+views over 2 %), plain 1099 -> 1276 (open air 1877 -> 1254, but the plane fill 512 -> 2494, one
+view over 2 %: city 40, a plane 1622 pixels wrong, not looked at yet); good depth +0 % / +2.8 %.
 """
 
 from __future__ import annotations
