@@ -85,7 +85,11 @@ def probe(cities: list[int], views: int, sigma: float, plain: bool, margin_m: fl
             city, rig, rng, views, sigma, (7.0, 30.0), (-5.0, 40.0)
         ):
             spy.accepted = None
-            ground = GroundPlane.from_pose(cam_from_world.inverse(), cfg.ground_z_m or 0.0)
+            ground = (  # as the loop has it (Navigator.ground_plane): none without the ground's height
+                None
+                if cfg.ground_z_m is None
+                else GroundPlane.from_pose(cam_from_world.inverse(), cfg.ground_z_m)
+            )
             depth = stereo.compute(left, right, horizon_row_px=K.cy - K.fy * math.tan(pitch), ground=ground)
             n_views += 1
             d = depth.depth_m

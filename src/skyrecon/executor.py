@@ -126,7 +126,7 @@ def exit_when_orphaned(
             return
 
 
-def _stop_workers(pool: ProcessPoolExecutor, children_before: set | None = None) -> None:
+def _stop_workers(pool: ProcessPoolExecutor, children_before: set) -> None:
     """Terminate a pool's workers at once instead of waiting for their running items.
 
     The queued items are cancelled by the pool's own manager thread (``cancel_futures``), never
@@ -135,19 +135,18 @@ def _stop_workers(pool: ProcessPoolExecutor, children_before: set | None = None)
     cancelled future raises ``InvalidStateError`` in that thread (a traceback after the one-line
     interruption message, seen in CI on mvs).
 
-    Besides the pool's own workers, every child this process started since ``children_before``
-    (taken before the pool) is terminated: an interruption between a worker's start and the pool
-    recording it leaves a worker the pool does not know, and the interpreter's exit joins every
+    The workers are the children this process started since ``children_before`` (taken before
+    the pool), not the pool's own table: an interruption between a worker's start and the pool
+    recording it leaves a worker the table does not hold, and the interpreter's exit joins every
     child it started (a hang)."""
-    processes = dict(getattr(pool, "_processes", None) or {})  # private, but the only handle there is
-    strays = [p for p in multiprocessing.active_children() if p not in (children_before or set())]
+    workers = [p for p in multiprocessing.active_children() if p not in children_before]
     # items still queued for the killed workers must not hold the exit: the queue's feeder thread
     # blocks on a full pipe nobody reads, and interpreter exit joins it (a hang seen in CI on mvs)
     call_queue = getattr(pool, "_call_queue", None)
     if call_queue is not None:
         call_queue.cancel_join_thread()
     pool.shutdown(wait=False, cancel_futures=True)
-    for proc in {id(p): p for p in [*processes.values(), *strays]}.values():
+    for proc in workers:
         proc.terminate()
 
 

@@ -605,6 +605,11 @@ class StereoDepth:
         self._matcher = matcher
         self._unit_rays: np.ndarray | None = None  # (h, w, 3) of the depth grid, made on first use
         self._fine: OpenCVBMMatcher | None = None
+        # the disparity at the map's range (``horizon_far_m``, else SKY_NEAR_RANGE_M), full-
+        # resolution pixels: what frames a sky segment from below, and the horizon band's range
+        self._range_px = float(
+            self.rig.depth_to_disparity(np.array([self.settings.horizon_far_m or SKY_NEAR_RANGE_M]))[0]
+        )
         if self.settings.fine_max_disparity:
             self._fine = OpenCVBMMatcher(
                 int(self.settings.fine_max_disparity),
@@ -697,14 +702,13 @@ class StereoDepth:
                     near=self._near_on_grid(measured, result.disparity),
                 )
                 if sky.any() and s.horizon_far_m is not None:
-                    range_px = float(self.rig.depth_to_disparity(np.array([s.horizon_far_m]))[0])
                     band = horizon_band(
                         sky,
                         separators,
                         measured,
                         result.disparity,
-                        range_px,
-                        range_px - 2.0 * s.disparity_error_px,
+                        self._range_px,
+                        self._range_px - 2.0 * s.disparity_error_px,
                         horizon_row_px,
                         self.rig.left,
                         int(s.texture_scale),
@@ -870,10 +874,8 @@ class StereoDepth:
         ``disparity`` ((H, W), full-resolution pixels) puts them nearer than the map's range
         (``horizon_far_m``, else :data:`SKY_NEAR_RANGE_M`)."""
         k = int(self.settings.texture_scale)
-        far_m = self.settings.horizon_far_m or SKY_NEAR_RANGE_M
-        range_px = float(self.rig.depth_to_disparity(np.array([far_m]))[0])
         with np.errstate(invalid="ignore"):
-            return measured[::k, ::k] & (disparity[::k, ::k] > range_px)
+            return measured[::k, ::k] & (disparity[::k, ::k] > self._range_px)
 
     @property
     def _ground_horizon_px(self) -> float:
