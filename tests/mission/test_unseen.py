@@ -10,8 +10,9 @@ from skyrecon.core import Intrinsics
 from skyrecon.mapping import MapConfig, OccupancyMap
 from skyrecon.mission import MissionConfig
 from skyrecon.mission.guidance import BackOff
-from skyrecon.mission.loop import _unseen_due
+from skyrecon.mission.loop import _stall_count, _unseen_due
 from skyrecon.mission.navigator import CheckOutcome, Navigator
+from skyrecon.mission.safety import SpeedLimit
 from skyrecon.mission.scenario import MapBox
 from skyrecon.mission.unseen import UNSEEN_AFTER_S, UnseenSpots, unknown, unknown_pocket
 from skyrecon.mission.vehicle import sample_path
@@ -159,3 +160,25 @@ def test_unseen_spots_are_sought_only_after_a_whole_scan_held_by_unobserved_spac
     assert not due(outcome=CheckOutcome(False, True, 0))
     moving_back = BackOff(path=np.zeros((2, 3)))
     assert not due(backoff=moving_back)
+
+
+def test_a_one_cycle_hold_while_stalled_does_not_restart_the_scan():
+    """Noisy textured delivery seed 10: the scan turned the camera to a plain wall filling the
+    view, the frame had no depth and the failsafe held for that cycle; the stall count went back
+    to 0 there, the scan restarted and turned to the wall again, for 30 s, and the drone never
+    planned round its blind spot. A hold while still now carries the count (and what held it) on."""
+    seen = SpeedLimit(0.0, 0.0, "path_seen", 1.5, math.inf)
+    stalled, held_by = 0, ""
+    for _ in range(10):
+        stalled, held_by = _stall_count(stalled, held_by, "fly", 0.0, seen)
+    assert (stalled, held_by) == (10, "path_seen")
+    stalled, held_by = _stall_count(stalled, held_by, "hold", 0.0, None)  # no depth: the failsafe holds
+    assert (stalled, held_by) == (11, "path_seen")
+    stalled, held_by = _stall_count(stalled, held_by, "fly", 0.0, seen)
+    assert (stalled, held_by) == (12, "path_seen")
+    # moving, or any other failsafe mode, or a hold that did not begin stalled: the count ends
+    assert _stall_count(12, "path_seen", "fly", 0.5, seen) == (0, "path_seen")
+    assert _stall_count(12, "path_seen", "hold", 0.5, None) == (0, "")
+    assert _stall_count(12, "path_seen", "return", 0.0, seen) == (0, "")
+    assert _stall_count(0, "", "hold", 0.0, None) == (0, "")
+    assert _stall_count(3, "path_seen", "fly", 0.0, None) == (0, "")  # hovering without a path

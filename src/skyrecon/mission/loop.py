@@ -81,6 +81,7 @@ from skyrecon.mission.pose_source import (
     true_step,
 )
 from skyrecon.mission.prior import PriorMap, mission_prior
+from skyrecon.mission.safety import SpeedLimit
 from skyrecon.mission.scenario import Scenario
 from skyrecon.mission.unseen import UNSEEN_AFTER_S
 from skyrecon.mission.vehicle import DroneState, path_length, point_along, step
@@ -484,6 +485,30 @@ def arrival_cut(
         return None
     before = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(rest, axis=0), axis=1))]) < end
     return np.vstack([rest[before], point_along(rest, end)[None]])
+
+
+def _stall_count(
+    stalled: int, held_by: str, mode: str, speed_mps: float, limit: SpeedLimit | None
+) -> tuple[int, str]:
+    """The cycles held still while following a path, and what held the speed, after a cycle in
+    failsafe ``mode`` at ``speed_mps`` with the speed ``limit`` (None: hovering).
+
+    Flying (``mode`` "fly"), held still by a limit: one more cycle, held by its reason; moving,
+    or hovering without a path: 0 and "". A failsafe hold while still and already stalled
+    carries the count on (one more cycle) and keeps what held it: the scan round a blind spot
+    (:func:`~skyrecon.mission.guidance.scan_look_at`) may turn the camera to a plain wall filling
+    the view, a frame with no depth, and the failsafe holds for that cycle; restarting the count
+    there restarted the scan, which turned to the same wall a second later, so it never got
+    past it nor held long enough to plan round the blind spot (noisy textured delivery seed 10
+    scanned the same 2.6 s for 30 s and turned home). Any other mode: 0 and ""."""
+    still = speed_mps < 0.05
+    if mode == "fly":
+        if still and limit is not None:
+            return stalled + 1, limit.reason
+        return 0, limit.reason if limit is not None else ""
+    if mode == "hold" and still and stalled > 0:
+        return stalled + 1, held_by
+    return 0, ""
 
 
 def _unseen_due(
@@ -944,9 +969,8 @@ def _fly(
         if trusted_run >= 5:  # a re-initialisation lost again at the next frame is still lost
             lost_cycles = 0
         # (a failsafe flies a path it already knows; it does not stop to look around)
-        stalled = stalled + 1 if believed.speed < 0.05 and g.limit is not None and mode == "fly" else 0
-        held_by = g.limit.reason if g.limit is not None else ""
-        if stalled:
+        stalled, held_by = _stall_count(stalled, held_by, mode, believed.speed, g.limit)
+        if stalled and mode == "fly":
             g.look_at = scan_look_at(g.look_at, p, stalled * cfg.dt)
         # held still by a point it cannot look at: back off along the flown track to see it
         backoff.consider(rest, verified, stalled * cfg.dt, g.limit, p, failsafe.way_back, cfg, mode)
