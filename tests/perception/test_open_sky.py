@@ -66,3 +66,35 @@ def test_sky_reaching_down_to_the_horizon_beside_a_near_roof_is_sky():
     near[41:, :51] = True
     sky = open_sky(separators, HORIZON, CAMERA, near=near)
     assert sky[:38, 2:-2].all() and sky[:44, 53:-2].all()
+
+
+def test_a_plain_band_over_another_plain_band_on_a_near_facade_is_not_sky():
+    """A red sign band across the top of a near tower (reaching the top of the image), a plain
+    grey band under it and the tower's measured windows under that (a random noisy view of
+    city 45: 6755 pixels of open air through the tower): the first measured pixel under the
+    band's rim, 20 rows down through the plain band, is near."""
+    separators = np.zeros((H, W), bool)
+    separators[12, :] = True  # the edge between the red band and the grey band
+    separators[32:, :] = True  # the windows, textured ...
+    measured = np.zeros((H, W), bool)
+    measured[33:, :] = True  # ... and measured, near
+    near = measured.copy()
+    assert open_sky(separators, HORIZON, CAMERA, near=near)[:10, 2:-2].all()  # 8 rows: not seen
+    assert not open_sky(separators, HORIZON, CAMERA, near=near, measured=measured).any()
+    # far under the grey band (a skyline beyond the range): sky
+    assert open_sky(separators, HORIZON, CAMERA, near=np.zeros_like(near), measured=measured)[:10, 2:-2].all()
+
+
+def test_the_first_measured_pixel_under_a_pixel_within_reach():
+    from skyrecon.perception.stereo_depth import _first_measured_below_is_near
+
+    measured = np.zeros((10, 3), bool)
+    near = np.zeros((10, 3), bool)
+    measured[6, 0] = near[6, 0] = True  # column 0: near at row 6
+    measured[4, 1] = True  # column 1: far at row 4, near at row 8 under it
+    measured[8, 1] = near[8, 1] = True
+    out = _first_measured_below_is_near(measured, near, reach_px=3)
+    assert out[:, 0].tolist() == [False, False, False, True, True, True, False, False, False, False]
+    assert not out[:5, 1].any()  # the far pixel comes first (or the near one is 4 rows down)
+    assert out[5:8, 1].all() and not out[8:, 1].any()  # under the far one, the near one is first
+    assert not out[:, 2].any()  # nothing measured

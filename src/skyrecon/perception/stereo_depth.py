@@ -164,6 +164,9 @@ SKY_NEAR_RANGE_M = 20.0
 SKY_ENCLOSED_SHARE = 0.5
 #: ... looking this many pixels (of the separators' grid) under the rim: the edge between them
 SKY_RIM_PX = 8
+#: ... or at the first measured pixel under the rim, through unmeasured (plain) pixels, up to
+#: this many pixels of the separators' grid under it (64: 22 degrees at 640 x 480 and 90 degrees)
+SKY_FRAME_REACH_PX = 64
 
 
 def open_sky(
@@ -173,6 +176,7 @@ def open_sky(
     scale: int = 1,
     shape: tuple[int, ...] | None = None,
     near: np.ndarray | None = None,
+    measured: np.ndarray | None = None,
 ) -> np.ndarray:
     """(H, W) bool: the plain segments of an image that reach its top row and lie wholly above
     the horizon (at least :data:`SKY_MARGIN_DEG` above it): open sky.
@@ -189,6 +193,14 @@ def open_sky(
     refused, left the drone without depth and it turned home); sky seen only above near roofs
     taller than the drone is refused, which costs the air above them.
 
+    With ``measured`` as well, a rim pixel is also framed when the first measured pixel under it
+    (through unmeasured pixels, up to :data:`SKY_FRAME_REACH_PX` under it) is near: a plain
+    band across a near facade, bounded below by another plain band, is framed by what is
+    measured under that (a red sign band across the top of a textured tower 6 m ahead, a plain
+    grey band under it, the windows under that measured: random noisy view of city 45 in
+    ``benchmarks/mission/probe_carve_through.py``, 6755 pixels of open air through the tower,
+    a third of the textured probe's carving through).
+
     Args:
         separators: (h, w) bool, the pixels with texture or an edge, at the image's resolution
             divided by ``scale`` (they separate the segments; :func:`texture_masks`' ``edges``).
@@ -198,6 +210,8 @@ def open_sky(
             ``scale`` times the separators').
         near: optional (h, w) bool on the separators' grid: measured depth nearer than the
             map's range.
+        measured: optional (h, w) bool on the separators' grid: measured depth (any range;
+            ``near`` must be given with it).
     """
     t = np.ascontiguousarray(np.asarray(separators, bool))
     full_shape = shape if shape is not None else (t.shape[0] * scale, t.shape[1] * scale)
@@ -210,27 +224,51 @@ def open_sky(
     if near is not None and sky.any():
         # a segment reaching down towards the horizon opens onto the far view: sky, framed or not
         to_horizon = bottom >= horizon_row_px - camera.fy * np.tan(np.radians(HORIZON_BAND_DEG))
-        sky &= to_horizon | ~_enclosed_from_below(labels, n, np.asarray(near, bool))
+        framed = _enclosed_from_below(
+            labels, n, np.asarray(near, bool), None if measured is None else np.asarray(measured, bool)
+        )
+        sky &= to_horizon | ~framed
     # a pixel off the sky's rim: where an edge is faint (a roof corner at the image's top) the
     # segment may take in a pixel or two of what stands there
     full = cv2.erode(sky[labels].view(np.uint8), np.ones((3, 3), np.uint8)).view(bool)
     return _upsample_mask(full, scale, full_shape) if scale > 1 else full
 
 
-def _enclosed_from_below(labels: np.ndarray, n: int, near: np.ndarray) -> np.ndarray:
+def _enclosed_from_below(
+    labels: np.ndarray, n: int, near: np.ndarray, measured: np.ndarray | None = None
+) -> np.ndarray:
     """(n,) bool per segment of ``labels`` (h, w): its lower rim (its pixels whose lower
-    neighbour is not its own) has a ``near`` pixel within :data:`SKY_RIM_PX` under it on at
-    least :data:`SKY_ENCLOSED_SHARE` of its pixels."""
-    if near.shape != labels.shape:
+    neighbour is not its own) has a ``near`` pixel within :data:`SKY_RIM_PX` under it, or (with
+    ``measured``) its first ``measured`` pixel under it within :data:`SKY_FRAME_REACH_PX` is
+    ``near``, on at least :data:`SKY_ENCLOSED_SHARE` of its pixels."""
+    if near.shape != labels.shape or (measured is not None and measured.shape != labels.shape):
         raise InputError(f"near mask {near.shape} does not match the separators {labels.shape}")
     rim = np.ones(labels.shape, bool)  # the bottom row's pixels have nothing under them
     rim[:-1] = labels[:-1] != labels[1:]
     under = np.zeros(labels.shape, bool)
     for k in range(1, SKY_RIM_PX + 1):
         under[:-k] |= near[k:]
+    if measured is not None:
+        under |= _first_measured_below_is_near(measured, near, SKY_FRAME_REACH_PX)
     total = np.bincount(labels[rim], minlength=n)
     framed = np.bincount(labels[rim & under], minlength=n)
     return framed >= SKY_ENCLOSED_SHARE * np.maximum(total, 1)
+
+
+def _first_measured_below_is_near(measured: np.ndarray, near: np.ndarray, reach_px: int) -> np.ndarray:
+    """(h, w) bool: the first ``measured`` pixel under each pixel in its column (rows r + 1 ...
+    r + ``reach_px``) exists and is ``near``; both masks (h, w) bool."""
+    h = measured.shape[0]
+    rows = np.arange(h, dtype=np.int32)[:, None]
+    first = np.where(measured, rows, np.int32(h))
+    first = np.minimum.accumulate(first[::-1], axis=0)[::-1]  # first measured at or under each row
+    below = np.full(measured.shape, h, np.int32)
+    below[:-1] = first[1:]
+    found = (below < h) & (below - rows <= reach_px)
+    out = np.zeros(measured.shape, bool)
+    r, c = np.nonzero(found)
+    out[r, c] = near[below[r, c], c]
+    return out
 
 
 #: the open sky must reach within this many degrees of the horizon for :func:`horizon_band`
@@ -700,6 +738,7 @@ class StereoDepth:
                     int(s.texture_scale),
                     measured.shape,
                     near=self._near_on_grid(measured, result.disparity),
+                    measured=measured[:: int(s.texture_scale), :: int(s.texture_scale)],
                 )
                 if sky.any() and s.horizon_far_m is not None:
                     band = horizon_band(
