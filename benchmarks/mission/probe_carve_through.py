@@ -23,6 +23,11 @@ Session 54 (``--cities 40-49 --views 10``, 1.5 grey levels, cities not looked at
 mends: textured 4560 -> 2703 pixels carving through per million (open air 25311 -> 11173; 5 -> 4
 views over 2 %), plain 1099 -> 1276 (open air 1877 -> 1254, but the plane fill 512 -> 2494, one
 view over 2 %: city 40, a plane 1622 pixels wrong, not looked at yet); good depth +0 % / +2.8 %.
+
+Session 55 (``results_carve_through_session55.json``), open sky framed through plain bands (the
+first measured pixel under the rim is near; a red sign band over a plain band on a tower, city
+45): held-out cities 50-59 textured 975 -> 631 per million (open air 4176 -> 1535), plain
+unchanged (2430: the plane fill, 9941 pixels, is most of it); open air right -0.001 %.
 """
 
 from __future__ import annotations
