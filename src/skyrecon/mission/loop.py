@@ -493,11 +493,11 @@ def _stall_count(
     """The cycles held still while following a path, and what held the speed, after a cycle in
     failsafe ``mode`` at ``speed_mps`` with the speed ``limit`` (None: hovering).
 
-    Flying (``mode`` "fly"), held still by a limit: one more cycle, held by its reason; moving,
-    or hovering without a path: 0 and "". A failsafe hold while still and already stalled
-    carries the count on (one more cycle) and keeps what held it: the scan round a blind spot
-    (:func:`~skyrecon.mission.guidance.scan_look_at`) may turn the camera to a plain wall filling
-    the view, a frame with no depth, and the failsafe holds for that cycle; restarting the count
+    Flying (``mode`` "fly"), held still by a limit: one more cycle, held by its reason; moving:
+    0, held by its reason; hovering without a path: 0 and "". A failsafe hold while still and
+    already stalled carries the count on (one more cycle) and keeps what held it: the scan round
+    a blind spot (:func:`~skyrecon.mission.guidance.scan_look_at`) may turn the camera to a plain
+    wall filling the view, a frame with no depth, and the failsafe holds for that cycle; restarting the count
     there restarted the scan, which turned to the same wall a second later, so it never got
     past it nor held long enough to plan round the blind spot (noisy textured delivery seed 10
     scanned the same 2.6 s for 30 s and turned home). Any other mode: 0 and ""."""
