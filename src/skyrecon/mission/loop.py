@@ -497,10 +497,11 @@ def _stall_count(
     0, held by its reason; hovering without a path: 0 and "". A failsafe hold while still and
     already stalled carries the count on (one more cycle) and keeps what held it: the scan round
     a blind spot (:func:`~skyrecon.mission.guidance.scan_look_at`) may turn the camera to a plain
-    wall filling the view, a frame with no depth, and the failsafe holds for that cycle; restarting the count
-    there restarted the scan, which turned to the same wall a second later, so it never got
-    past it nor held long enough to plan round the blind spot (noisy textured delivery seed 10
-    scanned the same 2.6 s for 30 s and turned home). Any other mode: 0 and ""."""
+    wall filling the view, a frame with no depth, and the failsafe holds for that cycle;
+    restarting the count there restarted the scan, which turned to the same wall a second
+    later, so it never got past it nor held long enough to plan round the blind spot (noisy
+    textured delivery seed 10 scanned the same 2.6 s for 30 s and turned home). Any other mode:
+    0 and ""."""
     still = speed_mps < 0.05
     if mode == "fly":
         if still and limit is not None:

@@ -175,8 +175,8 @@ def open_sky(
     camera: Intrinsics,
     scale: int = 1,
     shape: tuple[int, ...] | None = None,
-    near: np.ndarray | None = None,
     measured: np.ndarray | None = None,
+    near: np.ndarray | None = None,
 ) -> np.ndarray:
     """(H, W) bool: the plain segments of an image that reach its top row and lie wholly above
     the horizon (at least :data:`SKY_MARGIN_DEG` above it): open sky.
@@ -208,10 +208,10 @@ def open_sky(
         camera: the full-resolution camera (its ``fy``).
         scale: the reduction of ``separators``; shape: the full-resolution (H, W) (default
             ``scale`` times the separators').
+        measured: optional (h, w) bool on the separators' grid: measured depth (any range;
+            read only with ``near``).
         near: optional (h, w) bool on the separators' grid: measured depth nearer than the
             map's range.
-        measured: optional (h, w) bool on the separators' grid: measured depth (any range;
-            ``near`` must be given with it).
     """
     t = np.ascontiguousarray(np.asarray(separators, bool))
     full_shape = shape if shape is not None else (t.shape[0] * scale, t.shape[1] * scale)
@@ -241,8 +241,9 @@ def _enclosed_from_below(
     neighbour is not its own) has a ``near`` pixel within :data:`SKY_RIM_PX` under it, or (with
     ``measured``) its first ``measured`` pixel under it within :data:`SKY_FRAME_REACH_PX` is
     ``near``, on at least :data:`SKY_ENCLOSED_SHARE` of its pixels."""
-    if near.shape != labels.shape or (measured is not None and measured.shape != labels.shape):
-        raise InputError(f"near mask {near.shape} does not match the separators {labels.shape}")
+    for name, mask in (("near", near), ("measured", measured)):
+        if mask is not None and mask.shape != labels.shape:
+            raise InputError(f"{name} mask {mask.shape} does not match the separators {labels.shape}")
     rim = np.ones(labels.shape, bool)  # the bottom row's pixels have nothing under them
     rim[:-1] = labels[:-1] != labels[1:]
     under = np.zeros(labels.shape, bool)
@@ -264,11 +265,8 @@ def _first_measured_below_is_near(measured: np.ndarray, near: np.ndarray, reach_
     first = np.minimum.accumulate(first[::-1], axis=0)[::-1]  # first measured at or under each row
     below = np.full(measured.shape, h, np.int32)
     below[:-1] = first[1:]
-    found = (below < h) & (below - rows <= reach_px)
-    out = np.zeros(measured.shape, bool)
-    r, c = np.nonzero(found)
-    out[r, c] = near[below[r, c], c]
-    return out
+    near_below = np.take_along_axis(near, np.minimum(below, h - 1), axis=0)
+    return (below < h) & (below - rows <= reach_px) & near_below
 
 
 #: the open sky must reach within this many degrees of the horizon for :func:`horizon_band`
@@ -731,14 +729,15 @@ class StereoDepth:
             measured = measured & self._full(tex.matchable)
             if s.sky_is_free and horizon_row_px is not None:
                 separators = self._separators(tex)
+                measured_k, near_k = self._measured_and_near_on_grid(measured, result.disparity)
                 sky = open_sky(
                     separators,
                     horizon_row_px,
                     self.rig.left,
                     int(s.texture_scale),
                     measured.shape,
-                    near=self._near_on_grid(measured, result.disparity),
-                    measured=measured[:: int(s.texture_scale), :: int(s.texture_scale)],
+                    measured=measured_k,
+                    near=near_k,
                 )
                 if sky.any() and s.horizon_far_m is not None:
                     band = horizon_band(
@@ -908,13 +907,17 @@ class StereoDepth:
         grown = cv2.dilate(raised.view(np.uint8), GROUND_RAISED_KERNEL).view(bool)
         return below_raised(grown, from_ground, GROUND_RAISED_HOLES_PX, GROUND_RAISED_ASIDE_PX)
 
-    def _near_on_grid(self, measured: np.ndarray, disparity: np.ndarray) -> np.ndarray:
-        """(h, w) bool at ``texture_scale``: the ``measured`` pixels ((H, W) bool) whose
-        ``disparity`` ((H, W), full-resolution pixels) puts them nearer than the map's range
-        (``horizon_far_m``, else :data:`SKY_NEAR_RANGE_M`)."""
+    def _measured_and_near_on_grid(
+        self, measured: np.ndarray, disparity: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """``(measured, near)``, (h, w) bool at ``texture_scale``: the ``measured`` pixels
+        ((H, W) bool), and those whose ``disparity`` ((H, W), full-resolution pixels) puts them
+        nearer than the map's range (``horizon_far_m``, else :data:`SKY_NEAR_RANGE_M`); what
+        :func:`open_sky` takes as ``measured`` and ``near``."""
         k = int(self.settings.texture_scale)
+        on_grid = measured[::k, ::k]
         with np.errstate(invalid="ignore"):
-            return measured[::k, ::k] & (disparity[::k, ::k] > self._range_px)
+            return on_grid, on_grid & (disparity[::k, ::k] > self._range_px)
 
     @property
     def _ground_horizon_px(self) -> float:
