@@ -18,6 +18,7 @@ detections.
 Usage:
   .venv/bin/python benchmarks/dynamic/probe_phantoms.py --seeds 102-103
   .venv/bin/python benchmarks/dynamic/probe_phantoms.py --seeds 103 --tracker refute_frames=2
+  .venv/bin/python benchmarks/dynamic/probe_phantoms.py --seeds 103 --camera-noise 1.5
 
 Session 43, seed 103 with ``refute_frames=2`` (304 planner track-frames):
 
@@ -49,6 +50,7 @@ import numpy as np  # noqa: E402
 
 import skyrecon.mission.world_monitor as wm  # noqa: E402
 import skyrecon.perception.movers as movers  # noqa: E402
+from skyrecon.cli.common import add_camera_noise_option  # noqa: E402
 from skyrecon.mission import MissionConfig  # noqa: E402
 from skyrecon.mission.batch import fly_and_write  # noqa: E402
 
@@ -58,7 +60,7 @@ from replay_tracker import parse_seeds  # noqa: E402  (benchmarks/dynamic/replay
 ON_STATIC_M = 1.0  # a phantom this close to the static city lies on a surface of it
 
 
-def fly(seed: int, out: Path, tracker: str) -> list[dict]:
+def fly(seed: int, out: Path, tracker: str, camera_noise: float = 0.0) -> list[dict]:
     """Fly one mission; per planner track-frame: time, track id, position, coasting, hits, the
     points of its detection in that frame (None when coasting) and its kind (see the module
     docstring)."""
@@ -70,8 +72,8 @@ def fly(seed: int, out: Path, tracker: str) -> list[dict]:
         init(self, *a, **k)
         monitors.append(self)
 
-    def update_probe(self, time_s, depth_m, intrinsics, world_from_cam, occ_map, fine=None):
-        mf = update(self, time_s, depth_m, intrinsics, world_from_cam, occ_map, fine=fine)
+    def update_probe(self, time_s, *args, **kwargs):
+        mf = update(self, time_s, *args, **kwargs)
         dets = {d.track_id: d for d in mf.detections}
         for t in mf.tracks:
             if t.avoided:
@@ -90,7 +92,13 @@ def fly(seed: int, out: Path, tracker: str) -> list[dict]:
 
     movers.MoverTracker.update, wm.WorldMonitor.__init__ = update_probe, init_probe
     try:
-        cfg = MissionConfig(movers=True, city_changes=True, prior_map="earlier", tracker_settings=tracker)
+        cfg = MissionConfig(
+            movers=True,
+            city_changes=True,
+            prior_map="earlier",
+            tracker_settings=tracker,
+            camera_noise=camera_noise,
+        )
         fly_and_write(seed, out / f"seed_{seed:04d}", cfg)
     finally:
         movers.MoverTracker.update, wm.WorldMonitor.__init__ = update, init
@@ -130,10 +138,11 @@ def main() -> None:
     ap.add_argument("--seeds", default="103", help="e.g. 103 or 100-105")
     ap.add_argument("--tracker", default="", help="MoverSettings overrides, e.g. refute_frames=0")
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "dynamic" / "out_phantoms")
+    add_camera_noise_option(ap)
     args = ap.parse_args()
     rows: list[dict] = []
     for seed in parse_seeds(args.seeds):
-        got = fly(seed, args.out, args.tracker)
+        got = fly(seed, args.out, args.tracker, args.camera_noise)
         for r in got:
             r["seed"] = seed
         rows += got

@@ -445,6 +445,76 @@ def test_noisy_static_scene_has_no_false_movers():
     assert n_dets <= 5
 
 
+def test_holes_inside_a_drone_do_not_make_it_all_edge():
+    """Under camera noise stereo leaves holes inside a drone (here 30 % of its pixels, 8 m
+    ahead): with holes counted as far every pixel next to one is a depth edge and too few are
+    left to make a cluster; left out (``edge_hole_min_valid``), the drone is found where it is,
+    and the same holes in a still scene still make no detection."""
+    from skyrecon.perception.movers import detect_movers
+
+    occ = static_map()
+    pose = forward_pose(0.0)
+    centre = np.array([8.0, -1.0, 4.2])
+    d_static = render(pose)
+    d = render(pose, [box(centre)])
+    rng = np.random.default_rng(3)
+    holes = rng.random(d.shape) < 0.3
+    d[mover_pixels(d, d_static) & holes] = np.nan
+    holes_ok = MoverSettings(edge_hole_min_valid=3)
+    assert MoverSettings().edge_hole_min_valid == 3  # the default
+    assert not detect_movers(d, CAM, pose, occ, MoverSettings(edge_hole_min_valid=0))
+    (det,) = detect_movers(d, CAM, pose, occ, holes_ok)
+    assert len(detect_movers(d, CAM, pose, occ)) == 1
+    face_x = centre[0] - DRONE_HALF[0]  # the detection is the face in view
+    assert abs(det.center[0] - face_x) < 0.1 and np.linalg.norm(det.center[1:] - centre[1:]) < 0.1
+    d_static[holes] = np.nan
+    assert not detect_movers(d_static, CAM, pose, occ, holes_ok)
+
+
+@dataclass
+class FixedMatches:
+    """Matches whose regions have one alias ratio (below 1: a periodic texture)."""
+
+    ratio: float
+    asked: int = 0
+
+    def region_alias_ratio(self, rows: np.ndarray, cols: np.ndarray) -> float:
+        self.asked += len(rows)
+        return self.ratio
+
+
+def test_a_cluster_of_aliases_is_not_a_mover():
+    """A cluster whose matches have a near-equal alternative farther away (windows or stripes
+    matched a period off: a phantom surface in front of a facade) is dropped with
+    ``min_alias_ratio`` (1.0 by default)."""
+    from skyrecon.perception.movers import detect_movers
+
+    occ = static_map()
+    pose = forward_pose(0.0)
+    centre = np.array([8.0, -1.0, 4.2])
+    d = render(pose, [box(centre)])
+    on = MoverSettings()
+    assert on.min_alias_ratio == 1.0
+    alias, unique = FixedMatches(0.6), FixedMatches(3.0)
+    assert len(detect_movers(d, CAM, pose, occ, on, matches=unique)) == 1 and unique.asked > 0
+    assert not detect_movers(d, CAM, pose, occ, on, matches=alias)
+    off = replace(on, min_alias_ratio=0.0)
+    assert len(detect_movers(d, CAM, pose, occ, off, matches=alias)) == 1 and alias.asked == unique.asked
+
+
+def test_a_speck_among_holes_is_still_an_edge():
+    from skyrecon.perception.movers import _depth_edges
+
+    depth = np.full((8, 8), np.nan, np.float32)
+    depth[6, 5:7] = 8.0  # a pair among holes: one measured neighbour each
+    depth[0:3, 0:3] = 5.0  # a 3 x 3 patch: its corner (2, 2) has 3 measured neighbours
+    edges, _ = _depth_edges(depth, 0.1, hole_min_valid=3)
+    assert edges[6, 5] and edges[6, 6] and not edges[1, 1] and not edges[2, 2]
+    assert _depth_edges(depth, 0.1, hole_min_valid=4)[0][2, 2]
+    far, _ = _depth_edges(depth, 0.1)  # holes count as far: a hole's border is an edge
+    assert far[2, 2] and far[6, 5] and far[6, 6] and not far[1, 1]
+
+
 NEAR_EDGES = MoverSettings(edge_near_frac=0.03, edge_near_min_range_m=8.0)
 
 

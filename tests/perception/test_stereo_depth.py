@@ -285,6 +285,67 @@ def test_unambiguous_matches_sets_aliases_of_a_periodic_texture_aside():
     assert unambiguous_matches(noise, noise, r[:0], c[:0], np.zeros(0), 16, 9).shape == (0,)
 
 
+def test_pair_matches_check_the_depth_grids_pixels():
+    """A depth frame carries its disparities and pair (``matches``): the grid's pixels are
+    checked at full resolution with the disparity that gave their depth; none: False."""
+    from skyrecon.perception.stereo_depth import PairMatches
+    from skyrecon.stereo.base import prepare_pair
+
+    rig, f, px, _ = _small_far_drone()
+    frame = StereoDepth(rig, PerceptionSettings.flight()).compute(f.left, f.right)
+    m = frame.matches
+    assert m is not None and m.disparity_px.shape == frame.depth_m.shape and m.stride == 2
+    ok = np.isfinite(frame.depth_m) & (frame.depth_m > 0)
+    fb = rig.left.fx * rig.baseline_m
+    assert np.allclose(fb / m.disparity_px[ok], frame.depth_m[ok], rtol=1e-4)
+    r, c = np.nonzero(px & ok)
+    assert m.unambiguous(r, c).mean() > 0.6  # the drone's own texture
+    pair = prepare_pair(f.left, f.right)
+    want = unambiguous_matches(
+        pair.left_grey, pair.right_grey, r * 2, c * 2, m.disparity_px[r, c], m.n_disparities, m.block_px
+    )
+    assert np.array_equal(m.unambiguous(r, c), want)
+    none = PairMatches(np.full((2, 2), np.nan, np.float32), f.left, f.right, 2, m.n_disparities, 9)
+    assert not none.unambiguous(np.array([0, 1]), np.array([1, 0])).any()
+
+
+def test_region_alias_ratio_tells_a_periodic_patch_from_an_object():
+    """A patch of a periodic facade matched a period off is matched as well, as a whole, at the
+    true disparity (ratio below 1); a drone whose panels are plain along the rows (every pixel
+    ambiguous on its own) in front of a background is not: its outline moves against it."""
+    from skyrecon.perception.stereo_depth import PairMatches
+
+    rng = np.random.default_rng(1)
+    cols = np.arange(200)
+    stripes = 128 + 100 * np.sin(2 * np.pi * cols / 7.0)  # period 7 px, disparity 2
+    facade = np.tile(stripes, (60, 1)) + rng.normal(0, 1.5, (60, 200))
+    right = np.roll(facade, -2, axis=1) + rng.normal(0, 1.5, (60, 200))
+    region = np.zeros((30, 100), bool)
+    region[10:18, 50:70] = True
+    r, c = np.nonzero(region)
+    disp = np.full((30, 100), 9.0, np.float32)  # 2 + 7: the alias
+
+    def pair(left, right, d):
+        grey = [np.clip(x, 0, 255).astype(np.uint8) for x in (left, right)]
+        return PairMatches(d, grey[0], grey[1], 2, 32, 9)
+
+    assert pair(facade, right, disp).region_alias_ratio(r, c) < 0.8
+    assert pair(facade, right, np.full((30, 100), 2.0, np.float32)).region_alias_ratio(r, c) > 5.0
+    assert pair(facade, right, np.full((30, 100), 1.5, np.float32)).region_alias_ratio(r, c) == np.inf
+    # a banded drone at disparity 12 over a random background at disparity 2
+    background = rng.uniform(0, 255, (60, 200))
+    bands = np.repeat(np.where(np.arange(16) % 4 < 2, 40.0, 220.0), 40).reshape(16, 40)
+    left, right = background.copy(), np.roll(background, -2, axis=1)
+    left[20:36, 100:140] = bands
+    right[20:36, 88:128] = bands
+    left, right = (x + rng.normal(0, 1.5, x.shape) for x in (left, right))
+    drone = np.full((30, 100), 12.0, np.float32)
+    m = pair(left, right, drone)
+    assert m.region_alias_ratio(r, c) > 1.5
+    r2, c2 = np.nonzero(region[:, :] & (np.arange(100) >= 53)[None, :] & (np.arange(100) < 67)[None, :])
+    assert not m.unambiguous(r2, c2).any()  # pixel by pixel, inside, every match is ambiguous
+
+
 def test_near_specks_are_dropped_and_near_surfaces_kept():
     """A few pixels matched 1.7 m away on plain sky are a speck (noisy plain seeds 1 and 8 hovered
     behind such phantoms); a wall 2 m away, a thin pole 3 m away and far pixels stay."""

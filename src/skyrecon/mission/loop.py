@@ -626,6 +626,7 @@ def _map_update(
             nav.map,
             fine=depth.fine,
             image=left,
+            matches=depth.matches,
         )
         movers_ms = mf.ms
         if mf.dynamic_mask.any():

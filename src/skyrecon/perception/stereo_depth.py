@@ -491,6 +491,8 @@ FINE_MIN_GAIN_PX = 0.5
 #: a fine match is ambiguous when a farther disparity (2 or more pixels less) costs less than
 #: this factor times its own cost (plus this, grey levels): the aliases of a periodic texture
 AMBIGUITY_RATIO = 1.2
+#: :meth:`PairMatches.region_alias_ratio` looks at most at this many depth-grid pixels of a region
+ALIAS_REGION_PX = 400
 
 
 def unambiguous_matches(
@@ -519,26 +521,116 @@ def unambiguous_matches(
         n_disparities: the disparities tried; block_px: odd window side, pixels.
     """
     n = len(rows)
-    if n == 0:
-        return np.zeros(0, bool)
+    disp = np.asarray(disparity_px, np.float64)
+    if n == 0 or not np.isfinite(disp).any():
+        return np.zeros(n, bool)
     H, W = left.shape
     off = np.arange(block_px) - block_px // 2
     rr = np.clip(rows[:, None] + off, 0, H - 1)[:, :, None]  # (N, B, 1)
     lp = left[rr, np.clip(cols[:, None] + off, 0, W - 1)[:, None, :]].astype(np.float32)
     lp -= lp.mean(axis=(1, 2), keepdims=True)
-    costs = np.empty((n, n_disparities), np.float32)
-    for d in range(n_disparities):
+    # only the disparities up to the largest own one (and the one above it) are compared
+    n_eval = int(min(n_disparities, max(np.floor(np.nanmax(disp)), 0) + 2))
+    costs = np.full((n, n_disparities), np.inf, np.float32)
+    for d in range(n_eval):
         rp = right[rr, np.clip(cols[:, None] - d + off, 0, W - 1)[:, None, :]].astype(np.float32)
         rp -= rp.mean(axis=(1, 2), keepdims=True)
         costs[:, d] = np.abs(lp - rp).mean(axis=(1, 2))
-    disp = np.asarray(disparity_px, np.float64)
-    lo = np.clip(np.floor(disp).astype(np.intp), 0, n_disparities - 1)
+    finite = np.isfinite(disp)
+    lo = np.clip(np.floor(np.where(finite, disp, 0.0)).astype(np.intp), 0, n_disparities - 1)
     hi = np.minimum(lo + 1, n_disparities - 1)
     idx = np.arange(n)
     own = np.minimum(costs[idx, lo], costs[idx, hi])
     farther = np.arange(n_disparities)[None, :] <= disp[:, None] - 2.0
     best_farther = np.where(farther, costs, np.inf).min(axis=1)
-    return best_farther > AMBIGUITY_RATIO * (own + 1.0)
+    return finite & (best_farther > AMBIGUITY_RATIO * (own + 1.0))
+
+
+@dataclass(eq=False)
+class PairMatches:
+    """The disparities behind a depth frame and the pair they were matched from, to check a few
+    of them for aliases on demand (:meth:`unambiguous`; the grey pair is made on first use).
+
+    Attributes:
+        disparity_px: (h, w) float32 disparity of each depth-grid pixel, full-resolution pixels
+            (the matcher's, or the plane fill's where it filled; NaN none).
+        left, right: the rectified pair as given to :meth:`StereoDepth.compute` ((H, W, 3) RGB
+            or (H, W) grey).
+        stride: the depth grid is ``[::stride, ::stride]`` of the full image.
+        n_disparities, block_px: the disparities compared and the window, pixels.
+    """
+
+    disparity_px: np.ndarray
+    left: np.ndarray
+    right: np.ndarray
+    stride: int
+    n_disparities: int
+    block_px: int
+
+    def __post_init__(self) -> None:
+        self._grey: tuple[np.ndarray, np.ndarray] | None = None
+
+    def grey(self) -> tuple[np.ndarray, np.ndarray]:
+        """The (H, W) uint8 grey pair (made once)."""
+        if self._grey is None:
+            pair = prepare_pair(np.asarray(self.left), np.asarray(self.right))
+            self._grey = (pair.left_grey, pair.right_grey)
+        return self._grey
+
+    def unambiguous(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """(N,) bool for depth-grid pixels (N,) (rows, cols): see :func:`unambiguous_matches`
+        (False where there is no disparity)."""
+        r = np.asarray(rows, np.intp)
+        c = np.asarray(cols, np.intp)
+        k = self.stride
+        return unambiguous_matches(
+            *self.grey(), r * k, c * k, self.disparity_px[r, c], self.n_disparities, self.block_px
+        )
+
+    def region_alias_ratio(self, rows: np.ndarray, cols: np.ndarray) -> float:
+        """How much worse the best farther match of a whole region is than its own: a region
+        (depth-grid pixels (N,) ``rows``, ``cols``, each its ``stride`` x ``stride`` block of
+        full-resolution pixels; at most :data:`ALIAS_REGION_PX` of them, evenly spread) is
+        shifted as one by every disparity in the right image; ``own`` is the lowest mean
+        absolute difference (each side less its mean) within a pixel of its median disparity,
+        ``farther`` the lowest at least 2 pixels smaller. Returns ``farther / (own + 1)``
+        (inf when nothing is farther or no pixel has a disparity).
+
+        Why a region: a patch of a periodic texture (rows of windows, a zebra crossing)
+        matched a period off is matched as well, as a whole, at the true disparity (ratio
+        near 1 or below), while an object in front of a background is not: the region's
+        outline moves against what lies behind it (a drone's panels, plain along the rows,
+        match anywhere pixel by pixel, but not as a whole)."""
+        r = np.asarray(rows, np.intp)
+        c = np.asarray(cols, np.intp)
+        if r.size > ALIAS_REGION_PX:
+            pick = np.linspace(0, r.size - 1, ALIAS_REGION_PX).astype(np.intp)
+            r, c = r[pick], c[pick]
+        disp = self.disparity_px[r, c]
+        disp = disp[np.isfinite(disp)]
+        if disp.size == 0:
+            return float("inf")
+        d_own = float(np.median(disp))
+        if d_own < 2.0:
+            return float("inf")
+        left, right = self.grey()
+        k = self.stride
+        dy, dx = np.divmod(np.arange(k * k), k)
+        ys = np.minimum((r[:, None] * k + dy).reshape(-1), left.shape[0] - 1)
+        xs = np.minimum((c[:, None] * k + dx).reshape(-1), left.shape[1] - 1)
+        lv = left[ys, xs].astype(np.float32)
+        top = min(int(math.ceil(d_own)) + 1, self.n_disparities - 1)
+        costs = np.full(top + 1, np.inf)
+        for d in range(top + 1):
+            ok = xs >= d
+            if not ok.any():
+                continue
+            a = lv[ok] - lv[ok].mean()
+            b = right[ys[ok], xs[ok] - d].astype(np.float32)
+            costs[d] = float(np.abs(a - (b - b.mean())).mean())
+        own = costs[max(int(math.floor(d_own)) - 1, 0) :].min()  # within a pixel of the median
+        farther = costs[: int(math.floor(d_own - 2.0)) + 1].min()
+        return float(farther / (own + 1.0))
 
 
 @dataclass(eq=False)
@@ -605,6 +697,9 @@ class DepthFrame:
             fill, (h, w) bool: the pixels of ``depth_m`` that took the ground's plane (not
             measured: not evidence of where the ground lies; with ``ground_range_m`` they are
             +inf or NaN in ``depth_m``). None otherwise.
+        matches: the disparities of ``depth_m``'s grid and the pair (:class:`PairMatches`), for
+            checking a few pixels for aliases of a periodic texture (the mover tracker's
+            clusters).
     """
 
     depth_m: np.ndarray
@@ -617,6 +712,7 @@ class DepthFrame:
     fine: FineDepth | None = None
     image_noise_sigma: float | None = None
     from_ground: np.ndarray | None = None
+    matches: PairMatches | None = None
 
 
 class StereoDepth:
@@ -808,6 +904,7 @@ class StereoDepth:
             fine,
             noise,
             from_ground,
+            PairMatches(disp[::k, ::k], left, right, k, int(s.max_disparity), int(s.fine_block_px)),
         )
 
     def _plane_fill(
