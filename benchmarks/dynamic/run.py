@@ -42,6 +42,11 @@ Usage:
   .venv/bin/python benchmarks/dynamic/run.py --camera-noise 1.5 --seeds 10 --tracker motion_ratio=0.7
       # the motion test (skyrecon.perception.motion_test; session 51, against the same run without:
       # results_noise1.5_tried_seeds100-109.json, recall within 20 m 0.154 -> 0.217; off by default)
+  .venv/bin/python benchmarks/dynamic/run.py --camera-noise 1.5 --seeds 10 --tracker edge_hole_min_valid=0,min_alias_ratio=0
+      # the detector before session 56 (holes counted as depth edges, no alias test; kept as
+      # results_noise1.5_seeds100-109_session55.json): recall within 10 m 0.31 -> 0.62 with
+      # today's defaults (results_noise1.5_seeds100-109_session56.json). A --tracker run writes
+      # results*_tried_*.json over the last one: copy a tried run's file before the next.
   .venv/bin/python benchmarks/dynamic/run.py --no-evade --no-reach-aware    # results_tried_no_evade_no_reach.json
   .venv/bin/python benchmarks/dynamic/run.py --tracker refute_frames=2       # coasting tracks refuted
       (session 43: kept as results_refute_session43.json; 50/50 delivered, 0 collisions,
