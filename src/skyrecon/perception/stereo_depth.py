@@ -549,7 +549,8 @@ def unambiguous_matches(
 @dataclass(eq=False)
 class PairMatches:
     """The disparities behind a depth frame and the pair they were matched from, to check a few
-    of them for aliases on demand (:meth:`unambiguous`; the grey pair is made on first use).
+    of them for aliases on demand (:meth:`unambiguous` per pixel, :meth:`region_alias_ratio` per
+    region; the grey pair is made on first use, unless the pair is grey already).
 
     Attributes:
         disparity_px: (h, w) float32 disparity of each depth-grid pixel, full-resolution pixels
@@ -568,7 +569,8 @@ class PairMatches:
     block_px: int
 
     def __post_init__(self) -> None:
-        self._grey: tuple[np.ndarray, np.ndarray] | None = None
+        grey = all(x.ndim == 2 and x.dtype == np.uint8 for x in (self.left, self.right))
+        self._grey: tuple[np.ndarray, np.ndarray] | None = (self.left, self.right) if grey else None
 
     def grey(self) -> tuple[np.ndarray, np.ndarray]:
         """The (H, W) uint8 grey pair (made once)."""
@@ -621,12 +623,16 @@ class PairMatches:
         lv = left[ys, xs].astype(np.float32)
         top = min(int(math.ceil(d_own)) + 1, self.n_disparities - 1)
         costs = np.full(top + 1, np.inf)
+        a_all = lv - lv.mean()
         for d in range(top + 1):
-            ok = xs >= d
-            if not ok.any():
-                continue
-            a = lv[ok] - lv[ok].mean()
-            b = right[ys[ok], xs[ok] - d].astype(np.float32)
+            if d <= xs.min():  # every pixel has its match in the image
+                a, yd, xd = a_all, ys, xs - d
+            else:
+                ok = xs >= d
+                if not ok.any():
+                    continue
+                a, yd, xd = lv[ok] - lv[ok].mean(), ys[ok], xs[ok] - d
+            b = right[yd, xd].astype(np.float32)
             costs[d] = float(np.abs(a - (b - b.mean())).mean())
         own = costs[max(int(math.floor(d_own)) - 1, 0) :].min()  # within a pixel of the median
         farther = costs[: int(math.floor(d_own - 2.0)) + 1].min()
@@ -634,8 +640,9 @@ class PairMatches:
 
 
 @dataclass(eq=False)
-class FineDepth:
-    """The full-resolution block matcher's view of one pair, on the depth grid.
+class FineDepth(PairMatches):
+    """The full-resolution block matcher's view of one pair, on the depth grid: its matches
+    (:class:`PairMatches`, ``left`` and ``right`` the grey pair) and their depth.
 
     Attributes:
         depth_m: (h, w) float32 depth where the block matcher sees a surface nearer than the
@@ -643,33 +650,10 @@ class FineDepth:
             ambiguity: :meth:`unambiguous` does that for the pixels a user keeps (it costs
             about 10 microseconds a pixel, too much for every pixel of every frame).
         disparity_px: (h, w) float32 its disparity there, full-resolution pixels (NaN elsewhere).
-        left_grey, right_grey: (H, W) uint8 the full-resolution grey pair.
-        stride: the depth grid is ``[::stride, ::stride]`` of the full image.
         n_disparities, block_px: the block matcher's disparity range and window.
     """
 
     depth_m: np.ndarray
-    disparity_px: np.ndarray
-    left_grey: np.ndarray
-    right_grey: np.ndarray
-    stride: int
-    n_disparities: int
-    block_px: int
-
-    def unambiguous(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
-        """(N,) bool for depth-grid pixels (N,) (rows, cols): see :func:`unambiguous_matches`."""
-        r = np.asarray(rows, np.intp)
-        c = np.asarray(cols, np.intp)
-        k = self.stride
-        return unambiguous_matches(
-            self.left_grey,
-            self.right_grey,
-            r * k,
-            c * k,
-            self.disparity_px[r, c],
-            self.n_disparities,
-            self.block_px,
-        )
 
 
 @dataclass(eq=False)
@@ -904,7 +888,14 @@ class StereoDepth:
             fine,
             noise,
             from_ground,
-            PairMatches(disp[::k, ::k], left, right, k, int(s.max_disparity), int(s.fine_block_px)),
+            PairMatches(  # the fine depth's grey pair, when there is one, serves for both
+                disp[::k, ::k],
+                left if fine is None else fine.left,
+                right if fine is None else fine.right,
+                k,
+                int(s.max_disparity),
+                int(s.fine_block_px),
+            ),
         )
 
     def _plane_fill(
@@ -1112,13 +1103,13 @@ class StereoDepth:
             keep = (disp >= n / 4) & ~(disp < coarse_px[::k, ::k] + FINE_MIN_GAIN_PX)
         disp = np.where(keep, disp, np.float32(np.nan))
         return FineDepth(
-            self._depth(disp, False),
             disp,
             pair.left_grey,
             pair.right_grey,
             k,
             n,
             int(self.settings.fine_block_px),
+            self._depth(disp, False),
         )
 
     def _depth(self, disp: np.ndarray, sky_is_free: bool) -> np.ndarray:
