@@ -2,11 +2,14 @@
 
 Flying the 50 dynamic missions takes about 25 minutes on 2 cores, and every flight changes when
 the tracker does. The tracker's own figures (the movers' position error and recall) can be judged
-on what the detector saw in recorded flights instead: ``record`` flies missions and keeps, per
-depth frame, the detections (world centre, half size, points) and the camera centre, and per
-visible mover-frame the mover's true centre (the world monitor's sightings: within 20 m, at least
-30 pixels). ``replay`` runs :meth:`skyrecon.perception.MoverTracker.track` over them with the
-recorded settings and the overrides given, and scores the tracks as the world monitor does
+on what the detector saw in recorded flights instead: ``record`` flies missions (``--camera-noise``
+as the benchmark's) and keeps, per depth frame, the detections (world centre, half size, number
+of points, and the cluster's points themselves) and the camera centre, and per visible
+mover-frame the mover's true centre (the world monitor's sightings: within 20 m, at least 30
+pixels). ``replay`` makes each detection's box anew from its points with the settings given
+(``box_quantile``, ``ray_extent_per_width``, ``gate_inflate_m``; recordings made before session 57
+hold no points and keep their boxes), runs :meth:`skyrecon.perception.MoverTracker.track` over
+them with the recorded settings and the overrides given, and scores the tracks as the world monitor does
 (the nearest confirmed, not static track within 1.5 m of the true centre detects the mover; its
 distance is the position error). The flights themselves (what the drone would have seen had it
 flown otherwise) are not replayed: a change chosen here must still be flown
@@ -16,6 +19,10 @@ Usage:
   .venv/bin/python benchmarks/dynamic/replay_tracker.py record --seeds 300-317 --out /tmp/rec
   .venv/bin/python benchmarks/dynamic/replay_tracker.py replay /tmp/rec --set max_push_m=0 \\
       --set max_push_m=None,side_view_cos=1
+  # session 57: the detection centre under camera noise (MoverSettings.ray_extent_per_width)
+  .venv/bin/python benchmarks/dynamic/replay_tracker.py record --seeds 100-109 --camera-noise 1.5 --out /tmp/rec_noisy
+  .venv/bin/python benchmarks/dynamic/replay_tracker.py replay /tmp/rec_noisy --set ray_extent_per_width=0 \\
+      --set ray_extent_per_width=0.75 --set ray_extent_per_width=0,box_quantile=0.2,robust_box_range_m=0
 
 ``replay`` prints one row per variant (the recorded settings first): the median over missions of
 the missions' median position error (the benchmark's figure), the pooled median and p95,
@@ -44,7 +51,7 @@ import numpy as np  # noqa: E402
 
 from skyrecon.mission.world_monitor import detection_error, phantom_tracks  # noqa: E402
 from skyrecon.perception import MoverSettings, MoverTracker  # noqa: E402
-from skyrecon.perception.movers import MoverDetection, parse_mover_overrides  # noqa: E402
+from skyrecon.perception.movers import MoverDetection, _cluster_box, parse_mover_overrides  # noqa: E402
 
 
 def parse_seeds(text: str) -> list[int]:
@@ -56,16 +63,24 @@ def parse_seeds(text: str) -> list[int]:
     return out
 
 
-def record_one(seed: int, out_dir: Path) -> Path:
-    """Fly one dynamic mission (the benchmark's settings) and write ``seed_NNNN.pkl``."""
+def record_one(seed: int, out_dir: Path, camera_noise: float = 0.0) -> Path:
+    """Fly one dynamic mission (the benchmark's settings, with ``camera_noise`` grey levels of
+    camera noise) and write ``seed_NNNN.pkl``."""
     import skyrecon.mission.world_monitor as wm
+    import skyrecon.perception.movers as movers_mod
     from skyrecon.mission import MissionConfig
     from skyrecon.mission.batch import fly_and_write
 
     frames: list[dict] = []
     settings: list[MoverSettings] = []
     monitors: list = []
-    track_fn, init_fn = MoverTracker._track, wm.WorldMonitor.__init__
+    clusters: dict[bytes, tuple] = {}  # a box's centre -> the cluster's points, this frame
+    track_fn, init_fn, box_fn = MoverTracker._track, wm.WorldMonitor.__init__, movers_mod._cluster_box
+
+    def cluster_box(q, core, cam_center, s):  # keep each cluster's points with its box
+        lo, hi, center = box_fn(q, core, cam_center, s)
+        clusters[center.tobytes()] = (q.astype(np.float32), core.copy())
+        return lo, hi, center
 
     def track(self, dets, time_s, cam_center):  # the detections of every frame, before tracking
         if not settings:
@@ -75,23 +90,26 @@ def record_one(seed: int, out_dir: Path) -> Path:
                 "t": float(time_s),
                 "cam": np.asarray(cam_center, dtype=np.float64).copy(),
                 "dets": [(d.center.copy(), d.half_size.copy(), int(d.n_points)) for d in dets],
+                "points": [clusters.get(d.center.tobytes()) for d in dets],
             }
         )
+        clusters.clear()
         return track_fn(self, dets, time_s, cam_center)
 
     def init(self, *a, **k):
         init_fn(self, *a, **k)
         monitors.append(self)
 
-    MoverTracker._track, wm.WorldMonitor.__init__ = track, init
+    MoverTracker._track, wm.WorldMonitor.__init__, movers_mod._cluster_box = track, init, cluster_box
     try:
-        cfg = MissionConfig(movers=True, city_changes=True, prior_map="earlier")
+        cfg = MissionConfig(movers=True, city_changes=True, prior_map="earlier", camera_noise=camera_noise)
         outcome = fly_and_write(seed, out_dir / f"seed_{seed:04d}", cfg)
     finally:
-        MoverTracker._track, wm.WorldMonitor.__init__ = track_fn, init_fn
+        MoverTracker._track, wm.WorldMonitor.__init__, movers_mod._cluster_box = track_fn, init_fn, box_fn
     sightings = [(t, i, d, np.asarray(c)) for t, i, d, c in (monitors[0].sighting_log if monitors else [])]
     doc = {
         "seed": seed,
+        "camera_noise": camera_noise,
         "settings": asdict(settings[0]) if settings else asdict(MoverSettings()),
         "frames": frames,
         "sightings": sightings,
@@ -122,12 +140,18 @@ def replay(doc: dict, **overrides) -> tuple[np.ndarray, np.ndarray, np.ndarray, 
     recorded settings. A planner track (:attr:`MoverTrack.avoided`) is a phantom farther than
     3 m (``PHANTOM_TRACK_M``) from every mover, as the world monitor counts them (0, 0 for
     recordings made before the movers' geometry was kept)."""
-    tracker = MoverTracker(replace(doc["settings"], **overrides))
+    settings = replace(doc["settings"], **overrides)
+    tracker = MoverTracker(settings)
     scene = doc.get("mover_scene")
     times, live = [], []
     track_frames = phantom_frames = 0
     for f in doc["frames"]:
-        dets = [MoverDetection(c.copy(), h.copy(), n, np.zeros((1, 1), bool)) for c, h, n in f["dets"]]
+        dets = []
+        for (c, h, n), pts in zip(f["dets"], f.get("points") or [None] * len(f["dets"])):
+            if pts is not None:  # recorded with its points: the box under these settings
+                lo, hi, c = _cluster_box(pts[0].astype(np.float64), pts[1], f["cam"], settings)
+                h = np.maximum(c - lo, hi - c)
+            dets.append(MoverDetection(c.copy(), h.copy(), n, np.zeros((1, 1), bool)))
         tracks = tracker.track(f["t"], dets, f["cam"])
         times.append(f["t"])
         live.append([t.position for t in tracks if t.confirmed and not t.static])
@@ -152,6 +176,7 @@ def main() -> None:
     rec = sub.add_parser("record", help="fly missions and record the detections")
     rec.add_argument("--seeds", default="300-317")
     rec.add_argument("--out", type=Path, required=True)
+    rec.add_argument("--camera-noise", type=float, default=0.0, help="grey levels of camera noise (sigma)")
     rep = sub.add_parser("replay", help="replay recordings with other tracker settings")
     rep.add_argument("folder", type=Path)
     rep.add_argument("--set", action="append", default=[], help="overrides, e.g. max_push_m=0 (repeatable)")
@@ -159,7 +184,7 @@ def main() -> None:
     if args.cmd == "record":
         args.out.mkdir(parents=True, exist_ok=True)
         for seed in parse_seeds(args.seeds):
-            p = record_one(seed, args.out)
+            p = record_one(seed, args.out, args.camera_noise)
             print(f"seed {seed}: {p}", flush=True)
         return
     docs = [load(p) for p in sorted(args.folder.glob("*.pkl"))]
