@@ -346,6 +346,37 @@ def test_region_alias_ratio_tells_a_periodic_patch_from_an_object():
     assert not m.unambiguous(r2, c2).any()  # pixel by pixel, inside, every match is ambiguous
 
 
+def test_a_region_plain_along_the_rows_is_not_called_an_alias():
+    """The inside of a drone banded along the rows (its outline left out, as the depth-edge test
+    does) matches about as well at every shift: the region test cannot judge it and must not
+    call it an alias (noise-free dynamic seed 118 flew into such a drone, every cluster of it
+    dropped as an alias); the periodic facade of the test above still is one."""
+    from skyrecon.perception.stereo_depth import ALIAS_MIN_DISTINCT, PairMatches
+
+    rng = np.random.default_rng(2)
+    background = rng.uniform(0, 255, (60, 200))
+    bands = np.repeat(np.where(np.arange(16) % 8 < 4, 60.0, 200.0), 40).reshape(16, 40)  # rows
+    left, right = background.copy(), np.roll(background, -2, axis=1)
+    left[20:36, 100:140] = bands
+    right[20:36, 88:128] = bands
+    left, right = (np.clip(x + rng.normal(0, 1.5, x.shape), 0, 255).astype(np.uint8) for x in (left, right))
+    inside = np.zeros((30, 100), bool)
+    inside[11:17, 53:67] = True  # the drone's inside, on the depth grid (stride 2)
+    r, c = np.nonzero(inside)
+    m = PairMatches(np.full((30, 100), 12.0, np.float32), left, right, 2, 32, 9)
+    assert m.region_alias_ratio(r, c) == np.inf
+    # the same region judged without the distinctiveness rule: "farther" matches as well
+    import skyrecon.perception.stereo_depth as sd
+
+    saved = sd.ALIAS_MIN_DISTINCT
+    try:
+        sd.ALIAS_MIN_DISTINCT = 0.0
+        assert m.region_alias_ratio(r, c) < 1.0
+    finally:
+        sd.ALIAS_MIN_DISTINCT = saved
+    assert ALIAS_MIN_DISTINCT == 2.0
+
+
 def test_near_specks_are_dropped_and_near_surfaces_kept():
     """A few pixels matched 1.7 m away on plain sky are a speck (noisy plain seeds 1 and 8 hovered
     behind such phantoms); a wall 2 m away, a thin pole 3 m away and far pixels stay."""

@@ -493,6 +493,14 @@ FINE_MIN_GAIN_PX = 0.5
 AMBIGUITY_RATIO = 1.2
 #: :meth:`PairMatches.region_alias_ratio` looks at most at this many depth-grid pixels of a region
 ALIAS_REGION_PX = 400
+#: :meth:`PairMatches.region_alias_ratio` judges only a region whose median cost over all
+#: shifts is at least this many times its own (plus one grey level): a periodic patch has deep
+#: valleys between high costs; a region plain along the rows matches about as well everywhere.
+#: Session 57: noise-free dynamic seed 118 met a drone on a collision course whose clusters,
+#: plain along the rows, were all called aliases (ratio 0.53-0.98, median / own 0.67-1.84):
+#: it flew into the drone. On noisy seed 103 this keeps all 81 clusters on a mover (7 were
+#: dropped before) and still drops 110 of the 171 elsewhere (132 before).
+ALIAS_MIN_DISTINCT = 2.0
 
 
 def unambiguous_matches(
@@ -596,13 +604,18 @@ class PairMatches:
         shifted as one by every disparity in the right image; ``own`` is the lowest mean
         absolute difference (each side less its mean) within a pixel of its median disparity,
         ``farther`` the lowest at least 2 pixels smaller. Returns ``farther / (own + 1)``
-        (inf when nothing is farther or no pixel has a disparity).
+        (inf when nothing is farther or no pixel has a disparity, and when the region is not
+        distinctive: its median cost over all shifts below :data:`ALIAS_MIN_DISTINCT` times
+        ``own + 1``).
 
         Why a region: a patch of a periodic texture (rows of windows, a zebra crossing)
         matched a period off is matched as well, as a whole, at the true disparity (ratio
         near 1 or below), while an object in front of a background is not: the region's
         outline moves against what lies behind it (a drone's panels, plain along the rows,
-        match anywhere pixel by pixel, but not as a whole)."""
+        match anywhere pixel by pixel, but not as a whole). A region that matches about as
+        well at most shifts (the inside of a drone whose panels are banded along the rows,
+        left without its outline by the depth-edge test) says nothing either way: it is not
+        called an alias (a mover missed is worse than a phantom)."""
         r = np.asarray(rows, np.intp)
         c = np.asarray(cols, np.intp)
         if r.size > ALIAS_REGION_PX:
@@ -635,6 +648,8 @@ class PairMatches:
             b = right[yd, xd].astype(np.float32)
             costs[d] = float(np.abs(a - (b - b.mean())).mean())
         own = costs[max(int(math.floor(d_own)) - 1, 0) :].min()  # within a pixel of the median
+        if np.median(costs[np.isfinite(costs)]) < ALIAS_MIN_DISTINCT * (own + 1.0):
+            return float("inf")  # matched about as well at most shifts: nothing to judge by
         farther = costs[: int(math.floor(d_own - 2.0)) + 1].min()
         return float(farther / (own + 1.0))
 
