@@ -455,8 +455,11 @@ class MoverDetection:
     """One cluster of motion candidates in one frame.
 
     Attributes:
-        center: (3,) world centre of the axis-aligned bounding box of its points, metres.
-        half_size: (3,) half extents of that box, metres.
+        center: (3,) world centre of the axis-aligned bounding box of its points, metres,
+            leaving out those deeper along the viewing ray than the cluster is wide (stereo's
+            smear; see ``MoverSettings.ray_extent_per_width``).
+        half_size: (3,) half extents of the box around ``center`` that covers every point,
+            metres.
         n_points: candidate points in the cluster (at the detection stride).
         pixel_mask: (H, W) bool, its pixels in the depth image (full resolution).
         track_id: the track it was associated with (or started), -1 before tracking.
