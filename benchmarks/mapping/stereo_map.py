@@ -135,6 +135,7 @@ def run_ours(rig, poses, frames, voxel: float, max_range: float, max_disparity: 
         max_disparity=max_disparity, **settings
     )
     warm = StereoMapper(rig, s)  # compile / load the kernels, build the matcher
+    warm.stereo.warm_up()  # as ``skyrecon map`` does (map_stereo_sequence)
     warm.add_frame(frames[0].left, frames[0].right, poses[0])
     mapper = StereoMapper(rig, s, matcher=warm.matcher)
     for f, p in zip(frames, poses):

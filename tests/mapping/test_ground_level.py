@@ -115,3 +115,54 @@ def test_a_wall_seen_from_above_is_no_level():
     z = np.arange(0.0, 8.0, 0.1) + 0.05
     w = np.where((z > 0.2) & (z < 4.0), 300.0, 0.0)
     assert lowest_level(z, w, 0.1, 0.15, 0.2) is None
+
+
+def test_the_level_after_each_frame_is_kept():
+    ground = GroundLevel(GroundSettings(min_points=100), max_range_m=20.0)
+    assert ground.level_after(1) is None
+    pose = _pose(0.0)
+    ground.add(np.full((60, 80), np.nan, np.float32), CAM, pose)  # nothing trusted: no level yet
+    ground.add(_ground_depth(pose, 0.3), CAM, pose)
+    assert ground.levels == [None, ground.z_m] and ground.z_m is not None
+    assert ground.level_after(1) is None and ground.level_after(2) == ground.z_m
+    assert ground.level_after(0) is None and ground.level_after(3) is None
+    ground.levels.append(None)  # the peak lost for a frame: no level for the next frames
+    assert ground.level_after(3) is None
+
+
+def test_a_noisy_plain_street_between_its_kerbs_becomes_ground_hits_only():
+    """``skyrecon map`` on a noisy plain city (frames 14-33 of plain seed 1 of the stereo map
+    benchmark): the plain street segments whose measured border agrees with the ground level
+    learnt from the earlier frames (given to the plane fill) add hits in the ground's voxel
+    layer through the ground support, and no free space."""
+    from dataclasses import replace
+
+    from skyrecon.mapping import StereoMapper
+    from skyrecon.sim import default_rig, flight_poses, generate_city, render_stereo
+    from skyrecon.sim.sensor_noise import add_sensor_noise
+
+    city = generate_city(1, 200.0, plain=True)
+    rig = default_rig(640, 480, 90.0, 0.3)
+    poses = flight_poses(city, 40, 1)[14:34]
+    rng = np.random.default_rng(1)
+    frames = []
+    for p in poses:
+        f = render_stereo(city, rig, p.inverse())
+        frames.append(
+            replace(f, left=add_sensor_noise(f.left, 1.5, rng), right=add_sensor_noise(f.right, 1.5, rng))
+        )
+    maps = {}
+    for fill in (True, False):
+        mapper = StereoMapper(rig, voxel_size_m=0.5, ground_plane_fill=fill, overlap=False)
+        for f, p in zip(frames, poses):
+            mapper.add_frame(f.left, f.right, p)
+        maps[fill] = mapper.map
+    on, off = maps[True], maps[False]
+    assert on.counts()["free"] <= off.counts()["free"]  # the ground carves nothing
+    before = {tuple(v) for v in off.occupied_voxels().tolist()}
+    after = {tuple(v) for v in on.occupied_voxels().tolist()}
+    added = np.array(sorted(after - before))
+    assert before <= after and len(added) > 30
+    centres = (added + 0.5) * 0.5
+    assert np.all(centres[:, 2] == -0.25)  # the street's voxel layer (z in [-0.5, 0))
+    assert np.all(np.abs(city.distance(centres, include_ground=True)) <= 0.25 + 1e-9)

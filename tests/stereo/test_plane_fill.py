@@ -198,6 +198,52 @@ def test_the_prior_is_refused_when_the_border_disagrees_or_lies_only_above():
     assert not plane_supported_fill(wall, none, boundary=horizon, prior_plane=ground)[1].any()
 
 
+def _street() -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[float, float, float]]:
+    """A plain street running from the vanishing point (80, 20) out of the bottom of the image,
+    seen from above: its left kerb a measured diagonal band down to the image's left border
+    (row 86), its right kerb an unmatched edge (a boundary) down to the right border; below the
+    kerbs' ends the street spans the image, so its segment is narrow at the top and wide at the
+    bottom, its centroid low in its box and its only support (the left kerb) higher up.
+    Returns (disparity, measured, boundaries: the horizon and the right kerb, ground plane)."""
+    ground = (0.0, 0.05, -1.0)  # d = 0.05 v - 1: zero at row 20, the horizon
+    disp = _plane(*ground)
+    v, u = np.mgrid[0:H, 0:W]
+    left = u + 1.2 * (v - 20) - 80.0  # 0 on the left kerb's line
+    right = u - 1.2 * (v - 20) - 80.0  # 0 on the right kerb's line
+    measured = (left > -4) & (left < 0) & (v >= 22)
+    boundary = ((v >= 18) & (v < 20)) | ((right > 0) & (right < 3) & (v >= 22))
+    disp[~measured] = 7.0  # the matcher's values on the plain street and the sky: anything
+    return disp, measured, boundary, ground
+
+
+def test_a_street_running_out_of_the_image_takes_the_prior_supported_beside_it():
+    disp, measured, boundary, ground = _street()
+    out, accepted = plane_supported_fill(disp, measured, boundary=boundary, prior_plane=ground)
+    # the street, between its kerbs and across the bottom rows (every kerb pixel lies above its
+    # centroid row, more than a tenth of them below the middle row of its box)
+    assert accepted[100:, 5:155].all() and accepted[40:60, 75:85].all()
+    np.testing.assert_allclose(out[accepted], _plane(*ground)[accepted], rtol=1e-5, atol=1e-5)
+
+
+def test_the_prior_need_not_agree_with_the_matchers_values_when_asked_not_to():
+    disp, measured, boundary, ground = _street()
+    args = dict(boundary=boundary, prior_plane=ground, max_guess_gap_px=1.5)
+    # the matcher's values inside are 7 px, far off the ground's: refused with the check ...
+    assert not plane_supported_fill(disp, measured, **args)[1][100:].any()
+    # ... taken without it (skyrecon map takes such segments for hits on the ground only)
+    out, accepted = plane_supported_fill(disp, measured, prior_guess_check=False, **args)
+    assert accepted[100:, 5:155].all()
+    np.testing.assert_allclose(out[accepted], _plane(*ground)[accepted], rtol=1e-5, atol=1e-5)
+    # a fitted plane is still held to them: a plain wall bounded all round, its values far off
+    wall = np.zeros((H, W), bool)
+    wall[20:100, 30:130] = True
+    wall[22:98, 32:128] = False
+    truth = _plane(0.02, 0.01, 10.0)
+    values = np.where(wall, truth, truth - 5.0).astype(np.float32)
+    _, accepted = plane_supported_fill(values, wall, max_guess_gap_px=1.5, prior_guess_check=False)
+    assert not accepted.any()
+
+
 def test_the_prior_never_fills_a_segment_reaching_above_its_horizon():
     disp, measured, _, ground = _field()
     # no edge at the horizon: the field's segment runs on into the sky above it (the ground

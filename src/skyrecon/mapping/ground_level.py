@@ -147,6 +147,10 @@ class GroundLevel:
             with the square of the range, and far depth too far would put the ground low).
     Attributes:
         z_m: the ground's world height, metres, or None until enough has been seen.
+        levels: ``z_m`` after each frame :meth:`add` counted, in order (None: none yet), so
+            that a frame can be judged with the level of the frames before it whatever has been
+            added since (:class:`~skyrecon.mapping.StereoMapper` integrates a frame while the
+            next one is matched).
     """
 
     def __init__(self, settings: GroundSettings | None = None, max_range_m: float = np.inf):
@@ -156,6 +160,16 @@ class GroundLevel:
         self._counts = np.zeros(0, np.float64)
         self._n = 0
         self.z_m: float | None = None
+        self.levels: list[float | None] = []
+
+    def level_after(self, frames: int) -> float | None:
+        """The level as it was once the first ``frames`` frames were added, metres (None
+        before that many, or while no level was found then). Not the last level found before
+        it: the lowest peak of the histogram loses its prominence for a few frames now and
+        then, and a stale level taken then put ground hits on far roofs (noisy plain seed 1
+        of ``benchmarks/mapping/stereo_map.py``: precision beyond 20 m 0.998 -> 0.849)."""
+        levels = getattr(self, "levels", [])  # a level pickled before it kept them: none
+        return levels[frames - 1] if 0 < frames <= len(levels) else None
 
     @staticmethod
     def _rays_down(intrinsics: Intrinsics, pose: Rigid3, step: int) -> tuple[np.ndarray, np.ndarray]:
@@ -166,6 +180,12 @@ class GroundLevel:
 
     def add(self, depth_m: np.ndarray, intrinsics: Intrinsics, world_from_cam: Rigid3 | np.ndarray) -> None:
         """Count the world heights of one frame's trusted depth (H, W) (metres, NaN none)."""
+        self._add(depth_m, intrinsics, world_from_cam)
+        if not hasattr(self, "levels"):  # pickled before it kept them
+            self.levels = []
+        self.levels.append(self.z_m)
+
+    def _add(self, depth_m: np.ndarray, intrinsics: Intrinsics, world_from_cam: Rigid3 | np.ndarray) -> None:
         pose = as_world_from_cam(world_from_cam)
         k = _LEVEL_STEP  # a histogram needs no full resolution
         norm, down = self._rays_down(intrinsics, pose, k)

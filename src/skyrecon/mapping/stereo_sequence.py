@@ -71,7 +71,8 @@ from skyrecon.mapping.frame_support import FrameSupport
 from skyrecon.mapping.ground_level import GroundLevel, GroundSettings
 from skyrecon.mapping.inputs import as_world_from_cam
 from skyrecon.mapping.occupancy import IntegrationStats, OccupancyMap
-from skyrecon.perception import DepthFrame, PerceptionSettings, StereoDepth
+from skyrecon.mapping.rays import camera_rays
+from skyrecon.perception import DepthFrame, GroundPlane, PerceptionSettings, StereoDepth
 from skyrecon.stereo import Matcher
 from skyrecon.threads import available_cores, kernel_threads
 
@@ -109,6 +110,15 @@ class StereoMapSettings:
             voxels observed within 20 m, and now 16-89 %. What it risks: a level found too
             high puts a layer of hits just above the street, never above the guesses' own
             agreement with that level (a wrong level finds few guesses that agree).
+        ground_plane_fill: with ``ground``, the plane fill of each frame is also given the
+            ground plane of the level learnt so far (``ground`` of
+            :meth:`~skyrecon.perception.StereoDepth.compute`): a plain segment whose measured
+            border agrees with it (a plain street between its kerbs) takes it, and its pixels
+            become ground pixels like the guesses that agree with the level (hits just under
+            it where two frames agree; never free space, nor the level's own evidence),
+            whatever the matcher's values inside (``plane_prior_guess_check`` off in
+            :meth:`PerceptionSettings.mapping`). Under a camera's noise those values are the
+            noise's and few agree with the ground: ...
     """
 
     voxel_size_m: float = 0.2
@@ -119,6 +129,7 @@ class StereoMapSettings:
     surface_pull_voxels: float = 0.2
     guess_min_frames: int = 3
     ground: GroundSettings | None = field(default_factory=GroundSettings)
+    ground_plane_fill: bool = True
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.voxel_size_m) and self.voxel_size_m > 0):
@@ -232,7 +243,8 @@ class StereoMapper:
         )
         self.timings = FrameTimings()
         self.overlap = available_cores() > 1 if overlap is None else bool(overlap)
-        self._pending: tuple[DepthFrame, Rigid3] | None = None  # depth not yet in the map
+        # depth not yet in the map: the frame, its pose and the ground plane its fill was given
+        self._pending: tuple[DepthFrame, Rigid3, GroundPlane | None] | None = None
         self._updater: ThreadPoolExecutor | None = None  # the thread that updates the map (overlap)
 
     @property
@@ -263,9 +275,9 @@ class StereoMapper:
         if self._pending is None:
             return
         t0 = time.perf_counter()
-        frame, pose = self._pending
+        waiting = self._pending
         self._pending = None
-        self._integrate(frame, pose)
+        self._integrate(*waiting)
         if self.timings.integrate_s:
             self.timings.integrate_s[-1] += time.perf_counter() - t0
 
@@ -307,7 +319,8 @@ class StereoMapper:
                 update.append(self._update_thread().submit(self._integrate_on_one_thread, *waiting))
 
         try:
-            frame = self.stereo.compute(left, right, after_match=start_update)
+            ground = self._ground_plane(pose)
+            frame = self.stereo.compute(left, right, after_match=start_update, ground=ground)
         finally:
             t1 = time.perf_counter()
             if update:
@@ -316,44 +329,84 @@ class StereoMapper:
                 self._integrate(*waiting)
         stats = None
         if self.overlap:
-            self._pending = (frame, pose)
+            self._pending = (frame, pose, ground)
         else:
-            stats = self._integrate(frame, pose)
+            stats = self._integrate(frame, pose, ground)
         t2 = time.perf_counter()
         self.timings.depth_s.append(t1 - t0)
         self.timings.integrate_s.append(t2 - t1)
         return StereoFrameResult(frame.depth_m, stats, t1 - t0, t2 - t1, frame.disparity)
+
+    def _ground_plane(self, world_from_left: Rigid3) -> GroundPlane | None:
+        """The ground plane for the next frame's plane fill: the level learnt from the frames
+        up to the one before the previous (the previous one may still be being integrated
+        with ``overlap``; the same frames either way, so the map does not depend on it), None
+        while there is none or without the ground level."""
+        if self._ground is None or not self.settings.ground_plane_fill:
+            return None
+        z_m = self._ground.level_after(len(self.timings.depth_s) - 1)
+        return None if z_m is None else GroundPlane.from_pose(world_from_left, z_m)
 
     def _update_thread(self) -> ThreadPoolExecutor:
         if self._updater is None:
             self._updater = ThreadPoolExecutor(max_workers=1, thread_name_prefix="skyrecon-map-update")
         return self._updater
 
-    def _integrate_on_one_thread(self, frame: DepthFrame, world_from_left: Rigid3) -> IntegrationStats:
+    def _integrate_on_one_thread(
+        self, frame: DepthFrame, world_from_left: Rigid3, ground: GroundPlane | None = None
+    ) -> IntegrationStats:
         """:meth:`_integrate` with its Numba kernels on one thread (the other cores are the
         caller's, finishing the next frame's depth)."""
         with kernel_threads(1):
-            return self._integrate(frame, world_from_left)
+            return self._integrate(frame, world_from_left, ground)
 
-    def _integrate(self, frame: DepthFrame, world_from_left: Rigid3) -> IntegrationStats:
+    def _integrate(
+        self, frame: DepthFrame, world_from_left: Rigid3, ground: GroundPlane | None = None
+    ) -> IntegrationStats:
         """The map update of one frame's depth: hits and misses, the guesses' support, the
-        ground level."""
+        ground level and its support. ``ground``: the plane the frame's plane fill was given
+        (see :meth:`_ground_plane`); the segments that took it are ground pixels."""
         depth = frame.depth_m
+        guess = frame.guess_depth_m  # the matcher's values the depth does not keep
+        ground_guess = guess  # ... those the ground level judges
+        on_plane = None  # (h, w) the depth of the plain segments that took the ground's plane
+        if ground is not None and frame.from_ground is not None and frame.from_ground.any():
+            # Within the trusted range (its border's disparities, the evidence, are measured
+            # there; farther, the level's error puts the hits a voxel layer off). Everywhere
+            # else the matcher's values on those pixels are guesses, as without the plane.
+            v, u = np.nonzero(frame.from_ground)
+            _, range_per_depth = camera_rays(self.stereo.intrinsics)
+            plane = depth[v, u]
+            near = plane * range_per_depth[v, u] <= self.hit_range_m
+            nan = np.float32(np.nan)
+            on_plane = np.full(depth.shape, nan, np.float32)
+            on_plane[v[near], u[near]] = plane[near]
+            depth = depth.copy()
+            depth[v, u] = nan
+            if guess is not None and frame.disparity is not None:
+                matched = self.rig.disparity_to_depth(frame.disparity[v, u][None])[0]
+                guess = guess.copy()
+                guess[v, u] = matched
+                ground_guess = guess.copy()
+                ground_guess[v[near], u[near]] = nan
         intr = self.stereo.intrinsics
         stats = self._map.integrate_depth(depth, intr, world_from_left)
-        if self._support is not None and frame.guess_depth_m is not None:
-            self._support.add(frame.guess_depth_m, intr, world_from_left)
+        if self._support is not None and guess is not None:
+            self._support.add(guess, intr, world_from_left)
         if self._ground is not None and self._ground_support is not None:
             self._ground.add(depth, intr, world_from_left)
-            if frame.guess_depth_m is not None:
+            below = self._ground.settings.below_voxels * self._map.voxel_size
+            step = self._ground_support.step  # only the pixels the support reads
+            on_ground = None
+            if ground_guess is not None:
                 fb = self.rig.left.fx * self.rig.baseline_m
-                below = self._ground.settings.below_voxels * self._map.voxel_size
-                step = self._ground_support.step  # only the pixels the support reads
-                on_ground = self._ground.ground_depth(
-                    frame.guess_depth_m, intr, world_from_left, fb, below, step
-                )
-                if on_ground is not None:
-                    self._ground_support.add(on_ground, intr, world_from_left, strided=True)
+                on_ground = self._ground.ground_depth(ground_guess, intr, world_from_left, fb, below, step)
+            if on_plane is not None and ground is not None:
+                # the plane the fill took, ``below`` under it along the same rays
+                deeper = on_plane[::step, ::step] * np.float32((ground.height_m + below) / ground.height_m)
+                on_ground = deeper if on_ground is None else np.where(np.isfinite(deeper), deeper, on_ground)
+            if on_ground is not None:
+                self._ground_support.add(on_ground, intr, world_from_left, strided=True)
         return stats
 
 
@@ -396,7 +449,7 @@ def map_stereo_sequence(
     """
     if mapper is None:
         mapper = StereoMapper(rig, settings, **overrides)
-    _ = mapper.matcher  # build (and warm up) the matcher before the first frame is timed
+    mapper.stereo.warm_up()  # the matcher and the plane fill's kernels, before the first frame is timed
     n = len(world_from_left)
     i = first_frame - 1
     for i, (left, right) in enumerate(frames, start=first_frame):

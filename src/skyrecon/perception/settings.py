@@ -81,6 +81,13 @@ class PerceptionSettings:
         plane_open_borders: a plain segment running into the left, right or bottom image border
             needs no support on that side (``open_borders`` of
             :func:`~skyrecon.stereo.plane_supported_fill`).
+        plane_prior_guess_check: with a ground plane given (``ground`` of
+            :meth:`~skyrecon.perception.StereoDepth.compute`), whether a plain segment that takes
+            the ground's plane must also agree with the matcher's own values inside it
+            (``plane_max_guess_gap_px``; ``prior_guess_check`` of
+            :func:`~skyrecon.stereo.plane_supported_fill`). On in the flight loop (the segments
+            become open air there); off for ``skyrecon map``, which takes them for hits on the
+            ground only (:class:`~skyrecon.mapping.StereoMapper`).
         plane_min_support_px: measured blobs of fewer full-resolution pixels support no plane
             (``min_support_area_px`` of :func:`~skyrecon.stereo.plane_supported_fill`): a noisy
             camera's specks on a plain wall match at random disparities; 0: every blob.
@@ -136,6 +143,7 @@ class PerceptionSettings:
     plane_min_inlier_fraction: float = 0.7
     plane_max_guess_gap_px: float | None = 1.5
     plane_open_borders: bool = True
+    plane_prior_guess_check: bool = True
     plane_min_support_px: int = 0
     guesses: bool = False
     fine_max_disparity: int = 0
@@ -212,7 +220,9 @@ class PerceptionSettings:
         over 7x7, raised above the image's noise), plain segments bounded by one measured plane
         filled with it (``plane_fill``), sky dropped, obstacles within the trusted range of 2 voxels of depth
         error. Keyword overrides on top."""
-        return replace(cls(min_texture=0.5, plane_fill=True, guesses=True), **overrides)
+        return replace(
+            cls(min_texture=0.5, plane_fill=True, guesses=True, plane_prior_guess_check=False), **overrides
+        )
 
     @classmethod
     def flight(cls, **overrides: Any) -> PerceptionSettings:

@@ -461,21 +461,6 @@ def near_specks(
     return out
 
 
-def _on_plane(
-    disparity: np.ndarray, accepted: np.ndarray, plane: tuple[float, float, float] | None
-) -> np.ndarray | None:
-    """(H, W) bool: the ``accepted`` pixels whose ``disparity`` is the ``plane``'s ``a u + b v +
-    c`` (painted from it, to float32 rounding); None without a plane."""
-    if plane is None:
-        return None
-    a, b, c = plane
-    v, u = np.nonzero(accepted)
-    model = np.float32(a) * u.astype(np.float32) + np.float32(b) * v.astype(np.float32) + np.float32(c)
-    on = np.zeros(accepted.shape, bool)
-    on[v, u] = np.abs(disparity[v, u] - model) <= 1e-4 * np.maximum(1.0, np.abs(model))
-    return on
-
-
 def _upsample_mask(mask: np.ndarray, k: int, shape: tuple[int, ...]) -> np.ndarray:
     """(H, W) = ``shape`` bool: each pixel of ``mask`` repeated k x k times (cropped)."""
     H, W = shape[0], shape[1]
@@ -937,6 +922,7 @@ class StereoDepth:
         floor = self._ground_horizon_px
         if tex is None or k == 1 or k != self.stride:
             prior = None if ground is None else ground.disparity_coefficients(self.rig)
+            on_prior = None if prior is None else np.zeros(disp.shape, bool)
             planar, accepted = plane_supported_fill(
                 disp,
                 measured,
@@ -953,11 +939,14 @@ class StereoDepth:
                 prior_tolerance_rel=GROUND_TOLERANCE_REL,
                 min_support_area_px=int(s.plane_min_support_px),
                 open_borders=s.plane_open_borders,
+                prior_guess_check=s.plane_prior_guess_check,
+                prior_mask=on_prior,
             )
-            return np.where(accepted, planar, disp), accepted, _on_plane(planar, accepted, prior)
+            return np.where(accepted, planar, disp), accepted, on_prior
         H, W = disp.shape
         gap = s.plane_max_guess_gap_px
         prior = None if ground is None else ground.disparity_coefficients(self.rig, k)
+        small_ground = None if prior is None else np.zeros(measured[::k, ::k].shape, bool)
         planar, small = plane_supported_fill(
             disp[::k, ::k] / np.float32(k),
             measured[::k, ::k],
@@ -974,13 +963,14 @@ class StereoDepth:
             prior_tolerance_rel=GROUND_TOLERANCE_REL,
             min_support_area_px=int(s.plane_min_support_px) // (k * k),
             open_borders=s.plane_open_borders,
+            prior_guess_check=s.plane_prior_guess_check,
+            prior_mask=small_ground,
         )
         out = disp.copy()
         out[::k, ::k] = np.where(small, planar * np.float32(k), out[::k, ::k])
         accepted = np.zeros((H, W), bool)
         accepted[::k, ::k] = small
         on_ground = None
-        small_ground = _on_plane(planar, small, prior)
         if small_ground is not None:
             on_ground = np.zeros((H, W), bool)
             on_ground[::k, ::k] = small_ground

@@ -277,9 +277,11 @@ def _prior_planes(
     """Per segment not accepted on its own fit (``ok`` False): the ``prior`` plane ``d = a u + b v
     + c`` when at least ``min_support`` of its border pairs lie within ``tolerance +
     tolerance_rel * d`` of it, they are at least ``min_inliers`` of them all, at least
-    ``min_below`` of them lie on or below the segment's centroid row ``cv`` (a ground segment
-    is supported from below or beside: a plain wall whose only measured border is the far
-    ground above its roof line is not), and the prior's
+    ``min_below`` of them lie on or below the segment's centroid row ``cv`` or the middle row of
+    its bounding box, whichever is higher (a ground segment is supported from below or beside:
+    a plain wall whose only measured border is the far ground above its roof line is not; a
+    street running out of the bottom of the image, its pavements joining it there, has its
+    centroid low in the box and its kerbs beside it higher up), and the prior's
     disparity is above ``floor`` at the four corners of the segment's bounding box (``x0, y0, w,
     h``; the prior is affine, so it is above it everywhere inside): the whole segment lies on
     the side of the plane's horizon that the plane covers. Sets
@@ -296,7 +298,7 @@ def _prior_planes(
         d = pd[k]
         if abs(a * pu[k] + b * pv[k] + c - d) <= tolerance + tolerance_rel * abs(d):
             inl[lab] += 1.0
-            if pv[k] >= cv[lab]:
+            if pv[k] >= min(cv[lab], y0[lab] + 0.5 * (h[lab] - 1.0)):
                 low[lab] += 1.0
     taken = np.zeros(n, np.bool_)
     for lab in range(1, n):
@@ -367,7 +369,10 @@ def _photo_check(labels, ok, coef, left, right, max_diff, max_bad, min_count):  
 
 
 @njit(cache=True, nogil=True)
-def _paint_planes(labels, coef, ok, out, accepted):  # pragma: no cover - compiled
+def _paint_planes(labels, coef, ok, taken, out, accepted, taken_px):  # pragma: no cover - compiled
+    """Paint the plane of every ``ok`` segment into ``out`` and ``accepted`` (where its
+    disparity is positive), and into ``taken_px`` too for the segments ``taken`` from the
+    prior (``taken_px`` may be a dummy when no segment is)."""
     H, W = labels.shape
     for r in range(H):
         for c in range(W):
@@ -377,6 +382,8 @@ def _paint_planes(labels, coef, ok, out, accepted):  # pragma: no cover - compil
                 if d > 0.0:
                     out[r, c] = d
                     accepted[r, c] = True
+                    if taken[lab]:
+                        taken_px[r, c] = True
 
 
 def plane_supported_fill(
@@ -406,6 +413,8 @@ def plane_supported_fill(
     prior_tolerance_px: float | None = None,
     prior_tolerance_rel: float | None = None,
     min_support_area_px: int = 0,
+    prior_guess_check: bool = True,
+    prior_mask: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Disparity of unmeasured segments whose measured border is one plane.
 
@@ -458,14 +467,21 @@ def plane_supported_fill(
     border pixels, and at least ``prior_min_inlier_fraction`` of them, agree with it (within
     ``prior_tolerance_px + prior_tolerance_rel * d``; None: the fit's band; a prior is not
     fitted to the border, so its band is the measurement's error plus the prior's own), at
-    least ``min_side_fraction`` of those lie on or below the segment's centroid (support from
-    below or beside: a plain wall whose only measured border is the far ground beyond its roof
-    line is refused) and the prior's disparity is above ``prior_min_disparity`` over the whole
+    least ``min_side_fraction`` of those lie on or below the segment's centroid or the middle
+    row of its bounding box, whichever is higher (support from below or beside: a plain wall
+    whose only measured border is the far ground beyond its roof line is refused; a street
+    running out of the bottom of the image is supported by its kerbs beside it) and the prior's disparity is above ``prior_min_disparity`` over the whole
     segment (it lies below the plane's horizon; for a rig with ``doffs``, ``-doffs``). The
     border's agreement is the evidence: a plain facade is bounded by its corners and roof line,
     which lie nearer than the ground behind them, and a segment with no measured border is
-    never taken. The photometric check and the matcher's values (``max_guess_gap_px``) are
-    applied to it as to a fitted plane.
+    never taken. The photometric check is applied to it as to a fitted plane, and so are the
+    matcher's values (``max_guess_gap_px``) with ``prior_guess_check``. Off, a segment the prior
+    takes is kept whatever the matcher's values inside: under a camera's noise they are not
+    evidence on a plain street (the matcher's values there are the noise's, smoothed; on the
+    noisy plain cities of ``benchmarks/mapping/stereo_map.py`` 12-55 % of the street pixels
+    agreed with the ground within 1 px + 10 %), and a caller that takes such a segment only
+    for hits on the ground, never for free space (:class:`skyrecon.mapping.StereoMapper`),
+    risks a hit under something plain that stands on it at most.
 
     With ``min_support_area_px``, a measured blob (8-connected) of fewer pixels supports no plane
     (it still separates segments): a camera's noise passes the texture test here and there on a
@@ -484,6 +500,8 @@ def plane_supported_fill(
         left, right: optional (H, W) grey images of the rectified pair (0-255): then a plane
             must also map its segment onto the right image, edge to edge (a plain roof whose
             border took the disparity of the textured street beyond it is refused).
+        prior_mask: optional (H, W) bool array, set in place to the accepted pixels that took
+            ``prior_plane`` (False everywhere without one).
     Returns:
         ``(filled, accepted)``: (H, W) float32 disparity, pixels, equal to ``disparity`` on the
         measured pixels, the plane's disparity on the accepted ones and NaN elsewhere; (H, W)
@@ -545,8 +563,9 @@ def plane_supported_fill(
         coef,
         ok,
     )
+    from_prior = None
     if prior_plane is not None:
-        _prior_planes(
+        from_prior = _prior_planes(
             pu,
             pv,
             pd,
@@ -574,8 +593,22 @@ def plane_supported_fill(
             raise InputError(f"grey images must be {d.shape}, got {gl.shape} and {gr.shape}")
         _photo_check(labels, ok, coef, gl, gr, 8.0, 0.25, 10.0)
     if max_guess_gap_px is not None:
+        exempt = ok & from_prior if from_prior is not None and not prior_guess_check else None
         _refuse_against_guesses(d, labels, coef, ok, float(max_guess_gap_px))
-    _paint_planes(labels, coef, ok, out, accepted)
+        if exempt is not None:
+            ok |= exempt
+    taken = np.zeros(n, np.bool_)
+    taken_px = np.zeros((1, 1), np.bool_)  # never written while nothing is taken
+    if prior_mask is not None:
+        if prior_mask.shape != d.shape or prior_mask.dtype != np.bool_:
+            raise InputError(
+                f"prior_mask must be a {d.shape} bool array, got {prior_mask.shape} {prior_mask.dtype}"
+            )
+        prior_mask[...] = False
+        taken_px = prior_mask
+        if from_prior is not None:
+            taken = from_prior
+    _paint_planes(labels, coef, ok, taken, out, accepted, taken_px)
     return out, accepted
 
 
