@@ -111,14 +111,20 @@ class StereoMapSettings:
             high puts a layer of hits just above the street, never above the guesses' own
             agreement with that level (a wrong level finds few guesses that agree).
         ground_plane_fill: with ``ground``, the plane fill of each frame is also given the
-            ground plane of the level learnt so far (``ground`` of
-            :meth:`~skyrecon.perception.StereoDepth.compute`): a plain segment whose measured
-            border agrees with it (a plain street between its kerbs) takes it, and its pixels
-            become ground pixels like the guesses that agree with the level (hits just under
-            it where two frames agree; never free space, nor the level's own evidence),
-            whatever the matcher's values inside (``plane_prior_guess_check`` off in
-            :meth:`PerceptionSettings.mapping`). Under a camera's noise those values are the
-            noise's and few agree with the ground: ...
+            ground plane of the level learnt from the frames before the previous one (``ground``
+            of :meth:`~skyrecon.perception.StereoDepth.compute`; the same frames with or without
+            ``overlap``): a plain segment whose measured border agrees with it (a plain street
+            between its kerbs) takes it, and within the trusted range its pixels become ground
+            pixels (hits half a voxel under the plane where two frames agree; never free space,
+            nor the level's own evidence), whatever the matcher's values inside
+            (``plane_prior_guess_check`` off in :meth:`PerceptionSettings.mapping`); beyond that
+            range the matcher's values there stay guesses (the level's error of a few decimetres
+            puts far hits a voxel layer off). Under a camera's noise the matcher's values on a
+            plain street are the noise's (1.5 grey levels, plain seed 1 of
+            ``benchmarks/mapping/stereo_map.py``: 12 % of the street pixels within 20 m agreed
+            with the level, 65 % without noise), so the guesses alone left it unmapped: seed 1's
+            recall within 20 m went 0.511 -> 0.643 of OctoMap+SGBM's, the other plain seeds
+            within +0.01, precision unchanged; without noise nothing changes (within 0.006).
     """
 
     voxel_size_m: float = 0.2

@@ -219,7 +219,9 @@ class PerceptionSettings:
         discontinuities and on texture (mean horizontal gradient >= 0.5 grey levels per pixel
         over 7x7, raised above the image's noise), plain segments bounded by one measured plane
         filled with it (``plane_fill``), sky dropped, obstacles within the trusted range of 2 voxels of depth
-        error. Keyword overrides on top."""
+        error; a plain segment that takes the ground's plane (when one is given) need not agree
+        with the matcher's values inside (``plane_prior_guess_check`` off: the map takes it for
+        hits on the ground only). Keyword overrides on top."""
         return replace(
             cls(min_texture=0.5, plane_fill=True, guesses=True, plane_prior_guess_check=False), **overrides
         )
