@@ -168,8 +168,12 @@ class GroundLevel:
         it: the lowest peak of the histogram loses its prominence for a few frames now and
         then, and a stale level taken then put ground hits on far roofs (noisy plain seed 1
         of ``benchmarks/mapping/stereo_map.py``: precision beyond 20 m 0.998 -> 0.849)."""
-        levels = getattr(self, "levels", [])  # a level pickled before it kept them: none
-        return levels[frames - 1] if 0 < frames <= len(levels) else None
+        return self.levels[frames - 1] if 0 < frames <= len(self.levels) else None
+
+    def __setstate__(self, state: dict) -> None:
+        """Unpickle (a checkpoint's level); one pickled before it kept ``levels`` has none."""
+        self.__dict__.update(state)
+        self.__dict__.setdefault("levels", [])
 
     @staticmethod
     def _rays_down(intrinsics: Intrinsics, pose: Rigid3, step: int) -> tuple[np.ndarray, np.ndarray]:
@@ -181,8 +185,6 @@ class GroundLevel:
     def add(self, depth_m: np.ndarray, intrinsics: Intrinsics, world_from_cam: Rigid3 | np.ndarray) -> None:
         """Count the world heights of one frame's trusted depth (H, W) (metres, NaN none)."""
         self._add(depth_m, intrinsics, world_from_cam)
-        if not hasattr(self, "levels"):  # pickled before it kept them
-            self.levels = []
         self.levels.append(self.z_m)
 
     def _add(self, depth_m: np.ndarray, intrinsics: Intrinsics, world_from_cam: Rigid3 | np.ndarray) -> None:

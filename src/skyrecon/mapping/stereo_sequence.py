@@ -369,35 +369,44 @@ class StereoMapper:
         with kernel_threads(1):
             return self._integrate(frame, world_from_left, ground)
 
+    def _ground_segments(
+        self, frame: DepthFrame, ground: GroundPlane | None
+    ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None, np.ndarray | None]:
+        """``(depth, guess, ground_guess, on_plane)`` of a frame whose plane fill was given
+        ``ground``: the plain segments that took its plane (``frame.from_ground``) leave the
+        depth (no free space, no evidence of the level); within the trusted range they are
+        ``on_plane`` ((h, w) their depth, NaN elsewhere: their border's disparities, the
+        evidence, are measured there; farther, the level's error puts the hits a voxel layer
+        off); everywhere else the matcher's values on them are guesses, as without the plane
+        (``guess`` for the guesses' support, ``ground_guess`` for the level's). Without such
+        segments: the frame's depth and guesses, ``on_plane`` None."""
+        depth, guess = frame.depth_m, frame.guess_depth_m
+        if ground is None or frame.from_ground is None or not frame.from_ground.any():
+            return depth, guess, guess, None
+        v, u = np.nonzero(frame.from_ground)
+        _, range_per_depth = camera_rays(self.stereo.intrinsics)
+        plane = depth[v, u]
+        near = plane * range_per_depth[v, u] <= self.hit_range_m
+        nan = np.float32(np.nan)
+        on_plane = np.full(depth.shape, nan, np.float32)
+        on_plane[v[near], u[near]] = plane[near]
+        depth = depth.copy()
+        depth[v, u] = nan
+        ground_guess = guess
+        if guess is not None and frame.disparity is not None:
+            guess = guess.copy()
+            guess[v, u] = self.rig.disparity_to_depth(frame.disparity[v, u][None])[0]
+            ground_guess = guess.copy()
+            ground_guess[v[near], u[near]] = nan
+        return depth, guess, ground_guess, on_plane
+
     def _integrate(
         self, frame: DepthFrame, world_from_left: Rigid3, ground: GroundPlane | None = None
     ) -> IntegrationStats:
         """The map update of one frame's depth: hits and misses, the guesses' support, the
         ground level and its support. ``ground``: the plane the frame's plane fill was given
         (see :meth:`_ground_plane`); the segments that took it are ground pixels."""
-        depth = frame.depth_m
-        guess = frame.guess_depth_m  # the matcher's values the depth does not keep
-        ground_guess = guess  # ... those the ground level judges
-        on_plane = None  # (h, w) the depth of the plain segments that took the ground's plane
-        if ground is not None and frame.from_ground is not None and frame.from_ground.any():
-            # Within the trusted range (its border's disparities, the evidence, are measured
-            # there; farther, the level's error puts the hits a voxel layer off). Everywhere
-            # else the matcher's values on those pixels are guesses, as without the plane.
-            v, u = np.nonzero(frame.from_ground)
-            _, range_per_depth = camera_rays(self.stereo.intrinsics)
-            plane = depth[v, u]
-            near = plane * range_per_depth[v, u] <= self.hit_range_m
-            nan = np.float32(np.nan)
-            on_plane = np.full(depth.shape, nan, np.float32)
-            on_plane[v[near], u[near]] = plane[near]
-            depth = depth.copy()
-            depth[v, u] = nan
-            if guess is not None and frame.disparity is not None:
-                matched = self.rig.disparity_to_depth(frame.disparity[v, u][None])[0]
-                guess = guess.copy()
-                guess[v, u] = matched
-                ground_guess = guess.copy()
-                ground_guess[v[near], u[near]] = nan
+        depth, guess, ground_guess, on_plane = self._ground_segments(frame, ground)
         intr = self.stereo.intrinsics
         stats = self._map.integrate_depth(depth, intr, world_from_left)
         if self._support is not None and guess is not None:
@@ -410,7 +419,7 @@ class StereoMapper:
             if ground_guess is not None:
                 fb = self.rig.left.fx * self.rig.baseline_m
                 on_ground = self._ground.ground_depth(ground_guess, intr, world_from_left, fb, below, step)
-            if on_plane is not None and ground is not None:
+            if on_plane is not None and ground is not None:  # (set together)
                 # the plane the fill took, ``below`` under it along the same rays
                 deeper = on_plane[::step, ::step] * np.float32((ground.height_m + below) / ground.height_m)
                 on_ground = deeper if on_ground is None else np.where(np.isfinite(deeper), deeper, on_ground)

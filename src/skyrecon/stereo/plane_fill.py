@@ -470,11 +470,11 @@ def plane_supported_fill(
     least ``min_side_fraction`` of those lie on or below the segment's centroid or the middle
     row of its bounding box, whichever is higher (support from below or beside: a plain wall
     whose only measured border is the far ground beyond its roof line is refused; a street
-    running out of the bottom of the image is supported by its kerbs beside it) and the prior's disparity is above ``prior_min_disparity`` over the whole
-    segment (it lies below the plane's horizon; for a rig with ``doffs``, ``-doffs``). The
-    border's agreement is the evidence: a plain facade is bounded by its corners and roof line,
-    which lie nearer than the ground behind them, and a segment with no measured border is
-    never taken. The photometric check is applied to it as to a fitted plane, and so are the
+    running out of the bottom of the image is supported by its kerbs beside it) and the
+    prior's disparity is above ``prior_min_disparity`` over the whole segment (it lies below
+    the plane's horizon; for a rig with ``doffs``, ``-doffs``). The border's agreement is the
+    evidence: a plain facade is bounded by its corners and roof line, which lie nearer than the
+    ground behind them, and a segment with no measured border is never taken. The photometric check is applied to it as to a fitted plane, and so are the
     matcher's values (``max_guess_gap_px``) with ``prior_guess_check``. Off, a segment the prior
     takes is kept whatever the matcher's values inside: under a camera's noise they are not
     evidence on a plain street (the matcher's values there are the noise's, smoothed; on the
@@ -594,9 +594,9 @@ def plane_supported_fill(
         _photo_check(labels, ok, coef, gl, gr, 8.0, 0.25, 10.0)
     if max_guess_gap_px is not None:
         exempt = ok & from_prior if from_prior is not None and not prior_guess_check else None
-        _refuse_against_guesses(d, labels, coef, ok, float(max_guess_gap_px))
-        if exempt is not None:
-            ok |= exempt
+        held = ok if exempt is None else ok & ~exempt  # only these are counted and refused
+        _refuse_against_guesses(d, labels, coef, held, float(max_guess_gap_px))
+        ok = held if exempt is None else held | exempt
     taken = np.zeros(n, np.bool_)
     taken_px = np.zeros((1, 1), np.bool_)  # never written while nothing is taken
     if prior_mask is not None:
