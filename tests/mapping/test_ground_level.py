@@ -51,6 +51,50 @@ def test_the_level_is_learnt_from_trusted_depth_and_ignores_roofs():
     assert ground.z_m == pytest.approx(0.3, abs=0.1)
 
 
+def test_fitted_planes_and_measured_pixels_meet_halfway():
+    """Plane-filled ground too far (a level 0.3 m low) outnumbers measured ground a little too
+    near (0.1 m high): the level lies between them, not on the fills; without the split (or
+    with ``measured_share`` 0) it is the fills'."""
+    split = GroundLevel(GroundSettings(min_points=100), max_range_m=20.0)
+    whole = GroundLevel(GroundSettings(min_points=100), max_range_m=20.0)
+    off = GroundLevel(GroundSettings(min_points=100, measured_share=0.0), max_range_m=20.0)
+    fitted = np.zeros((60, 80), bool)
+    fitted[:, 12:] = True  # most of the view took a plane
+    for x in (0.0, 1.0, 2.0):
+        pose = _pose(x)
+        depth = np.where(fitted, _ground_depth(pose, -0.3), _ground_depth(pose, 0.1))
+        split.add(depth, CAM, pose, fitted)
+        whole.add(depth, CAM, pose)
+        off.add(depth, CAM, pose, fitted)
+    assert whole.z_m == pytest.approx(-0.3, abs=0.06)
+    assert off.z_m == pytest.approx(whole.z_m, abs=1e-9)
+    assert split.z_m == pytest.approx(-0.1, abs=0.06)
+    nothing = GroundLevel(GroundSettings(min_points=100), max_range_m=20.0)  # every pixel a fit
+    for x in (0.0, 1.0, 2.0):
+        nothing.add(_ground_depth(_pose(x), -0.3), CAM, _pose(x), np.ones((60, 80), bool))
+    assert nothing.z_m == pytest.approx(-0.3, abs=0.06)
+
+
+def test_a_level_pickled_before_it_kept_the_measured_pixels_resumes_on_every_pixel():
+    """A checkpoint's level from before ``levels`` and the measured pixels' counts were kept
+    (``skyrecon map --resume``) goes on with the level of every pixel."""
+    import pickle
+
+    level = GroundLevel(GroundSettings(min_points=100), max_range_m=20.0)
+    level.add(_ground_depth(_pose(0.0), -0.3), CAM, _pose(0.0))
+    state = level.__dict__.copy()
+    for key in ("levels", "_measured", "_split"):
+        del state[key]
+    old = GroundLevel.__new__(GroundLevel)
+    old.__setstate__(state)
+    resumed = pickle.loads(pickle.dumps(old))
+    fitted = np.zeros((60, 80), bool)
+    fitted[:, 12:] = True
+    pose = _pose(1.0)
+    resumed.add(np.where(fitted, _ground_depth(pose, -0.3), _ground_depth(pose, 0.1)), CAM, pose, fitted)
+    assert resumed.levels == [resumed.z_m] and resumed.z_m == pytest.approx(-0.3, abs=0.06)
+
+
 def test_only_guesses_that_agree_with_the_ground_plane_are_ground():
     ground = GroundLevel(GroundSettings(min_points=100), max_range_m=20.0)
     pose = _pose(0.0)
@@ -108,6 +152,8 @@ def test_settings():
         GroundSettings(min_down_cos=0.0)
     with pytest.raises(InputError):
         GroundSettings(tolerance_px=-1.0)
+    with pytest.raises(InputError):
+        GroundSettings(measured_share=1.5)
 
 
 def test_a_wall_seen_from_above_is_no_level():

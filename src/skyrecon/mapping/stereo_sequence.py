@@ -412,7 +412,7 @@ class StereoMapper:
         if self._support is not None and guess is not None:
             self._support.add(guess, intr, world_from_left)
         if self._ground is not None and self._ground_support is not None:
-            self._ground.add(depth, intr, world_from_left)
+            self._ground.add(depth, intr, world_from_left, frame.from_plane)
             below = self._ground.settings.below_voxels * self._map.voxel_size
             step = self._ground_support.step  # only the pixels the support reads
             on_ground = None

@@ -684,6 +684,8 @@ class DepthFrame:
         matches: the disparities of ``depth_m``'s grid and the pair (:class:`PairMatches`), for
             checking a few pixels for aliases of a periodic texture (the mover tracker's
             clusters).
+        from_plane: with the plane fill, (h, w) bool: the pixels of ``depth_m`` that took a
+            plane (their own segment's or the ground's), not measured there. None otherwise.
     """
 
     depth_m: np.ndarray
@@ -697,6 +699,7 @@ class DepthFrame:
     image_noise_sigma: float | None = None
     from_ground: np.ndarray | None = None
     matches: PairMatches | None = None
+    from_plane: np.ndarray | None = None
 
 
 class StereoDepth:
@@ -844,12 +847,13 @@ class StereoDepth:
             keep = keep & ~edge
         disp = result.disparity
         plane = 0.0
-        from_ground = None
+        from_ground = from_plane = None
         if s.plane_fill and not s.use_filled and (tex is not None or s.min_texture is None):
             grey_left = grey_left if grey_left is not None else to_grey(np.asarray(left))
             disp, accepted, on_ground = self._plane_fill(disp, measured, tex, grey_left, right, ground)
             keep = keep | accepted
             plane = float(np.count_nonzero(accepted) / accepted.size)
+            from_plane = accepted[:: self.stride, :: self.stride]
             from_ground = None if on_ground is None else on_ground[:: self.stride, :: self.stride]
         k = self.stride
         # one conversion for the kept pixels and the guesses (+inf: sky, only ever kept)
@@ -896,6 +900,7 @@ class StereoDepth:
                 int(s.max_disparity),
                 int(s.fine_block_px),
             ),
+            from_plane,
         )
 
     def _plane_fill(
