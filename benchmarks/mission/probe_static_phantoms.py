@@ -18,6 +18,7 @@ for 10 s (a track that moved once is never released as static), where the drone 
 Usage:
   .venv/bin/python benchmarks/mission/probe_static_phantoms.py --seeds 11 --camera-noise 1.5
   .venv/bin/python benchmarks/mission/probe_static_phantoms.py --seeds 11 15 19 --camera-noise 1.5 --plain
+  .venv/bin/python benchmarks/mission/probe_static_phantoms.py --seeds 11 --camera-noise 1.5 --detections
 """
 
 from __future__ import annotations
@@ -63,6 +64,7 @@ def fly(seed: int, out: Path, cfg: MissionConfig) -> list[dict]:
                         "coasting": bool(t.coasting),
                         "hits": int(t.hits),
                         "n_points": None if d is None else int(d.n_points),
+                        "det_center": None if d is None else d.center.tolist(),
                     }
                 )
         return mf
@@ -80,7 +82,7 @@ def fly(seed: int, out: Path, cfg: MissionConfig) -> list[dict]:
     return rows
 
 
-def report(seed: int, rows: list[dict], mission: dict) -> None:
+def report(seed: int, rows: list[dict], mission: dict, verbose: bool = False) -> None:
     reasons = mission.get("replan_reasons", {})
     print(
         f"seed {seed}: length ratio {mission.get('length_ratio')}, replans {mission.get('replans')} {reasons}, "
@@ -97,6 +99,12 @@ def report(seed: int, rows: list[dict], mission: dict) -> None:
             f"points {np.median(pts) if pts else 0:.0f}, half size {np.round(sel[-1]['half_size'], 1).tolist()}, "
             f"at {np.round(sel[0]['pos'], 1).tolist()}"
         )
+        seen = [(r["t"], r["det_center"]) for r in sel if r["det_center"] is not None]
+        if verbose and seen:
+            print(
+                "    detections (t s: centre m): "
+                + ", ".join(f"{t:.1f}: {np.round(c, 1).tolist()}" for t, c in seen)
+            )
 
 
 def main() -> None:
@@ -104,13 +112,14 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, nargs="+", default=[11])
     ap.add_argument("--plain", action="store_true", help="the plain city (run.py --plain)")
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "mission" / "out_static_phantoms")
+    ap.add_argument("--detections", action="store_true", help="also list each avoided track's detections")
     add_camera_noise_option(ap)
     args = ap.parse_args()
     cfg = MissionConfig(camera_noise=args.camera_noise, plain=args.plain)
     for seed in args.seeds:
         rows = fly(seed, args.out, cfg)
         mission = json.loads((args.out / f"seed_{seed:04d}" / "mission.json").read_text())
-        report(seed, rows, mission)
+        report(seed, rows, mission, args.detections)
 
 
 if __name__ == "__main__":
