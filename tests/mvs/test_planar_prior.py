@@ -294,6 +294,49 @@ def test_manhattan_planes_put_a_wall_through_its_two_corner_lines() -> None:
     assert len(pp._manhattan_planes(X, up, PlanarPriorSettings(manhattan_hypotheses=0))) == 0
 
 
+def test_a_plain_face_beside_a_textured_one_gets_its_wall_from_their_corner_line() -> None:
+    """A plain tower face's only support is the vertical corner line it shares with a textured
+    face (a dominant plane): a line fixes no wall (the Manhattan pairs tilt about it), but the
+    dominant directions do: the wall across the textured face through the line is a candidate,
+    and so is the textured face's own plane. No dominant wall, no such candidate; a speck is
+    no line."""
+    rng = np.random.default_rng(7)
+    pitch = np.radians(20.0)
+    yaw = np.radians(35.0)  # both faces seen obliquely
+    level = np.array([[np.cos(yaw), 0.0, np.sin(yaw)], [0.0, 1.0, 0.0], [-np.sin(yaw), 0.0, np.cos(yaw)]])
+    tilt = np.array(
+        [[1.0, 0.0, 0.0], [0.0, np.cos(pitch), np.sin(pitch)], [0.0, -np.sin(pitch), np.cos(pitch)]]
+    )
+    R = tilt @ level  # world (x right, y down, z forward at zero yaw and pitch) to camera
+    up = R @ np.array([0.0, -1.0, 0.0])
+    corner_world = np.array([0.5, 0.0, 9.0])
+    plain_n, textured_n = R @ np.array([-1.0, 0.0, 0.0]), R @ np.array([0.0, 0.0, -1.0])
+    corner = R @ corner_world
+    heights = rng.uniform(-2.0, 2.0, 60)
+    line = corner[None] + heights[:, None] * up[None] + rng.normal(0, 0.003, (60, 3))
+    face = corner[None] + rng.uniform(0.0, 2.0, (150, 1)) * np.cross(up, textured_n)[None]
+    face += rng.uniform(-2.0, 2.0, (150, 1)) * up[None] + rng.normal(0, 0.003, (150, 3))
+    X = np.concatenate([line, face])
+    uv = 500.0 * X[:, :2] / X[:, 2:3]
+    # the textured face and a face parallel to it 3 m behind (a dominant wall's direction
+    # counts when another dominant wall is parallel or at right angles to it)
+    dominant = np.array([[*textured_n, textured_n @ corner], [*textured_n, textured_n @ corner - 3.0]])
+    dominant[dominant[:, 3] > 0] *= -1
+    walls = pp._direction_walls(X, uv, dominant, up, PlanarPriorSettings())
+    assert len(walls) >= 2 and np.all(walls[:, 3] < 0)
+    for n in (plain_n, textured_n):
+        h = (n @ corner) * np.sign(-(n @ corner))
+        angle = np.degrees(np.arccos(np.clip(np.abs(walls[:, :3] @ n), -1, 1)))
+        assert ((angle < 0.5) & (np.abs(np.abs(walls[:, 3]) - abs(h)) < 0.02)).any(), (angle, walls[:, 3], h)
+    assert len(pp._direction_walls(X, uv, np.zeros((0, 4)), up, PlanarPriorSettings())) == 0
+    # a lone dominant wall (RANSAC's plane through two opposite corners of a tower) gives none
+    assert len(pp._direction_walls(X, uv, dominant[:1], up, PlanarPriorSettings())) == 0
+    assert len(pp._direction_walls(X, uv, dominant, up, PlanarPriorSettings(direction_walls=0))) == 0
+    speck = corner[None] + rng.normal(0, 0.003, (30, 3))
+    speck_uv = np.full((30, 2), 100.0) + rng.uniform(0, 1.0, (30, 2))
+    assert len(pp._direction_walls(speck, speck_uv, dominant, up, PlanarPriorSettings())) == 0
+
+
 def test_manhattan_refits_take_the_neighbouring_face_out_of_a_wall() -> None:
     """A wall's corner and foot lines, with points of the face around its corner within a few
     centimetres of its depth there: the first fit includes them and tilts; the refits, closer,
@@ -459,6 +502,9 @@ def test_a_failing_second_pass_keeps_the_first_and_says_so(plain_ring, monkeypat
         dict(dominant_wall_min_support=-0.5),
         dict(manhattan_refits=-1),
         dict(manhattan_refit_rel=0.0),
+        dict(direction_walls=-1),
+        dict(framed_front_hidden=1.5),
+        dict(framed_hidden_weight=-0.1),
     ],
 )
 def test_second_pass_and_ranking_settings_are_checked(bad: dict) -> None:
@@ -537,3 +583,31 @@ def test_a_level_plane_behind_a_plain_plinth_face_yields_to_the_face() -> None:
 def test_overhang_settings_are_checked() -> None:
     with pytest.raises(InputError, match="max_overhang"):
         PlanarPriorSettings(max_overhang=-0.1)
+
+
+def test_a_wall_of_the_frame_may_hide_the_face_beyond_its_corner() -> None:
+    """A wall of the scene's frame hides the face beyond a convex corner of its building (at right
+    angles to it): its hidden band share weighs ``framed_hidden_weight`` and it beats a slanted
+    wall that hides nothing but matches less of the border; not framed, the strict weight holds."""
+    s = PlanarPriorSettings()
+    is_global = np.zeros(2, bool)
+    walls = np.ones(2, bool)
+    fracs, zero = np.array([1.0, 0.5]), np.zeros(2)
+    front = np.array([0.7, 0.0])
+    assert pp._choose_plane(is_global, fracs, zero, front, walls, s)[0] == 1
+    assert pp._choose_plane(is_global, fracs, zero, front, walls, s, framed=np.array([True, False]))[0] == 0
+
+
+def test_the_frame_leaves_out_a_lone_slanted_wall() -> None:
+    """The frame's directions: walls another dominant wall is parallel or at right angles to, and
+    the normals at right angles to them; a lone slanted wall and level planes give none."""
+    up = np.array([0.0, 0.0, 1.0])
+    x, y = [1.0, 0.0, 0.0, -2.0], [0.0, 1.0, 0.0, -1.0]
+    slanted = [np.cos(0.8), np.sin(0.8), 0.0, -0.5]
+    level = [0.0, 0.0, 1.0, -3.0]
+    planes = np.array([x, y, slanted, level])
+    assert pp._framed_walls(planes, up).tolist() == [True, True, False, False]
+    frame = pp._frame_normals(planes, up)
+    assert len(frame) == 2
+    assert pp._in_frame(planes, frame).tolist() == [True, True, False, False]
+    assert len(pp._frame_normals(np.array([x, slanted]), up)) == 0
