@@ -322,19 +322,30 @@ def test_a_plain_face_beside_a_textured_one_gets_its_wall_from_their_corner_line
     # counts when another dominant wall is parallel or at right angles to it)
     dominant = np.array([[*textured_n, textured_n @ corner], [*textured_n, textured_n @ corner - 3.0]])
     dominant[dominant[:, 3] > 0] *= -1
-    walls = pp._direction_walls(X, uv, dominant, up, PlanarPriorSettings())
+    walls = pp._direction_walls(X, uv, pp._frame_normals(dominant, up), PlanarPriorSettings())
     assert len(walls) >= 2 and np.all(walls[:, 3] < 0)
     for n in (plain_n, textured_n):
         h = (n @ corner) * np.sign(-(n @ corner))
         angle = np.degrees(np.arccos(np.clip(np.abs(walls[:, :3] @ n), -1, 1)))
         assert ((angle < 0.5) & (np.abs(np.abs(walls[:, 3]) - abs(h)) < 0.02)).any(), (angle, walls[:, 3], h)
-    assert len(pp._direction_walls(X, uv, np.zeros((0, 4)), up, PlanarPriorSettings())) == 0
+    assert (
+        len(pp._direction_walls(X, uv, pp._frame_normals(np.zeros((0, 4)), up), PlanarPriorSettings())) == 0
+    )
     # a lone dominant wall (RANSAC's plane through two opposite corners of a tower) gives none
-    assert len(pp._direction_walls(X, uv, dominant[:1], up, PlanarPriorSettings())) == 0
-    assert len(pp._direction_walls(X, uv, dominant, up, PlanarPriorSettings(direction_walls=0))) == 0
+    assert len(pp._direction_walls(X, uv, pp._frame_normals(dominant[:1], up), PlanarPriorSettings())) == 0
+    assert (
+        len(
+            pp._direction_walls(
+                X, uv, pp._frame_normals(dominant, up), PlanarPriorSettings(direction_walls=0)
+            )
+        )
+        == 0
+    )
     speck = corner[None] + rng.normal(0, 0.003, (30, 3))
     speck_uv = np.full((30, 2), 100.0) + rng.uniform(0, 1.0, (30, 2))
-    assert len(pp._direction_walls(speck, speck_uv, dominant, up, PlanarPriorSettings())) == 0
+    assert (
+        len(pp._direction_walls(speck, speck_uv, pp._frame_normals(dominant, up), PlanarPriorSettings())) == 0
+    )
 
 
 def test_manhattan_refits_take_the_neighbouring_face_out_of_a_wall() -> None:

@@ -680,6 +680,13 @@ def _manhattan_planes(X: np.ndarray, up: np.ndarray, s: PlanarPriorSettings) -> 
     return np.array(out, np.float64).reshape(-1, 4)
 
 
+def _level_units(normals: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """(P, 3) the normals (P, 3) made exactly horizontal (their ``up`` (3,) unit component taken
+    out) and unit length: a wall's direction."""
+    flat = normals - np.outer(normals @ up, up)
+    return flat / np.linalg.norm(flat, axis=1, keepdims=True)
+
+
 def _framed_walls(planes: np.ndarray, up: np.ndarray) -> np.ndarray:
     """(P,) bool: which of the planes (P, 4) (n, h) are walls (within 0.1 of vertical, ``up``
     (3,) the world's z in their frame) that another of them is parallel or at right angles to
@@ -691,8 +698,7 @@ def _framed_walls(planes: np.ndarray, up: np.ndarray) -> np.ndarray:
     if is_wall.sum() < 2:
         return out
     same = np.cos(np.radians(_MANHATTAN_DISTINCT_DEG))
-    walls = planes[is_wall, :3] - np.outer(planes[is_wall, :3] @ up, up)
-    walls /= np.linalg.norm(walls, axis=1, keepdims=True)
+    walls = _level_units(planes[is_wall, :3], up)
     across = np.cross(up, walls)
     out[is_wall] = ((np.abs(walls @ walls.T) > same) | (np.abs(walls @ across.T) > same)).sum(axis=1) >= 2
     return out
@@ -703,9 +709,7 @@ def _frame_normals(planes: np.ndarray, up: np.ndarray) -> np.ndarray:
     :func:`_framed_walls` keeps, made exactly vertical, and those at right angles to them,
     distinct by ``_MANHATTAN_DISTINCT_DEG`` (up to sign)."""
     up = np.asarray(up, np.float64) / np.linalg.norm(up)
-    walls = planes[_framed_walls(planes, up), :3]
-    walls = walls - np.outer(walls @ up, up)
-    walls /= np.linalg.norm(walls, axis=1, keepdims=True)
+    walls = _level_units(planes[_framed_walls(planes, up), :3], up)
     same = np.cos(np.radians(_MANHATTAN_DISTINCT_DEG))
     normals: list[np.ndarray] = []
     for n in walls:
@@ -724,15 +728,12 @@ def _in_frame(planes: np.ndarray, frame: np.ndarray) -> np.ndarray:
     return (np.abs(n @ frame.T) > np.cos(np.radians(_MANHATTAN_DISTINCT_DEG))).any(axis=1)
 
 
-def _direction_walls(
-    X: np.ndarray, uv: np.ndarray, planes: np.ndarray, up: np.ndarray, s: PlanarPriorSettings
-) -> np.ndarray:
+def _direction_walls(X: np.ndarray, uv: np.ndarray, frame: np.ndarray, s: PlanarPriorSettings) -> np.ndarray:
     """(K, 4) camera-frame walls (n, h), n . X = h, facing the camera (h < 0), with the normals
-    of the scene's dominant walls (``planes`` (P, 4) camera frame; the level ones left out, and
-    those no other dominant wall is parallel or at right angles to) and the normals at right
-    angles to them, through the band support ``X`` (N, 3) metres (pixels
-    ``uv`` (N, 2)): per direction, the offsets of the most band points, up to
-    ``direction_walls`` distinct ones, each refitted to its inliers (their median offset).
+    of the scene's frame (``frame`` (F, 3) camera frame, :func:`_frame_normals` of the dominant
+    planes), through the band support ``X`` (N, 3) metres (pixels ``uv`` (N, 2)): per
+    direction, the offsets of the most band points, up to ``direction_walls`` distinct ones,
+    each refitted to its inliers (their median offset).
 
     A city's walls share a few directions, and a plain wall often has one supported line only:
     a vertical corner line it shares with a textured face, or its foot. A line fixes no plane,
@@ -740,16 +741,13 @@ def _direction_walls(
     (along u or v) is at least ``min_spread_px`` (a line counts, a speck not); the caller's
     spread test (:func:`_spreads`, across the points' line) does not apply to them."""
     k = int(s.direction_walls)
-    if k <= 0 or len(planes) == 0 or len(X) < s.min_inliers:
-        return np.zeros((0, 4))
-    normals = _frame_normals(planes, up)
-    if not len(normals):
+    if k <= 0 or len(frame) == 0 or len(X) < s.min_inliers:
         return np.zeros((0, 4))
     rays = X / X[:, 2:3]
     depth = X[:, 2].copy()
     depth_scale = float(np.median(depth))
     out: list[np.ndarray] = []
-    for n0 in normals:
+    for n0 in frame:
         for n in (n0, -n0):
             h_all = X @ n
             if not (h_all < 0).any():
@@ -812,6 +810,7 @@ def _candidate_planes(
     horizontal: np.ndarray | None = None,
     up: np.ndarray | None = None,
     own: bool = True,
+    frame: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Distinct supported planes (K, 4) for one segment from its band support, best supported
     first, and (K,) bool which of them are dominant (``global_planes``) planes.
@@ -828,14 +827,15 @@ def _candidate_planes(
     ground, a terrace) also qualifies without contact points when every band support point lies
     on or in front of it (at most ``max_front_fraction`` beyond): the ground reaching behind all
     that stands on it, whose feet this view does not see. ``own=False``: only the dominant
-    planes (no triangle or Manhattan planes of this band).
+    planes (no triangle or Manhattan planes of this band). ``frame`` (F, 3): the view's frame
+    directions (:func:`_frame_normals`) for :func:`_direction_walls` (None: none).
     """
     X = rays * d[:, None]
     n_global = len(global_planes)
     tri = _triangle_planes(uv, X) if own else np.zeros((0, 4))
     manhattan = _manhattan_planes(X, up, s) if up is not None and own else np.zeros((0, 4))
     # walls of the dominant directions: fixed by one supported line, so no spread test below
-    directed = _direction_walls(X, uv, global_planes, up, s) if up is not None and own else np.zeros((0, 4))
+    directed = _direction_walls(X, uv, frame, s) if frame is not None and own else np.zeros((0, 4))
     n_directed = len(directed)
     manhattan = np.concatenate([manhattan, directed], axis=0)
     if n_global + len(tri) + len(manhattan) == 0:
@@ -1539,6 +1539,7 @@ def fill_plain_segments(
             seg_horizontal,
             up_cam,
             own=offered is None,
+            frame=frame,
         )
         if len(cands) == 0:
             continue
